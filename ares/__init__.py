@@ -1,0 +1,1 @@
+"""ARES core: bus, message schemas, node base, clock, config, supervisor, CLI, simulator."""

@@ -1,0 +1,266 @@
+"""Message schemas, defined once for the bus, the black box and the REST API.
+
+Each topic (the part of the key after `ares/<vehicle_id>/`) has exactly one schema, listed
+in TOPICS; each service has one request and one reply schema, listed in SERVICES. Messages
+travel as JSON with the schema name in the Zenoh encoding (`application/json;<Schema>`), and
+are validated on receipt: extra fields, missing fields, wrong types and non-finite numbers
+are all rejected. Every message carries `t`, the stack time (s) at which it was produced.
+"""
+from __future__ import annotations
+
+import fnmatch
+from enum import Enum
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class Msg(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    t: float = 0.0
+
+    @classmethod
+    def schema_name(cls) -> str:
+        return cls.__name__
+
+
+# ---- process health ----------------------------------------------------------------------
+
+class Heartbeat(Msg):
+    process: str
+    seq: int = Field(ge=0)
+    pid: int
+    wall: float                 # wall-clock seconds (time.time()) when sent
+    loop_overruns: int = 0      # loop periods that took longer than the period
+    step_ms: float = 0.0        # duration of the last step
+
+
+class ProcessState(str, Enum):
+    STARTING = "starting"
+    RUNNING = "running"
+    RESTARTING = "restarting"   # dead or hung, waiting out its backoff
+    STOPPED = "stopped"
+
+
+class ProcessStatus(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    name: str
+    state: ProcessState
+    pid: int | None = None
+    restarts: int = 0
+    last_exit_code: int | None = None
+    last_failure: str = ""      # why it was last restarted: "exited 1", "liveliness lost", ...
+    safety_relevant: bool = False
+    heartbeat_age_s: float | None = None
+
+
+class SupervisorState(Msg):
+    processes: list[ProcessStatus]
+
+
+class EventLevel(str, Enum):
+    INFO = "info"
+    WARNING = "warning"
+    FAULT = "fault"
+
+
+class Event(Msg):
+    source: str                 # process that saw it
+    kind: str                   # "mode_change", "process_restart", "watchdog", ...
+    level: EventLevel = EventLevel.INFO
+    message: str
+    data: dict[str, str | float | int | bool | None] = Field(default_factory=dict)
+
+
+# ---- simulator: ground truth, sensors, control panel --------------------------------------
+
+class VehicleTruth(Msg):
+    """What really happened, for evaluation only: no vehicle-side process may steer from it
+    once localization exists."""
+    x: float
+    y: float
+    z: float
+    yaw: float
+    pitch: float = 0.0
+    v: float
+    yaw_rate: float = 0.0
+    accel: float = 0.0
+    steering_wheel_deg: float
+    wheel_angle_rad: float
+    s: float                    # progress along the route (m, wraps on a closed tour)
+    odometer_m: float
+    lap: int = 0
+    rtk_available: bool = True
+    passengers: int = 0
+
+
+class GnssSentences(Msg):
+    """Raw NMEA sentences from the receiver, as the serial port gives them."""
+    sentences: list[str]
+
+
+class Imu(Msg):
+    yaw: float                  # magnetometer yaw (rad), with its calibration offset
+    roll: float
+    pitch: float
+    gyro_x: float
+    gyro_y: float
+    gyro_z: float
+    accel_x: float
+    accel_y: float
+    accel_z: float
+
+
+class CanFrame(Msg):
+    wheel_speed_rad_s: float
+    speed_mps: float
+    steering_wheel_deg: float
+    throttle_pedal: float = Field(ge=0.0, le=1.0)
+    brake_pedal: float = Field(ge=0.0, le=1.0)
+    steering_torque: bool       # the driver is holding/turning the steering wheel
+
+
+class PanelInput(str, Enum):
+    BUTTON = "BUTTON"                   # Auto/Manual button on the control panel
+    THROTTLE_PEDAL = "THROTTLE_PEDAL"
+    BRAKE_PEDAL = "BRAKE_PEDAL"
+    STEERING_WHEEL = "STEERING_WHEEL"
+
+
+class PanelEvent(Msg):
+    """A discrete driver action seen by the vehicle's hardware."""
+    input: PanelInput
+    value: float = 1.0
+
+
+# ---- control ------------------------------------------------------------------------------
+
+class Setpoint(Msg):
+    """Navigation's demand to the drive-by-wire bridge (DBW paper §4): linear speed, curvature."""
+    v: float
+    kappa: float
+    source: str
+
+
+class ControllerStatus(Msg):
+    controller: str
+    s: float
+    xte: float
+    heading_error: float
+    lookahead_m: float
+    target_speed: float
+    finished: bool = False      # an open route's end has been reached
+
+
+class ActuatorCommand(Msg):
+    """Bridge -> vehicle hardware: efforts of the steering motor and traction/brake, in [-1, 1]."""
+    engaged: bool               # False: the human drives (Manual)
+    steer_effort: float = Field(ge=-1.0, le=1.0)
+    drive_effort: float = Field(ge=-1.0, le=1.0)
+
+
+class DbwReference(Msg):
+    steering_wheel_deg: float
+    wheel_speed_deg_s: float
+    v: float
+    kappa: float
+
+
+class DbwMeasure(Msg):
+    steering_wheel_deg: float
+    wheel_speed_deg_s: float
+    v: float
+    kappa: float
+
+
+class DriveMode(str, Enum):
+    MANUAL = "MANUAL"
+    READY = "READY"
+    AUTOMATIC = "AUTOMATIC"
+
+
+class CarState(Msg):
+    mode: DriveMode
+    engaged: bool
+    watchdog_tripped: bool
+    setpoint_age_s: float | None
+    v_command: float
+    kappa_command: float
+    speed_mps: float
+    steering_wheel_deg: float
+    reason: str = ""
+
+
+# ---- services -----------------------------------------------------------------------------
+
+class Empty(Msg):
+    pass
+
+
+class ModeReply(Msg):
+    accepted: bool
+    mode: DriveMode
+    reason: str = ""
+
+
+class DriverCommand(Msg):
+    """Inject a driver action into the simulated vehicle."""
+    action: Literal["BUTTON", "THROTTLE", "BRAKE", "STEER", "RELEASE"]
+    value: float = 0.0          # pedal position 0..1, or steering-wheel angle (deg) for STEER
+    duration_s: float = Field(default=1.0, ge=0.0, le=600.0)
+
+
+class Ack(Msg):
+    ok: bool
+    detail: str = ""
+
+
+class ServiceErrorReply(Msg):
+    error: str
+    detail: str = ""
+
+
+# ---- registries ---------------------------------------------------------------------------
+
+TOPICS: dict[str, type[Msg]] = {
+    "heartbeat/*": Heartbeat,
+    "supervisor/state": SupervisorState,
+    "events": Event,
+    "sim/truth": VehicleTruth,
+    "sensors/gnss": GnssSentences,
+    "sensors/imu": Imu,
+    "sensors/can": CanFrame,
+    "vehicle/panel": PanelEvent,
+    "control/setpoint": Setpoint,
+    "control/status": ControllerStatus,
+    "dbw/actuators": ActuatorCommand,
+    "dbw/reference": DbwReference,
+    "dbw/measure": DbwMeasure,
+    "dbw/car_state": CarState,
+}
+
+# topics whose messages are each significant (not just the latest value): never dropped
+BLOCKING_TOPICS = {"events", "vehicle/panel"}
+
+SERVICES: dict[str, tuple[type[Msg], type[Msg]]] = {
+    "set_automatic_mode": (Empty, ModeReply),
+    "sim/driver": (DriverCommand, Ack),
+    "supervisor/status": (Empty, SupervisorState),
+}
+
+SCHEMAS: dict[str, type[Msg]] = {
+    cls.schema_name(): cls
+    for cls in [*TOPICS.values(), *(c for pair in SERVICES.values() for c in pair), ServiceErrorReply]
+}
+
+
+def schema_for_topic(topic: str) -> type[Msg] | None:
+    schema = TOPICS.get(topic)
+    if schema is not None:
+        return schema
+    for pattern, candidate in TOPICS.items():
+        if "*" in pattern and fnmatch.fnmatchcase(topic, pattern) and topic.count("/") == pattern.count("/"):
+            return candidate
+    return None

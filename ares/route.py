@@ -1,0 +1,280 @@
+"""Routes: a sampled path {X, Y, Z, Psi} with its POIs and zones.
+
+A built-in tour is described in config/tours/*.yaml as a closed polygon whose corners are
+rounded with circular arcs (a road with fillets), an elevation profile along the path, road
+widths, POIs and zones (GNSS-correction dead zones, intersections). An open route can also
+be read from a CSV of x,y[,z] points.
+
+Every consumer (simulator, controllers, the headless runner) builds the same Route from the
+same description, so no process has to ship the geometry to another.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ares import config
+
+SAMPLE_SPACING_M = 0.25
+
+
+class RouteError(ValueError):
+    """A route file or tour description that cannot be turned into a route."""
+
+
+@dataclass(frozen=True)
+class Poi:
+    name: str
+    s: float
+    actions: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Zone:
+    kind: str          # "rtk_loss" | "intersection" | "road_opening" | "narrow"
+    s_start: float
+    s_end: float
+
+    def contains(self, s: float) -> bool:
+        return self.s_start <= s <= self.s_end
+
+
+@dataclass
+class Route:
+    name: str
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    closed: bool
+    width: np.ndarray
+    pois: list[Poi] = field(default_factory=list)
+    zones: list[Zone] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if len(self.x) < 2:
+            raise RouteError("a route needs at least two points")
+        dx = np.diff(self.x)
+        dy = np.diff(self.y)
+        seg = np.hypot(dx, dy)
+        self.s = np.concatenate([[0.0], np.cumsum(seg)])
+        yaw = np.arctan2(dy, dx)
+        self.yaw = np.concatenate([yaw, yaw[-1:]])
+        if self.closed:
+            self.yaw[-1] = math.atan2(self.y[0] - self.y[-1], self.x[0] - self.x[-1])
+        self.curvature = _curvature(self.x, self.y, self.closed)
+        self.grade = np.gradient(self.z, self.s, edge_order=1) if len(self.s) > 2 else np.zeros_like(self.s)
+
+    # ---- geometry -------------------------------------------------------------------
+    @property
+    def length(self) -> float:
+        closing = math.hypot(self.x[0] - self.x[-1], self.y[0] - self.y[-1]) if self.closed else 0.0
+        return float(self.s[-1] + closing)
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def wrap_s(self, s: float) -> float:
+        return s % self.length if self.closed else min(max(s, 0.0), self.length)
+
+    def index_at(self, s: float) -> int:
+        return int(min(np.searchsorted(self.s, self.wrap_s(s), side="right") - 1, len(self.s) - 1))
+
+    def point_at(self, s: float) -> tuple[float, float, float, float]:
+        """(x, y, z, yaw) at arc length s, interpolated along the segment."""
+        s = self.wrap_s(s)
+        i = self.index_at(s)
+        j = (i + 1) % len(self.x) if self.closed else min(i + 1, len(self.x) - 1)
+        seg_len = math.hypot(self.x[j] - self.x[i], self.y[j] - self.y[i])
+        f = 0.0 if seg_len == 0 else min(max((s - self.s[i]) / seg_len, 0.0), 1.0)
+        return (
+            float(self.x[i] + f * (self.x[j] - self.x[i])),
+            float(self.y[i] + f * (self.y[j] - self.y[i])),
+            float(self.z[i] + f * (self.z[j] - self.z[i])),
+            float(self.yaw[i]),
+        )
+
+    def project(self, x: float, y: float, s_hint: float | None = None,
+                window_m: float = 30.0) -> tuple[float, float, int]:
+        """Nearest point of the route to (x, y): (s, signed cross-track error, segment index).
+
+        With a hint, only the stretch within `window_m` of the hint is searched, so that a
+        vehicle at a crossing or a hairpin is matched to the pass it is driving, not the other.
+        The cross-track error is positive when the point lies left of the route.
+        """
+        n = len(self.x)
+        if s_hint is None:
+            idx = np.arange(n)
+        else:
+            half = int(window_m / SAMPLE_SPACING_M) + 2
+            centre = self.index_at(s_hint)
+            idx = np.arange(centre - half, centre + half + 1)
+            idx = idx % n if self.closed else idx[(idx >= 0) & (idx < n)]
+        if not self.closed:
+            idx = idx[idx < n - 1]
+            if len(idx) == 0:
+                idx = np.array([n - 2])
+        j = (idx + 1) % n
+        ax, ay = self.x[idx], self.y[idx]
+        ex, ey = self.x[j] - ax, self.y[j] - ay
+        seg2 = ex * ex + ey * ey
+        t = np.clip(((x - ax) * ex + (y - ay) * ey) / np.where(seg2 > 0, seg2, 1.0), 0.0, 1.0)
+        px, py = ax + t * ex, ay + t * ey
+        d2 = (x - px) ** 2 + (y - py) ** 2
+        k = int(np.argmin(d2))
+        i = int(idx[k])
+        seg_len = math.sqrt(seg2[k])
+        side = ex[k] * (y - ay[k]) - ey[k] * (x - ax[k])
+        xte = math.copysign(math.sqrt(d2[k]), side) if d2[k] > 0 else 0.0
+        return float(self.s[i] + t[k] * seg_len), xte, i
+
+    def zones_at(self, s: float) -> list[Zone]:
+        s = self.wrap_s(s)
+        return [z for z in self.zones if z.contains(s)]
+
+    def in_zone(self, s: float, kind: str) -> bool:
+        return any(z.kind == kind for z in self.zones_at(s))
+
+    # ---- construction ---------------------------------------------------------------
+    @classmethod
+    def from_tour(cls, name: str) -> "Route":
+        return tour_from_description(config.load_tour(name))
+
+    @classmethod
+    def from_csv(cls, path: str | Path, name: str | None = None) -> "Route":
+        """An open route from a CSV of x,y[,z] points in metres (a header line is allowed)."""
+        path = Path(path)
+        points: list[tuple[float, float, float]] = []
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise RouteError(f"{path}: cannot read: {exc.strerror}") from exc
+        for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
+            if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
+                continue
+            try:
+                values = [float(v) for v in row]
+            except ValueError:
+                if lineno == 1 and not points:
+                    continue  # header
+                raise RouteError(f"{path}:{lineno}: expected numbers x,y[,z], got {','.join(row)!r}") from None
+            if len(values) not in (2, 3) or not all(math.isfinite(v) for v in values):
+                raise RouteError(f"{path}:{lineno}: expected 2 or 3 finite numbers, got {','.join(row)!r}")
+            points.append((values[0], values[1], values[2] if len(values) == 3 else 0.0))
+        if len(points) < 2:
+            raise RouteError(f"{path}: a route needs at least two points, found {len(points)}")
+        xyz = resample(np.array(points), SAMPLE_SPACING_M)
+        return cls(name=name or path.stem, x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], closed=False,
+                   width=np.full(len(xyz), 4.0))
+
+
+def resample(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Points evenly spaced along the polyline (duplicates dropped)."""
+    step = np.hypot(np.diff(points[:, 0]), np.diff(points[:, 1]))
+    keep = np.concatenate([[True], step > 1e-6])
+    points = points[keep]
+    if len(points) < 2:
+        raise RouteError("a route needs at least two distinct points")
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(points[:, 0]), np.diff(points[:, 1])))])
+    s_new = np.arange(0.0, s[-1], spacing)
+    if s[-1] - s_new[-1] > 1e-6:
+        s_new = np.append(s_new, s[-1])
+    return np.column_stack([np.interp(s_new, s, points[:, k]) for k in range(points.shape[1])])
+
+
+def _curvature(x: np.ndarray, y: np.ndarray, closed: bool) -> np.ndarray:
+    """Signed curvature from the turning of the heading per metre (positive = left)."""
+    if closed:
+        xp, yp = np.concatenate([x[-1:], x, x[:1]]), np.concatenate([y[-1:], y, y[:1]])
+    else:
+        xp, yp = np.concatenate([x[:1], x, x[-1:]]), np.concatenate([y[:1], y, y[-1:]])
+    yaw_in = np.arctan2(yp[1:-1] - yp[:-2], xp[1:-1] - xp[:-2])
+    yaw_out = np.arctan2(yp[2:] - yp[1:-1], xp[2:] - xp[1:-1])
+    turn = np.angle(np.exp(1j * (yaw_out - yaw_in)))
+    ds = 0.5 * (np.hypot(xp[1:-1] - xp[:-2], yp[1:-1] - yp[:-2]) + np.hypot(xp[2:] - xp[1:-1], yp[2:] - yp[1:-1]))
+    k = np.where(ds > 1e-9, turn / np.where(ds > 1e-9, ds, 1.0), 0.0)
+    if not closed:
+        k[0] = k[1] if len(k) > 1 else 0.0
+        k[-1] = k[-2] if len(k) > 1 else 0.0
+    return k
+
+
+# ---- built-in tours ---------------------------------------------------------------------
+
+def tour_from_description(desc: dict) -> Route:
+    """A closed tour: polygon corners rounded by arcs, elevation and width profiles along s."""
+    corners = np.array([c["xy"] for c in desc["corners"]], dtype=float)
+    radii = [float(c["radius_m"]) for c in desc["corners"]]
+    xy = _filleted_loop(corners, radii, SAMPLE_SPACING_M)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(np.vstack([xy, xy[:1]]), axis=0).T))])
+    length = s[-1]
+    s = s[:-1]
+    z = _smooth_profile(s, length, [(float(p["s"]), float(p["z"])) for p in desc["elevation"]])
+    width = np.full(len(s), float(desc.get("default_width_m", 6.0)))
+    for stretch in desc.get("narrow", []):
+        width[(s >= stretch["s_start"]) & (s <= stretch["s_end"])] = float(stretch["width_m"])
+    pois = [Poi(p["name"], float(p["s"]), tuple(p.get("actions", ()))) for p in desc.get("pois", [])]
+    zones = [Zone(zd["kind"], float(zd["s_start"]), float(zd["s_end"])) for zd in desc.get("zones", [])]
+    zones += [Zone("narrow", float(n["s_start"]), float(n["s_end"])) for n in desc.get("narrow", [])]
+    return Route(name=desc["name"], x=xy[:, 0], y=xy[:, 1], z=z, closed=True, width=width, pois=pois, zones=zones)
+
+
+def _filleted_loop(corners: np.ndarray, radii: list[float], spacing: float) -> np.ndarray:
+    """Sample a closed polygon whose corner i is replaced by an arc of radius radii[i]."""
+    n = len(corners)
+    if n < 3:
+        raise RouteError("a closed tour needs at least three corners")
+    arcs = []  # (tangent point in, tangent point out, centre, start angle, sweep)
+    for i in range(n):
+        prev_pt, pt, next_pt = corners[i - 1], corners[i], corners[(i + 1) % n]
+        d_in = (pt - prev_pt) / np.linalg.norm(pt - prev_pt)
+        d_out = (next_pt - pt) / np.linalg.norm(next_pt - pt)
+        turn = math.atan2(d_in[0] * d_out[1] - d_in[1] * d_out[0], float(np.dot(d_in, d_out)))
+        r = radii[i]
+        tangent = r * math.tan(abs(turn) / 2)
+        room = min(np.linalg.norm(pt - prev_pt), np.linalg.norm(next_pt - pt)) / 2
+        if tangent > room:
+            raise RouteError(f"corner {i}: radius {r} m does not fit between its neighbours")
+        t_in, t_out = pt - d_in * tangent, pt + d_out * tangent
+        left = np.array([-d_in[1], d_in[0]]) * math.copysign(1.0, turn)
+        centre = t_in + left * r
+        start = math.atan2(t_in[1] - centre[1], t_in[0] - centre[0])
+        arcs.append((t_in, t_out, centre, start, turn))
+    pts = []
+    for i in range(n):
+        t_in, t_out, centre, start, sweep = arcs[i]
+        r = radii[i]
+        m = max(math.ceil(abs(sweep) * r / spacing), 1)
+        for k in range(m):
+            a = start + sweep * k / m
+            pts.append(centre + r * np.array([math.cos(a), math.sin(a)]))
+        nxt_in = arcs[(i + 1) % n][0]
+        seg = nxt_in - t_out
+        m = max(math.ceil(np.linalg.norm(seg) / spacing), 1)
+        for k in range(m):
+            pts.append(t_out + seg * k / m)
+    return np.array(pts)
+
+
+def _smooth_profile(s: np.ndarray, length: float, keypoints: list[tuple[float, float]]) -> np.ndarray:
+    """Periodic elevation through keypoints with cosine easing, so grades change smoothly."""
+    keys = sorted(keypoints)
+    keys = keys + [(keys[0][0] + length, keys[0][1])]
+    s_wrapped = np.where(s < keys[0][0], s + length, s)
+    z = np.empty_like(s)
+    for (s0, z0), (s1, z1) in zip(keys[:-1], keys[1:]):
+        m = (s_wrapped >= s0) & (s_wrapped < s1)
+        f = (s_wrapped[m] - s0) / (s1 - s0)
+        z[m] = z0 + (z1 - z0) * (1 - np.cos(math.pi * f)) / 2
+    return z
+
+
+def load_route(cfg: dict) -> Route:
+    """The run's route: a CSV given with --route, else the configured built-in tour."""
+    route_file = cfg.get("route_file")
+    if route_file:
+        return Route.from_csv(route_file)
+    return Route.from_tour(cfg["tour"])

@@ -1,0 +1,33 @@
+"""The embedded Zenoh router: one router-mode session on 127.0.0.1 hosted by the stack, so it
+runs without an external zenohd. In deployment a zenohd container takes its place."""
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+
+import zenoh
+
+from ares import config
+from ares.bus import zenoh_config
+from ares.node import setup_logging
+
+log = logging.getLogger("router")
+
+
+def main() -> None:
+    setup_logging("router")
+    cfg = config.current()
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    session = zenoh.open(zenoh_config(cfg["bus"], mode="router"))
+    log.info("router listening on %s", cfg["bus"]["router"])
+    try:
+        stop.wait()
+    finally:
+        session.close()
+
+
+if __name__ == "__main__":
+    main()

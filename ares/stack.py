@@ -1,0 +1,227 @@
+"""`ares run`: the whole stack under one supervisor, interactive or headless.
+
+Headless, it engages Automatic mode itself (the Auto/Manual button on the simulated panel,
+then the `set_automatic_mode` service, as a safety driver and the navigation system would),
+drives N laps of the tour (or an open route to its end), measures the cross-track error of
+the simulator's ground truth against the route, and prints one JSON object as its last line.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ares import config
+from ares.bus import Bus, ServiceError
+from ares.clock import Clock
+from ares.messages import DriveMode, DriverCommand
+from ares.processes import PROCESSES
+from ares.route import Route, RouteError, load_route
+from ares.supervisor import Supervisor
+
+log = logging.getLogger("ares.run")
+
+STARTUP_TIMEOUT_S = 60.0        # wall seconds for every process to come up and publish
+ENGAGE_TIMEOUT_S = 10.0
+
+
+class RunFailed(RuntimeError):
+    pass
+
+
+def overrides_from_args(args) -> dict:
+    over: dict = {"sim": {}, "bus": {}}
+    if getattr(args, "vehicle", None):
+        over["vehicle"] = args.vehicle
+    if getattr(args, "vehicle_id", None):
+        over["vehicle_id"] = args.vehicle_id
+    if getattr(args, "passengers", None) is not None:
+        over["sim"]["passengers"] = args.passengers
+    if getattr(args, "route", None):
+        over["route_file"] = str(Path(args.route).resolve())
+    if getattr(args, "router", None):
+        over["bus"]["router"] = args.router
+        over["bus"]["embedded_router"] = False
+    return over
+
+
+def default_run_dir() -> Path:
+    return Path(os.environ.get("ARES_RUNS_DIR", "runs")) / time.strftime("%Y%m%d-%H%M%S")
+
+
+@dataclass
+class LapTracker:
+    """Progress and cross-track error of the true pose along the route."""
+    route: Route
+    s_hint: float | None = None
+    travelled_m: float = 0.0
+    odometer_start: float | None = None
+    odometer_m: float = 0.0
+    xte: list[float] = field(default_factory=list)
+
+    def update(self, x: float, y: float, odometer: float) -> None:
+        s, xte, _ = self.route.project(x, y, self.s_hint)
+        if self.s_hint is not None:
+            step = s - self.s_hint
+            if self.route.closed and abs(step) > self.route.length / 2:
+                step -= math.copysign(self.route.length, step)
+            self.travelled_m += step
+        self.s_hint = s
+        if self.odometer_start is None:
+            self.odometer_start = odometer
+        self.odometer_m = odometer - self.odometer_start
+        self.xte.append(xte)
+
+    def summary(self) -> dict:
+        err = np.abs(np.array(self.xte)) if self.xte else np.array([math.nan])
+        return {"distance_m": round(self.odometer_m, 2),
+                "xte_rmse_m": round(float(np.sqrt(np.mean(err ** 2))), 4),
+                "xte_max_m": round(float(np.max(err)), 4)}
+
+
+def run(args) -> int:
+    headless = bool(getattr(args, "headless", False))
+    logging.basicConfig(level=os.environ.get("ARES_LOG_LEVEL", "WARNING" if headless else "INFO"),
+                        format="%(asctime)s %(name)s %(levelname)s: %(message)s", stream=sys.stderr)
+    try:
+        cfg = config.build_run_config(overrides_from_args(args))
+        route = load_route(cfg)
+    except (config.ConfigError, RouteError) as exc:
+        print(f"ares run: {exc}", file=sys.stderr)
+        return 2
+    speed = float(getattr(args, "speed", None) or 1.0)
+    clock = Clock(speed=speed)
+    run_dir = Path(args.run_dir) if getattr(args, "run_dir", None) else default_run_dir()
+    processes = [p for p in PROCESSES if not p.sim_only or cfg.get("simulate", True)]
+    supervisor = Supervisor(cfg, processes, run_dir, clock)
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    supervisor.start()
+    loop = threading.Thread(target=supervisor.run, args=(stop,), name="supervisor", daemon=True)
+    loop.start()
+    try:
+        if headless:
+            return _headless(args, cfg, route, supervisor.bus, clock, stop, run_dir)
+        return _interactive(args, cfg, route, supervisor.bus, clock, stop, run_dir)
+    except RunFailed as exc:
+        print(f"ares run: {exc} (logs in {run_dir / 'logs'})", file=sys.stderr)
+        if headless:
+            print(json.dumps({"ok": False, "error": str(exc), "run_dir": str(run_dir)}))
+        return 1
+    finally:
+        stop.set()
+        loop.join(timeout=5)
+        supervisor.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _wait_for(condition, timeout_s: float, what: str, stop: threading.Event) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if stop.is_set():
+            raise RunFailed("interrupted")
+        if time.monotonic() > deadline:
+            raise RunFailed(f"timed out waiting for {what}")
+        time.sleep(0.05)
+
+
+def engage_automatic(bus: Bus, car_state, stop: threading.Event) -> None:
+    """Manual -> Ready with the panel button, then Ready -> Automatic with the service."""
+    _wait_for(lambda: car_state.latest is not None, STARTUP_TIMEOUT_S, "the drive-by-wire bridge", stop)
+    if car_state.latest.mode == DriveMode.MANUAL:
+        bus.call("sim/driver", DriverCommand(t=bus.clock.now(), action="BUTTON"))
+        _wait_for(lambda: car_state.latest.mode == DriveMode.READY, ENGAGE_TIMEOUT_S, "Ready mode", stop)
+    deadline = time.monotonic() + ENGAGE_TIMEOUT_S
+    while True:
+        try:
+            reply = bus.call("set_automatic_mode")
+            if reply.accepted:
+                return
+            reason = reply.reason
+        except ServiceError as exc:
+            reason = str(exc)
+        if time.monotonic() > deadline:
+            raise RunFailed(f"Automatic mode refused: {reason}")
+        time.sleep(0.2)
+
+
+def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path) -> int:
+    laps = int(getattr(args, "laps", None) or 1)
+    truth = bus.subscribe("sim/truth", queue=4096)
+    car_state = bus.subscribe("dbw/car_state")
+    status = bus.subscribe("control/status")
+    _wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
+    engage_automatic(bus, car_state, stop)
+    t_start = clock.now()
+    wall_start = time.monotonic()
+    truth.drain()
+    tracker = LapTracker(route)
+    target_m = laps * route.length if route.closed else route.length
+    cruise = float(cfg["controller"]["cruise_speed_mps"])
+    time_limit_s = 3.0 * target_m / (0.5 * cruise) + 60.0     # stack seconds
+    left_automatic = 0
+    last_progress = 0.0
+    while True:
+        if stop.is_set():
+            raise RunFailed("interrupted")
+        for _, msg in truth.drain():
+            tracker.update(msg.x, msg.y, msg.odometer_m)
+        now = clock.now()
+        if car_state.latest is not None and car_state.latest.mode != DriveMode.AUTOMATIC:
+            left_automatic += 1
+            if left_automatic > 20:
+                raise RunFailed(f"the vehicle left Automatic mode ({car_state.latest.mode.value}: "
+                                f"{car_state.latest.reason})")
+        else:
+            left_automatic = 0
+        if route.closed and tracker.travelled_m >= target_m:
+            break
+        if not route.closed and status.latest is not None and status.latest.finished \
+                and truth.latest is not None and abs(truth.latest.v) < 0.05:
+            break
+        if now - t_start > time_limit_s:
+            raise RunFailed(f"did not finish within {time_limit_s:.0f} s of vehicle time "
+                            f"({tracker.travelled_m:.0f} of {target_m:.0f} m)")
+        if now - last_progress >= 30.0:
+            last_progress = now
+            print(f"[{now - t_start:6.0f} s] {tracker.travelled_m:6.0f} / {target_m:.0f} m", file=sys.stderr)
+        time.sleep(0.05)
+    lap_time = clock.now() - t_start
+    result = {"ok": True, "laps": laps if route.closed else 0, "route": route.name,
+              "route_length_m": round(route.length, 2), "lap_time_s": round(lap_time / max(laps, 1), 2),
+              "total_time_s": round(lap_time, 2), **tracker.summary(),
+              "speed_factor": clock.speed, "wall_time_s": round(time.monotonic() - wall_start, 1),
+              "vehicle": cfg["vehicle"], "run_dir": str(run_dir)}
+    print(json.dumps(result))
+    return 0
+
+
+def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path) -> int:
+    truth = bus.subscribe("sim/truth")
+    car_state = bus.subscribe("dbw/car_state")
+    print(f"ARES is running: vehicle {cfg['vehicle_id']} ({cfg['vehicle']}) on '{route.name}' "
+          f"({route.length:.0f} m), speed x{clock.speed:g}.\n"
+          f"  router    {cfg['bus']['router']}\n"
+          f"  logs      {run_dir / 'logs'}\n"
+          f"  look      ares topics | ares echo dbw/car_state | ares echo supervisor/state\n"
+          f"Ctrl-C stops everything.", flush=True)
+    if not getattr(args, "manual", False):
+        _wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
+        engage_automatic(bus, car_state, stop)
+        print("Automatic mode engaged: the shuttle is driving the tour.", flush=True)
+    while not stop.wait(1.0):
+        t, c = truth.latest, car_state.latest
+        if t is not None and c is not None:
+            print(f"t={clock.now():7.1f}s  lap {t.lap}  s={t.s:7.1f} m  v={t.v:4.2f} m/s  "
+                  f"mode={c.mode.value}{' (watchdog)' if c.watchdog_tripped else ''}", flush=True)
+    return 0

@@ -1,0 +1,85 @@
+import math
+
+import numpy as np
+import pytest
+
+from ares.route import Route, RouteError
+
+
+@pytest.fixture(scope="module")
+def tour():
+    return Route.from_tour("default")
+
+
+def test_builtin_tour_meets_the_brief(tour):
+    assert tour.closed
+    assert 1000 <= tour.length <= 2000
+    assert np.abs(tour.grade).max() <= 0.15          # hills up to about 15 %
+    assert np.abs(tour.grade).max() >= 0.10
+    assert 1 / np.abs(tour.curvature).max() <= 15     # sharp curves
+    assert len(tour.pois) >= 4
+    assert sum(z.kind == "rtk_loss" for z in tour.zones) >= 2
+    assert any(z.kind == "intersection" for z in tour.zones)
+    assert tour.width.min() < 3.5                     # a narrow stretch
+
+
+def test_tour_is_closed_and_evenly_sampled(tour):
+    steps = np.hypot(np.diff(tour.x), np.diff(tour.y))
+    closing = math.hypot(tour.x[0] - tour.x[-1], tour.y[0] - tour.y[-1])
+    assert steps.max() < 0.3 and closing < 0.3
+    assert steps.min() > 0.1
+
+
+def test_the_route_crosses_itself_at_grade_inside_the_intersection_zones(tour):
+    from scipy.spatial import cKDTree
+    tree = cKDTree(np.column_stack([tour.x, tour.y]))
+    crossings = [(i, j) for i, j in tree.query_pairs(0.3) if 100 < abs(tour.s[i] - tour.s[j]) < tour.length - 100]
+    assert crossings
+    for i, j in crossings:
+        assert tour.in_zone(tour.s[i], "intersection") and tour.in_zone(tour.s[j], "intersection")
+        assert abs(tour.z[i] - tour.z[j]) < 0.05
+
+
+def test_projection_with_a_hint_keeps_to_the_pass_being_driven(tour):
+    crossing_s = 517.0
+    x, y, _, _ = tour.point_at(crossing_s)
+    s_first, xte, _ = tour.project(x + 0.01, y, s_hint=crossing_s - 5)
+    s_second, _, _ = tour.project(x + 0.01, y, s_hint=1320.0 - 5)
+    assert abs(s_first - crossing_s) < 1.0
+    assert abs(s_second - 1320.0) < 3.0
+    assert abs(xte) < 0.05
+
+
+def test_cross_track_error_sign_is_positive_to_the_left(tour):
+    x, y, _, yaw = tour.point_at(400.0)
+    left = (x - math.sin(yaw) * 0.5, y + math.cos(yaw) * 0.5)
+    right = (x + math.sin(yaw) * 0.5, y - math.cos(yaw) * 0.5)
+    assert tour.project(*left, s_hint=400.0)[1] == pytest.approx(0.5, abs=0.01)
+    assert tour.project(*right, s_hint=400.0)[1] == pytest.approx(-0.5, abs=0.01)
+
+
+def test_csv_route_is_read_and_resampled(tmp_path):
+    path = tmp_path / "r.csv"
+    path.write_text("x,y,z\n0,0,0\n10,0,1\n10,10,2\n")
+    route = Route.from_csv(path)
+    assert not route.closed
+    assert route.length == pytest.approx(20.0, abs=1e-6)
+    assert route.point_at(15.0)[:3] == pytest.approx((10.0, 5.0, 1.5))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("x,y\n0,0\n1,banana\n", ":3: expected numbers"),
+    ("0,0\n1,2,3,4\n", ":2: expected 2 or 3"),
+    ("0,0\n", "at least two points"),
+    ("0,0\nnan,1\n", ":2: expected 2 or 3 finite"),
+])
+def test_bad_csv_files_name_the_line(tmp_path, text, message):
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    with pytest.raises(RouteError, match=message):
+        Route.from_csv(path)
+
+
+def test_missing_route_file_is_a_clear_error(tmp_path):
+    with pytest.raises(RouteError, match="cannot read"):
+        Route.from_csv(tmp_path / "nope.csv")
