@@ -311,6 +311,9 @@ class Bus:
                     raise ServiceError(name, "malformed reply")
                 return msg
             err = reply.err
+            if err.payload.to_bytes() == b"Timeout" and not str(err.encoding).endswith(";ServiceErrorReply"):
+                # zenoh itself ends an unanswered query with this error reply (zenoh 1.10)
+                break
             try:
                 detail = messages.ServiceErrorReply.model_validate_json(err.payload.to_bytes())
                 raise ServiceError(name, f"{detail.error}: {detail.detail}")

@@ -24,7 +24,10 @@ def main() -> None:
     session = zenoh.open(zenoh_config(cfg["bus"], mode="router"))
     log.info("router listening on %s", cfg["bus"]["router"])
     try:
-        stop.wait()
+        # wait in short slices: the signal may be delivered to one of Zenoh's threads, and the
+        # Python handler only runs once the main thread wakes up
+        while not stop.wait(0.2):
+            pass
     finally:
         session.close()
 

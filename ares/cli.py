@@ -1,0 +1,400 @@
+"""The `ares` command line.
+
+    ares run [--headless] [--manual] [--laps N] [--speed X] [--route FILE] [--vehicle NAME]
+             [--passengers N] [--vehicle-id ID] [--router ENDPOINT] [--run-dir DIR]
+    ares node NAME                 run one process of the stack in the foreground
+    ares topics [--seconds S]      keys seen under ares/<vehicle_id>/**, rates, schemas, live processes
+    ares echo KEY [--count N] [--seconds S]
+                                   print messages on a topic, one JSON object per line
+    ares bench bus [--json] [--seconds S] [--mode peer|client]
+
+`topics` and `echo` connect in client mode to the running stack's router (the `bus.router`
+endpoint of the run configuration, or --router) and look under the configured vehicle id (or
+--vehicle-id). A client session fails at once when no router listens there.
+"""
+from __future__ import annotations
+
+import argparse
+import base64
+import importlib.util
+import json
+import logging
+import os
+import queue
+import re
+import sys
+import threading
+import time
+
+ENDPOINT_RE = re.compile(r"^[a-z][a-z0-9+-]*/\S+$")
+
+
+class CliError(Exception):
+    """A user-facing error: printed as `ares: error: ...`, exit code 1."""
+
+
+# ---- argument types --------------------------------------------------------------------------
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be zero or more, got {text}")
+    return value
+
+
+def _endpoint(text: str) -> str:
+    if not ENDPOINT_RE.match(text):
+        raise argparse.ArgumentTypeError(f"expected a Zenoh endpoint such as tcp/127.0.0.1:7447, got {text!r}")
+    return text
+
+
+def _vehicle_id(text: str) -> str:
+    if not text or any(c in text for c in "/*$?#") or text.strip() != text:
+        raise argparse.ArgumentTypeError(f"a vehicle id is one key segment (no '/', '*', spaces), got {text!r}")
+    return text
+
+
+# ---- the parser ------------------------------------------------------------------------------
+
+def _add_connection_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--router", type=_endpoint, metavar="ENDPOINT",
+                   help="router to connect to (default: bus.router of the run configuration)")
+    p.add_argument("--vehicle-id", type=_vehicle_id, metavar="ID",
+                   help="vehicle id whose keys to look at (default: vehicle_id of the configuration)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ares", description="ARES supervisory stack for autonomous shuttles.")
+    try:
+        from importlib.metadata import version
+        parser.add_argument("--version", action="version", version=f"ares {version('ares')}")
+    except Exception:
+        pass
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    run = sub.add_parser("run", help="run the whole stack (simulated shuttle, embedded router)",
+                         description="Run the whole stack: router, simulator and every process, supervised.")
+    run.add_argument("--headless", action="store_true", help="unattended: engage Automatic, drive --laps laps, print one JSON result line")
+    run.add_argument("--manual", action="store_true",
+                     help="do not engage Automatic mode (interactive runs): drive with the sim/driver service")
+    run.add_argument("--laps", type=_positive_int, metavar="N", help="laps of the tour to drive headless (default 1)")
+    run.add_argument("--speed", type=_positive_float, default=1.0, metavar="X",
+                     help="clock speed: simulated seconds per wall second (default 1)")
+    run.add_argument("--route", metavar="FILE", help="tour file (YAML) instead of the default tour")
+    run.add_argument("--vehicle", metavar="NAME", help="vehicle profile (config/vehicles/NAME.yaml)")
+    run.add_argument("--passengers", type=_non_negative_int, metavar="N", help="passengers on board")
+    run.add_argument("--vehicle-id", type=_vehicle_id, metavar="ID", help="vehicle id in the bus keys")
+    run.add_argument("--router", type=_endpoint, metavar="ENDPOINT",
+                     help="use this external router instead of hosting the embedded one")
+    run.add_argument("--run-dir", metavar="DIR", help="where the run's config and logs go")
+
+    node = sub.add_parser("node", help="run one process of the stack in the foreground",
+                          description="Run one process of the process table in the foreground.")
+    node.add_argument("name", metavar="NAME", help="process name (see the process table)")
+
+    topics = sub.add_parser("topics", help="list the keys seen on the bus, their rates and schemas",
+                            description="List every key under ares/<vehicle_id>/** seen during a few "
+                                        "seconds, with message count, rate and schema, and the live processes.")
+    topics.add_argument("--seconds", type=_positive_float, default=2.0, metavar="S",
+                        help="how long to listen (default 2)")
+    topics.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    _add_connection_args(topics)
+
+    echo = sub.add_parser("echo", help="print the messages on a topic as JSON lines",
+                          description="Print the messages on a topic (e.g. dbw/car_state), a full key "
+                                      "or a wildcard (heartbeat/*, ares/*/events), one JSON object per line.")
+    echo.add_argument("key", metavar="KEY", help="topic relative to ares/<vehicle_id>/, or a full key starting with ares/")
+    echo.add_argument("--count", type=_positive_int, metavar="N", help="stop after N messages")
+    echo.add_argument("--seconds", type=_positive_float, metavar="S", help="stop after S seconds")
+    _add_connection_args(echo)
+
+    bench = sub.add_parser("bench", help="benchmarks", description="Benchmarks.")
+    bench_sub = bench.add_subparsers(dest="bench", metavar="BENCH")
+    bus = bench_sub.add_parser("bus", help="publish -> subscribe latency and throughput between two processes",
+                               description="Latency and sustained throughput of the bus between two OS processes "
+                                           "through an embedded router on a free port.")
+    bus.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    bus.add_argument("--seconds", type=_positive_float, default=6.0, metavar="S",
+                     help="measurement time, split between latency and throughput (default 6)")
+    bus.add_argument("--mode", choices=["peer", "client"],
+                     help="bus mode of the two processes (default: the stack's, bus.mode)")
+    return parser
+
+
+# ---- commands --------------------------------------------------------------------------------
+
+def cmd_run(args: argparse.Namespace) -> int:
+    try:
+        from ares import stack
+    except ModuleNotFoundError as exc:
+        if exc.name == "ares.stack":
+            raise CliError("the stack runner (ares.stack) is not installed in this checkout") from None
+        raise
+    return int(stack.run(args) or 0)
+
+
+def cmd_node(args: argparse.Namespace) -> int:
+    import runpy
+
+    from ares import processes
+    try:
+        spec = processes.by_name(args.name)
+    except KeyError as exc:
+        raise CliError(exc.args[0]) from None
+    try:
+        found = importlib.util.find_spec(spec.module)
+    except ModuleNotFoundError:
+        found = None
+    if found is None:
+        raise CliError(f"process {spec.name!r}: its module {spec.module} cannot be found")
+    from ares.node import PROCESS_ENV
+    os.environ.setdefault(PROCESS_ENV, spec.name)
+    runpy.run_module(spec.module, run_name="__main__", alter_sys=True)
+    return 0
+
+
+def _connect(args: argparse.Namespace, process: str):
+    """A client-mode Bus on the running stack's router."""
+    import zenoh
+
+    from ares import config
+    from ares.bus import Bus
+    try:
+        cfg = config.current()
+    except (config.ConfigError, OSError, ValueError) as exc:
+        raise CliError(f"cannot read the run configuration: {exc}") from None
+    if args.vehicle_id:
+        cfg["vehicle_id"] = args.vehicle_id
+    if args.router:
+        cfg["bus"]["router"] = args.router
+    endpoint = cfg["bus"]["router"]
+    try:
+        return Bus(cfg, process, mode="client")
+    except zenoh.ZError as exc:
+        raise CliError(f"no Zenoh router reachable at {endpoint} ({str(exc).split(' at ')[0].strip()}). "
+                       "Is the stack running? Start it with `ares run`, or pass --router ENDPOINT.") from None
+
+
+def cmd_topics(args: argparse.Namespace) -> int:
+    from ares import messages
+    bus = _connect(args, "cli_topics")
+    seen: dict[str, list] = {}      # key -> [count, encoding, bytes]
+    lock = threading.Lock()
+
+    def on_sample(sample) -> None:  # Zenoh thread: count and return
+        key = str(sample.key_expr)
+        with lock:
+            entry = seen.get(key)
+            if entry is None:
+                seen[key] = [1, str(sample.encoding), len(sample.payload)]
+            else:
+                entry[0] += 1
+                entry[2] = len(sample.payload)
+
+    try:
+        subscriber = bus.session.declare_subscriber(f"{bus.prefix}/**", on_sample)
+        started = time.monotonic()
+        time.sleep(args.seconds)
+        elapsed = time.monotonic() - started
+        subscriber.undeclare()
+        alive = sorted(bus.alive_processes(timeout_s=min(1.0, args.seconds)))
+    finally:
+        bus.close()
+
+    rows = []
+    with lock:
+        items = sorted(seen.items())
+    for key, (count, encoding, size) in items:
+        topic = bus.topic_of(key)
+        _, _, schema = encoding.partition(";")
+        expected = messages.schema_for_topic(topic)
+        note = ""
+        if expected is None:
+            note = "not in ares.messages.TOPICS"
+        elif schema and schema != expected.schema_name():
+            note = f"expected {expected.schema_name()}"
+        rows.append({"topic": topic, "key": key, "count": count, "rate_hz": round(count / elapsed, 2),
+                     "schema": schema or (expected.schema_name() if expected else "?"),
+                     "encoding": encoding, "bytes": size, "note": note})
+    if args.json:
+        print(json.dumps({"prefix": bus.prefix, "router": bus.cfg["bus"]["router"], "seconds": round(elapsed, 3),
+                          "topics": rows, "alive": alive}))
+    else:
+        print(f"{bus.prefix}/** via {bus.cfg['bus']['router']}, {elapsed:.1f} s")
+        if rows:
+            width = max(len("TOPIC"), *(len(r["topic"]) for r in rows))
+            print(f"{'TOPIC':<{width}}  {'MSGS':>7}  {'RATE_HZ':>8}  {'BYTES':>6}  SCHEMA")
+            for r in rows:
+                note = f"  ({r['note']})" if r["note"] else ""
+                print(f"{r['topic']:<{width}}  {r['count']:>7}  {r['rate_hz']:>8.1f}  {r['bytes']:>6}  {r['schema']}{note}")
+        else:
+            print("(no messages)")
+        print(f"live processes ({len(alive)}): {', '.join(alive) if alive else '-'}")
+    if not rows and not alive:
+        print(f"ares: nothing seen under {bus.prefix}/** in {elapsed:.1f} s; is the stack running "
+              f"with vehicle id {bus.vehicle_id!r}?", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _raw(payload: bytes):
+    try:
+        text = payload.decode()
+    except UnicodeDecodeError:
+        return {"raw_base64": base64.b64encode(payload).decode()}
+    try:
+        return {"raw": json.loads(text)}
+    except ValueError:
+        return {"raw": text}
+
+
+def render_sample(key: str, encoding: str, payload: bytes) -> dict:
+    """One received sample as a JSON-ready dict: decoded and validated when the topic's
+    schema is known, raw otherwise."""
+    import pydantic
+
+    from ares import messages
+    parts = key.split("/", 2)       # ares/<vehicle_id>/<topic>, this vehicle's or another's
+    out: dict = {"key": key}
+    _, _, named = encoding.partition(";")
+    schema = messages.schema_for_topic(parts[2]) if len(parts) == 3 and parts[0] == "ares" else None
+    if schema is None and named:
+        schema = messages.SCHEMAS.get(named)
+    if schema is None:
+        out["encoding"] = encoding
+        out.update(_raw(payload))
+        return out
+    out["schema"] = schema.schema_name()
+    if named and named != schema.schema_name():
+        out["error"] = f"schema mismatch: sent as {named}, topic carries {schema.schema_name()}"
+        out.update(_raw(payload))
+        return out
+    try:
+        out["msg"] = schema.model_validate_json(payload).model_dump(mode="json")
+    except pydantic.ValidationError as exc:
+        out["error"] = "invalid: " + "; ".join(
+            f"{'.'.join(str(p) for p in e['loc']) or '<root>'}: {e['msg']}" for e in exc.errors(include_url=False)[:3])
+        out.update(_raw(payload))
+    return out
+
+
+def cmd_echo(args: argparse.Namespace) -> int:
+    import zenoh
+    key_arg = args.key.strip().strip("/")
+    if not key_arg:
+        raise CliError("empty key")
+    bus = _connect(args, "cli_echo")
+    key = key_arg if key_arg == "ares" or key_arg.startswith("ares/") else bus.key(key_arg)
+    inbox: queue.Queue = queue.Queue(maxsize=10000)
+    dropped = [0]
+
+    def on_sample(sample) -> None:  # Zenoh thread: hand over and return
+        try:
+            inbox.put_nowait((str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+        except queue.Full:
+            dropped[0] += 1
+
+    printed = 0
+    try:
+        try:
+            bus.session.declare_subscriber(key, on_sample)
+        except zenoh.ZError as exc:
+            raise CliError(f"invalid key expression {key!r}: {str(exc).split(' at ')[0]}") from None
+        deadline = time.monotonic() + args.seconds if args.seconds else None
+        while args.count is None or printed < args.count:
+            timeout = 0.2 if deadline is None else min(0.2, deadline - time.monotonic())
+            if timeout <= 0:
+                break
+            try:
+                k, encoding, payload = inbox.get(timeout=timeout)
+            except queue.Empty:
+                continue
+            sys.stdout.write(json.dumps(render_sample(k, encoding, payload)) + "\n")
+            sys.stdout.flush()
+            printed += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        bus.close()
+    if dropped[0]:
+        print(f"ares: {dropped[0]} messages dropped (output too slow)", file=sys.stderr)
+    if args.count is not None and printed < args.count:
+        print(f"ares: {printed} of {args.count} messages on {key} within {args.seconds:g} s", file=sys.stderr)
+        return 1
+    if printed == 0 and args.seconds:
+        print(f"ares: no messages on {key} within {args.seconds:g} s", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from ares import bench
+    if args.bench != "bus":
+        raise CliError("which benchmark? try `ares bench bus`")
+    progress = lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    try:
+        result = bench.run_bus_bench(seconds=args.seconds, mode=args.mode, progress=progress)
+    except bench.BenchError as exc:
+        raise CliError(f"bus bench failed: {exc}") from None
+    if args.json:
+        print(json.dumps(result))
+    else:
+        bench.format_result(result, sys.stdout)
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "node": cmd_node, "topics": cmd_topics, "echo": cmd_echo, "bench": cmd_bench}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:     # --help, or a usage error already printed by argparse
+        return int(exc.code or 0) if not isinstance(exc.code, str) else 2
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return 2
+    if args.command != "node":
+        logging.basicConfig(level=os.environ.get("ARES_LOG_LEVEL", "WARNING").upper(), stream=sys.stderr,
+                            format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return COMMANDS[args.command](args)
+    except CliError as exc:
+        print(f"ares: error: {exc}", file=sys.stderr)
+        return 1
+    except BrokenPipeError:       # e.g. `ares echo ... | head`
+        try:
+            sys.stdout = open(os.devnull, "w")
+        except OSError:
+            pass
+        return 0
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""The simulated vehicle: actuator and vehicle physics (plant) and sensor models (sensors)."""

@@ -1,0 +1,157 @@
+"""The simulated shuttle: vehicle, road and sensors as one process on the bus.
+
+Inputs:   dbw/actuators (efforts from the bridge's inner loops)
+Outputs:  sensors/gnss (NMEA GGA + GST), sensors/imu, sensors/can, vehicle/panel (driver
+          actions), sim/truth (ground truth, for evaluation only)
+Services: sim/driver (inject a driver action: the Auto/Manual button, pedals, steering wheel)
+Params:   sim.* in stack.yaml (rates, noise, passengers, seed), the vehicle profile and the route.
+
+Physics advances in fixed steps of 1/sim.physics_hz until it reaches the stack clock, so the
+vehicle lives on the same timeline as every other process, at any `--speed`. The hardware's
+own fail-safe is modelled too: when the bridge goes quiet for sim.actuator_timeout_s the
+board brakes, whatever the bridge's last command was.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ares.messages import (Ack, ActuatorCommand, CanFrame, DriverCommand, GnssSentences, Imu,
+                           PanelEvent, PanelInput, VehicleTruth)
+from ares.node import Node, run_node
+from ares.route import load_route
+from ares.sim.plant import VehiclePlant
+from ares.sim.sensors import SensorSuite
+
+MAX_CATCH_UP_STEPS = 50     # after a stall, jump ahead rather than replay seconds of physics
+PARKING_BRAKE = 0.3         # a vehicle left in Manual with nobody driving is parked
+
+ACTION_PANEL = {"THROTTLE": PanelInput.THROTTLE_PEDAL, "BRAKE": PanelInput.BRAKE_PEDAL,
+                "STEER": PanelInput.STEERING_WHEEL}
+
+
+@dataclass
+class DriverInputs:
+    """What the (simulated) human is doing, each with the stack time it ends."""
+    throttle: float = 0.0
+    throttle_until: float = -1.0
+    brake: float = 0.0
+    brake_until: float = -1.0
+    steer_deg: float | None = None
+    steer_until: float = -1.0
+
+    def active(self, t: float) -> bool:
+        return t < self.throttle_until or t < self.brake_until or t < self.steer_until
+
+    def release(self) -> None:
+        self.throttle_until = self.brake_until = self.steer_until = -1.0
+
+
+class Simulator(Node):
+    name = "sim"
+    rate_key = "sim.physics_hz"
+
+    def setup(self) -> None:
+        sim = self.cfg["sim"]
+        self.route = load_route(self.cfg)
+        self.plant = VehiclePlant.from_config(self.cfg, self.route)
+        self.sensors = SensorSuite(self.route, sim, float(self.cfg["vehicle_profile"]["wheel_radius_m"]))
+        self.dt = 1.0 / float(sim["physics_hz"])
+        self.periods = {"gnss": 1.0 / sim["gnss_hz"], "imu": 1.0 / sim["imu_hz"],
+                        "can": 1.0 / sim["can_hz"], "truth": 1.0 / sim["truth_hz"]}
+        self.actuator_timeout_s = float(sim["actuator_timeout_s"])
+        now = self.clock.now()
+        self.plant.state.t = now
+        self.next_due = {name: now for name in self.periods}
+        self.driver = DriverInputs()
+        self.lap = 0
+        self._last_s = self.plant.state.s
+        self.actuators = self.bus.subscribe("dbw/actuators")
+        self.bus.serve("sim/driver", self._driver_command)
+
+    # ---- driver ---------------------------------------------------------------------------
+    def _driver_command(self, cmd: DriverCommand) -> Ack:
+        now = self.clock.now()
+        until = now + cmd.duration_s
+        if cmd.action == "BUTTON":
+            self._panel(PanelInput.BUTTON)
+            return Ack(t=now, ok=True, detail="Auto/Manual button pressed")
+        if cmd.action == "RELEASE":
+            self.driver.release()
+            return Ack(t=now, ok=True, detail="driver let go of the controls")
+        if cmd.action in ("THROTTLE", "BRAKE") and not 0.0 <= cmd.value <= 1.0:
+            return Ack(t=now, ok=False, detail=f"pedal position must be within 0..1, got {cmd.value}")
+        if cmd.action == "THROTTLE":
+            self.driver.throttle, self.driver.throttle_until = cmd.value, until
+        elif cmd.action == "BRAKE":
+            self.driver.brake, self.driver.brake_until = cmd.value, until
+        else:
+            self.driver.steer_deg, self.driver.steer_until = cmd.value, until
+        self._panel(ACTION_PANEL[cmd.action], cmd.value)
+        return Ack(t=now, ok=True, detail=f"{cmd.action.lower()} {cmd.value:g} for {cmd.duration_s:g} s")
+
+    def _panel(self, what: PanelInput, value: float = 1.0) -> None:
+        self.bus.publish("vehicle/panel", PanelEvent(t=self.clock.now(), input=what, value=value))
+
+    # ---- physics --------------------------------------------------------------------------
+    def _physics_step(self) -> None:
+        st = self.plant.state
+        t = st.t + self.dt
+        command: ActuatorCommand | None = self.actuators.latest
+        fresh = command is not None and self.actuators.age() <= self.actuator_timeout_s
+        if self.driver.active(t):
+            d = self.driver
+            throttle = d.throttle if t < d.throttle_until else 0.0
+            brake = d.brake if t < d.brake_until else 0.0
+            steer = d.steer_deg if t < d.steer_until and d.steer_deg is not None else st.steering_wheel_deg
+            self.plant.step_manual(throttle, brake, steer, self.dt)
+        elif fresh and not command.engaged:
+            self.plant.step(0.0, -PARKING_BRAKE, self.dt)   # Manual, nobody driving: parked
+        elif fresh:
+            self.plant.step(command.steer_effort, command.drive_effort, self.dt)
+        else:
+            self.plant.step(0.0, -1.0, self.dt)   # the board's own fail-safe: brake, hold the wheel
+        if self.route.closed and self._last_s > 0.9 * self.route.length and st.s < 0.1 * self.route.length:
+            self.lap += 1
+        self._last_s = st.s
+
+    def step(self, now: float) -> None:
+        steps = 0
+        while self.plant.state.t + self.dt <= now:
+            if steps == MAX_CATCH_UP_STEPS:
+                self.log.warning("physics fell %.2f s behind the clock; skipping ahead", now - self.plant.state.t)
+                self.plant.state.t = now
+                break
+            self._physics_step()
+            steps += 1
+            self._publish_sensors()
+
+    def _due(self, name: str) -> bool:
+        t = self.plant.state.t
+        if t + 1e-9 < self.next_due[name]:
+            return False
+        self.next_due[name] = max(self.next_due[name] + self.periods[name], t)
+        return True
+
+    def _publish_sensors(self) -> None:
+        st = self.plant.state
+        t = st.t
+        if self._due("can"):
+            self.bus.publish("sensors/can", CanFrame(t=t, **self.sensors.can.measure(st)))
+        if self._due("imu"):
+            self.bus.publish("sensors/imu", Imu(t=t, **self.sensors.imu.measure(st)))
+        if self._due("gnss"):
+            self.bus.publish("sensors/gnss", GnssSentences(t=t, **self.sensors.gnss.measure(st)))
+        if self._due("truth"):
+            self.bus.publish("sim/truth", VehicleTruth(
+                t=t, x=st.x, y=st.y, z=st.z, yaw=st.yaw, pitch=st.pitch, v=st.v, yaw_rate=st.yaw_rate,
+                accel=st.accel, steering_wheel_deg=st.steering_wheel_deg, wheel_angle_rad=st.wheel_angle_rad,
+                s=st.s, odometer_m=st.odometer, lap=self.lap, rtk_available=self.sensors.gnss.rtk_available(st.s),
+                passengers=self.plant.passengers))
+
+
+def main() -> None:
+    run_node(Simulator)
+
+
+if __name__ == "__main__":
+    main()

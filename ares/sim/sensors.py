@@ -1,0 +1,251 @@
+"""Sensor models fed from the plant's state: GNSS (NMEA), IMU and the CAN bus.
+
+Each model turns a `VehicleState` (ares/sim/plant.py) into the plain dict its message carries:
+
+    gnss -> {"sentences": ["$GPGGA,...*CS", "$GPGST,...*CS"]}
+    imu  -> {"yaw", "roll", "pitch", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"}
+    can  -> {"wheel_speed_rad_s", "speed_mps", "steering_wheel_deg",
+             "throttle_pedal", "brake_pedal", "steering_torque"}
+
+Noise comes from a seeded numpy Generator per sensor, so a run is repeatable; `noise=False`
+gives exact readings (for tests). The figures (sigmas, offsets, the UTM origin) are the
+`sim:` section of stack.yaml.
+
+GNSS (ARES paper §3.1): with RTK corrections the fix is "RTK fixed" (GGA quality 4) with a
+few millimetres of white noise; inside an `rtk_loss` zone of the route (4G lost, no NTRIP)
+the receiver falls back to an uncorrected fix whose error wanders: a first-order Gauss-Markov
+bias with a time constant of tens of seconds plus some white noise, so that consecutive
+positions drift together rather than jump. The local (x, y) is a UTM offset from
+`sim.gnss.origin_utm`; the `utm` package converts to latitude/longitude. A GST sentence
+carries the receiver's own error estimate (standard deviations of lat/lon/alt), which is
+where a real receiver reports its covariance.
+
+IMU: body frame x forward, y left, z up (REP-103); pitch positive nose down, so on a climb
+pitch < 0 and the accelerometer's x axis reads +g·|sin(pitch)|. The yaw carries the constant
+offset of a badly calibrated magnetometer (the reason the ARES odometry computes yaw from
+consecutive GNSS positions instead).
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import numpy as np
+import utm
+
+from ares.route import Route
+from ares.sim.plant import GRAVITY, VehicleState
+
+
+# ---- NMEA helpers ---------------------------------------------------------------------------
+
+def nmea_checksum(body: str) -> str:
+    """XOR of every character between '$' and '*', as two upper-case hex digits."""
+    cs = 0
+    for ch in body:
+        cs ^= ord(ch)
+    return f"{cs:02X}"
+
+
+def nmea_sentence(body: str) -> str:
+    """'$' + body + '*' + checksum (no line ending)."""
+    return f"${body}*{nmea_checksum(body)}"
+
+
+def _nmea_time(time_of_day_s: float) -> str:
+    t = time_of_day_s % 86400.0
+    hours = int(t // 3600)
+    minutes = int((t - hours * 3600) // 60)
+    seconds = t - hours * 3600 - minutes * 60
+    text = f"{hours:02d}{minutes:02d}{seconds:05.2f}"
+    return text if not text.endswith("60.00") else f"{hours:02d}{minutes:02d}59.99"
+
+
+def _nmea_angle(value_deg: float, degree_digits: int) -> tuple[str, bool]:
+    """(d)ddmm.mmmmmmm and whether the value is non-negative.
+
+    Seven decimals of a minute are 0.19 mm of latitude: enough for millimetre RTK fixes.
+    """
+    a = abs(value_deg)
+    degrees = int(a)
+    minutes = round((a - degrees) * 60.0, 7)
+    if minutes >= 60.0:
+        degrees, minutes = degrees + 1, 0.0
+    return f"{degrees:0{degree_digits}d}{minutes:010.7f}", value_deg >= 0.0
+
+
+# ---- GNSS -----------------------------------------------------------------------------------
+
+class GnssSensor:
+    """A dual-frequency RTK receiver at the vehicle's reference point (rear-axle centre)."""
+
+    def __init__(self, route: Route, sim_cfg: Mapping, rng: np.random.Generator | None = None,
+                 noise: bool = True):
+        g = sim_cfg["gnss"]
+        self.route = route
+        self.noise = noise
+        self.rng = rng if rng is not None else np.random.default_rng(int(sim_cfg.get("seed", 0)))
+        origin = g["origin_utm"]
+        self.zone = int(origin["zone"])
+        self.northern = str(origin.get("hemisphere", "N")).upper().startswith("N")
+        self.easting0 = float(origin["easting"])
+        self.northing0 = float(origin["northing"])
+        self.altitude0 = float(origin.get("altitude_m", 0.0))
+        self.rtk_sigma = float(g["rtk_sigma_m"])
+        self.float_sigma = float(g["float_sigma_m"])
+        self.rtk_sigma_alt = float(g.get("rtk_sigma_alt_m", 2 * self.rtk_sigma))
+        self.float_sigma_alt = float(g.get("float_sigma_alt_m", 2 * self.float_sigma))
+        self.bias_tau_s = float(g.get("float_bias_tau_s", 40.0))
+        white = float(g.get("float_white_fraction", 0.3))
+        # Split the uncorrected variance between the wandering bias and the white part.
+        self.white_share = white
+        self.bias_share = math.sqrt(max(1.0 - white ** 2, 0.0))
+        self.no_rtk_quality = int(g.get("no_rtk_fix_quality", 1))
+        self.hdop = dict(g.get("hdop", {"rtk": 0.7, "float": 1.3}))
+        self.satellites = dict(g.get("satellites", {"rtk": 16, "float": 10}))
+        self.time_of_day0 = float(g.get("start_time_of_day_s", 36000.0))
+        # Bias state (east, north, up) in units of the float sigmas, running all the time so
+        # that entering a dead zone picks up a wander already in progress.
+        self._bias = self.rng.standard_normal(3) if noise else np.zeros(3)
+        self._t_last: float | None = None
+
+    # -- geometry --
+    def local_to_latlon(self, x: float, y: float) -> tuple[float, float]:
+        return utm.to_latlon(self.easting0 + x, self.northing0 + y, self.zone, northern=self.northern)
+
+    def latlon_to_local(self, lat: float, lon: float) -> tuple[float, float]:
+        # Southern northings carry the 10,000 km false northing both ways, so they cancel.
+        e, n, _, _ = utm.from_latlon(lat, lon, force_zone_number=self.zone)
+        return float(e - self.easting0), float(n - self.northing0)
+
+    def rtk_available(self, s: float) -> bool:
+        return not self.route.in_zone(s, "rtk_loss")
+
+    def _advance_bias(self, t: float) -> None:
+        if self._t_last is not None and self.noise:
+            dt = max(t - self._t_last, 0.0)
+            phi = math.exp(-dt / self.bias_tau_s)
+            self._bias = phi * self._bias + math.sqrt(1.0 - phi * phi) * self.rng.standard_normal(3)
+        self._t_last = t
+
+    def error(self, state: VehicleState) -> tuple[np.ndarray, bool]:
+        """Position error (east, north, up) in metres for this fix, and whether RTK is fixed."""
+        self._advance_bias(state.t)
+        rtk = self.rtk_available(state.s)
+        if not self.noise:
+            return np.zeros(3), rtk
+        if rtk:
+            sig = np.array([self.rtk_sigma, self.rtk_sigma, self.rtk_sigma_alt])
+            return sig * self.rng.standard_normal(3), rtk
+        sig = np.array([self.float_sigma, self.float_sigma, self.float_sigma_alt])
+        return sig * (self.bias_share * self._bias + self.white_share * self.rng.standard_normal(3)), rtk
+
+    def measure(self, state: VehicleState) -> dict:
+        err, rtk = self.error(state)
+        lat, lon = self.local_to_latlon(state.x + err[0], state.y + err[1])
+        alt = self.altitude0 + state.z + err[2]
+        kind = "rtk" if rtk else "float"
+        quality = 4 if rtk else self.no_rtk_quality
+        hhmmss = _nmea_time(self.time_of_day0 + state.t)
+        lat_txt, north = _nmea_angle(lat, 2)
+        lon_txt, east = _nmea_angle(lon, 3)
+        age, station = ("1.0", "0001") if rtk else ("", "")
+        gga = (f"GPGGA,{hhmmss},{lat_txt},{'N' if north else 'S'},{lon_txt},{'E' if east else 'W'},"
+               f"{quality},{int(self.satellites[kind]):02d},{float(self.hdop[kind]):.1f},"
+               f"{alt:.3f},M,0.000,M,{age},{station}")
+        sig_h = self.rtk_sigma if rtk else self.float_sigma
+        sig_v = self.rtk_sigma_alt if rtk else self.float_sigma_alt
+        # GST: RMS of range residuals, error ellipse (semi-major, semi-minor, orientation),
+        # then the 1-sigma errors of latitude, longitude and altitude in metres.
+        gst = (f"GPGST,{hhmmss},{sig_h:.3f},{sig_h:.3f},{sig_h:.3f},0.0,"
+               f"{sig_h:.3f},{sig_h:.3f},{sig_v:.3f}")
+        return {"sentences": [nmea_sentence(gga), nmea_sentence(gst)]}
+
+
+# ---- IMU ------------------------------------------------------------------------------------
+
+class ImuSensor:
+    """An IMU with a magnetometer yaw: attitude, angular rates and specific force."""
+
+    def __init__(self, sim_cfg: Mapping, rng: np.random.Generator | None = None, noise: bool = True):
+        i = sim_cfg["imu"]
+        self.noise = noise
+        self.rng = rng if rng is not None else np.random.default_rng(int(sim_cfg.get("seed", 0)) + 1)
+        self.yaw_offset = float(i["yaw_offset_rad"])
+        self.yaw_sigma = float(i.get("yaw_sigma_rad", 0.01))
+        self.attitude_sigma = float(i.get("attitude_sigma_rad", 0.003))
+        self.gyro_sigma = float(i["gyro_sigma_rad_s"])
+        self.accel_sigma = float(i["accel_sigma_mps2"])
+
+    def _n(self, sigma: float, size: int | None = None):
+        if not self.noise:
+            return 0.0 if size is None else np.zeros(size)
+        return sigma * self.rng.standard_normal(size)
+
+    def measure(self, state: VehicleState) -> dict:
+        pitch, roll = state.pitch, state.roll
+        # Specific force (what an accelerometer feels) = kinematic acceleration - gravity,
+        # expressed in the body frame; with REP-103 pitch (nose down positive) gravity shows
+        # as -g·sin(pitch) along x and g·cos(pitch)·cos(roll) along z.
+        accel_x = state.accel - GRAVITY * math.sin(pitch)
+        accel_y = state.lateral_accel + GRAVITY * math.cos(pitch) * math.sin(roll)
+        accel_z = GRAVITY * math.cos(pitch) * math.cos(roll) + state.vertical_accel
+        gyro = self._n(self.gyro_sigma, 3)
+        acc = self._n(self.accel_sigma, 3)
+        yaw = state.yaw + self.yaw_offset + self._n(self.yaw_sigma)
+        return {
+            "yaw": math.atan2(math.sin(yaw), math.cos(yaw)),
+            "roll": float(roll + self._n(self.attitude_sigma)),
+            "pitch": float(pitch + self._n(self.attitude_sigma)),
+            "gyro_x": float(gyro[0]),                # roll rate: the model has no roll
+            "gyro_y": float(state.pitch_rate + gyro[1]),
+            "gyro_z": float(state.yaw_rate + gyro[2]),
+            "accel_x": float(accel_x + acc[0]),
+            "accel_y": float(accel_y + acc[1]),
+            "accel_z": float(accel_z + acc[2]),
+        }
+
+
+# ---- CAN ------------------------------------------------------------------------------------
+
+class CanSensor:
+    """What the vehicle's CAN bus reports: encoder wheel speed, steering angle, pedals."""
+
+    def __init__(self, sim_cfg: Mapping, wheel_radius_m: float,
+                 rng: np.random.Generator | None = None, noise: bool = True):
+        c = sim_cfg["can"]
+        self.noise = noise
+        self.rng = rng if rng is not None else np.random.default_rng(int(sim_cfg.get("seed", 0)) + 2)
+        self.wheel_radius_m = float(wheel_radius_m)
+        self.speed_sigma = float(c["speed_sigma_mps"])
+        self.steer_sigma = float(c["steer_sigma_deg"])
+
+    def measure(self, state: VehicleState) -> dict:
+        omega = state.wheel_speed_rad_s
+        # An encoder that sees no pulses reads exactly zero: noise only while the wheels turn.
+        if self.noise and omega != 0.0:
+            omega += (self.speed_sigma / self.wheel_radius_m) * self.rng.standard_normal()
+        steer = state.steering_wheel_deg + (self.steer_sigma * self.rng.standard_normal() if self.noise else 0.0)
+        return {
+            "wheel_speed_rad_s": float(omega),
+            # The rear-axle speed the odometry wants, from the driven front wheel (DBW eq. 14).
+            "speed_mps": float(omega * self.wheel_radius_m * math.cos(state.wheel_angle_rad)),
+            "steering_wheel_deg": float(steer),
+            "throttle_pedal": float(state.throttle_pedal),
+            "brake_pedal": float(state.brake_pedal),
+            "steering_torque": bool(state.steering_torque),
+        }
+
+
+# ---- all three --------------------------------------------------------------------------------
+
+class SensorSuite:
+    """The three sensors of one vehicle, each with its own random stream from one seed."""
+
+    def __init__(self, route: Route, sim_cfg: Mapping, wheel_radius_m: float,
+                 seed: int | None = None, noise: bool = True):
+        base = int(sim_cfg.get("seed", 0)) if seed is None else int(seed)
+        gnss_rng, imu_rng, can_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(base).spawn(3))
+        self.gnss = GnssSensor(route, sim_cfg, gnss_rng, noise)
+        self.imu = ImuSensor(sim_cfg, imu_rng, noise)
+        self.can = CanSensor(sim_cfg, wheel_radius_m, can_rng, noise)

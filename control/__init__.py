@@ -1,0 +1,1 @@
+"""Control: drive-by-wire logic, Ackermann conversions, path tracking."""

@@ -1,0 +1,362 @@
+"""Decision core of the drive-by-wire bridge: modes, the setpoint watchdog and the command gate.
+
+Read next to Fig. 17 of the DBW paper (§4.3 and §4.6):
+
+    MANUAL --BUTTON--> READY --SET_AUTOMATIC--> AUTOMATIC
+       ^                 |                          |
+       +-----BUTTON------+                          |
+       +-----BUTTON or any driver action -----------+   (driver action also from READY)
+
+* The vehicle starts in MANUAL: the human drives and the bridge does not touch the actuators.
+* The Auto/Manual button on the control panel is the hardware activation: MANUAL -> READY.
+  In READY the bridge drives the actuators but only with null setpoints (stand still, steering
+  wheel at 0), so a switched-on but idle stack cannot move the car.
+* The `set_automatic_mode` service is the software activation: READY -> AUTOMATIC. Asked in
+  MANUAL it is refused, since the button has to be pressed first.
+* Pressing the throttle or brake pedal or turning the steering wheel returns to MANUAL from
+  any mode: the driver can always take over.
+* In AUTOMATIC the last setpoint is passed on, unless none has arrived for
+  `setpoint_timeout_s` (1 s in the paper): then the bridge stops the car and centres the
+  steering until fresh setpoints arrive.
+
+No clock and no I/O here: every event carries its time t and `command(t)` is asked at a given
+t, so the same event sequence always gives the same commands.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import asdict, dataclass
+from enum import Enum
+from typing import Mapping
+
+from control.ackermann import max_curvature
+
+
+class Mode(str, Enum):
+    MANUAL = "MANUAL"
+    READY = "READY"
+    AUTOMATIC = "AUTOMATIC"
+
+
+class EventKind(str, Enum):
+    BUTTON = "BUTTON"                  # Auto/Manual button on the control panel
+    SET_AUTOMATIC = "SET_AUTOMATIC"    # set_automatic_mode service request
+    THROTTLE_PEDAL = "THROTTLE_PEDAL"  # driver actions ...
+    BRAKE_PEDAL = "BRAKE_PEDAL"
+    STEERING_WHEEL = "STEERING_WHEEL"
+    SETPOINT = "SETPOINT"              # (v, kappa) from the navigation stack
+    TICK = "TICK"                      # time passes
+
+
+DRIVER_ACTIONS = frozenset({EventKind.THROTTLE_PEDAL, EventKind.BRAKE_PEDAL,
+                            EventKind.STEERING_WHEEL})
+
+# Fig. 17 as a table: (mode, event) -> next mode. Every pair is listed, so the tests can walk
+# all of them and nothing is left to a default branch.
+TRANSITIONS: dict[tuple[Mode, EventKind], Mode] = {
+    (Mode.MANUAL, EventKind.BUTTON): Mode.READY,
+    (Mode.MANUAL, EventKind.SET_AUTOMATIC): Mode.MANUAL,       # refused: button first
+    (Mode.MANUAL, EventKind.THROTTLE_PEDAL): Mode.MANUAL,
+    (Mode.MANUAL, EventKind.BRAKE_PEDAL): Mode.MANUAL,
+    (Mode.MANUAL, EventKind.STEERING_WHEEL): Mode.MANUAL,
+    (Mode.MANUAL, EventKind.SETPOINT): Mode.MANUAL,
+    (Mode.MANUAL, EventKind.TICK): Mode.MANUAL,
+
+    (Mode.READY, EventKind.BUTTON): Mode.MANUAL,
+    (Mode.READY, EventKind.SET_AUTOMATIC): Mode.AUTOMATIC,
+    (Mode.READY, EventKind.THROTTLE_PEDAL): Mode.MANUAL,
+    (Mode.READY, EventKind.BRAKE_PEDAL): Mode.MANUAL,
+    (Mode.READY, EventKind.STEERING_WHEEL): Mode.MANUAL,
+    (Mode.READY, EventKind.SETPOINT): Mode.READY,
+    (Mode.READY, EventKind.TICK): Mode.READY,
+
+    (Mode.AUTOMATIC, EventKind.BUTTON): Mode.MANUAL,
+    (Mode.AUTOMATIC, EventKind.SET_AUTOMATIC): Mode.AUTOMATIC,  # accepted, already there
+    (Mode.AUTOMATIC, EventKind.THROTTLE_PEDAL): Mode.MANUAL,
+    (Mode.AUTOMATIC, EventKind.BRAKE_PEDAL): Mode.MANUAL,
+    (Mode.AUTOMATIC, EventKind.STEERING_WHEEL): Mode.MANUAL,
+    (Mode.AUTOMATIC, EventKind.SETPOINT): Mode.AUTOMATIC,
+    (Mode.AUTOMATIC, EventKind.TICK): Mode.AUTOMATIC,
+}
+
+SET_AUTOMATIC_REFUSED_IN_MANUAL = (
+    "set_automatic_mode refused: the vehicle is in MANUAL; press the Auto/Manual button on "
+    "the control panel first (hardware activation) to reach READY")
+
+# Reasons attached to mode changes, for the events the bridge publishes.
+_CHANGE_REASONS: dict[tuple[Mode, EventKind], str] = {
+    (Mode.MANUAL, EventKind.BUTTON): "Auto/Manual button pressed: hardware armed, "
+                                     "waiting for set_automatic_mode",
+    (Mode.READY, EventKind.BUTTON): "Auto/Manual button pressed: back to manual driving",
+    (Mode.AUTOMATIC, EventKind.BUTTON): "Auto/Manual button pressed: back to manual driving",
+    (Mode.READY, EventKind.SET_AUTOMATIC): "set_automatic_mode accepted: autonomous driving",
+}
+
+
+def _change_reason(from_mode: Mode, kind: EventKind) -> str:
+    if kind in DRIVER_ACTIONS:
+        action = kind.value.lower().replace("_", " ")
+        return f"driver actuated the {action}: driver takes over"
+    return _CHANGE_REASONS[(from_mode, kind)]
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something that happened at time t (s, on the bridge's clock)."""
+
+    kind: EventKind
+    t: float
+    v: float | None = None       # SETPOINT only
+    kappa: float | None = None   # SETPOINT only
+
+    def __post_init__(self):
+        # A NaN or infinite time would silently break every age comparison below.
+        if not isinstance(self.t, (int, float)) or not math.isfinite(self.t):
+            raise ValueError(f"event time must be a finite number, got {self.t!r}")
+
+    @classmethod
+    def button(cls, t: float) -> "Event":
+        return cls(EventKind.BUTTON, t)
+
+    @classmethod
+    def set_automatic(cls, t: float) -> "Event":
+        return cls(EventKind.SET_AUTOMATIC, t)
+
+    @classmethod
+    def throttle_pedal(cls, t: float) -> "Event":
+        return cls(EventKind.THROTTLE_PEDAL, t)
+
+    @classmethod
+    def brake_pedal(cls, t: float) -> "Event":
+        return cls(EventKind.BRAKE_PEDAL, t)
+
+    @classmethod
+    def steering_wheel(cls, t: float) -> "Event":
+        return cls(EventKind.STEERING_WHEEL, t)
+
+    @classmethod
+    def setpoint(cls, v: float, kappa: float, t: float) -> "Event":
+        return cls(EventKind.SETPOINT, t, v, kappa)
+
+    @classmethod
+    def tick(cls, t: float) -> "Event":
+        return cls(EventKind.TICK, t)
+
+
+@dataclass(frozen=True)
+class Transition:
+    """A mode change, as the bridge publishes it."""
+
+    from_mode: Mode
+    to_mode: Mode
+    event: EventKind
+    t: float
+    reason: str
+
+    def as_dict(self) -> dict:
+        return {"from": self.from_mode.value, "to": self.to_mode.value,
+                "event": self.event.value, "t": self.t, "reason": self.reason}
+
+
+@dataclass(frozen=True)
+class Command:
+    """What the bridge does at time t."""
+
+    t: float
+    mode: Mode
+    engaged: bool            # False: the human drives; True: the bridge drives the actuators
+    v: float                 # m/s, within [0, max_speed]
+    kappa: float             # 1/m, within ±max_curvature
+    watchdog_tripped: bool   # AUTOMATIC without a setpoint for longer than the timeout
+    limited: bool            # the command gate had to clamp v or kappa
+    reason: str
+    setpoint_age_s: float | None  # age of the last valid setpoint, None if none yet
+
+    @property
+    def is_null(self) -> bool:
+        return self.v == 0.0 and self.kappa == 0.0
+
+    def as_dict(self) -> dict:
+        out = asdict(self)
+        out["mode"] = self.mode.value
+        return out
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """The answer to one event: accepted or not and why, the mode change if any, and the
+    command at the event's time."""
+
+    event: Event
+    accepted: bool
+    reason: str
+    transition: Transition | None
+    command: Command
+    watchdog_changed: bool   # the watchdog tripped or recovered with this event
+
+
+@dataclass(frozen=True)
+class DbwLimits:
+    """Vehicle limits that no command leaving the bridge may exceed."""
+
+    max_speed_mps: float
+    max_curvature: float     # 1/m, magnitude
+
+    def __post_init__(self):
+        for name in ("max_speed_mps", "max_curvature"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+
+    @classmethod
+    def from_profile(cls, profile: Mapping) -> "DbwLimits":
+        """From a vehicle profile: max_speed_mps, and the curvature the steering allows,
+        tan(max_wheel_angle_rad) / wheelbase_m."""
+        missing = [key for key in ("max_speed_mps", "wheelbase_m", "max_wheel_angle_rad")
+                   if key not in profile]
+        if missing:
+            raise ValueError(f"vehicle profile lacks {', '.join(missing)}")
+        return cls(max_speed_mps=float(profile["max_speed_mps"]),
+                   max_curvature=max_curvature(float(profile["wheelbase_m"]),
+                                               float(profile["max_wheel_angle_rad"])))
+
+
+def command_gate(v: float, kappa: float, limits: DbwLimits) -> tuple[float, float, bool]:
+    """Last check before anything leaves the bridge: v into [0, max_speed], κ into
+    ±max_curvature. A non-finite value (which should never get this far) becomes the null
+    setpoint. Returns (v, kappa, limited)."""
+    if not (math.isfinite(v) and math.isfinite(kappa)):
+        return 0.0, 0.0, True
+    gated_v = min(max(v, 0.0), limits.max_speed_mps)
+    gated_kappa = min(max(kappa, -limits.max_curvature), limits.max_curvature)
+    # +0.0 rather than -0.0, so a null setpoint always prints and compares the same way.
+    gated_v += 0.0
+    gated_kappa += 0.0
+    return gated_v, gated_kappa, (gated_v != v or gated_kappa != kappa)
+
+
+@dataclass(frozen=True)
+class _Setpoint:
+    v: float
+    kappa: float
+    t: float
+
+
+def setpoint_problem(v: object, kappa: object) -> str | None:
+    """Why a setpoint cannot be used, or None if it can."""
+    for name, value in (("v", v), ("kappa", kappa)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"setpoint rejected: {name} is not a number ({value!r})"
+        if not math.isfinite(value):
+            return f"setpoint rejected: {name} is not finite ({value!r})"
+    return None
+
+
+class DbwCore:
+    """The bridge's state machine. Feed it events with `handle`, ask `command(t)`."""
+
+    HISTORY_LENGTH = 100
+
+    def __init__(self, limits: DbwLimits, setpoint_timeout_s: float = 1.0):
+        if not (math.isfinite(setpoint_timeout_s) and setpoint_timeout_s > 0):
+            raise ValueError(f"setpoint_timeout_s must be positive, got {setpoint_timeout_s!r}")
+        self.limits = limits
+        self.setpoint_timeout_s = float(setpoint_timeout_s)
+        self.mode = Mode.MANUAL
+        # Last valid setpoint received in any mode: feeds the watchdog and diagnostics.
+        self.last_setpoint: _Setpoint | None = None
+        # Setpoint received since the switch to AUTOMATIC, the only one ever acted on; cleared
+        # on every mode change so a setpoint from before the switch is never used.
+        self._active_setpoint: _Setpoint | None = None
+        self.rejected_setpoints = 0
+        self.last_rejection: str | None = None
+        self.history: deque[Transition] = deque(maxlen=self.HISTORY_LENGTH)
+        self._watchdog_was_tripped = False
+
+    @classmethod
+    def from_profile(cls, profile: Mapping, setpoint_timeout_s: float = 1.0) -> "DbwCore":
+        return cls(DbwLimits.from_profile(profile), setpoint_timeout_s)
+
+    # -- events ---------------------------------------------------------------------------
+
+    def handle(self, event: Event) -> Outcome:
+        from_mode = self.mode
+        to_mode = TRANSITIONS[(from_mode, event.kind)]
+        accepted, reason = True, ""
+
+        if event.kind is EventKind.SETPOINT:
+            accepted, reason = self._take_setpoint(event)
+        elif event.kind is EventKind.SET_AUTOMATIC:
+            accepted = to_mode is Mode.AUTOMATIC
+            if not accepted:
+                reason = SET_AUTOMATIC_REFUSED_IN_MANUAL
+            elif from_mode is Mode.AUTOMATIC:
+                reason = "set_automatic_mode accepted: already AUTOMATIC"
+        elif event.kind in DRIVER_ACTIONS and from_mode is Mode.MANUAL:
+            reason = "driver action in MANUAL: the driver already drives"
+
+        transition = None
+        if to_mode is not from_mode:
+            transition = Transition(from_mode, to_mode, event.kind, event.t,
+                                    _change_reason(from_mode, event.kind))
+            self.mode = to_mode
+            self._active_setpoint = None
+            self.history.append(transition)
+            reason = transition.reason
+
+        command = self.command(event.t)
+        watchdog_changed = command.watchdog_tripped != self._watchdog_was_tripped
+        self._watchdog_was_tripped = command.watchdog_tripped
+        return Outcome(event, accepted, reason or "ok", transition, command, watchdog_changed)
+
+    def _take_setpoint(self, event: Event) -> tuple[bool, str]:
+        problem = setpoint_problem(event.v, event.kappa)
+        if problem is not None:
+            # A broken setpoint must not keep the watchdog quiet: it refreshes nothing.
+            self.rejected_setpoints += 1
+            self.last_rejection = problem
+            return False, problem
+        setpoint = _Setpoint(float(event.v), float(event.kappa), event.t)
+        self.last_setpoint = setpoint
+        if self.mode is Mode.AUTOMATIC:
+            self._active_setpoint = setpoint
+            return True, "ok"
+        return True, f"setpoint noted but not used in {self.mode.value}"
+
+    # -- output ---------------------------------------------------------------------------
+
+    def command(self, t: float) -> Command:
+        """What the bridge sends at time t. Does not change the state."""
+        age = None if self.last_setpoint is None else t - self.last_setpoint.t
+
+        if self.mode is Mode.MANUAL:
+            return self._null(t, age, engaged=False, reason="MANUAL: the driver drives")
+        if self.mode is Mode.READY:
+            return self._null(t, age, engaged=True,
+                              reason="READY: null setpoint until set_automatic_mode")
+
+        # AUTOMATIC. A negative age means the clock went backwards: trust nothing.
+        if age is None or not (0.0 <= age <= self.setpoint_timeout_s):
+            if age is None:
+                why = "no setpoint received"
+            elif age < 0.0:
+                why = f"last setpoint is from the future ({-age:.3f} s ahead): clock went back"
+            else:
+                why = f"no setpoint for {age:.3f} s"
+            return self._null(t, age, engaged=True, watchdog_tripped=True,
+                              reason=f"watchdog: {why} (timeout {self.setpoint_timeout_s} s): "
+                                     "stop and centre the steering")
+        if self._active_setpoint is None:
+            return self._null(t, age, engaged=True,
+                              reason="AUTOMATIC: waiting for a setpoint newer than the switch")
+
+        v, kappa, limited = command_gate(self._active_setpoint.v, self._active_setpoint.kappa,
+                                         self.limits)
+        reason = "AUTOMATIC: setpoint limited to the vehicle" if limited else "AUTOMATIC"
+        return Command(t, self.mode, True, v, kappa, False, limited, reason, age)
+
+    def _null(self, t: float, age: float | None, *, engaged: bool, reason: str,
+              watchdog_tripped: bool = False) -> Command:
+        v, kappa, limited = command_gate(0.0, 0.0, self.limits)
+        return Command(t, self.mode, engaged, v, kappa, watchdog_tripped, limited, reason, age)

@@ -1,0 +1,122 @@
+"""Shared fixtures for tests that use a real Zenoh bus.
+
+- `port`: a free TCP port, so tests never collide with each other or a stack on 7447;
+- `run_config`: the stack defaults with the bus pointed at that port (override more with
+  the `make_run_config(port, overrides)` helper);
+- `run_config_path`: that config written to a file, as ARES_RUN_CONFIG expects;
+- `child_env`: the environment a node subprocess needs (ARES_RUN_CONFIG, PYTHONPATH, ...);
+- `router`: an embedded router subprocess (`python -m ares.router`) listening on the port;
+- `spawn_node`: start `python -m <module>` as a node process; killed at teardown.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ares import config
+
+REPO = Path(__file__).resolve().parents[1]
+# `tests.nodes.*` are run as `python -m` by node subprocesses, and test modules import these
+# helpers as `tests.conftest`: both need the repository root importable, under `pytest` too
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def make_run_config(port: int, overrides: dict | None = None) -> dict:
+    base = {"bus": {"router": f"tcp/127.0.0.1:{port}"}}
+    return config.build_run_config(config.deep_merge(base, overrides or {}))
+
+
+def wait_for_port(port: int, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.05)
+    raise TimeoutError(f"nothing listens on 127.0.0.1:{port} after {timeout_s} s")
+
+
+def stop_process(proc: subprocess.Popen, timeout_s: float = 3.0) -> None:
+    """SIGTERM the process's group, then SIGKILL it if it does not go."""
+    if proc.poll() is None:
+        for sig, wait_s in ((signal.SIGTERM, timeout_s), (signal.SIGKILL, 5.0)):
+            try:
+                os.killpg(proc.pid, sig)
+            except ProcessLookupError:
+                break
+            try:
+                proc.wait(timeout=wait_s)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+
+
+@pytest.fixture
+def port() -> int:
+    return free_port()
+
+
+@pytest.fixture
+def run_config(port) -> dict:
+    return make_run_config(port)
+
+
+@pytest.fixture
+def run_config_path(tmp_path, run_config) -> Path:
+    return config.write_run_config(run_config, tmp_path / "config.json")
+
+
+@pytest.fixture
+def child_env(run_config_path) -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH", "")) if p)
+    env[config.RUN_CONFIG_ENV] = str(run_config_path)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+@pytest.fixture
+def spawn_node(child_env, tmp_path):
+    """spawn_node(module, name, **env) -> Popen, in its own process group, output in
+    tmp_path/<name>.log; every node still running is stopped at teardown."""
+    procs: list[subprocess.Popen] = []
+
+    def spawn(module: str, name: str, **extra_env: str) -> subprocess.Popen:
+        env = {**child_env, "ARES_PROCESS_NAME": name, **extra_env}
+        with (tmp_path / f"{name}.log").open("ab") as out:
+            proc = subprocess.Popen([sys.executable, "-m", module], env=env, cwd=REPO, stdin=subprocess.DEVNULL,
+                                    stdout=out, stderr=subprocess.STDOUT, process_group=0)
+        procs.append(proc)
+        return proc
+
+    yield spawn
+    for proc in procs:
+        stop_process(proc)
+
+
+@pytest.fixture
+def router(run_config, spawn_node, port) -> dict:
+    """An embedded router subprocess on `port`; yields the run config that points at it."""
+    proc = spawn_node("ares.router", "router")
+    try:
+        wait_for_port(port)
+    except TimeoutError:
+        proc.kill()
+        raise
+    yield run_config
+    stop_process(proc)

@@ -1,0 +1,43 @@
+"""`ares bench bus`: a short run between real processes; figures are reported, not asserted."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+
+from ares.bench import percentile
+
+from conftest import REPO
+
+pytestmark = pytest.mark.timeout(180)
+
+
+def test_percentile_nearest_rank():
+    values = [float(v) for v in range(1, 101)]
+    assert percentile(values, 50) == 50.0
+    assert percentile(values, 99) == 99.0
+    assert percentile(values, 100) == 100.0
+    assert percentile([7.0], 99) == 7.0
+    assert math.isnan(percentile([], 50))
+
+
+def test_bus_bench_json():
+    result = subprocess.run([sys.executable, "-m", "ares.cli", "bench", "bus", "--json", "--seconds", "1"],
+                            cwd=REPO, capture_output=True, text=True, timeout=150, stdin=subprocess.DEVNULL)
+    assert result.returncode == 0, result.stderr
+    assert "[bench]" in result.stderr                  # progress goes to stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    for key in ("latency_p50_ms", "latency_p99_ms", "rate_msgs_per_s", "lost", "messages", "payload_bytes",
+                "mode", "python", "zenoh", "latency_method", "throughput_sent", "throughput_received"):
+        assert key in report, key
+    assert report["lost"] == 0
+    assert report["latency_lost"] == 0
+    assert report["throughput_sent"] == report["throughput_received"] > 0
+    assert 0 < report["latency_p50_ms"] <= report["latency_p99_ms"] <= report["latency_max_ms"]
+    assert report["rate_msgs_per_s"] > 0
+    assert report["messages"] > 0 and report["payload_bytes"] > 0
+    assert report["rejected"] == 0
+    assert report["mode"] in ("peer", "client")

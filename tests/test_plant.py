@@ -1,0 +1,404 @@
+"""Vehicle simulator physics and the drive-by-wire inner PID.
+
+The step-response figures are the DBW paper's (§5.1). Tolerances: times within 20 % of the
+paper, overshoot within 35 % (the paper reports 4.73 % for both loads; in a physical plant
+the overshoot moves with the load, see the report in ares/config/vehicles/*.yaml).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ares import config
+from ares.route import SAMPLE_SPACING_M, Route
+from ares.sim.plant import (GRAVITY, PID_PERIOD_S, PHYSICS_DT, TractionActuator, VehiclePlant,
+                            measure_step, start_pose, step_response)
+from control.pid import PID
+
+VEHICLES = ["techs4agecar", "ares_shuttle"]
+TICKS = round(PID_PERIOD_S / PHYSICS_DT)
+
+
+def _close(value: float, target: float, rel: float) -> bool:
+    return abs(value - target) <= rel * abs(target)
+
+
+def straight_route(length_m: float = 400.0, grade: float = 0.0) -> Route:
+    """An open straight road along x that climbs at a constant grade."""
+    x = np.arange(0.0, length_m + SAMPLE_SPACING_M / 2, SAMPLE_SPACING_M)
+    return Route(name="straight", x=x, y=np.zeros_like(x), z=grade * x, closed=False,
+                 width=np.full(len(x), 6.0))
+
+
+def sim_cfg(**overrides) -> dict:
+    cfg = config.stack_defaults()["sim"]
+    cfg.update(overrides)
+    return cfg
+
+
+class SpeedLoop:
+    """The bridge's throttle loop, as it will run: 10 Hz PID on the drive-wheel speed."""
+
+    def __init__(self, plant: VehiclePlant):
+        self.plant = plant
+        self.pid = PID.from_config(plant.profile["dbw_pid"]["throttle"])
+        self.k = 0
+        self.effort = 0.0
+
+    def step(self, v_ref: float, steer_effort: float = 0.0):
+        if self.k % TICKS == 0:
+            st = self.plant.state
+            ref = v_ref / (math.cos(st.wheel_angle_rad) * self.plant.wheel_radius_m)
+            self.effort = self.pid.step(ref, st.wheel_speed_rad_s, PID_PERIOD_S)
+        self.k += 1
+        return self.plant.step(steer_effort, self.effort)
+
+
+# ---- PID ---------------------------------------------------------------------------------------
+
+def test_pid_is_the_papers_equations():
+    pid = PID(kp=2.0, ki=0.5, kd=0.0, out_min=-100, out_max=100)
+    assert pid.step(10.0, 4.0, 0.1) == pytest.approx(2.0 * 6 + 0.5 * 6 * 0.1)      # eqs. 4-8
+    assert pid.step(10.0, 6.0, 0.1) == pytest.approx(2.0 * 4 + 0.5 * (6 + 4) * 0.1)
+
+
+def test_pid_output_is_clamped_and_integral_does_not_wind_up():
+    pid = PID(kp=0.1, ki=1.0)
+    for _ in range(200):                      # 20 s saturated at full effort
+        assert pid.step(100.0, 0.0, 0.1) == 1.0
+    assert pid.integral <= 1.0
+    # Once the error reverses the output must leave saturation at once, not after the
+    # integral has unwound 20 s worth of error.
+    assert pid.step(0.0, 5.0, 0.1) < 1.0
+    assert pid.step(0.0, 5.0, 0.1) < 0.9
+
+
+def test_pid_derivative_on_measurement_does_not_kick_on_reference_steps():
+    pid = PID(kp=0.0, ki=0.0, kd=1.0, out_min=-1e9, out_max=1e9)
+    pid.step(0.0, 0.0, 0.1)
+    assert pid.step(50.0, 0.0, 0.1) == 0.0    # reference jump: no kick
+    assert pid.step(50.0, 1.0, 0.1) == pytest.approx(-10.0)   # measurement moved up 1 in 0.1 s
+    on_error = PID(kp=0.0, kd=1.0, out_min=-1e9, out_max=1e9, derivative_on_measurement=False)
+    on_error.step(0.0, 0.0, 0.1)
+    assert on_error.step(50.0, 0.0, 0.1) == pytest.approx(500.0)
+
+
+def test_pid_reset_forgets_the_integral():
+    pid = PID(kp=0.0, ki=1.0)
+    pid.step(1.0, 0.0, 0.1)
+    pid.reset()
+    assert pid.integral == 0.0 and pid.step(0.0, 0.0, 0.1) == 0.0
+
+
+def test_pid_rejects_bad_arguments():
+    with pytest.raises(ValueError):
+        PID(1.0, out_min=1.0, out_max=-1.0)
+    with pytest.raises(ValueError):
+        PID(1.0).step(1.0, 0.0, 0.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3)), min_size=1, max_size=40),
+       st.floats(0.0, 5.0), st.floats(0.0, 5.0))
+def test_pid_output_always_within_limits(samples, kp, ki):
+    pid = PID(kp, ki, out_min=-0.5, out_max=0.8)
+    for ref, meas in samples:
+        u = pid.step(ref, meas, 0.1)
+        assert -0.5 <= u <= 0.8
+        assert abs(pid.integral) <= pid.integral_limit
+
+
+# ---- step responses (DBW paper §5.1) --------------------------------------------------------------
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+def test_steering_step_matches_paper(vehicle):
+    for step in (200.0, -200.0):          # the paper shows both directions of rotation
+        r = step_response("steering", vehicle, step=step)
+        assert _close(r.dead_time_s, 0.100, 0.20), r.summary()
+        assert _close(r.rise_time_s, 0.650, 0.20), r.summary()
+        assert _close(r.overshoot_pct, 3.92, 0.35), r.summary()
+        assert abs(r.steady_state_error) <= 4.0, r.summary()
+        assert r.steady_state_error != 0.0          # static friction leaves a real error
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+@pytest.mark.parametrize("passengers, rise, settling", [(2, 2.20, 4.80), (4, 2.39, 5.45)])
+def test_throttle_step_matches_paper(vehicle, passengers, rise, settling):
+    r = step_response("throttle", vehicle, passengers=passengers, step=3.0)
+    assert _close(r.dead_time_s, 0.320, 0.20), r.summary()
+    assert _close(r.rise_time_s, rise, 0.20), r.summary()
+    assert _close(r.overshoot_pct, 4.73, 0.35), r.summary()
+    assert _close(r.settling_time_s, settling, 0.20), r.summary()
+    # The paper's steady-state error is +-20 deg/s of wheel speed (0.36 rad/s).
+    assert abs(r.steady_state_error) < 0.35, r.summary()
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+def test_more_passengers_respond_slower(vehicle):
+    two = step_response("throttle", vehicle, passengers=2)
+    four = step_response("throttle", vehicle, passengers=4)
+    assert four.rise_time_s > two.rise_time_s
+    assert four.settling_time_s > two.settling_time_s
+
+
+def test_step_response_loop_follows_the_dead_time_of_the_actuator():
+    """The measured dead time is the plant's transport delay, not a property of the gains."""
+    profile = config.load_vehicle("techs4agecar")
+    slow = dict(profile["actuators"]["traction"], dead_time_s=0.6)
+    r = step_response("throttle", profile, actuator_params=slow, duration_s=14.0)
+    assert 0.6 <= r.dead_time_s < 0.7
+
+
+def test_measure_step_on_a_known_curve():
+    t = np.arange(0.0, 20.0, 0.01)
+    tau = 1.0
+    y = np.where(t < 0.5, 0.0, 1.0 - np.exp(-(t - 0.5) / tau))   # first order + 0.5 s dead time
+    m = measure_step(t, y, reference=1.0)
+    assert m["dead_time_s"] == pytest.approx(0.5 + tau * -math.log(0.99), abs=0.02)
+    assert m["rise_time_s"] == pytest.approx(0.5 + tau * math.log(10), abs=0.02)
+    assert m["overshoot_pct"] < 1e-3
+    assert m["settling_time_s"] == pytest.approx(0.5 + tau * math.log(50), abs=0.05)
+
+
+# ---- actuators ---------------------------------------------------------------------------------
+
+def test_steering_stops_at_the_rack_limit():
+    profile = config.load_vehicle("techs4agecar")
+    plant = VehiclePlant(straight_route(), profile, sim_cfg())
+    limit = profile["steering_ratio"] * math.degrees(profile["max_wheel_angle_rad"])
+    for _ in range(500):
+        plant.step(1.0, 0.0)
+    assert plant.state.steering_wheel_deg == pytest.approx(limit)
+    assert plant.state.wheel_angle_rad == pytest.approx(profile["max_wheel_angle_rad"])
+    for _ in range(100):                  # and it can come back off the end stop
+        plant.step(-1.0, 0.0)
+    assert plant.state.steering_wheel_deg < limit - 100
+
+
+def test_steering_effort_below_stiction_does_not_move_the_wheel():
+    profile = config.load_vehicle("techs4agecar")
+    plant = VehiclePlant(straight_route(), profile, sim_cfg())
+    small = 0.9 * profile["actuators"]["steering"]["stiction_effort"]
+    for _ in range(300):
+        plant.step(small, 0.0)
+    assert plant.state.steering_wheel_deg == 0.0
+
+
+def test_traction_dead_time_is_a_pure_delay():
+    profile = config.load_vehicle("ares_shuttle")
+    act = TractionActuator(profile["actuators"]["traction"], profile["empty_mass_kg"],
+                           profile["passenger_mass_kg"], 2)
+    delay_steps = round(profile["actuators"]["traction"]["dead_time_s"] / PHYSICS_DT)
+    for _ in range(delay_steps):
+        assert act.step(1.0, PHYSICS_DT) == 0.0
+    for _ in range(5):
+        act.step(1.0, PHYSICS_DT)
+    assert act.v > 0.0
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+@pytest.mark.parametrize("grade", [0.0, 0.14, -0.14])
+def test_brake_never_drives_the_vehicle_backwards(vehicle, grade):
+    plant = VehiclePlant(straight_route(grade=grade), vehicle, sim_cfg(road_roughness_m=0.0), s0=10.0)
+    loop = SpeedLoop(plant)
+    for _ in range(1200):                 # get to ~3 m/s
+        loop.step(3.0)
+    assert plant.state.v > 2.5
+    speeds = []
+    for _ in range(800):                  # full brake for 8 s
+        speeds.append(plant.step(0.0, -1.0).v)
+    # After the traction dead time and ramp, the brake acts.
+    speeds = np.array(speeds[40:])
+    assert speeds.min() == 0.0            # it stops ...
+    assert np.all(np.diff(speeds) <= 1e-12)   # ... slowing all the way ...
+    assert np.all(speeds[np.argmax(speeds == 0.0):] == 0.0)  # ... and stays stopped
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+def test_holds_on_a_14_percent_grade_with_the_brake_and_rolls_back_with_a_weak_throttle(vehicle):
+    profile = config.load_vehicle(vehicle)
+    plant = VehiclePlant(straight_route(grade=0.14), profile, sim_cfg(road_roughness_m=0.0),
+                         passengers=profile["seats"], s0=50.0)
+    x0 = plant.state.x
+    for _ in range(500):                  # standing, throttle released: the parking brake holds
+        assert plant.step(0.0, 0.0).v == 0.0
+    for _ in range(500):                  # and so does the service brake
+        assert plant.step(0.0, -1.0).v == 0.0
+    assert plant.state.x == x0
+    for _ in range(300):                  # a throttle too weak for the slope: gravity wins
+        plant.step(0.0, 0.02)
+    assert plant.state.v < -0.5 and plant.state.x < x0
+    for _ in range(600):                  # the brake stops the roll-back, and no further
+        st = plant.step(0.0, -1.0)
+        assert st.v <= 0.0
+    assert st.v == 0.0
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+def test_climbs_a_14_percent_grade_fully_loaded(vehicle):
+    profile = config.load_vehicle(vehicle)
+    plant = VehiclePlant(straight_route(grade=0.14), profile, sim_cfg(road_roughness_m=0.0),
+                         passengers=profile["seats"], s0=10.0)
+    loop = SpeedLoop(plant)
+    for _ in range(2000):                 # 20 s at a 3 m/s setpoint
+        loop.step(3.0)
+    st = plant.state
+    assert st.v == pytest.approx(3.0, abs=0.15)
+    assert st.grade == pytest.approx(0.14, abs=1e-6)
+    assert st.z == pytest.approx(0.14 * st.x, abs=1e-6)       # on the road surface
+    assert st.pitch == pytest.approx(-math.atan(0.14), abs=1e-9)   # REP-103: climbing = nose up = negative
+
+
+# ---- the vehicle ---------------------------------------------------------------------------------
+
+def test_start_pose_is_on_the_route_facing_along_it():
+    route = Route.from_tour("default")
+    for s in (0.0, 333.3, 1200.0):
+        plant = VehiclePlant(route, "ares_shuttle", sim_cfg(road_roughness_m=0.0), s0=s)
+        x, y, z, yaw = start_pose(route, s)
+        st = plant.state
+        assert (st.x, st.y, st.z, st.yaw) == pytest.approx((x, y, z, yaw))
+        assert st.s == pytest.approx(s)
+        assert st.v == 0.0 and st.steering_wheel_deg == 0.0
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+def test_bicycle_turns_on_a_circle_of_radius_wheelbase_over_tan_delta(vehicle):
+    profile = config.load_vehicle(vehicle)
+    plant = VehiclePlant(straight_route(), profile, sim_cfg(road_roughness_m=0.0), s0=100.0)
+    alpha = 300.0                          # steering-wheel degrees
+    for _ in range(600):                   # hand on the wheel, gentle throttle
+        plant.step_manual(0.12, 0.0, alpha, PHYSICS_DT)
+    delta = math.radians(plant.state.steering_wheel_deg) / profile["steering_ratio"]
+    assert plant.state.steering_wheel_deg == pytest.approx(alpha, abs=0.01)
+    xs, ys = [], []
+    for _ in range(3000):
+        st = plant.step_manual(0.12, 0.0, alpha, PHYSICS_DT)
+        xs.append(st.x)
+        ys.append(st.y)
+        assert st.yaw_rate == pytest.approx(st.v * math.tan(delta) / profile["wheelbase_m"], rel=1e-3)
+    # Least-squares circle through the rear-axle track: x^2 + y^2 + D x + E y + F = 0.
+    xs, ys = np.array(xs), np.array(ys)
+    A = np.column_stack([xs, ys, np.ones_like(xs)])
+    D, E, F = np.linalg.lstsq(A, -(xs ** 2 + ys ** 2), rcond=None)[0]
+    radius = math.sqrt(D * D / 4 + E * E / 4 - F)
+    assert radius == pytest.approx(profile["wheelbase_m"] / math.tan(delta), rel=1e-3)
+    assert D / -2 + 0 == pytest.approx(100.0, abs=0.5)       # centre to the left of the start
+    assert E / -2 > 0
+
+
+def test_route_progress_follows_the_pass_being_driven_through_the_crossing():
+    """The tour crosses itself: s must run on through the intersection, not jump."""
+    route = Route.from_tour("default")
+    profile = config.load_vehicle("ares_shuttle")
+    plant = VehiclePlant(route, profile, sim_cfg(road_roughness_m=0.0), s0=460.0)
+    L, ratio = profile["wheelbase_m"], profile["steering_ratio"]
+    s_track = [plant.state.s]
+    for _ in range(3000):                  # ~110 m at ~3.7 m/s, through s = 502..532
+        st = plant.state
+        gx, gy, _, _ = route.point_at(st.s + 5.0)          # pure pursuit by hand
+        ang = math.atan2(gy - st.y, gx - st.x) - st.yaw
+        ld = math.hypot(gx - st.x, gy - st.y)
+        wheel = math.atan2(2.0 * L * math.sin(ang), ld)
+        throttle = min(max(0.5 * (3.7 - st.v) + 0.35, 0.0), 1.0)
+        plant.step_manual(throttle, 0.0, math.degrees(wheel) * ratio)
+        s_track.append(plant.state.s)
+        _, xte, _ = route.project(plant.state.x, plant.state.y, s_hint=plant.state.s)
+        assert abs(xte) < 0.5
+    s_track = np.array(s_track)
+    assert s_track[-1] > 545.0
+    assert np.all(np.diff(s_track) > -1e-6)
+    assert np.all(np.diff(s_track) < 0.1)                  # never jumps to the other pass
+    assert plant.state.odometer == pytest.approx(s_track[-1] - 460.0, rel=0.01)
+
+
+def test_elevation_and_grade_come_from_the_route():
+    route = Route.from_tour("default")
+    plant = VehiclePlant(route, "ares_shuttle", sim_cfg(road_roughness_m=0.0), s0=200.0)
+    loop = SpeedLoop(plant)
+    for _ in range(500):
+        loop.step(2.0)
+    st = plant.state
+    _, _, z_road, _ = route.point_at(st.s)
+    assert st.z == pytest.approx(z_road, abs=1e-6)
+    assert st.grade > 0.05                        # on the climb from s=150 to 260
+    # The accelerometer-free check of the pitch: standing on a climb pitches the nose up.
+    assert st.pitch == pytest.approx(-math.atan(st.grade), abs=1e-9)
+
+
+def test_manual_driving_pedals_and_steering_torque():
+    plant = VehiclePlant(straight_route(), "techs4agecar", sim_cfg(), s0=10.0)
+    st = plant.step_manual(0.5, 0.0, 90.0)
+    assert st.manual and st.throttle_pedal == 0.5 and st.brake_pedal == 0.0
+    assert st.steering_torque                 # the hand leads the wheel
+    for _ in range(400):
+        st = plant.step_manual(0.5, 0.0, 90.0)
+    assert st.steering_wheel_deg == pytest.approx(90.0, abs=0.1)
+    assert not st.steering_torque             # holding the wheel still needs no torque
+    assert st.v > 1.0
+    for _ in range(800):                      # brake pedal wins over the throttle pedal
+        st = plant.step_manual(0.5, 1.0, 90.0)
+    assert st.v == 0.0 and st.drive_effort == -1.0
+    st = plant.step(0.0, 0.0)                 # the board takes over again
+    assert not st.manual and st.throttle_pedal == 0.0 and not st.steering_torque
+
+
+def test_road_roughness_is_seeded_and_still_at_standstill():
+    route = straight_route()
+
+    def run(seed):
+        plant = VehiclePlant(route, "ares_shuttle", sim_cfg(), seed=seed, s0=10.0)
+        still = [plant.step(0.0, 0.0).vertical_accel for _ in range(100)]
+        loop = SpeedLoop(plant)
+        moving = [loop.step(3.0).vertical_accel for _ in range(1500)]
+        return np.array(still), np.array(moving), plant.state
+
+    still, moving, a = run(1)
+    _, moving_again, b = run(1)
+    _, moving_other, _ = run(2)
+    assert np.all(still == 0.0)
+    assert np.array_equal(moving, moving_again) and a == b
+    assert not np.array_equal(moving, moving_other)
+    rms = float(np.std(moving[500:]))
+    assert 0.05 < rms < 1.0                   # felt, but a small roughness
+
+
+def test_plant_from_run_config():
+    cfg = config.build_run_config({"vehicle": "techs4agecar", "sim": {"passengers": 3}})
+    plant = VehiclePlant.from_config(cfg, straight_route())
+    assert plant.passengers == 3
+    assert plant.traction.mass_kg == pytest.approx(730 + 3 * 75)
+    plant.passengers = 4
+    assert plant.traction.mass_kg == pytest.approx(730 + 4 * 75)
+
+
+def test_released_throttle_regenerates_gently_down_to_a_stop():
+    profile = config.load_vehicle("techs4agecar")
+    traction = profile["actuators"]["traction"]
+    plant = VehiclePlant(straight_route(), profile, sim_cfg(road_roughness_m=0.0), s0=10.0)
+    loop = SpeedLoop(plant)
+    for _ in range(1200):
+        loop.step(3.0)
+    m = plant.traction.mass_kg
+    decel_limit = (traction["max_regen_force_n"] + traction["rolling_resistance"] * m * GRAVITY
+                   + 0.5 * 1.2 * traction["drag_area_m2"] * 3.2 ** 2) / m
+    speeds = []
+    for _ in range(2000):
+        st = plant.step(0.0, 0.0)
+        speeds.append(st.v)
+        assert -decel_limit - 1e-9 <= st.accel <= 1e-9
+    assert min(speeds) == 0.0 and speeds[-1] == 0.0
+    assert min(a for a in np.diff(speeds) / PHYSICS_DT) < -0.9 * decel_limit   # regen does bite
+
+
+def test_grade_is_felt_along_the_heading():
+    plant = VehiclePlant(straight_route(grade=0.14), "techs4agecar", sim_cfg(road_roughness_m=0.0), s0=100.0)
+    assert plant.step(0.0, 0.0).grade == pytest.approx(0.14)
+    plant.state.yaw = math.pi                 # turned round: the same road now goes downhill
+    st = plant.step(0.0, 0.0)
+    assert st.grade == pytest.approx(-0.14)
+    assert st.pitch == pytest.approx(math.atan(0.14))

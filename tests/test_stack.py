@@ -1,0 +1,95 @@
+"""The whole stack, as a newcomer runs it: real processes, a real router, the simulated shuttle."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from ares.clock import Clock
+from ares.messages import DriveMode
+from ares.processes import PROCESSES
+from ares.route import load_route
+from ares.stack import engage_automatic
+from ares.supervisor import Supervisor
+from tests.conftest import REPO, make_run_config, free_port
+
+pytestmark = pytest.mark.stack
+
+
+def headless(*args: str, timeout_s: float = 600) -> dict:
+    env = {**os.environ, "ARES_RUNS_DIR": os.environ.get("ARES_TEST_RUNS_DIR", "/tmp/ares-test-runs")}
+    proc = subprocess.run([sys.executable, "-m", "ares.cli", "run", "--headless", *args],
+                          cwd=REPO, env=env, capture_output=True, text=True, timeout=timeout_s,
+                          stdin=subprocess.DEVNULL)
+    lines = proc.stdout.strip().splitlines()
+    assert proc.returncode == 0, f"exit {proc.returncode}\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+    return json.loads(lines[-1])
+
+
+def test_a_full_lap_of_the_tour_at_five_times_real_time():
+    result = headless("--laps", "1", "--speed", "5")
+    assert result["ok"] and result["laps"] == 1
+    assert result["distance_m"] == pytest.approx(result["route_length_m"], rel=0.02)
+    assert result["xte_rmse_m"] <= 0.35          # the DBW paper's real vehicle: 0.347 m
+    assert result["xte_max_m"] <= 0.85           # ... and 0.863 m
+    assert 200 < result["lap_time_s"] < 1000
+
+
+def test_speed_factor_does_not_change_the_result(tmp_path):
+    route = tmp_path / "s_bend.csv"
+    # 60 m straight, a 90 degree bend of ~15 m radius, 40 m straight
+    import math
+    points = [(x, 0.0) for x in range(0, 60, 2)]
+    points += [(60 + 15 * math.sin(a), 15 - 15 * math.cos(a)) for a in [i * math.pi / 40 for i in range(21)]]
+    points += [(75.0, 15 + y) for y in range(2, 42, 2)]
+    route.write_text("\n".join(f"{x:.3f},{y:.3f}" for x, y in points))
+    real_time = headless("--route", str(route), "--speed", "1")
+    fast = headless("--route", str(route), "--speed", "5")
+    assert fast["lap_time_s"] == pytest.approx(real_time["lap_time_s"], rel=0.05)
+    assert fast["distance_m"] == pytest.approx(real_time["distance_m"], rel=0.02)
+    assert abs(fast["xte_rmse_m"] - real_time["xte_rmse_m"]) < 0.03
+    assert abs(fast["xte_max_m"] - real_time["xte_max_m"]) < 0.08
+
+
+def test_a_dead_controller_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):
+    cfg = make_run_config(free_port())
+    clock = Clock(speed=2.0)
+    sup = Supervisor(cfg, PROCESSES, tmp_path / "run", clock)
+    stop = threading.Event()
+    sup.start()
+    loop = threading.Thread(target=sup.run, args=(stop,), daemon=True)
+    loop.start()
+    try:
+        bus = sup.bus
+        truth = bus.subscribe("sim/truth")
+        car = bus.subscribe("dbw/car_state")
+        deadline = time.monotonic() + 60
+        while truth.latest is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        engage_automatic(bus, car, stop)
+        while truth.latest.v < 2.0 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert truth.latest.v >= 2.0, "the shuttle never got going"
+
+        os.kill(sup.children["controller"].pid, signal.SIGKILL)
+        killed = time.monotonic()
+        while not car.latest.watchdog_tripped and time.monotonic() - killed < 5:
+            time.sleep(0.02)
+        assert car.latest.watchdog_tripped, "the bridge did not notice the silent controller"
+        assert car.latest.v_command == 0.0 and car.latest.mode == DriveMode.AUTOMATIC
+        # the supervisor restarts the controller; setpoints return and the shuttle drives on
+        while not (sup.children["controller"].restarts >= 1 and truth.latest.v > 1.0) \
+                and time.monotonic() - killed < 30:
+            time.sleep(0.1)
+        assert sup.children["controller"].restarts >= 1
+        assert not car.latest.watchdog_tripped and truth.latest.v > 1.0
+        route = load_route(cfg)
+        assert abs(route.project(truth.latest.x, truth.latest.y, truth.latest.s)[1]) < 0.5
+    finally:
+        stop.set()
+        loop.join(timeout=5)
+        sup.stop()

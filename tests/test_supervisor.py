@@ -1,0 +1,344 @@
+"""The supervisor with real processes: test nodes (tests/nodes/ticker.py) over the router the
+supervisor hosts itself, on a free port.
+
+The test config uses a 1 s liveliness lease and a 2 s heartbeat staleness so that both
+detections can be seen on their own: a frozen (SIGSTOPped) process loses its token first,
+while a process busy-looping with the GIL keeps its token well past the lease and only its
+heartbeat gives it away. The supervisor is stepped from the test (its run() loop is used by
+the service/signal test), so every measured time is what the supervisor itself noticed.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from ares import config
+from ares.bus import Bus
+from ares.clock import Clock
+from ares.messages import EventLevel, ProcessState, SupervisorState
+from ares.processes import ProcessSpec
+from ares.supervisor import Supervisor
+from tests.conftest import make_run_config
+from tests.nodes.ticker import CONTROL_DIR_ENV
+
+pytestmark = [pytest.mark.stack, pytest.mark.timeout(60)]
+
+TEST_OVERRIDES = {
+    "bus": {"lease_ms": 1000},
+    "heartbeat": {"stale_after_s": 2.0},
+    "supervisor": {"stop_timeout_s": 1.0},
+}
+RUNNING, RESTARTING, STOPPED = ProcessState.RUNNING, ProcessState.RESTARTING, ProcessState.STOPPED
+
+
+def pid_alive(pid: int) -> bool:
+    """True if the pid is a live process (a zombie waiting for its reaper counts as dead)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def drive(sup: Supervisor, cond, timeout_s: float = 10.0, what: str = "") -> float:
+    """Step the supervisor every check period until cond() holds; the time it took."""
+    started = time.monotonic()
+    while True:
+        sup.step()
+        if cond():
+            return time.monotonic() - started
+        if time.monotonic() - started > timeout_s:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what or cond}: {sup.status()}")
+        time.sleep(sup.check_period_s)
+
+
+class Harness:
+    """A started supervisor plus an observer Bus (another session, like a GUI would be)."""
+
+    def __init__(self, sup: Supervisor, observer: Bus, control_dir: Path):
+        self.sup, self.observer, self.control_dir = sup, observer, control_dir
+        self.events = observer.subscribe("events", queue=200)
+        self.seen_events: list = []
+        self.states = observer.subscribe("supervisor/state")
+        self.token_changes: list[tuple[float, str, bool]] = []
+        self._watch = observer.watch_alive(lambda name, alive: self.token_changes.append((time.monotonic(), name, alive)))
+
+    def child(self, name: str):
+        return self.sup.children[name]
+
+    def drive(self, cond, timeout_s: float = 10.0, what: str = "") -> float:
+        return drive(self.sup, cond, timeout_s, what)
+
+    def all_running(self) -> float:
+        return self.drive(lambda: all(c.state is RUNNING for c in self.sup.children.values()), what="all running")
+
+    def control(self, name: str, command: str | None) -> None:
+        path = self.control_dir / name
+        if command is None:
+            path.unlink(missing_ok=True)
+        else:
+            path.write_text(command)
+
+    def restart_events(self, name: str) -> list:
+        """Every process_restart Event about `name` the observer has received so far."""
+        self.seen_events += [m for _, m in self.events.drain()]
+        return [m for m in self.seen_events if m.kind == "process_restart" and m.data.get("process") == name]
+
+
+@pytest.fixture
+def harness(tmp_path, port, monkeypatch):
+    """harness(*names, overrides=...) starts a supervisor over ticker nodes; the first name is
+    safety-relevant, the others are not. Everything is stopped at teardown."""
+    control_dir = tmp_path / "control"
+    control_dir.mkdir()
+    monkeypatch.setenv(CONTROL_DIR_ENV, str(control_dir))
+    made: list[Bus | Supervisor] = []
+
+    def make(*names: str, overrides: dict | None = None, commands: dict | None = None) -> Harness:
+        for name, command in (commands or {}).items():
+            (control_dir / name).write_text(command)
+        cfg = make_run_config(port, config.deep_merge(TEST_OVERRIDES, overrides or {}))
+        table = [ProcessSpec(n, "tests.nodes.ticker", None, safety_relevant=(i == 0)) for i, n in enumerate(names)]
+        sup = Supervisor(cfg, table, tmp_path / "run", Clock())
+        made.append(sup)
+        observer = Bus(cfg, "observer")
+        made.insert(0, observer)                    # closed before the router it talks to
+        h = Harness(sup, observer, control_dir)
+        sup.start()
+        return h
+
+    yield make
+    for thing in made:
+        if isinstance(thing, Bus):
+            thing.close()
+        else:
+            thing.stop()
+
+
+def test_starts_all_and_reports_them_running(harness, tmp_path):
+    h = harness("alpha", "beta", "gamma")
+    took = h.all_running()
+    assert took < 10
+    status = {p.name: p for p in h.sup.status().processes}
+    pids = [status[n].pid for n in ("alpha", "beta", "gamma")]
+    assert len(set(pids)) == 3 and all(pid_alive(pid) for pid in pids)
+    for name, pid in zip(("alpha", "beta", "gamma"), pids):
+        p = status[name]
+        assert p.state is RUNNING and p.restarts == 0 and p.last_failure == "" and p.last_exit_code is None
+        assert p.heartbeat_age_s is not None and p.heartbeat_age_s < 1.0
+        assert os.getpgid(pid) == pid                       # its own process group
+        env = dict(kv.split("=", 1) for kv in Path(f"/proc/{pid}/environ").read_text().split("\0") if "=" in kv)
+        assert env["ARES_PROCESS_NAME"] == name
+        assert env["ARES_RUN_CONFIG"] == str(tmp_path / "run" / "config.json")
+        assert env["ARES_CLOCK_EPOCH"] == repr(h.sup.clock.epoch) and env["PYTHONUNBUFFERED"] == "1"
+        assert (tmp_path / "run" / "logs" / f"{name}.log").read_text().startswith("====")
+    assert status["alpha"].safety_relevant and not status["beta"].safety_relevant
+    assert json.loads((tmp_path / "run" / "config.json").read_text()) == h.sup.cfg
+    # the observer sees the same on supervisor/state, published at ~2 Hz even with no change
+    h.drive(lambda: h.states.latest is not None and all(p.state is RUNNING for p in h.states.latest.processes),
+            what="supervisor/state showing all running")
+    assert {p.name: p.pid for p in h.states.latest.processes} == dict(zip(("alpha", "beta", "gamma"), pids))
+    before = h.states.count
+    end = time.monotonic() + 1.6
+    h.drive(lambda: time.monotonic() > end, what="1.6 s of quiet running")
+    assert 2 <= h.states.count - before <= 6
+
+
+def test_sigkilled_process_is_running_again_within_2s(harness):
+    h = harness("victim", "bystander")
+    h.all_running()
+    h.drive(lambda: h.states.latest is not None, what="observer connected")
+    old, bystander = h.child("victim").pid, h.child("bystander").pid
+    os.kill(old, signal.SIGKILL)
+    took = h.drive(lambda: h.child("victim").state is RUNNING and h.child("victim").pid != old,
+                   what="victim running again")
+    print(f"\nSIGKILL -> running again (first heartbeat of the new process): {took:.2f} s")
+    assert took < 2.0
+    victim = h.child("victim")
+    assert victim.restarts == 1 and pid_alive(victim.pid)
+    assert victim.last_failure == "killed by SIGKILL" and victim.last_exit_code == -signal.SIGKILL
+    assert h.child("bystander").pid == bystander and h.child("bystander").restarts == 0
+    h.drive(lambda: h.restart_events("victim"), timeout_s=3, what="the restart event")
+    [event] = h.restart_events("victim")
+    assert event.source == "supervisor" and event.level is EventLevel.FAULT    # victim is safety-relevant
+    assert event.data["reason"] == "killed by SIGKILL" and "killed by SIGKILL" in event.message
+
+
+def test_sigstopped_process_is_noticed_by_its_lease_and_restarted(harness):
+    h = harness("frozen")
+    h.all_running()
+    old = h.child("frozen").pid
+    os.kill(old, signal.SIGSTOP)
+    noticed = h.drive(lambda: h.child("frozen").state is RESTARTING, what="the frozen process noticed")
+    print(f"\nSIGSTOP -> noticed: {noticed:.2f} s ({h.child('frozen').last_failure})")
+    assert noticed < 2.5
+    # the lease (1 s) runs out before the heartbeat is stale (2 s): the token gave it away
+    assert h.child("frozen").last_failure == "liveliness token lost"
+    assert not pid_alive(old)                       # a hung process is killed, not abandoned
+    assert h.child("frozen").last_exit_code == -signal.SIGKILL
+    h.drive(lambda: h.child("frozen").state is RUNNING, what="restarted")
+    assert h.child("frozen").pid != old and h.child("frozen").restarts == 1
+
+
+def test_busy_looping_process_keeps_its_token_but_is_noticed_by_its_heartbeat(harness):
+    h = harness("spinner")
+    h.all_running()
+    old = h.child("spinner").pid
+    h.control("spinner", "hang")
+    hung_at = time.monotonic()
+    # well past the 1 s lease without a heartbeat, its liveliness token is still there
+    h.drive(lambda: h.child("spinner").heartbeat_age(time.monotonic()) > 1.3, what="heartbeat silent > lease")
+    assert h.child("spinner").token_seen and not h.child("spinner").token_lost
+    h.drive(lambda: h.child("spinner").state is RESTARTING, what="the spinner noticed")
+    noticed = time.monotonic() - hung_at
+    h.control("spinner", None)                      # let the next incarnation run normally
+    print(f"\nbusy loop -> noticed: {noticed:.2f} s ({h.child('spinner').last_failure})")
+    assert h.child("spinner").last_failure.startswith("heartbeat stale for ")
+    assert float(h.child("spinner").last_failure.split()[3]) >= 2.0
+    assert noticed < 3.0
+    last_heartbeat = h.child("spinner").last_heartbeat
+    assert not pid_alive(old)
+    h.drive(lambda: h.child("spinner").state is RUNNING, what="restarted")
+    assert h.child("spinner").restarts == 1 and h.child("spinner").pid != old
+    # the token was never lost while it spun (the 1 s lease did not apply): it only went when
+    # the supervisor killed it, after 2 s without a heartbeat
+    lost = [t for t, name, alive in h.token_changes if name == "spinner" and not alive]
+    assert len(lost) == 1 and lost[0] >= last_heartbeat + 2.0
+
+
+def test_crashing_process_is_restarted_with_growing_backoff(harness):
+    h = harness("keeper", "crasher", overrides={"supervisor": {"backoff_reset_after_s": 1.0}})
+    h.all_running()
+    h.drive(lambda: h.states.latest is not None, what="observer connected")
+    crasher = h.child("crasher")
+    h.control("crasher", "exit 3")
+    gaps = []                                       # failure noticed -> process started again
+    for n in range(1, 4):
+        h.drive(lambda: crasher.state is RESTARTING, what=f"crash {n}")
+        failed_at = time.monotonic()
+        assert crasher.last_exit_code == 3 and crasher.last_failure == "exited with code 3"
+        if n == 3:
+            h.control("crasher", None)
+        h.drive(lambda: crasher.restarts == n, what=f"restart {n}")
+        gaps.append(time.monotonic() - failed_at)
+    print(f"\nbackoff gaps: {[round(g, 2) for g in gaps]}")
+    for gap, backoff in zip(gaps, [0.2, 0.5, 1.0]):
+        assert backoff - 0.05 <= gap <= backoff + 0.4
+    assert gaps[0] < gaps[1] < gaps[2]
+    h.drive(lambda: crasher.state is RUNNING, what="crasher recovered")
+    events = h.restart_events("crasher")
+    assert len(events) == 3 and all(e.level is EventLevel.WARNING for e in events)  # not safety-relevant
+    assert [e.data["backoff_s"] for e in events] == [0.2, 0.5, 1.0]
+    # after a healthy run longer than backoff_reset_after_s, the backoff starts afresh
+    h.drive(lambda: time.monotonic() - crasher.running_since > 1.2, what="a healthy second")
+    h.control("crasher", "exit 3")
+    h.drive(lambda: crasher.state is RESTARTING, what="crash after recovery")
+    h.control("crasher", None)
+    assert crasher.backoff_s == 0.2
+    assert h.child("keeper").restarts == 0
+
+
+def test_stop_leaves_no_process_of_the_run_alive(harness):
+    h = harness("plain", "stubborn", "parent", commands={"stubborn": "ignore-term", "parent": "grandchild"})
+    h.all_running()
+    os.kill(h.child("plain").pid, signal.SIGKILL)       # an earlier incarnation must be gone too
+    h.drive(lambda: h.child("plain").restarts == 1 and h.child("plain").state is RUNNING, what="plain restarted")
+    pids = {c.name: c.pid for c in h.sup.children.values()}
+    grandchild = int((h.control_dir / "parent.grandchild").read_text())
+    assert all(pid_alive(p) for p in [*pids.values(), grandchild])
+    started = time.monotonic()
+    h.sup.stop()
+    took = time.monotonic() - started
+    print(f"\nstop took {took:.2f} s (one child ignores SIGTERM)")
+    stuck = [p for p in [*pids.values(), grandchild] if pid_alive(p)]
+    assert stuck == []
+    assert 1.0 <= took < 3.0                        # waited stop_timeout_s for the stubborn one, then SIGKILL
+    status = {p.name: p for p in h.sup.status().processes}
+    assert all(p.state is STOPPED and p.pid is None for p in status.values())
+    assert status["stubborn"].last_exit_code == -signal.SIGKILL
+    assert status["plain"].last_exit_code == 0      # left cleanly on SIGTERM
+    assert h.sup.stopped and h.sup.bus.session.is_closed()
+    h.sup.stop()                                    # idempotent
+    h.sup.step()                                    # and stepping afterwards does nothing
+    assert h.sup.status().processes[0].state is STOPPED
+
+
+def test_status_service_answers_and_a_signal_stops_the_run_loop(harness):
+    h = harness("one", "two")
+    replies: list[SupervisorState] = []
+    errors: list[BaseException] = []
+
+    def client() -> None:
+        try:
+            deadline = time.monotonic() + 15
+            while time.monotonic() < deadline:
+                reply = h.observer.call("supervisor/status", timeout_s=2.0)
+                replies.append(reply)
+                if all(p.state is RUNNING for p in reply.processes):
+                    break
+                time.sleep(0.1)
+        except BaseException as exc:
+            errors.append(exc)
+        finally:
+            os.kill(os.getpid(), signal.SIGUSR1)    # like Ctrl-C reaching the main thread
+
+    previous = signal.signal(signal.SIGUSR1, lambda *_: h.sup.stop())   # stop() from a signal handler
+    thread = threading.Thread(target=client)
+    try:
+        thread.start()
+        started = time.monotonic()
+        h.sup.run()                                 # returns once the signal's stop() is done
+        took = time.monotonic() - started
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+        thread.join(5)
+    assert not errors
+    assert replies and isinstance(replies[-1], SupervisorState)
+    last = {p.name: p for p in replies[-1].processes}
+    assert set(last) == {"one", "two"} and all(p.state is RUNNING and p.pid for p in last.values())
+    assert took < 15 and h.sup.stopped
+    assert not any(pid_alive(p.pid) for p in last.values())
+
+
+def test_process_without_a_first_heartbeat_is_failed_after_the_grace(harness):
+    h = harness("mute", overrides={"supervisor": {"start_grace_s": 1.5}}, commands={"mute": "sleep"})
+    old = h.child("mute").pid
+    took = h.drive(lambda: h.child("mute").state is RESTARTING, what="the mute process failed")
+    h.control("mute", None)
+    assert 1.5 <= took < 2.5
+    assert h.child("mute").last_failure == "no heartbeat within 1.5 s of start"
+    assert not pid_alive(old)
+    h.drive(lambda: h.child("mute").state is RUNNING, what="restarted")
+    assert h.child("mute").restarts == 1
+
+
+def test_joins_an_external_router_when_not_embedded(router, tmp_path, port):
+    cfg = config.deep_merge(router, {"bus": {"embedded_router": False}})   # the port is the router's: hosting would fail
+    sup = Supervisor(cfg, [ProcessSpec("solo", "tests.nodes.ticker", None, safety_relevant=False)],
+                     tmp_path / "run", Clock())
+    try:
+        sup.start()
+        drive(sup, lambda: sup.children["solo"].state is RUNNING, what="solo running through the external router")
+        assert sup.children["solo"].token_seen      # its token reached us through that router
+    finally:
+        sup.stop()
+
+
+def test_a_taken_router_port_is_a_clear_error(tmp_path):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        cfg = make_run_config(taken.getsockname()[1])
+        with pytest.raises(RuntimeError, match="cannot host the embedded router .* already running"):
+            Supervisor(cfg, [], tmp_path / "run", Clock())
