@@ -223,12 +223,11 @@ class _Child:
         try:
             line = self._lines.get(timeout=timeout_s)
         except queue.Empty:
-            raise BenchError(f"{self.name}: no answer to {command!r} within {timeout_s:.0f} s "
-                             f"(log: {self.log_path})") from None
+            raise BenchError(f"{self.name}: no answer to {command!r} within {timeout_s:.0f} s"
+                             f"{_tail(self.log_path)}") from None
         if line is None:
             self.proc.wait(timeout=5)
-            tail = self.log_path.read_text()[-800:] if self.log_path.exists() else ""
-            raise BenchError(f"{self.name} exited with code {self.proc.returncode}:\n{tail}")
+            raise BenchError(f"{self.name} exited with code {self.proc.returncode}{_tail(self.log_path)}")
         return json.loads(line)
 
     def stop(self) -> None:
@@ -245,6 +244,14 @@ class _Child:
                     self.proc.kill()
                     self.proc.wait()
         self._log.close()
+
+
+def _tail(path: Path, chars: int = 800) -> str:
+    try:
+        text = path.read_text(errors="replace").strip()
+    except OSError:
+        return ""
+    return f"; its log ends:\n{text[-chars:]}" if text else ""
 
 
 def _stop_process(proc: subprocess.Popen) -> None:
@@ -287,7 +294,11 @@ def run_bus_bench(seconds: float = 6.0, mode: str | None = None, interval_ms: fl
                                   stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         children: list[_Child] = []
         try:
-            wait_for_port(port, 15.0, router)
+            try:
+                wait_for_port(port, 15.0, router)
+            except BenchError as exc:
+                router_log.flush()
+                raise BenchError(f"{exc}{_tail(tmpdir / 'router.log')}") from None
             sub = _Child("subscriber", [sys.executable, "-m", "ares.bench", "sub"], env, tmpdir / "sub.log")
             children.append(sub)
             if not sub.ask(None, 30).get("ready"):
@@ -312,6 +323,12 @@ def run_bus_bench(seconds: float = 6.0, mode: str | None = None, interval_ms: fl
             say(f"throughput: back to back for {burst_s:g} s through a blocking publisher")
             thr_pub = pub.ask(f"burst {burst_s}", burst_s * 4 + 30)
             thr_sub = sub.ask(f"wait {thr_pub['sent']} 5", burst_s * 20 + 60)
+        except BenchError as exc:
+            if router.poll() is not None:   # the likely cause: say so
+                router_log.flush()
+                raise BenchError(f"the router exited with code {router.returncode} ({exc})"
+                                 f"{_tail(tmpdir / 'router.log')}") from None
+            raise
         finally:
             for child in reversed(children):
                 child.stop()

@@ -103,12 +103,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--laps", type=_positive_int, metavar="N", help="laps of the tour to drive headless (default 1)")
     run.add_argument("--speed", type=_positive_float, default=1.0, metavar="X",
                      help="clock speed: simulated seconds per wall second (default 1)")
-    run.add_argument("--route", metavar="FILE", help="tour file (YAML) instead of the default tour")
+    run.add_argument("--route", metavar="FILE", help="an open route (CSV of x,y[,z] metres) instead of the built-in tour")
     run.add_argument("--vehicle", metavar="NAME", help="vehicle profile (config/vehicles/NAME.yaml)")
     run.add_argument("--passengers", type=_non_negative_int, metavar="N", help="passengers on board")
     run.add_argument("--vehicle-id", type=_vehicle_id, metavar="ID", help="vehicle id in the bus keys")
     run.add_argument("--router", type=_endpoint, metavar="ENDPOINT",
                      help="use this external router instead of hosting the embedded one")
+    run.add_argument("--listen", type=_endpoint, metavar="ENDPOINT",
+                     help="where the embedded router listens (default: bus.router, tcp/127.0.0.1:7447)")
     run.add_argument("--run-dir", metavar="DIR", help="where the run's config and logs go")
 
     node = sub.add_parser("node", help="run one process of the stack in the foreground",
@@ -130,6 +132,22 @@ def build_parser() -> argparse.ArgumentParser:
     echo.add_argument("--count", type=_positive_int, metavar="N", help="stop after N messages")
     echo.add_argument("--seconds", type=_positive_float, metavar="S", help="stop after S seconds")
     _add_connection_args(echo)
+
+    driver = sub.add_parser("driver", help="act as the simulated shuttle's driver (button, pedals, steering wheel)",
+                            description="Inject a driver action into the simulated shuttle. Any pedal or "
+                                        "steering-wheel action switches the drive-by-wire bridge to Manual; "
+                                        "the button goes Manual -> Ready (and back).")
+    driver.add_argument("action", choices=["button", "throttle", "brake", "steer", "release"])
+    driver.add_argument("value", type=float, nargs="?", default=0.0,
+                        help="pedal position 0..1, or steering-wheel angle in degrees")
+    driver.add_argument("--duration", type=_positive_float, default=2.0, metavar="S",
+                        help="how long the driver keeps it up, stack seconds (default 2)")
+    _add_connection_args(driver)
+
+    auto = sub.add_parser("auto", help="ask the drive-by-wire bridge for Automatic mode (set_automatic_mode)",
+                          description="Request Automatic mode. The bridge accepts only in Ready, i.e. after "
+                                      "the Auto/Manual button (`ares driver button`).")
+    _add_connection_args(auto)
 
     bench = sub.add_parser("bench", help="benchmarks", description="Benchmarks.")
     bench_sub = bench.add_subparsers(dest="bench", metavar="BENCH")
@@ -350,6 +368,31 @@ def cmd_echo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _call(args: argparse.Namespace, service: str, request=None):
+    from ares.bus import ServiceError
+    bus = _connect(args, "cli")
+    try:
+        return bus.call(service, request)
+    except ServiceError as exc:
+        raise CliError(str(exc)) from None
+    finally:
+        bus.close()
+
+
+def cmd_driver(args: argparse.Namespace) -> int:
+    from ares.messages import DriverCommand
+    reply = _call(args, "sim/driver", DriverCommand(action=args.action.upper(), value=args.value,
+                                                    duration_s=args.duration))
+    print(reply.detail)
+    return 0 if reply.ok else 1
+
+
+def cmd_auto(args: argparse.Namespace) -> int:
+    reply = _call(args, "set_automatic_mode")
+    print(f"{'accepted' if reply.accepted else 'refused'}: mode {reply.mode.value}{': ' + reply.reason if reply.reason else ''}")
+    return 0 if reply.accepted else 1
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from ares import bench
     if args.bench != "bus":
@@ -366,7 +409,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "node": cmd_node, "topics": cmd_topics, "echo": cmd_echo, "bench": cmd_bench}
+COMMANDS = {"run": cmd_run, "node": cmd_node, "topics": cmd_topics, "echo": cmd_echo, "driver": cmd_driver,
+            "auto": cmd_auto, "bench": cmd_bench}
 
 
 def main(argv: list[str] | None = None) -> int:

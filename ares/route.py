@@ -80,6 +80,14 @@ class Route:
     def wrap_s(self, s: float) -> float:
         return s % self.length if self.closed else min(max(s, 0.0), self.length)
 
+    def step_between(self, s_from: float, s_to: float) -> float:
+        """Signed distance along the route from s_from to s_to, taking the short way round a
+        closed tour (so crossing the start line counts as a small step forward)."""
+        step = s_to - s_from
+        if self.closed and abs(step) > self.length / 2:
+            step -= math.copysign(self.length, step)
+        return step
+
     def index_at(self, s: float) -> int:
         return int(min(np.searchsorted(self.s, self.wrap_s(s), side="right") - 1, len(self.s) - 1))
 
@@ -121,7 +129,14 @@ class Route:
         ax, ay = self.x[idx], self.y[idx]
         ex, ey = self.x[j] - ax, self.y[j] - ay
         seg2 = ex * ex + ey * ey
-        t = np.clip(((x - ax) * ex + (y - ay) * ey) / np.where(seg2 > 0, seg2, 1.0), 0.0, 1.0)
+        lo = np.zeros(len(idx))
+        hi = np.ones(len(idx))
+        if not self.closed:
+            # before the start or past the end of an open route, the error across the route is
+            # measured from its extension: overshooting the end is not a cross-track error
+            lo[idx == 0] = -np.inf
+            hi[idx == n - 2] = np.inf
+        t = np.clip(((x - ax) * ex + (y - ay) * ey) / np.where(seg2 > 0, seg2, 1.0), lo, hi)
         px, py = ax + t * ex, ay + t * ey
         d2 = (x - px) ** 2 + (y - py) ** 2
         k = int(np.argmin(d2))
@@ -129,7 +144,7 @@ class Route:
         seg_len = math.sqrt(seg2[k])
         side = ex[k] * (y - ay[k]) - ey[k] * (x - ax[k])
         xte = math.copysign(math.sqrt(d2[k]), side) if d2[k] > 0 else 0.0
-        return float(self.s[i] + t[k] * seg_len), xte, i
+        return float(self.s[i] + t[k] * seg_len), xte, i   # s may leave [0, length] on an open route
 
     def zones_at(self, s: float) -> list[Zone]:
         s = self.wrap_s(s)

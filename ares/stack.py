@@ -25,6 +25,7 @@ from ares.bus import Bus, ServiceError
 from ares.clock import Clock
 from ares.messages import DriveMode, DriverCommand
 from ares.processes import PROCESSES
+from ares.report import write_lap_svg
 from ares.route import Route, RouteError, load_route
 from ares.supervisor import Supervisor
 
@@ -48,6 +49,8 @@ def overrides_from_args(args) -> dict:
         over["sim"]["passengers"] = args.passengers
     if getattr(args, "route", None):
         over["route_file"] = str(Path(args.route).resolve())
+    if getattr(args, "listen", None):
+        over["bus"]["router"] = args.listen
     if getattr(args, "router", None):
         over["bus"]["router"] = args.router
         over["bus"]["embedded_router"] = False
@@ -67,19 +70,22 @@ class LapTracker:
     odometer_start: float | None = None
     odometer_m: float = 0.0
     xte: list[float] = field(default_factory=list)
+    xs: list[float] = field(default_factory=list)
+    ys: list[float] = field(default_factory=list)
+    progress: list[float] = field(default_factory=list)
 
     def update(self, x: float, y: float, odometer: float) -> None:
         s, xte, _ = self.route.project(x, y, self.s_hint)
         if self.s_hint is not None:
-            step = s - self.s_hint
-            if self.route.closed and abs(step) > self.route.length / 2:
-                step -= math.copysign(self.route.length, step)
-            self.travelled_m += step
+            self.travelled_m += self.route.step_between(self.s_hint, s)
         self.s_hint = s
         if self.odometer_start is None:
             self.odometer_start = odometer
         self.odometer_m = odometer - self.odometer_start
         self.xte.append(xte)
+        self.xs.append(x)
+        self.ys.append(y)
+        self.progress.append(self.travelled_m)
 
     def summary(self) -> dict:
         err = np.abs(np.array(self.xte)) if self.xte else np.array([math.nan])
@@ -202,6 +208,11 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
               "total_time_s": round(lap_time, 2), **tracker.summary(),
               "speed_factor": clock.speed, "wall_time_s": round(time.monotonic() - wall_start, 1),
               "vehicle": cfg["vehicle"], "run_dir": str(run_dir)}
+    picture = write_lap_svg(run_dir / "lap.svg", route, np.array(tracker.xs), np.array(tracker.ys),
+                            np.array(tracker.progress), np.array(tracker.xte),
+                            f"{route.name}: {result['distance_m']:.0f} m in {lap_time:.0f} s, "
+                            f"{cfg['vehicle']}, controller pose from {cfg['controller']['pose_topic']}")
+    result["plot"] = str(picture)
     print(json.dumps(result))
     return 0
 

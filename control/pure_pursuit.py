@@ -77,15 +77,9 @@ class PurePursuit:
                                     params.get("narrow_speed_mps"))
         self.max_kappa = math.tan(float(vehicle["max_wheel_angle_rad"])) / float(vehicle["wheelbase_m"])
         self.s_hint: float | None = None
-        self.travelled = 0.0
 
     def command(self, x: float, y: float, yaw: float, v: float) -> PursuitCommand:
         s, xte, i = self.route.project(x, y, self.s_hint)
-        if self.s_hint is not None:
-            step = s - self.s_hint
-            if self.route.closed and abs(step) > self.route.length / 2:
-                step -= math.copysign(self.route.length, step)
-            self.travelled += max(step, 0.0)
         self.s_hint = s
         heading_error = math.atan2(math.sin(yaw - self.route.yaw[i]), math.cos(yaw - self.route.yaw[i]))
         finished = not self.route.closed and s >= self.route.length - 0.5

@@ -83,3 +83,13 @@ def test_bad_csv_files_name_the_line(tmp_path, text, message):
 def test_missing_route_file_is_a_clear_error(tmp_path):
     with pytest.raises(RouteError, match="cannot read"):
         Route.from_csv(tmp_path / "nope.csv")
+
+
+def test_overshooting_the_end_of_an_open_route_is_not_cross_track_error(tmp_path):
+    path = tmp_path / "line.csv"
+    path.write_text("0,0\n10,0\n")
+    route = Route.from_csv(path)
+    s, xte, _ = route.project(11.0, 0.2, s_hint=9.5)
+    assert s == pytest.approx(11.0) and xte == pytest.approx(0.2)
+    s, xte, _ = route.project(-1.0, -0.1)
+    assert s == pytest.approx(-1.0) and xte == pytest.approx(-0.1)

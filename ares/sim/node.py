@@ -63,7 +63,7 @@ class Simulator(Node):
         self.plant.state.t = now
         self.next_due = {name: now for name in self.periods}
         self.driver = DriverInputs()
-        self.lap = 0
+        self.progress_m = 0.0      # along the route, unwrapped: laps = progress // length
         self._last_s = self.plant.state.s
         self.actuators = self.bus.subscribe("dbw/actuators")
         self.bus.serve("sim/driver", self._driver_command)
@@ -110,8 +110,7 @@ class Simulator(Node):
             self.plant.step(command.steer_effort, command.drive_effort, self.dt)
         else:
             self.plant.step(0.0, -1.0, self.dt)   # the board's own fail-safe: brake, hold the wheel
-        if self.route.closed and self._last_s > 0.9 * self.route.length and st.s < 0.1 * self.route.length:
-            self.lap += 1
+        self.progress_m += self.route.step_between(self._last_s, st.s)
         self._last_s = st.s
 
     def step(self, now: float) -> None:
@@ -124,6 +123,9 @@ class Simulator(Node):
             self._physics_step()
             steps += 1
             self._publish_sensors()
+
+    def _laps(self) -> int:
+        return int(self.progress_m // self.route.length) if self.route.closed else 0
 
     def _due(self, name: str) -> bool:
         t = self.plant.state.t
@@ -145,7 +147,7 @@ class Simulator(Node):
             self.bus.publish("sim/truth", VehicleTruth(
                 t=t, x=st.x, y=st.y, z=st.z, yaw=st.yaw, pitch=st.pitch, v=st.v, yaw_rate=st.yaw_rate,
                 accel=st.accel, steering_wheel_deg=st.steering_wheel_deg, wheel_angle_rad=st.wheel_angle_rad,
-                s=st.s, odometer_m=st.odometer, lap=self.lap, rtk_available=self.sensors.gnss.rtk_available(st.s),
+                s=st.s, odometer_m=st.odometer, lap=self._laps(), rtk_available=self.sensors.gnss.rtk_available(st.s),
                 passengers=self.plant.passengers))
 
 

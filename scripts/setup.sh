@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# Set up this checkout: system libraries, .venv (Python >= 3.11), `pip install -e '.[test]'`.
+# Idempotent and fast when already done: pip runs only when pyproject.toml changed since the
+# last install (its hash is kept in .venv/.ares-install-stamp). Progress goes to stderr.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$ROOT/.venv"
+STAMP="$VENV/.ares-install-stamp"
+SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libgomp1)   # open3d needs libusb and libGL; numpy/open3d libgomp
+
+say() { echo "[setup] $*" >&2; }
+
+# ---- 1. system libraries (Debian/Ubuntu) --------------------------------------------------
+if command -v dpkg-query >/dev/null 2>&1; then
+  missing=()
+  for pkg in "${SYSTEM_PACKAGES[@]}"; do
+    if ! dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed"; then
+      missing+=("$pkg")
+    fi
+  done
+  if [ ${#missing[@]} -eq 0 ]; then
+    say "system libraries: present"
+  elif [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null 2>&1; then
+    say "system libraries: installing ${missing[*]}"
+    export DEBIAN_FRONTEND=noninteractive
+    apt_log="$(mktemp)"
+    if ! { apt-get update -qq && apt-get install -y -qq --no-install-recommends "${missing[@]}"; } >"$apt_log" 2>&1; then
+      tail -n 5 "$apt_log" >&2
+      say "WARNING: could not install ${missing[*]}; open3d (LiDAR simulation) may fail to load"
+    fi
+    rm -f "$apt_log"
+  else
+    say "WARNING: missing system libraries: ${missing[*]}"
+    say "         install them with: sudo apt-get install -y ${missing[*]}"
+  fi
+else
+  say "system libraries: not a dpkg system, make sure libusb-1.0, libGL and libgomp are installed"
+fi
+
+# ---- 2. virtual environment ---------------------------------------------------------------
+python_ok() {  # is $1 a Python >= 3.11?
+  "$1" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' >/dev/null 2>&1
+}
+if [ -x "$VENV/bin/python" ] && python_ok "$VENV/bin/python"; then
+  say ".venv: present ($("$VENV/bin/python" -V 2>&1))"
+else
+  PY=""
+  for candidate in "${PYTHON:-}" python3.13 python3.12 python3.11 python3; do
+    if [ -n "$candidate" ] && command -v "$candidate" >/dev/null 2>&1 && python_ok "$candidate"; then
+      PY="$(command -v "$candidate")"
+      break
+    fi
+  done
+  if [ -z "$PY" ]; then
+    say "ERROR: Python 3.11 or newer is needed (set PYTHON=/path/to/python3.11)"
+    exit 1
+  fi
+  say ".venv: creating with $("$PY" -V 2>&1)"
+  rm -f "$STAMP"
+  "$PY" -m venv "$VENV"
+fi
+
+# ---- 3. the package and its dependencies --------------------------------------------------
+want="$(cat "$ROOT/pyproject.toml" <("$VENV/bin/python" -V 2>&1) | sha256sum | cut -d' ' -f1)"
+have="$(cat "$STAMP" 2>/dev/null || true)"
+if [ "$want" = "$have" ] && [ -x "$VENV/bin/ares" ]; then
+  say "package: up to date"
+else
+  say "package: pip install -e '.[test]' (pyproject.toml changed or first install)"
+  "$VENV/bin/python" -m pip install --disable-pip-version-check -q -e "$ROOT[test]"
+  echo "$want" > "$STAMP"
+  say "package: installed"
+fi
