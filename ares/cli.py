@@ -7,6 +7,11 @@
     ares echo KEY [--count N] [--seconds S]
                                    print messages on a topic, one JSON object per line
     ares bench bus [--json] [--seconds S] [--mode peer|client]
+    ares route import FILE -o ROUTE [--format auto|csv|nmea] [--spacing M] [--skip-bad]
+                                   build a route file from a CSV of x,y[,z] or an NMEA log
+    ares route record FILE [--seconds S]
+                                   write the NMEA sentences of the running stack's receiver to FILE
+    ares bench path [--json]       KD-tree build, path match and UKF step times (in-process)
 
 `topics` and `echo` connect in client mode to the running stack's router (the `bus.router`
 endpoint of the run configuration, or --router) and look under the configured vehicle id (or
@@ -159,6 +164,34 @@ def build_parser() -> argparse.ArgumentParser:
                      help="measurement time, split between latency and throughput (default 6)")
     bus.add_argument("--mode", choices=["peer", "client"],
                      help="bus mode of the two processes (default: the stack's, bus.mode)")
+    path = bench_sub.add_parser("path", help="path manager KD-tree build and match times, UKF step time",
+                                description="Builds a 100,000-pose route and times the KD-tree build, "
+                                            "10,000 reachable-nearest matches with realistic hints, the raw KD "
+                                            "queries, and one UKF step (perception.ukf), all in this process.")
+    path.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+
+    route = sub.add_parser("route", help="route files: import a recorded drive, record an NMEA log",
+                           description="Route files for `ares run --route FILE`.")
+    route_sub = route.add_subparsers(dest="route", metavar="ACTION")
+    imp = route_sub.add_parser("import", help="build a route file from a CSV of x,y[,z] metres or an NMEA log",
+                               description="Build a route from a recorded drive: project GGA fixes to the local "
+                                           "frame, drop standstill duplicates, resample evenly, smooth, add yaw. "
+                                           "Writes a CSV x,y,z,yaw that `ares run --route` reads.")
+    imp.add_argument("file", metavar="FILE", help="the recording: CSV of x,y[,z] metres, or NMEA (GGA lines)")
+    imp.add_argument("-o", "--output", required=True, metavar="ROUTE", help="route file to write (CSV)")
+    imp.add_argument("--format", choices=["auto", "csv", "nmea"], default="auto",
+                     help="input format (default: auto, NMEA if the first line starts with '$')")
+    imp.add_argument("--spacing", type=_positive_float, metavar="M",
+                     help="distance between route points, metres (default gnss.route_import.spacing_m, 0.5)")
+    imp.add_argument("--skip-bad", action="store_true",
+                     help="leave out malformed NMEA lines (counted and reported) instead of failing")
+    rec = route_sub.add_parser("record", help="write the NMEA sentences arriving on sensors/gnss to a file",
+                               description="Record an NMEA log from the running stack's GNSS receiver "
+                                           "(sensors/gnss), one sentence per line, until --seconds or Ctrl-C. "
+                                           "Drive the route meanwhile, then `ares route import FILE -o ROUTE`.")
+    rec.add_argument("file", metavar="FILE", help="NMEA log to write")
+    rec.add_argument("--seconds", type=_positive_float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
+    _add_connection_args(rec)
     return parser
 
 
@@ -395,9 +428,16 @@ def cmd_auto(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from ares import bench
-    if args.bench != "bus":
-        raise CliError("which benchmark? try `ares bench bus`")
+    if args.bench not in ("bus", "path"):
+        raise CliError("which benchmark? try `ares bench bus` or `ares bench path`")
     progress = lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    if args.bench == "path":
+        result = bench.run_path_bench(progress=progress)
+        if args.json:
+            print(json.dumps(result))
+        else:
+            bench.format_path_result(result, sys.stdout)
+        return 0
     try:
         result = bench.run_bus_bench(seconds=args.seconds, mode=args.mode, progress=progress)
     except bench.BenchError as exc:
@@ -409,8 +449,73 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_route(args: argparse.Namespace) -> int:
+    if args.route == "import":
+        return _route_import(args)
+    if args.route == "record":
+        return _route_record(args)
+    raise CliError("which action? try `ares route import FILE -o ROUTE` or `ares route record FILE`")
+
+
+def _route_import(args: argparse.Namespace) -> int:
+    from ares import config, route_import
+    from ares.route import Route, RouteError
+    try:
+        cfg = config.current()
+    except (config.ConfigError, OSError, ValueError) as exc:
+        raise CliError(f"cannot read the run configuration: {exc}") from None
+    try:
+        result = route_import.import_route(args.file, args.output, fmt=args.format, spacing_m=args.spacing,
+                                           skip_bad=args.skip_bad, cfg=cfg)
+        Route.from_csv(args.output)     # what `ares run --route` will do: it must read it back
+    except RouteError as exc:
+        raise CliError(str(exc)) from None
+    print(f"imported {result.summary()}")
+    return 0
+
+
+def _route_record(args: argparse.Namespace) -> int:
+    bus = _connect(args, "cli_route_record")
+    counts = {"lines": 0, "messages": 0}
+
+    def write(sub, out) -> None:
+        for _topic, msg in sub.drain():
+            counts["messages"] += 1
+            for sentence in msg.sentences:
+                # one sentence per line, whatever line ending (or stray break) it came with
+                out.write(" ".join(sentence.split("\n")).replace("\r", "").strip() + "\n")
+                counts["lines"] += 1
+        out.flush()
+
+    started = time.monotonic()
+    try:
+        try:
+            out = open(args.file, "w")
+        except OSError as exc:
+            raise CliError(f"{args.file}: cannot write: {exc.strerror}") from None
+        with out:
+            sub = bus.subscribe("sensors/gnss", queue=1000)
+            print(f"recording {bus.key('sensors/gnss')} to {args.file}"
+                  f"{f' for {args.seconds:g} s' if args.seconds else ' (Ctrl-C to stop)'}", file=sys.stderr)
+            try:
+                while args.seconds is None or time.monotonic() - started < args.seconds:
+                    write(sub, out)
+                    time.sleep(0.1)
+            except KeyboardInterrupt:
+                pass
+            write(sub, out)             # what arrived during the last sleep
+    finally:
+        bus.close()
+    print(f"recorded {counts['lines']} sentences ({counts['messages']} messages) in "
+          f"{time.monotonic() - started:.1f} s to {args.file}")
+    if counts["lines"] == 0:
+        print("ares: no GNSS sentences arrived on sensors/gnss; is the simulated shuttle running?", file=sys.stderr)
+        return 1
+    return 0
+
+
 COMMANDS = {"run": cmd_run, "node": cmd_node, "topics": cmd_topics, "echo": cmd_echo, "driver": cmd_driver,
-            "auto": cmd_auto, "bench": cmd_bench}
+            "auto": cmd_auto, "bench": cmd_bench, "route": cmd_route}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -135,6 +135,72 @@ class PanelEvent(Msg):
     value: float = 1.0
 
 
+# ---- localization, odometry and path ------------------------------------------------------
+
+class GnssFix(Msg):
+    """One validated GNSS fix (from GGA, with GST's error statistics when the receiver sends
+    them), projected to UTM and to the stack's local frame (UTM minus the configured origin)."""
+    x: float                    # local frame, metres east of the origin
+    y: float                    # metres north
+    z: float                    # metres above the origin's altitude
+    lat: float
+    lon: float
+    easting: float
+    northing: float
+    zone: int
+    hemisphere: Literal["N", "S"]
+    quality: int                # GGA fix quality: 1 GPS, 2 DGPS, 4 RTK fixed, 5 RTK float, ...
+    rtk: bool                   # RTK corrections in use (quality 4)
+    satellites: int
+    hdop: float
+    var_x: float                # position variances, m^2
+    var_y: float
+    var_z: float
+
+
+class Pose(Msg):
+    """The fused pose estimate (UKF) of the rear-axle centre, with its covariance."""
+    x: float
+    y: float
+    z: float
+    yaw: float
+    v: float
+    yaw_rate: float
+    cov_xx: float
+    cov_xy: float
+    cov_yy: float
+    var_yaw: float
+    var_v: float
+    position_std_m: float       # sqrt of the largest eigenvalue of the x-y covariance
+    rtk: bool                   # the last GNSS fix used had RTK corrections
+    gnss_age_s: float | None    # stack seconds since the last GNSS fix was fused
+
+
+class OdometryScore(Msg):
+    """How much the pose estimate deserves trust: 1 - a / (1 + exp(-b (cov - c))), ARES eq. 6."""
+    score: float = Field(ge=0.0, le=1.0)
+    covariance: float           # the input: position variance, m^2
+    pose_age_s: float
+
+
+class PathMatch(Msg):
+    """Where the vehicle is on its route, and the path ahead of it for the controllers."""
+    index: int
+    s: float
+    lap: int
+    xte: float                  # signed cross-track error, m (positive: vehicle left of path)
+    heading_error: float        # vehicle yaw minus path yaw, rad
+    zones: list[str]            # zones the vehicle is in: rtk_loss, intersection, road_opening, narrow
+    force_odometry: bool        # intersection or road opening: the path manager forces odometry control
+    distance_to_end_m: float | None   # open routes only
+    ahead_x: list[float]        # poses ahead of the match, every ~0.5 m
+    ahead_y: list[float]
+    ahead_yaw: list[float]
+    ahead_curvature: list[float]
+    ahead_speed: list[float]    # speed limit from the path's curvature profile, m/s
+    ahead_s: list[float]
+
+
 # ---- control ------------------------------------------------------------------------------
 
 class Setpoint(Msg):
@@ -233,6 +299,10 @@ TOPICS: dict[str, type[Msg]] = {
     "sensors/imu": Imu,
     "sensors/can": CanFrame,
     "vehicle/panel": PanelEvent,
+    "gnss/fix": GnssFix,
+    "localization/pose": Pose,
+    "odometry/score": OdometryScore,
+    "path/match": PathMatch,
     "control/setpoint": Setpoint,
     "control/status": ControllerStatus,
     "dbw/actuators": ActuatorCommand,

@@ -21,6 +21,10 @@ class ProcessSpec:
 
 PROCESSES: list[ProcessSpec] = [
     ProcessSpec("sim", "ares.sim.node", "sim.physics_hz", safety_relevant=True, sim_only=True),
+    ProcessSpec("gnss", "perception.gnss_node", "gnss.rate_hz", safety_relevant=True),
+    ProcessSpec("localization", "perception.localization", "localization.rate_hz", safety_relevant=True),
+    ProcessSpec("odometry_manager", "managers.odometry", "odometry_manager.rate_hz", safety_relevant=True),
+    ProcessSpec("path_manager", "managers.path", "path_manager.rate_hz", safety_relevant=True),
     ProcessSpec("dbw_bridge", "control.dbw_bridge", "dbw.rate_hz", safety_relevant=True),
     ProcessSpec("controller", "control.pure_pursuit", "controller.rate_hz", safety_relevant=True),
 ]

@@ -20,6 +20,7 @@ import numpy as np
 from ares import config
 
 SAMPLE_SPACING_M = 0.25
+CURVATURE_SPAN_M = 1.0      # curvature is measured over +-1 m of path
 
 
 class RouteError(ValueError):
@@ -160,25 +161,34 @@ class Route:
 
     @classmethod
     def from_csv(cls, path: str | Path, name: str | None = None) -> "Route":
-        """An open route from a CSV of x,y[,z] points in metres (a header line is allowed)."""
+        """An open route from a CSV of x,y[,z] points in metres. A header line and '#' comment
+        lines are allowed; a header `x,y,z,yaw` (as `ares route import` writes) allows a 4th
+        column, yaw, which is checked but not used: the route's yaw comes from its geometry."""
         path = Path(path)
         points: list[tuple[float, float, float]] = []
         try:
             text = path.read_text()
         except OSError as exc:
             raise RouteError(f"{path}: cannot read: {exc.strerror}") from exc
+        columns = (2, 3)
+        first_row = True
         for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
             if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
                 continue
             try:
                 values = [float(v) for v in row]
             except ValueError:
-                if lineno == 1 and not points:
+                if first_row:
+                    first_row = False
+                    if [c.strip().lower() for c in row] == ["x", "y", "z", "yaw"]:
+                        columns = (4,)
                     continue  # header
                 raise RouteError(f"{path}:{lineno}: expected numbers x,y[,z], got {','.join(row)!r}") from None
-            if len(values) not in (2, 3) or not all(math.isfinite(v) for v in values):
-                raise RouteError(f"{path}:{lineno}: expected 2 or 3 finite numbers, got {','.join(row)!r}")
-            points.append((values[0], values[1], values[2] if len(values) == 3 else 0.0))
+            first_row = False
+            if len(values) not in columns or not all(math.isfinite(v) for v in values):
+                expected = "2 or 3" if columns == (2, 3) else "4"
+                raise RouteError(f"{path}:{lineno}: expected {expected} finite numbers, got {','.join(row)!r}")
+            points.append((values[0], values[1], values[2] if len(values) >= 3 else 0.0))
         if len(points) < 2:
             raise RouteError(f"{path}: a route needs at least two points, found {len(points)}")
         xyz = resample(np.array(points), SAMPLE_SPACING_M)
@@ -200,21 +210,29 @@ def resample(points: np.ndarray, spacing: float) -> np.ndarray:
     return np.column_stack([np.interp(s_new, s, points[:, k]) for k in range(points.shape[1])])
 
 
-def _curvature(x: np.ndarray, y: np.ndarray, closed: bool) -> np.ndarray:
-    """Signed curvature from the turning of the heading per metre (positive = left)."""
+def _curvature(x: np.ndarray, y: np.ndarray, closed: bool, span_m: float = CURVATURE_SPAN_M) -> np.ndarray:
+    """Signed curvature (positive = left): the turn of the heading between the points about
+    span_m behind and ahead, per metre. A span of a metre or two, not adjacent samples, so that
+    a polyline resampled between its own vertices does not read as alternating curves."""
+    n = len(x)
+    step = np.hypot(np.diff(x), np.diff(y))
+    spacing = float(np.median(step)) if len(step) else 1.0
+    k = max(int(round(span_m / max(spacing, 1e-6))), 1)
+    idx = np.arange(n)
     if closed:
-        xp, yp = np.concatenate([x[-1:], x, x[:1]]), np.concatenate([y[-1:], y, y[:1]])
+        back, ahead = (idx - k) % n, (idx + k) % n
     else:
-        xp, yp = np.concatenate([x[:1], x, x[-1:]]), np.concatenate([y[:1], y, y[-1:]])
-    yaw_in = np.arctan2(yp[1:-1] - yp[:-2], xp[1:-1] - xp[:-2])
-    yaw_out = np.arctan2(yp[2:] - yp[1:-1], xp[2:] - xp[1:-1])
+        back, ahead = np.clip(idx - k, 0, n - 1), np.clip(idx + k, 0, n - 1)
+    yaw_in = np.arctan2(y[idx] - y[back], x[idx] - x[back])
+    yaw_out = np.arctan2(y[ahead] - y[idx], x[ahead] - x[idx])
     turn = np.angle(np.exp(1j * (yaw_out - yaw_in)))
-    ds = 0.5 * (np.hypot(xp[1:-1] - xp[:-2], yp[1:-1] - yp[:-2]) + np.hypot(xp[2:] - xp[1:-1], yp[2:] - yp[1:-1]))
-    k = np.where(ds > 1e-9, turn / np.where(ds > 1e-9, ds, 1.0), 0.0)
-    if not closed:
-        k[0] = k[1] if len(k) > 1 else 0.0
-        k[-1] = k[-2] if len(k) > 1 else 0.0
-    return k
+    dist = np.hypot(x[idx] - x[back], y[idx] - y[back]) + np.hypot(x[ahead] - x[idx], y[ahead] - y[idx])
+    valid = (idx != back) & (idx != ahead) & (dist > 1e-9)
+    curvature = np.where(valid, 2.0 * turn / np.where(dist > 1e-9, dist, 1.0), 0.0)
+    if not closed and n > 2 * k:
+        curvature[:k] = curvature[k]
+        curvature[-k:] = curvature[-k - 1]
+    return curvature
 
 
 # ---- built-in tours ---------------------------------------------------------------------

@@ -9,13 +9,11 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +23,7 @@ from ares.bus import Bus, ServiceError
 from ares.clock import Clock
 from ares.messages import DriveMode, DriverCommand
 from ares.processes import PROCESSES
+from ares.metrics import LapTracker, LocalizationTracker
 from ares.report import write_lap_svg
 from ares.route import Route, RouteError, load_route
 from ares.supervisor import Supervisor
@@ -59,39 +58,6 @@ def overrides_from_args(args) -> dict:
 
 def default_run_dir() -> Path:
     return Path(os.environ.get("ARES_RUNS_DIR", "runs")) / time.strftime("%Y%m%d-%H%M%S")
-
-
-@dataclass
-class LapTracker:
-    """Progress and cross-track error of the true pose along the route."""
-    route: Route
-    s_hint: float | None = None
-    travelled_m: float = 0.0
-    odometer_start: float | None = None
-    odometer_m: float = 0.0
-    xte: list[float] = field(default_factory=list)
-    xs: list[float] = field(default_factory=list)
-    ys: list[float] = field(default_factory=list)
-    progress: list[float] = field(default_factory=list)
-
-    def update(self, x: float, y: float, odometer: float) -> None:
-        s, xte, _ = self.route.project(x, y, self.s_hint)
-        if self.s_hint is not None:
-            self.travelled_m += self.route.step_between(self.s_hint, s)
-        self.s_hint = s
-        if self.odometer_start is None:
-            self.odometer_start = odometer
-        self.odometer_m = odometer - self.odometer_start
-        self.xte.append(xte)
-        self.xs.append(x)
-        self.ys.append(y)
-        self.progress.append(self.travelled_m)
-
-    def summary(self) -> dict:
-        err = np.abs(np.array(self.xte)) if self.xte else np.array([math.nan])
-        return {"distance_m": round(self.odometer_m, 2),
-                "xte_rmse_m": round(float(np.sqrt(np.mean(err ** 2))), 4),
-                "xte_max_m": round(float(np.max(err)), 4)}
 
 
 def run(args) -> int:
@@ -172,6 +138,9 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     wall_start = time.monotonic()
     truth.drain()
     tracker = LapTracker(route)
+    localization = LocalizationTracker()
+    poses = bus.subscribe("localization/pose", queue=4096)
+    scores = bus.subscribe("odometry/score", queue=4096)
     target_m = laps * route.length if route.closed else route.length
     cruise = float(cfg["controller"]["cruise_speed_mps"])
     time_limit_s = 3.0 * target_m / (0.5 * cruise) + 60.0     # stack seconds
@@ -182,6 +151,11 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             raise RunFailed("interrupted")
         for _, msg in truth.drain():
             tracker.update(msg.x, msg.y, msg.odometer_m)
+            localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available)
+        for _, pose in poses.drain():
+            localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)
+        for _, score in scores.drain():
+            localization.add_score(score.t, score.score)
         now = clock.now()
         if car_state.latest is not None and car_state.latest.mode != DriveMode.AUTOMATIC:
             left_automatic += 1
@@ -205,7 +179,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     lap_time = clock.now() - t_start
     result = {"ok": True, "laps": laps if route.closed else 0, "route": route.name,
               "route_length_m": round(route.length, 2), "lap_time_s": round(lap_time / max(laps, 1), 2),
-              "total_time_s": round(lap_time, 2), **tracker.summary(),
+              "total_time_s": round(lap_time, 2), **tracker.summary(), **localization.summary(),
               "speed_factor": clock.speed, "wall_time_s": round(time.monotonic() - wall_start, 1),
               "vehicle": cfg["vehicle"], "run_dir": str(run_dir)}
     picture = write_lap_svg(run_dir / "lap.svg", route, np.array(tracker.xs), np.array(tracker.ys),

@@ -38,6 +38,13 @@ def test_a_full_lap_of_the_tour_at_five_times_real_time():
     assert result["xte_rmse_m"] <= 0.35          # the DBW paper's real vehicle: 0.347 m
     assert result["xte_max_m"] <= 0.85           # ... and 0.863 m
     assert 200 < result["lap_time_s"] < 1000
+    # localization: the UKF estimate drives the controller (ARES paper §3.1)
+    assert result["loc_rmse_rtk_m"] <= 0.05
+    assert result["yaw_rmse_deg"] <= 1.0
+    assert result["loc_max_deadzone_m"] <= 0.5
+    assert result["score_min_rtk"] >= 0.9
+    assert result["score_max_deadzone"] <= 0.3
+    assert result["loc_samples_rtk"] > 1000 and result["loc_samples_deadzone"] > 100
 
 
 def test_speed_factor_does_not_change_the_result(tmp_path):
@@ -98,3 +105,30 @@ def test_a_hung_controller_stops_the_vehicle_and_the_supervisor_brings_it_back(t
         stop.set()
         loop.join(timeout=5)
         sup.stop()
+
+
+def test_routes_imported_from_an_nmea_log_and_from_a_csv_are_driven_end_to_end(tmp_path):
+    import numpy as np
+
+    from ares.route import Route
+    from tests.test_route_import import drive_log, write_campus_road_csv
+
+    tour = Route.from_tour("default")
+    part = slice(0, int(450 / 0.25))        # depot, narrow lane, hairpin and the first hill
+    first_stretch = Route("tour start", tour.x[part], tour.y[part], tour.z[part], False, tour.width[part])
+    log = tmp_path / "drive.nmea"
+    log.write_text("\n".join(drive_log(first_stretch, stop_s=100.0, wait_s=20.0)) + "\n")
+    csv_points = tmp_path / "campus_road.csv"
+    write_campus_road_csv(csv_points)
+
+    for source, route_file in ((log, tmp_path / "from_nmea.csv"), (csv_points, tmp_path / "from_csv.csv")):
+        imported = subprocess.run([sys.executable, "-m", "ares.cli", "route", "import", str(source),
+                                   "-o", str(route_file)], cwd=REPO, capture_output=True, text=True)
+        assert imported.returncode == 0, imported.stderr
+        result = headless("--route", str(route_file), "--speed", "5")
+        route = Route.from_csv(route_file)
+        assert result["ok"] and result["distance_m"] == pytest.approx(route.length, abs=3.0)
+        assert result["xte_rmse_m"] <= 0.35 and result["xte_max_m"] <= 0.85
+        assert result["loc_rmse_rtk_m"] <= 0.05 and result["yaw_rmse_deg"] <= 1.0
+        assert result["score_min_rtk"] >= 0.9
+        assert np.isfinite(result["lap_time_s"])

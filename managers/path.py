@@ -1,0 +1,318 @@
+"""Path manager: where the vehicle is on its route, and the path ahead (ARES §3.2).
+
+Inputs:  <path_manager.pose_topic> (localization/pose: the UKF's x, y, yaw)
+Outputs: path/match (PathMatch) at path_manager.rate_hz: segment index, s, lap, signed
+         cross-track and heading errors, the zones at s, force_odometry (inside an
+         intersection or road opening the path manager forces odometry control), distance to
+         the end (open routes), and the poses ahead with their speed limits
+Params:  path_manager.* in stack.yaml (search radius, heading limit, hint window, fallback
+         radius, ahead length and step, force-odometry zones, pose timeout); controller.*
+         and the vehicle profile for the speed-limit profile
+Events:  path_rematch when the tracked match is lost and a wider search finds the vehicle
+         again; path_lost when nothing reachable is found at all
+
+The route is recorded once, so its poses go into a KD-tree over (x, y). Each pose estimate
+asks it for "the nearest *reachable* path pose within radius r": among the poses within r,
+only those whose heading agrees with the vehicle's and — once tracking — whose s lies in a
+short window around the last matched progress qualify. The heading test keeps a vehicle off
+the opposite leg of a hairpin; the window keeps it on its own pass of a crossing and on its
+own lap. The nearest qualifying pose is then refined to the foot of the perpendicular on its
+segments, for a continuous s and a signed cross-track error.
+
+When nothing qualifies (no hint yet and the vehicle beyond r, or a pose jump out of the
+window) the search widens to path_manager.fallback_radius_m without the window, and the
+match says so (search "wide"; the node raises a path_rematch event). Progress is unwrapped s:
+it starts at the first match's s, so the lap count goes up each time the start line (s = 0)
+is crossed; after a wide match it moves by the short way round from the last progress.
+
+PathIndex and PathTracker do the work without the bus (tests, benches); PathManager is the
+process around them.
+
+A stale pose (older than path_manager.pose_timeout_s) is not matched: nothing is published,
+so the controller goes quiet and the drive-by-wire watchdog stops the vehicle.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ares.messages import EventLevel, PathMatch
+from ares.node import Node, run_node
+from ares.route import Route, load_route
+from control.speed_profile import speed_limits
+
+TWO_PI = 2.0 * math.pi
+
+
+def wrap_angle(a: float) -> float:
+    """An angle in [-pi, pi)."""
+    return (a + math.pi) % TWO_PI - math.pi
+
+
+@dataclass(frozen=True)
+class Match:
+    index: int              # route segment the vehicle is on (from sample index to index + 1)
+    s: float                # continuous arc length: [0, length) on a closed route; on an open
+                            # one it may leave [0, length] before the start / past the end
+    progress: float         # unwrapped s (laps included): the hint for the next match
+    lap: int                # progress // length on a closed route, 0 on an open one
+    xte: float              # signed cross-track error, m, positive when left of the path
+    heading_error: float    # vehicle yaw minus path yaw, rad in [-pi, pi)
+    search: str             # "tracked": in the hint's window; "nearest": no hint yet;
+                            # "wide": nothing qualified, found by the wider fallback search
+
+
+@dataclass(frozen=True)
+class Ahead:
+    """Route poses from a starting s, every step metres (numpy arrays of equal length)."""
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    curvature: np.ndarray
+    speed: np.ndarray
+    s: np.ndarray
+
+
+class PathIndex:
+    """A route with a KD-tree over its (x, y) poses, answering reachable-nearest queries.
+
+    The keyword defaults are the values of `path_manager:` in stack.yaml; from_config reads
+    them from there.
+    """
+
+    def __init__(self, route: Route, speed_limit: np.ndarray | None = None, *, radius_m: float = 5.0,
+                 fallback_radius_m: float = 50.0, max_heading_error_rad: float = 1.0,
+                 window_behind_m: float = 5.0, window_ahead_m: float = 15.0):
+        self.route = route
+        self.closed = route.closed
+        self.length = route.length
+        self.n = len(route)
+        self.radius_m = float(radius_m)
+        self.fallback_radius_m = float(fallback_radius_m)
+        self.cos_heading_limit = math.cos(float(max_heading_error_rad))
+        self.window_behind_m = float(window_behind_m)
+        self.window_ahead_m = float(window_ahead_m)
+        self.tree = cKDTree(np.column_stack([route.x, route.y]))
+        if speed_limit is None:
+            speed_limit = np.zeros(self.n)     # no profile given: nothing ahead may be driven
+        if len(speed_limit) != self.n:
+            raise ValueError(f"speed limit has {len(speed_limit)} values for {self.n} route poses")
+        self.speed_limit = np.asarray(speed_limit, dtype=float)
+        # per-segment geometry (segment i runs from pose i to pose i+1; a closed route's last
+        # segment closes the loop; an open route's last "segment" is empty)
+        nxt = np.roll(np.arange(self.n), -1)
+        ex, ey = route.x[nxt] - route.x, route.y[nxt] - route.y
+        if not self.closed:
+            ex[-1] = ey[-1] = 0.0
+        self._seg_len = np.hypot(ex, ey)
+        # the vectorised filter works on these arrays; the scalar refinement on plain lists,
+        # whose element access is several times cheaper than a numpy scalar's
+        self._cos_yaw = np.cos(route.yaw)
+        self._sin_yaw = np.sin(route.yaw)
+        self._px, self._py, self._ps = route.x.tolist(), route.y.tolist(), route.s.tolist()
+        self._pyaw = route.yaw.tolist()
+        self._pex, self._pey = ex.tolist(), ey.tolist()
+        self._pseg2 = (ex * ex + ey * ey).tolist()
+
+    @classmethod
+    def from_config(cls, route: Route, params: dict, speed_limit: np.ndarray | None = None) -> "PathIndex":
+        return cls(route, speed_limit, radius_m=params["radius_m"], fallback_radius_m=params["fallback_radius_m"],
+                   max_heading_error_rad=params["max_heading_error_rad"],
+                   window_behind_m=params["window_behind_m"], window_ahead_m=params["window_ahead_m"])
+
+    # ---- matching ---------------------------------------------------------------------------
+    def match(self, x: float, y: float, yaw: float, s_hint: float | None = None,
+              radius: float | None = None) -> Match | None:
+        """The nearest reachable path pose within `radius` (default radius_m) of (x, y).
+
+        `s_hint` is the last match's progress (unwrapped s). Without a match within the hint's
+        window (start-up, a relocalisation jump, a long outage) the search widens to
+        fallback_radius_m around the vehicle, heading still checked but the window dropped,
+        and says so (search == "wide"). None when nothing reachable is found at all, e.g.
+        the vehicle faces against the route or is far off it.
+        """
+        r = self.radius_m if radius is None else float(radius)
+        search = "tracked" if s_hint is not None else "nearest"
+        i = self._nearest_reachable(x, y, yaw, s_hint, r)
+        if i is None:
+            search = "wide"
+            i = self._nearest_reachable(x, y, yaw, None, max(r, self.fallback_radius_m))
+            if i is None:
+                return None
+        return self._refine(i, x, y, yaw, s_hint, search)
+
+    def _nearest_reachable(self, x: float, y: float, yaw: float, s_hint: float | None, r: float) -> int | None:
+        cand = self.tree.query_ball_point((x, y), r)
+        if not cand:
+            return None
+        c = np.array(cand, dtype=np.intp)
+        # heading agreement as a dot product of unit vectors: cos(dyaw) > cos(limit)
+        ok = self._cos_yaw[c] * math.cos(yaw) + self._sin_yaw[c] * math.sin(yaw) > self.cos_heading_limit
+        if s_hint is not None:
+            ds = self.route.s[c] - self._wrap(s_hint)
+            if self.closed:     # signed along-route step, the short way round the loop
+                ds = (ds + 0.5 * self.length) % self.length - 0.5 * self.length
+            ok &= (ds >= -self.window_behind_m) & (ds <= self.window_ahead_m)
+        c = c[ok]
+        if len(c) == 0:
+            return None
+        dx = self.route.x[c] - x
+        dy = self.route.y[c] - y
+        return int(c[np.argmin(dx * dx + dy * dy)])
+
+    def _refine(self, i: int, x: float, y: float, yaw: float, s_hint: float | None, search: str) -> Match:
+        """Foot of the perpendicular on the segments either side of pose i."""
+        n = self.n
+        if self.closed:
+            segments = ((i - 1) % n, i)
+        else:
+            segments = tuple(k for k in (i - 1, i) if 0 <= k <= n - 2)
+        best = None
+        for k in segments:
+            ax, ay, ex, ey, seg2 = self._px[k], self._py[k], self._pex[k], self._pey[k], self._pseg2[k]
+            t = ((x - ax) * ex + (y - ay) * ey) / seg2 if seg2 > 0.0 else 0.0
+            # an open route's ends are extended: overshooting the end is not a cross-track error
+            lo = -math.inf if (not self.closed and k == 0) else 0.0
+            hi = math.inf if (not self.closed and k == n - 2) else 1.0
+            t = lo if t < lo else hi if t > hi else t
+            fx, fy = ax + t * ex, ay + t * ey
+            d2 = (x - fx) ** 2 + (y - fy) ** 2
+            if best is None or d2 < best[0]:
+                best = (d2, k, t, ex, ey, ax, ay)
+        d2, k, t, ex, ey, ax, ay = best
+        side = ex * (y - ay) - ey * (x - ax)
+        xte = math.copysign(math.sqrt(d2), side) if d2 > 0.0 else 0.0
+        s = self._ps[k] + t * math.sqrt(self._pseg2[k])
+        if self.closed:
+            s %= self.length
+        if s_hint is None:
+            progress = s
+        else:
+            progress = s_hint + self._step(self._wrap(s_hint), s)
+        lap = int(progress // self.length) if self.closed else 0
+        return Match(index=k, s=s, progress=progress, lap=lap, xte=xte,
+                     heading_error=wrap_angle(yaw - self._pyaw[k]), search=search)
+
+    def _wrap(self, s: float) -> float:
+        return s % self.length if self.closed else s
+
+    def _step(self, s_from: float, s_to: float) -> float:
+        step = s_to - s_from
+        if self.closed:
+            step = (step + 0.5 * self.length) % self.length - 0.5 * self.length
+        return step
+
+    # ---- the path ahead ---------------------------------------------------------------------
+    def ahead(self, index: int, length_m: float, step_m: float, s: float | None = None) -> Ahead:
+        """Poses from `s` (default: pose `index`'s own s) every `step_m` for `length_m`,
+        interpolated along the segments. A closed route wraps past its start; an open one
+        stops at its end, whose exact pose is always the last sample when within reach."""
+        route = self.route
+        s0 = float(route.s[index]) if s is None else float(s)
+        count = int(math.floor(length_m / step_m + 1e-9)) + 1
+        sq = s0 + step_m * np.arange(count)
+        if self.closed:
+            sq %= self.length
+            idx = np.searchsorted(route.s, sq, side="right") - 1
+            nxt = (idx + 1) % self.n
+        else:
+            end = float(route.s[-1])
+            sq = np.clip(s0, 0.0, end) + step_m * np.arange(count)   # from the start or the end if outside
+            reaches_end = sq[-1] >= end
+            sq = sq[sq < end - 1e-9]
+            if reaches_end or len(sq) == 0:
+                sq = np.append(sq, end)
+            idx = np.clip(np.searchsorted(route.s, sq, side="right") - 1, 0, self.n - 2)
+            nxt = idx + 1
+        seg = self._seg_len[idx]
+        f = np.where(seg > 0.0, (sq - route.s[idx]) / np.where(seg > 0.0, seg, 1.0), 0.0)
+        lerp = lambda a: a[idx] + f * (a[nxt] - a[idx])  # noqa: E731
+        return Ahead(x=lerp(route.x), y=lerp(route.y), yaw=route.yaw[idx].copy(),
+                     curvature=lerp(route.curvature), speed=lerp(self.speed_limit), s=sq)
+
+
+def zone_kinds_at(route: Route, s: float) -> list[str]:
+    """Names of the kinds of zone containing s, each once, sorted."""
+    return sorted({zone.kind for zone in route.zones_at(s)})
+
+
+class PathTracker:
+    """The path manager's work without the bus: successive poses in, PathMatch messages out.
+    It keeps the last matched progress as the hint of the next match."""
+
+    def __init__(self, route: Route, params: dict, speed_limit: np.ndarray | None = None):
+        self.route = route
+        self.index = PathIndex.from_config(route, params, speed_limit)
+        self.ahead_length_m = float(params["ahead_length_m"])
+        self.ahead_step_m = float(params["ahead_step_m"])
+        self.force_odometry_zones = frozenset(params["force_odometry_zones"])
+        self.progress: float | None = None     # last matched progress: the next query's hint
+
+    def update(self, now: float, x: float, y: float, yaw: float) -> tuple[Match | None, PathMatch | None]:
+        m = self.index.match(x, y, yaw, self.progress)
+        if m is None:
+            return None, None       # keep the hint: the vehicle may come back to where it was
+        self.progress = m.progress
+        zones = zone_kinds_at(self.route, m.s)
+        ahead = self.index.ahead(m.index, self.ahead_length_m, self.ahead_step_m, s=m.s)
+        return m, PathMatch(
+            t=now, index=m.index, s=m.s, lap=m.lap, xte=m.xte, heading_error=m.heading_error,
+            zones=zones, force_odometry=not self.force_odometry_zones.isdisjoint(zones),
+            distance_to_end_m=None if self.route.closed else max(self.route.length - m.s, 0.0),
+            ahead_x=ahead.x.tolist(), ahead_y=ahead.y.tolist(), ahead_yaw=ahead.yaw.tolist(),
+            ahead_curvature=ahead.curvature.tolist(), ahead_speed=ahead.speed.tolist(),
+            ahead_s=ahead.s.tolist())
+
+
+class PathManager(Node):
+    name = "path_manager"
+    rate_key = "path_manager.rate_hz"
+    default_rate_hz = 20.0
+
+    def setup(self) -> None:
+        params = self.cfg["path_manager"]
+        route = load_route(self.cfg)
+        # the speed limits belong to the speed manager once it exists; until then they are
+        # computed here, once, with the controller's parameters
+        limits = speed_limits(route, self.cfg["controller"], self.cfg["vehicle_profile"])
+        self.tracker = PathTracker(route, params, limits)
+        self.pose_timeout_s = float(params["pose_timeout_s"])
+        self.pose = self.bus.subscribe(params["pose_topic"])
+        self.out = self.bus.publisher("path/match")
+        self._lost = False
+        self.log.info("route %s: %d poses, %.1f m, %s", route.name, len(route), route.length,
+                      "closed" if route.closed else "open")
+
+    def step(self, now: float) -> None:
+        pose = self.pose.latest
+        if pose is None or self.pose.age(now) > self.pose_timeout_s:
+            return  # nothing fresh to match: stay silent, the controller must not act on old news
+        previous = self.tracker.progress
+        m, msg = self.tracker.update(now, pose.x, pose.y, pose.yaw)
+        if m is None:
+            if not self._lost:      # say it once, not at every step
+                self._lost = True
+                self.event("path_lost", f"no reachable path pose within {self.tracker.index.fallback_radius_m:g} m "
+                           f"of ({pose.x:.1f}, {pose.y:.1f}) heading {pose.yaw:.2f} rad",
+                           EventLevel.WARNING, x=pose.x, y=pose.y, yaw=pose.yaw)
+            return
+        self._lost = False
+        if m.search == "wide":
+            # at start-up this only means the vehicle was placed off its path; while tracking
+            # it means the pose jumped or the vehicle left its path: worth a warning
+            before = "no previous match" if previous is None else f"last progress {previous:.1f} m"
+            self.event("path_rematch", f"matched by the wide search at s={m.s:.1f} m ({before})",
+                       EventLevel.INFO if previous is None else EventLevel.WARNING,
+                       s=m.s, previous_progress=previous)
+        self.out.put(msg)
+
+
+def main() -> None:
+    run_node(PathManager)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""GNSS receiver node (ARES §3.1): raw NMEA in, validated fixes in UTM and the local frame out.
+
+Inputs:   sensors/gnss (GnssSentences: the raw NMEA lines of one read from the receiver)
+Outputs:  gnss/fix (GnssFix, one per accepted GGA, t = the sensor message's t)
+          · events (kind "nmea_rejected": at most once per reason per gnss.event_period_s,
+          with the counts)
+Params:   gnss.rate_hz, gnss.queue, gnss.origin_utm (default sim.gnss.origin_utm),
+          gnss.variance_m2 / default_variance_m2 / vertical_variance_factor (variances when
+          no GST of the epoch arrives), gnss.event_period_s.
+
+Each line is parsed strictly (perception.nmea); a GGA is paired with the GST of the same time
+from the same message (either order) or, failing that, the latest GST of an earlier message
+with that time; then projected (perception.gnss). A rejected line is counted by reason and
+logged (the first of each reason, then every 100th): a bad line costs that line only, and the
+node keeps running.
+"""
+from __future__ import annotations
+
+from ares.messages import EventLevel
+from ares.node import Node, run_node
+from perception.gnss import GnssProjector, pair_epochs
+from perception.nmea import Gga, Gst, NmeaError, NmeaReader
+
+LOG_EVERY = 100             # after the first of a reason, log every this many
+
+
+class GnssNode(Node):
+    name = "gnss"
+    rate_key = "gnss.rate_hz"
+    default_rate_hz = 20.0
+
+    def setup(self) -> None:
+        g = self.cfg.get("gnss", {}) or {}
+        self.projector = GnssProjector.from_config(self.cfg)
+        self.reader = NmeaReader()
+        self.event_period_s = float(g.get("event_period_s", 10.0))
+        self.sentences = self.bus.subscribe("sensors/gnss", queue=int(g.get("queue", 64)))
+        self.fixes = self.bus.publisher("gnss/fix")
+        self.published = 0
+        self._last_gst: Gst | None = None
+        self._last_event: dict[str, float] = {}     # reason -> stack time of its last event
+
+    def step(self, now: float) -> None:
+        for _topic, msg in self.sentences.drain():
+            parsed = []
+            for line in msg.sentences:
+                sentence = self.reader.parse(line)
+                if sentence is None:
+                    self._rejected(line, self.reader.last_error, now)
+                else:
+                    parsed.append(sentence)
+            for gga, gst in pair_epochs(parsed, self._last_gst):
+                self._publish(gga, gst, msg.t, now)
+            gsts = [s for s in parsed if isinstance(s, Gst)]
+            if gsts:
+                self._last_gst = gsts[-1]
+
+    def _publish(self, gga: Gga, gst: Gst | None, t: float, now: float) -> None:
+        try:
+            fix = self.projector.fix(gga, gst, t=t)
+        except NmeaError as exc:        # a well-formed fix the site cannot use (wrong UTM zone)
+            self.reader.reject(exc)
+            self._rejected(f"{gga.talker}GGA {gga.time} {gga.lat:.6f},{gga.lon:.6f}", exc, now)
+            return
+        self.fixes.put(fix)
+        self.published += 1
+
+    def _rejected(self, line, error: NmeaError | None, now: float) -> None:
+        if error is None:
+            return
+        reason = error.reason
+        n = self.reader.rejected[reason]
+        last = self._last_event.get(reason)
+        if last is None or now - last >= self.event_period_s:
+            self._last_event[reason] = now
+            # an unknown sentence type is ordinary receiver chatter, not a fault
+            level = EventLevel.INFO if reason == "unsupported sentence" else EventLevel.WARNING
+            # (the event is logged too: that covers the first line of each reason)
+            self.event("nmea_rejected", f"NMEA line rejected ({reason}, {n} so far): {error}: {line!r:.120}", level,
+                       reason=reason, count=n, rejected_total=self.reader.total_rejected,
+                       accepted_total=self.reader.total_accepted, fixes_published=self.published,
+                       example=repr(line)[:120])
+        elif n % LOG_EVERY == 0:
+            self.log.warning("rejected NMEA line (%s, %d so far): %s: %.120r", reason, n, error, line)
+
+
+def main() -> None:
+    run_node(GnssNode)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,298 @@
+"""Localization node: GNSS, IMU gyro and wheel odometry fused by a UKF (ARES paper §3.1).
+
+Inputs:   gnss/fix (GnssFix: local x, y, z, variances, rtk) · sensors/imu (Imu: the gyro's
+          yaw rate and the pitch are used; the magnetometer yaw only as the first guess of
+          the heading before the vehicle has moved, never afterwards) · sensors/can
+          (CanFrame: rear-axle speed, steering-wheel angle)
+Outputs:  localization/pose (Pose of the rear-axle centre with its covariance, every loop,
+          from the first GNSS fix on; before it nothing is published, so the controller
+          stays silent and the bridge's watchdog keeps the vehicle stopped)
+Params:   localization.* in stack.yaml (rate_hz, hold_back_s, max_late_s,
+          max_extrapolation_s, initial.*, yaw_from_poses.*, sensors.*, process_noise.*,
+          gnss.*, sigma_points.*); the vehicle profile (wheelbase_m, k_cg, steering_ratio).
+
+Pipeline (the `Localizer` class, also used in-process by ares.sim.closed_loop):
+
+  * every message is applied at its own stack time `t`, in time order: messages are held
+    back `hold_back_s` so that a GNSS fix, which reaches this node later than the raw
+    sensors (the gnss node parses NMEA first), is not overtaken by them; whatever still
+    arrives late is applied at the filter's time (a fix shifted forward by the motion
+    estimated since its time), and anything later than `max_late_s` is dropped;
+  * GNSS fix -> UKF position update, yaw from poses (eqs. 1-2) -> UKF yaw update, altitude;
+  * IMU -> UKF yaw-rate update (gyro z) and the pitch (for the slope);
+  * CAN -> wheel odometry (eqs. 3-5) -> UKF speed and yaw-rate update;
+  * the published pose is the filter's state carried forward to the loop's time by the
+    process model (the covariance grown by the process noise), so a consumer sees where the
+    vehicle is now, not where it was at the last message. If no sensor message has been
+    applied for `max_extrapolation_s`, nothing is published: a pose from nowhere is worse
+    than none (it goes stale, the odometry score drops to 0, the controller stops).
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+import math
+from typing import Mapping
+
+import numpy as np
+
+from ares.messages import CanFrame, GnssFix, Imu, Pose
+from ares.node import Node, run_node
+from perception.ukf import V, W, YAW, PoseUKF, correlated_inflation
+from perception.wheel_odometry import WheelOdometry
+from perception.yaw_from_poses import PoseFix, YawFromPoses
+
+KINDS = ("gnss", "imu", "can")
+
+
+class AltitudeFilter:
+    """Scalar Kalman filter for z beside the UKF: climbs at v·tan(−pitch) (REP-103 pitch is
+    positive nose down), corrected by the GNSS height."""
+
+    def __init__(self, q_m2_per_s: float = 0.01):
+        self.q = float(q_m2_per_s)
+        self.z = 0.0
+        self.var = 0.0
+        self.t: float | None = None
+
+    def initialize(self, t: float, z: float, var: float) -> None:
+        self.t, self.z, self.var = t, z, var
+
+    def predict(self, t: float, climb_rate: float) -> None:
+        dt = max(t - self.t, 0.0)
+        self.z += climb_rate * dt
+        self.var += self.q * dt
+        self.t = max(self.t, t)
+
+    def update(self, z: float, var: float) -> None:
+        gain = self.var / (self.var + var)
+        self.z += gain * (z - self.z)
+        self.var *= 1.0 - gain
+
+
+class Localizer:
+    """The localization pipeline without the bus: push messages, process them in time order,
+    read the pose."""
+
+    def __init__(self, params: Mapping, vehicle_profile: Mapping):
+        self.params = params
+        self.ukf = PoseUKF(dict(params))
+        self.yaw_poses = YawFromPoses.from_config(dict(params.get("yaw_from_poses", {})))
+        self.use_float_yaw = bool(params.get("yaw_from_poses", {}).get("use_without_rtk", False))
+        self.wheels = WheelOdometry.from_profile(vehicle_profile)
+        sensors = params.get("sensors", {})
+        self.gyro_var = float(sensors.get("gyro_var", 4e-6))
+        self.wheel_speed_var = float(sensors.get("wheel_speed_var", 1e-4))
+        self.wheel_yaw_rate_var = float(sensors.get("wheel_yaw_rate_var", 1e-4))
+        init = params.get("initial", {})
+        self.init_yaw_var_imu = float(init.get("yaw_sigma_rad", 0.3)) ** 2
+        self.init_yaw_var_none = float(init.get("yaw_sigma_no_imu_rad", 1.5)) ** 2
+        self.hold_back_s = float(params.get("hold_back_s", 0.05))
+        self.max_late_s = float(params.get("max_late_s", 0.5))
+        self.max_extrapolation_s = float(params.get("max_extrapolation_s", 1.0))
+        self.max_buffer = int(params.get("max_buffer", 4000))
+        self.altitude = AltitudeFilter(float(params.get("altitude_q_m2_per_s", 0.01)))
+        self.float_correlation_s = self.ukf.float_correlation_s
+        # latest raw readings (for initialisation and the slope)
+        self.pitch = 0.0
+        self.imu_yaw: float | None = None
+        self.gyro_rate: float | None = None
+        self.can_speed: float | None = None
+        # the heading integrated from the filter's yaw rate: the chord correction of eq. 1
+        self.heading = 0.0
+        # bookkeeping
+        self.last_fix_t: float | None = None
+        self.last_fix_rtk = False
+        self._last_float_z_t: float | None = None
+        self.counts = {"gnss": 0, "imu": 0, "can": 0, "yaw": 0, "late": 0, "dropped": 0, "gated": 0}
+        self._buffer: list = []
+        self._seq = itertools.count()
+
+    @classmethod
+    def from_config(cls, cfg: Mapping) -> "Localizer":
+        return cls(cfg.get("localization", {}), cfg["vehicle_profile"])
+
+    @property
+    def initialized(self) -> bool:
+        return self.ukf.initialized
+
+    # ---- input ----------------------------------------------------------------------------
+    def push(self, kind: str, msg) -> None:
+        """Queue one message ("gnss" GnssFix, "imu" Imu, "can" CanFrame) for time-ordered processing."""
+        if kind not in KINDS:
+            raise ValueError(f"unknown message kind {kind!r}")
+        heapq.heappush(self._buffer, (float(msg.t), next(self._seq), kind, msg))
+        if len(self._buffer) > self.max_buffer:
+            # should never happen in a running stack: lose the oldest rather than all memory
+            self._buffer = heapq.nsmallest(self.max_buffer, self._buffer)[1:]
+            heapq.heapify(self._buffer)
+            self.counts["dropped"] += 1
+
+    def process_until(self, t_cut: float) -> int:
+        """Apply every queued message stamped up to t_cut, oldest first."""
+        n = 0
+        while self._buffer and self._buffer[0][0] <= t_cut:
+            _, _, kind, msg = heapq.heappop(self._buffer)
+            self.handle(kind, msg)
+            n += 1
+        return n
+
+    def handle(self, kind: str, msg) -> None:
+        """Apply one message now (callers normally go through push/process_until)."""
+        if kind == "gnss":
+            self._on_fix(msg)
+        elif kind == "imu":
+            self._on_imu(msg)
+        elif kind == "can":
+            self._on_can(msg)
+        else:
+            raise ValueError(f"unknown message kind {kind!r}")
+
+    # ---- handlers --------------------------------------------------------------------------
+    def _lateness(self, t: float) -> float | None:
+        """How late a message is for the filter (0 if on time); None if too late to use."""
+        if not self.ukf.initialized or t >= self.ukf.t:
+            return 0.0
+        late = self.ukf.t - t
+        if late > self.max_late_s:
+            self.counts["dropped"] += 1
+            return None
+        self.counts["late"] += 1
+        return late
+
+    def _advance(self, t: float) -> float:
+        """Predict the UKF (and the heading integral, the altitude) to t; returns the time used."""
+        f = self.ukf
+        t_use = max(t, f.t)
+        dt = t_use - f.t
+        if dt > 0.0:
+            # heading integral with the yaw rate over the step (constant, as in the process model)
+            self.heading += f.x[W] * dt
+            self.altitude.predict(t_use, f.x[V] * math.tan(-self.pitch))
+        f.predict_to(t_use)
+        return t_use
+
+    def _on_imu(self, imu: Imu) -> None:
+        self.counts["imu"] += 1
+        self.pitch = imu.pitch
+        self.imu_yaw = imu.yaw
+        self.gyro_rate = imu.gyro_z
+        if not self.ukf.initialized or self._lateness(imu.t) is None:
+            return
+        t = self._advance(imu.t)
+        # the gyro's yaw rate: NOT the magnetometer yaw, which carries the calibration offset
+        self.ukf.update_yaw_rate(t, imu.gyro_z, self.gyro_var)
+
+    def _on_can(self, can: CanFrame) -> None:
+        self.counts["can"] += 1
+        reading = self.wheels.reading(can.t, can.speed_mps, can.steering_wheel_deg, self.pitch)
+        self.can_speed = reading.v
+        if not self.ukf.initialized or self._lateness(can.t) is None:
+            return
+        t = self._advance(can.t)
+        self.ukf.update_wheel(t, reading.v, reading.yaw_rate, self.wheel_speed_var, self.wheel_yaw_rate_var)
+
+    def _initialize(self, fix: GnssFix) -> None:
+        yaw, yaw_var = (self.imu_yaw, self.init_yaw_var_imu) if self.imu_yaw is not None else (0.0, self.init_yaw_var_none)
+        v, v_var = (self.can_speed, 0.01) if self.can_speed is not None else (0.0, 1.0)
+        w, w_var = (self.gyro_rate, 0.01) if self.gyro_rate is not None else (0.0, 0.1)
+        self.ukf.initialize(fix.t, fix.x, fix.y, yaw, v, w, (fix.var_x, fix.var_y, yaw_var, v_var, w_var))
+        self.altitude.initialize(fix.t, fix.z, fix.var_z)
+        self.heading = 0.0
+        self.yaw_poses.reset()
+
+    def _on_fix(self, fix: GnssFix) -> None:
+        self.counts["gnss"] += 1
+        if not self.ukf.initialized:
+            self._initialize(fix)
+            self._fused_fix(fix)
+            self.yaw_poses.add(PoseFix(fix.t, fix.x, fix.y, fix.var_x, fix.var_y, fix.rtk, self.heading), 0.0)
+            return
+        late = self._lateness(fix.t)
+        if late is None:
+            return
+        t = self._advance(fix.t)
+        f = self.ukf
+        # A late fix: carry it forward by the motion estimated since its time.
+        yaw, v = f.x[YAW], f.x[V]
+        shift_x, shift_y = v * math.cos(yaw) * late, v * math.sin(yaw) * late
+        heading_at_fix = self.heading - f.x[W] * late
+        used = f.update_position(t, fix.x + shift_x, fix.y + shift_y, fix.var_x, fix.var_y, fix.rtk)
+        if not used:
+            self.counts["gated"] += 1
+        else:
+            self._fused_fix(fix)
+        z_var = fix.var_z
+        if not fix.rtk:
+            interval = None if self._last_float_z_t is None else fix.t - self._last_float_z_t
+            z_var *= correlated_inflation(interval, self.float_correlation_s)
+            self._last_float_z_t = fix.t
+        else:
+            self._last_float_z_t = None
+        self.altitude.update(fix.z, z_var)
+        # Yaw from this fix and the last one d metres behind it (eqs. 1-2).
+        m = self.yaw_poses.add(PoseFix(fix.t, fix.x, fix.y, fix.var_x, fix.var_y, fix.rtk, heading_at_fix),
+                               float(f.x[V]))
+        if m is not None and (fix.rtk or self.use_float_yaw):
+            self.counts["yaw"] += 1
+            f.update_yaw(t, m.yaw + f.x[W] * late, m.variance)
+
+    def _fused_fix(self, fix: GnssFix) -> None:
+        self.last_fix_t = fix.t
+        self.last_fix_rtk = fix.rtk
+
+    # ---- output ---------------------------------------------------------------------------
+    def pose(self, now: float) -> Pose | None:
+        """The estimate carried forward to `now`; None before the first fix or when no
+        sensor message has been applied for max_extrapolation_s."""
+        f = self.ukf
+        if not f.initialized or now - f.t > self.max_extrapolation_s:
+            return None
+        x, P = f.extrapolate(now)
+        z = self.altitude.z + x[V] * math.tan(-self.pitch) * max(now - self.altitude.t, 0.0)
+        pos = P[:2, :2]
+        std = math.sqrt(max(float(np.linalg.eigvalsh(pos)[-1]), 0.0))
+        return Pose(t=now, x=float(x[0]), y=float(x[1]), z=float(z),
+                    yaw=float((x[YAW] + math.pi) % (2 * math.pi) - math.pi),
+                    v=float(x[V]), yaw_rate=float(x[W]),
+                    cov_xx=float(P[0, 0]), cov_xy=float(P[0, 1]), cov_yy=float(P[1, 1]),
+                    var_yaw=float(P[YAW, YAW]), var_v=float(P[V, V]), position_std_m=std,
+                    rtk=self.last_fix_rtk,
+                    gnss_age_s=None if self.last_fix_t is None else max(now - self.last_fix_t, 0.0))
+
+
+class LocalizationNode(Node):
+    name = "localization"
+    rate_key = "localization.rate_hz"
+    default_rate_hz = 50.0
+
+    def setup(self) -> None:
+        self.localizer = Localizer.from_config(self.cfg)
+        self.fixes = self.bus.subscribe("gnss/fix", queue=128)
+        self.imu = self.bus.subscribe("sensors/imu", queue=512)
+        self.can = self.bus.subscribe("sensors/can", queue=256)
+        self.poses = self.bus.publisher("localization/pose")
+        self._announced = False
+
+    def step(self, now: float) -> None:
+        loc = self.localizer
+        for kind, sub in (("gnss", self.fixes), ("imu", self.imu), ("can", self.can)):
+            for _, msg in sub.drain():
+                loc.push(kind, msg)
+        loc.process_until(now - loc.hold_back_s)
+        pose = loc.pose(now)
+        if pose is None:
+            return
+        if not self._announced:
+            self._announced = True
+            self.event("localization", f"initialised at the first GNSS fix ({'RTK' if pose.rtk else 'no RTK'})",
+                       x=pose.x, y=pose.y)
+        self.poses.put(pose)
+
+
+def main() -> None:
+    run_node(LocalizationNode)
+
+
+if __name__ == "__main__":
+    main()

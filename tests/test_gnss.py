@@ -1,0 +1,197 @@
+"""GGA (+ GST) -> UTM -> local frame (perception/gnss.py), and the gnss node as a real process."""
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ares import config
+from ares.bus import Bus
+from ares.clock import Clock
+from ares.messages import GnssSentences
+from ares.route import Route
+from ares.sim.plant import VehicleState
+from ares.sim.sensors import GnssSensor, nmea_sentence
+from perception.gnss import GnssError, GnssProjector, Origin, pair_epochs
+from perception.nmea import NmeaError, parse_sentence
+
+CFG = config.build_run_config()
+SIM = CFG["sim"]
+ROUTE = Route.from_tour("default")
+PROJECTOR = GnssProjector.from_config(CFG)
+
+
+def sentences_at(x: float, y: float, z: float = 0.0, t: float = 0.0, s: float = 0.0) -> list[str]:
+    gnss = GnssSensor(ROUTE, SIM, noise=False)
+    return gnss.measure(VehicleState(t=t, x=x, y=y, z=z, s=s))["sentences"]
+
+
+def fix_of(lines: list[str], t: float = 0.0):
+    (gga, gst), = pair_epochs([parse_sentence(line) for line in lines])
+    return PROJECTOR.fix(gga, gst, t=t)
+
+
+def gga_with(body_fields: dict[int, str]) -> str:
+    """A simulator GGA at the origin with some fields replaced (1 = time ... 14 = station)."""
+    fields = sentences_at(10.0, 20.0)[0][1:].split("*")[0].split(",")
+    for i, v in body_fields.items():
+        fields[i] = v
+    return nmea_sentence(",".join(fields))
+
+
+# ---- projection -------------------------------------------------------------------------------
+
+@settings(max_examples=150, deadline=None)
+@given(x=st.floats(-5000, 5000), y=st.floats(-5000, 5000), z=st.floats(-50, 300), t=st.floats(0, 86000))
+def test_simulator_to_local_frame_round_trip_within_a_millimetre(x, y, z, t):
+    fix = fix_of(sentences_at(x, y, z, t), t=t)
+    assert abs(fix.x - x) < 1e-3 and abs(fix.y - y) < 1e-3 and abs(fix.z - z) < 1e-3
+    assert fix.t == t and fix.zone == 30 and fix.hemisphere == "N"
+    assert fix.easting == pytest.approx(440000.0 + fix.x) and fix.northing == pytest.approx(4474000.0 + fix.y)
+    assert fix.rtk and fix.quality == 4 and fix.satellites == 16 and fix.hdop == 0.7
+
+
+def test_gst_sigmas_give_the_variances():
+    lines = sentences_at(1.0, 2.0)
+    fix = fix_of(lines)
+    rtk_sigma, alt_sigma = SIM["gnss"]["rtk_sigma_m"], SIM["gnss"]["rtk_sigma_alt_m"]
+    assert fix.var_x == pytest.approx(rtk_sigma ** 2) and fix.var_y == pytest.approx(rtk_sigma ** 2)
+    assert fix.var_z == pytest.approx(alt_sigma ** 2)
+    # GST fields 6, 7, 8: sigma latitude (-> y), longitude (-> x), altitude
+    gst = nmea_sentence(lines[1][1:].split("*")[0].rsplit(",", 3)[0] + ",0.100,0.200,0.300")
+    fix = fix_of([lines[0], gst])
+    assert (fix.var_x, fix.var_y, fix.var_z) == pytest.approx((0.04, 0.01, 0.09))
+
+
+def test_without_a_gst_of_the_same_epoch_the_variances_come_from_the_fix_quality():
+    gga, gst = (parse_sentence(line) for line in sentences_at(1.0, 2.0, t=5.0))
+    _, other_epoch = (parse_sentence(line) for line in sentences_at(1.0, 2.0, t=5.2))
+    rtk = PROJECTOR.fix(gga, None)
+    assert rtk.rtk and (rtk.var_x, rtk.var_y) == (5e-5, 5e-5) and rtk.var_z == pytest.approx(4 * 5e-5)
+    assert PROJECTOR.fix(gga, other_epoch).var_x == 5e-5       # a GST of another time is not used
+    for quality in ("1", "2", "5"):
+        fix = PROJECTOR.fix(parse_sentence(gga_with({6: quality})), None)
+        assert not fix.rtk and fix.quality == int(quality)
+        assert (fix.var_x, fix.var_y, fix.var_z) == (0.5, 0.5, 2.0)
+
+
+def test_variances_and_origin_come_from_config_even_after_the_json_round_trip():
+    cfg = json.loads(json.dumps(config.deep_merge(CFG, {"gnss": {
+        "variance_m2": {"4": 1e-4, "5": 0.01}, "default_variance_m2": 0.9, "vertical_variance_factor": 1.0,
+        "origin_utm": {"zone": 30, "hemisphere": "N", "easting": 440010.0, "northing": 4474020.0, "altitude_m": 600.0}}})))
+    projector = GnssProjector.from_config(cfg)
+    assert projector.origin == Origin(30, True, 440010.0, 4474020.0, 600.0)
+    gga = parse_sentence(sentences_at(10.0, 20.0, 5.0)[0])
+    fix = projector.fix(gga)
+    assert abs(fix.x) < 1e-3 and abs(fix.y) < 1e-3 and fix.z == pytest.approx(55.0)
+    assert fix.var_x == 1e-4
+    assert projector.fix(parse_sentence(gga_with({6: "5"}))).var_x == 0.01
+    assert projector.fix(parse_sentence(gga_with({6: "2"}))).var_z == 0.9
+
+
+@pytest.mark.parametrize("lat, lon, reason", [
+    ("4024.0000000", "00900.0000000", "utm zone"),      # 9 deg W: zone 29, next door
+    ("4024.0000000", "01000.0000000", "utm zone"),      # wrong hemisphere of longitude (E): zone 32
+    ("8500.0000000", "00342.0000000", "utm range"),     # beyond UTM's 84 deg N
+])
+def test_a_fix_outside_the_sites_utm_zone_is_rejected(lat, lon, reason):
+    ew = "E" if lon.startswith("010") else "W"
+    gga = parse_sentence(gga_with({2: lat, 4: lon, 5: ew}))
+    with pytest.raises(GnssError) as info:
+        PROJECTOR.fix(gga)
+    assert info.value.reason == reason and isinstance(info.value, NmeaError)
+
+
+def test_a_southern_fix_is_rejected_for_a_northern_origin():
+    gga = parse_sentence(gga_with({3: "S"}))
+    with pytest.raises(GnssError, match="zone 30S") as info:
+        PROJECTOR.fix(gga)
+    assert info.value.reason == "utm zone"
+
+
+def test_pairing_takes_the_gst_of_the_same_time_in_either_order():
+    gga1, gst1 = (parse_sentence(line) for line in sentences_at(0, 0, t=1.0))
+    gga2, gst2 = (parse_sentence(line) for line in sentences_at(0, 0, t=1.2))
+    assert pair_epochs([gst1, gga1]) == [(gga1, gst1)]
+    assert pair_epochs([gga1, gst1, gga2, gst2]) == [(gga1, gst1), (gga2, gst2)]
+    assert pair_epochs([gga2, gst1]) == [(gga2, None)]
+    assert pair_epochs([gga1], earlier_gst=gst1) == [(gga1, gst1)]
+    assert pair_epochs([gga2], earlier_gst=gst1) == [(gga2, None)]
+
+
+# ---- the node, as a process on a real router -------------------------------------------------------
+
+def wait_until(condition, timeout_s: float, what: str, tick=None) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        if tick is not None:
+            tick()
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+@pytest.mark.stack
+@pytest.mark.timeout(60)
+def test_gnss_node_publishes_fixes_for_good_lines_and_survives_bad_ones(router, spawn_node):
+    bus = Bus(router, "test", Clock())
+    try:
+        fixes = bus.subscribe("gnss/fix", queue=200)
+        events = bus.subscribe("events", queue=200)
+        node = spawn_node("perception.gnss_node", "gnss")
+        good = sentences_at(12.5, -7.25, 3.0, t=1.0)
+        # the node is up and routed to us once a published message comes back as a fix
+        wait_until(lambda: fixes.count > 0, 30.0, "a first fix",
+                   tick=lambda: bus.publish("sensors/gnss", GnssSentences(t=1.0, sentences=good)))
+        time.sleep(0.3)
+        fixes.drain()
+        before = fixes.count
+
+        gga, gst = good
+        corrupt = [
+            gga[:-2] + ("00" if gga[-2:] != "00" else "01"),                        # checksum
+            gga[:30],                                                                 # truncated
+            "\x00\xff garbage",                                                      # framing
+            gga_with({2: "4099.0000000"}),                                            # latitude
+            gga_with({6: "0"}),                                                       # no fix
+            gga_with({2: "4024.0000000", 4: "00900.0000000"}),                        # utm zone
+            nmea_sentence("GPRMC,100000.00,A,4024.0,N,00342.0,W,0.0,0.0,010124,,,A"),  # unsupported
+        ]
+        for i in range(5):
+            t = 10.0 + i
+            lines = sentences_at(1.0 * i, 2.0, 0.0, t=t)
+            bus.publish("sensors/gnss", GnssSentences(t=t, sentences=corrupt[: 1 + i] + lines + corrupt[1 + i:]))
+            time.sleep(0.05)
+        wait_until(lambda: fixes.count >= before + 5, 10.0, "five fixes")
+        got = [msg for _, msg in fixes.drain() if msg.t >= 10.0]
+        assert [f.t for f in got] == [10.0, 11.0, 12.0, 13.0, 14.0]     # only the good lines, in order
+        for i, f in enumerate(got):
+            assert f.x == pytest.approx(1.0 * i, abs=1e-3) and f.y == pytest.approx(2.0, abs=1e-3)
+            assert f.var_x == pytest.approx(SIM["gnss"]["rtk_sigma_m"] ** 2)       # paired with its GST
+
+        rejections: list = []
+        expected = {"checksum", "framing", "latitude", "no fix", "utm zone", "unsupported sentence"}
+
+        def collect() -> bool:
+            rejections.extend(e for _, e in events.drain() if e.kind == "nmea_rejected" and e.source == "gnss")
+            return expected <= {e.data["reason"] for e in rejections}
+        wait_until(collect, 10.0, "an nmea_rejected event for each reason")
+        time.sleep(0.3)
+        collect()
+        # five messages carried the same bad lines: one event per reason (at most one per 10 s)
+        assert sorted(e.data["reason"] for e in rejections) == sorted(expected)
+        assert all(e.data["count"] == 1 for e in rejections)
+        assert node.poll() is None
+
+        # still alive and well after the garbage
+        bus.publish("sensors/gnss", GnssSentences(t=20.0, sentences=sentences_at(-3.0, 4.0, t=20.0)))
+        wait_until(lambda: fixes.count >= before + 6, 10.0, "a fix after the bad lines")
+        (_, last), = fixes.drain()
+        assert last.t == 20.0 and last.x == pytest.approx(-3.0, abs=1e-3)
+        assert node.poll() is None
+    finally:
+        bus.close()

@@ -1,0 +1,414 @@
+"""Localization (ARES §3.1): yaw from poses (eqs. 1-2), wheel odometry (eqs. 3-5), the UKF,
+the localization pipeline, the in-process closed loop, and the node as a real process."""
+from __future__ import annotations
+
+import math
+import statistics
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from ares import config
+from ares.bus import Bus
+from ares.clock import Clock
+from ares.messages import CanFrame, GnssFix, Imu
+from ares.sim import closed_loop
+from perception.localization import Localizer
+from perception.ukf import PoseUKF, residual_angle, ukf_step_benchmark, unscented_transform
+from perception.wheel_odometry import WheelOdometry, increments, slip_angle
+from perception.yaw_from_poses import PoseFix, YawFromPoses, yaw_from_poses, yaw_variance
+
+CFG = config.build_run_config()
+PROFILE = CFG["vehicle_profile"]
+RTK_VAR = 0.007 ** 2
+
+
+def wrap(a):
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+# ---- eq. 1 and eq. 2 ------------------------------------------------------------------------
+
+def test_eq1_chord_direction_in_every_quadrant():
+    assert yaw_from_poses(0, 0, 1, 1) == pytest.approx(math.pi / 4)
+    assert yaw_from_poses(0, 0, -1, 1) == pytest.approx(3 * math.pi / 4)
+    assert yaw_from_poses(0, 0, -1, -1) == pytest.approx(-3 * math.pi / 4)
+    assert yaw_from_poses(2, 3, 2, 5) == pytest.approx(math.pi / 2)         # due north: ΔX = 0
+
+
+def test_eq1_yaw_rate_correction_puts_the_heading_at_the_end_of_the_chord():
+    # an arc of radius 10 m from heading 0 turning left by 0.3 rad: the chord points at 0.15
+    r, turned = 10.0, 0.3
+    x1, y1 = r * math.sin(turned), r * (1 - math.cos(turned))
+    assert yaw_from_poses(0, 0, x1, y1) == pytest.approx(0.15)
+    assert yaw_from_poses(0, 0, x1, y1, heading_change=turned) == pytest.approx(turned)
+
+
+def test_eq2_hand_computed_value():
+    # ΔX = 3, ΔY = 4, r² = 25: (16·(0.01 + 0.02) + 9·(0.03 + 0.04)) / 625 = 1.11 / 625
+    assert yaw_variance(3, 4, 0.01, 0.03, 0.02, 0.04) == pytest.approx(1.11 / 625)
+
+
+def test_eq2_equals_the_papers_form_with_its_typo_fixed_and_the_jacobian():
+    dx, dy, vx0, vy0, vx, vy = 1.3, -0.4, 2e-5, 3e-5, 4e-5, 5e-5
+    q = dy / dx
+    papers = (1 + q * q) ** -2 * ((dy / dx ** 2) ** 2 * (vx0 + vx) + (1 / dx) ** 2 * (vy0 + vy))
+    assert yaw_variance(dx, dy, vx0, vy0, vx, vy) == pytest.approx(papers, rel=1e-12)
+    # first-order propagation through atan2, by finite differences
+    h = 1e-7
+    d_dx = (math.atan2(dy, dx + h) - math.atan2(dy, dx - h)) / (2 * h)
+    d_dy = (math.atan2(dy + h, dx) - math.atan2(dy - h, dx)) / (2 * h)
+    assert yaw_variance(dx, dy, vx0, vy0, vx, vy) == pytest.approx(d_dx ** 2 * (vx0 + vx) + d_dy ** 2 * (vy0 + vy),
+                                                                   rel=1e-6)
+    # driving due north: the printed form divides by ΔX = 0, this one does not
+    assert yaw_variance(0.0, 2.0, 1e-4, 1e-4, 1e-4, 1e-4) == pytest.approx(2e-4 / 4)
+
+
+def test_eq2_matches_monte_carlo_with_rtk_noise():
+    rng = np.random.default_rng(1)
+    n, sigma, d = 200_000, 0.007, 1.5
+    p0 = rng.normal(0, sigma, (n, 2))
+    p1 = np.array([d * math.cos(0.7), d * math.sin(0.7)]) + rng.normal(0, sigma, (n, 2))
+    yaws = np.arctan2(p1[:, 1] - p0[:, 1], p1[:, 0] - p0[:, 0])
+    predicted = yaw_variance(d * math.cos(0.7), d * math.sin(0.7), sigma ** 2, sigma ** 2, sigma ** 2, sigma ** 2)
+    assert np.var(yaws) == pytest.approx(predicted, rel=0.02)
+
+
+def fix(t, x, y, rtk=True, heading=0.0, var=RTK_VAR):
+    return PoseFix(t, x, y, var, var, rtk, heading)
+
+
+def test_yaw_from_poses_waits_for_d_metres_and_uses_the_latest_fix_that_far():
+    yp = YawFromPoses(distance_m=1.5, min_speed_mps=0.5, max_chord_s=5.0)
+    assert yp.add(fix(0.0, 0.0, 0.0), 2.0) is None
+    assert yp.add(fix(0.2, 0.4, 0.0), 2.0) is None
+    assert yp.add(fix(0.4, 0.8, 0.0), 2.0) is None
+    m = yp.add(fix(0.8, 1.6, 0.0), 2.0)                 # 1.6 m from the first, 1.2 from the second
+    assert m is not None and m.chord_m == pytest.approx(1.6) and m.yaw == pytest.approx(0.0)
+    m = yp.add(fix(1.0, 2.0, 0.2), 2.0)                 # the latest fix >= 1.5 m behind is (0.4, 0)
+    assert m.chord_m == pytest.approx(math.hypot(1.6, 0.2))
+    assert m.variance == pytest.approx(yaw_variance(1.6, 0.2, RTK_VAR, RTK_VAR, RTK_VAR, RTK_VAR)
+                                       + 0.25 * yp.heading_change_var_per_s * 0.8)
+
+
+def test_yaw_from_poses_needs_motion_compatible_quality_and_a_quick_chord():
+    yp = YawFromPoses(distance_m=1.5, min_speed_mps=0.5, max_chord_s=5.0)
+    yp.add(fix(0.0, 0.0, 0.0), 0.0)
+    assert yp.add(fix(1.0, 2.0, 0.0), 0.2) is None       # too slow to be "moving"
+    yp.reset()
+    yp.add(fix(0.0, 0.0, 0.0, rtk=True), 2.0)
+    assert yp.add(fix(1.0, 2.0, 0.0, rtk=False, var=0.49), 2.0) is None    # RTK -> no RTK: no chord
+    assert yp.add(fix(2.0, 4.0, 0.0, rtk=False, var=0.49), 2.0) is not None  # both without: compatible
+    yp.reset()
+    yp.add(fix(0.0, 0.0, 0.0), 2.0)
+    assert yp.add(fix(6.0, 2.0, 0.0), 2.0) is None       # took longer than max_chord_s
+
+
+def test_yaw_from_poses_reversing_points_the_yaw_against_the_chord():
+    yp = YawFromPoses(distance_m=1.0, min_speed_mps=0.3)
+    yp.add(fix(0.0, 0.0, 0.0), -1.0)
+    m = yp.add(fix(1.0, -1.2, 0.0), -1.0)               # moving west, facing east
+    assert abs(wrap(m.yaw - 0.0)) < 1e-9
+
+
+# ---- wheel odometry, eqs. 3-5 ----------------------------------------------------------------
+
+def test_increments_hand_computed():
+    v, yaw, delta, dt, k, wb = 2.0, 0.3, 0.1, 0.1, 0.5, 2.8
+    beta = math.atan(0.5 * math.tan(0.1))
+    dx, dy, dyaw = increments(v, yaw, delta, dt, k, wb)
+    assert dx == pytest.approx(2.0 * math.cos(0.3 + beta) * 0.1)
+    assert dy == pytest.approx(2.0 * math.sin(0.3 + beta) * 0.1)
+    assert dyaw == pytest.approx(2.0 * math.cos(beta) * math.tan(0.1) / 2.8 * 0.1)
+    assert slip_angle(0.0, 0.5) == 0.0 and slip_angle(0.2, 0.0) == 0.0
+
+
+def test_wheel_odometry_on_a_straight():
+    wo = WheelOdometry.from_profile(PROFILE)
+    wo.reset(0.0, 0.0, math.radians(30))
+    for k in range(101):
+        wo.integrate(k * 0.05, 2.0, 0.0)
+    assert wo.x == pytest.approx(10 * math.cos(math.radians(30)), abs=1e-9)
+    assert wo.y == pytest.approx(10 * math.sin(math.radians(30)), abs=1e-9)
+    assert wo.yaw == pytest.approx(math.radians(30))
+
+
+def test_wheel_odometry_closes_a_circle_and_reports_the_rear_axle_yaw_rate():
+    wo = WheelOdometry.from_profile(PROFILE)
+    wb, k = PROFILE["wheelbase_m"], PROFILE["k_cg"]
+    steer_deg = 400.0                                   # 10 degrees at the wheels
+    delta = math.radians(steer_deg) / PROFILE["steering_ratio"]
+    v_rear = 2.0
+    reading = wo.reading(0.0, v_rear, steer_deg)
+    assert reading.yaw_rate == pytest.approx(v_rear * math.tan(delta) / wb)    # the rear-axle bicycle's
+    period = 2 * math.pi / reading.yaw_rate
+    n = 4000
+    dt = period / n
+    wo.reset()
+    xs, ys = [], []
+    for i in range(n + 1):
+        x, y, yaw = wo.integrate(i * dt, v_rear, steer_deg)
+        xs.append(x)
+        ys.append(y)
+    assert math.hypot(wo.x, wo.y) < 1e-6 and abs(wrap(wo.yaw)) < 1e-9        # back where it started
+    # the reference point (k_cg along the wheelbase) runs on the circle sqrt(R² + (k·wb)²)
+    r_rear = wb / math.tan(delta)
+    radius = (max(xs) - min(xs)) / 2
+    assert radius == pytest.approx(math.hypot(r_rear, k * wb), rel=1e-4)
+
+
+def test_wheel_speed_is_made_horizontal_with_the_pitch():
+    wo = WheelOdometry.from_profile(PROFILE)
+    assert wo.reading(0.0, 3.0, 0.0, pitch=-math.atan(0.12)).v == pytest.approx(3.0 / math.hypot(1, 0.12))
+
+
+# ---- the UKF ---------------------------------------------------------------------------------
+
+def test_unscented_transform_averages_angles_across_pi():
+    sig = np.array([[math.pi - 0.01], [-math.pi + 0.03], [math.pi - 0.05]])
+    w = np.array([0.2, 0.4, 0.4])
+    mean, cov = unscented_transform(sig, w, w, np.zeros((1, 1)), None, residual_angle)
+    # offsets from π: 0.2·(−0.01) + 0.4·(+0.03) + 0.4·(−0.05) = −0.01
+    assert abs(wrap(mean[0] - (math.pi - 0.01))) < 1e-9          # not ~0
+    assert cov[0, 0] < 0.01
+
+
+def drive(t_end, speed=3.0, yaw_rate=0.0, yaw0=0.0, imu_yaw_offset=0.0, rtk=lambda t: True, fix_error=lambda t: (0, 0),
+          seed=0, dt=0.01):
+    """Messages of a vehicle on a circle/straight from the origin: (kind, msg, truth) in time order."""
+    rng = np.random.default_rng(seed)
+    x = y = 0.0
+    yaw = yaw0
+    wb, ratio = PROFILE["wheelbase_m"], PROFILE["steering_ratio"]
+    steer_deg = math.degrees(math.atan(yaw_rate * wb / speed) * ratio) if speed else 0.0
+    out = []
+    n = int(round(t_end / dt))
+    for i in range(n + 1):
+        t = i * dt
+        truth = (x, y, yaw)
+        if i % 2 == 0:
+            out.append(("imu", Imu(t=t, yaw=wrap(yaw + imu_yaw_offset), roll=0.0, pitch=0.0, gyro_x=0.0, gyro_y=0.0,
+                                   gyro_z=yaw_rate + 0.002 * rng.standard_normal(), accel_x=0.0, accel_y=0.0,
+                                   accel_z=9.81), truth))
+        if i % 5 == 0:
+            out.append(("can", CanFrame(t=t, wheel_speed_rad_s=speed / 0.28, speed_mps=speed + 0.01 * rng.standard_normal(),
+                                        steering_wheel_deg=steer_deg, throttle_pedal=0.0, brake_pedal=0.0,
+                                        steering_torque=False), truth))
+        if i % 20 == 0:
+            ok = rtk(t)
+            sigma = 0.007 if ok else 0.7
+            ex, ey = fix_error(t)
+            noise = rng.normal(0, 0.007, 2) if ok else np.zeros(2)
+            out.append(("gnss", GnssFix(t=t, x=x + ex + noise[0], y=y + ey + noise[1], z=0.0, lat=40.0, lon=-3.7,
+                                        easting=440000.0 + x, northing=4474000.0 + y, zone=30, hemisphere="N",
+                                        quality=4 if ok else 1, rtk=ok, satellites=12, hdop=0.8,
+                                        var_x=sigma ** 2, var_y=sigma ** 2, var_z=4 * sigma ** 2), truth))
+        yaw_next = yaw + yaw_rate * dt
+        mid = yaw + 0.5 * yaw_rate * dt
+        x += speed * math.cos(mid) * dt
+        y += speed * math.sin(mid) * dt
+        yaw = wrap(yaw_next)
+    return out
+
+
+def run_localizer(messages, params=None):
+    loc = Localizer(params or CFG["localization"], PROFILE)
+    errors = []
+    for kind, msg, truth in messages:
+        loc.push(kind, msg)
+        loc.process_until(msg.t)
+        pose = loc.pose(msg.t)
+        if pose is not None:
+            errors.append((msg.t, pose.x - truth[0], pose.y - truth[1], wrap(pose.yaw - truth[2]), pose))
+    return loc, errors
+
+
+def test_nothing_is_published_before_the_first_gnss_fix():
+    loc = Localizer(CFG["localization"], PROFILE)
+    for kind, msg, _ in drive(1.0):
+        if kind != "gnss":
+            loc.push(kind, msg)
+    loc.process_until(1.0)
+    assert loc.pose(1.0) is None
+    fix0 = next(m for k, m, _ in drive(0.0) if k == "gnss")
+    loc.push("gnss", fix0.model_copy(update={"t": 1.0}))
+    loc.process_until(1.0)
+    assert loc.pose(1.0) is not None
+
+
+def test_ukf_converges_from_a_wrong_initial_yaw():
+    # the magnetometer is 0.8 rad off, so the filter starts 0.8 rad wrong (σ 0.3: over-confident)
+    loc, errors = run_localizer(drive(12.0, speed=3.0, yaw_rate=0.05, yaw0=1.0, imu_yaw_offset=0.8))
+    start_err = errors[0][3]
+    assert abs(start_err) > 0.7
+    late = [abs(e[3]) for e in errors if e[0] > 6.0]
+    assert max(late) < math.radians(0.5)
+    assert max(math.hypot(e[1], e[2]) for e in errors if e[0] > 6.0) < 0.03
+
+
+def test_yaw_stays_continuous_driving_west_across_pi():
+    msgs = drive(15.0, speed=3.0, yaw_rate=0.02, yaw0=math.pi - 0.1)    # crosses +π into −π
+    _, errors = run_localizer(msgs)
+    assert max(abs(e[3]) for e in errors if e[0] > 4.0) < math.radians(0.5)
+    assert all(-math.pi <= e[4].yaw < math.pi for e in errors)
+
+
+def test_a_wandering_uncorrected_fix_does_not_drag_a_good_estimate():
+    # RTK for 10 s, then 20 s of fixes without corrections whose error is a steady 0.7 m offset
+    # to the left of the road (the worst a slow Gauss-Markov bias does over a dead zone)
+    msgs = drive(30.0, speed=3.0, rtk=lambda t: t < 10.0, fix_error=lambda t: (0.0, 0.7) if t >= 10.0 else (0.0, 0.0))
+    loc, errors = run_localizer(msgs)
+    dead = [math.hypot(e[1], e[2]) for e in errors if e[0] >= 10.0]
+    assert max(dead) < 0.1                               # the fixes alone would be 0.7 m off
+    assert loc.counts["gnss"] == 151
+    poses = [e[4] for e in errors]
+    assert poses[-1].position_std_m > 0.1                # but the filter knows it is dead reckoning
+
+
+def test_an_outlier_without_corrections_is_gated():
+    msgs = drive(12.0, speed=3.0, rtk=lambda t: t < 10.0,
+                 fix_error=lambda t: (60.0, 0.0) if 11.0 <= t < 11.1 else (0.0, 0.0))
+    loc, errors = run_localizer(msgs)
+    assert loc.counts["gated"] == 1
+    assert max(math.hypot(e[1], e[2]) for e in errors if e[0] >= 10.0) < 0.05
+
+
+def test_a_late_fix_is_carried_forward_not_applied_in_the_past():
+    msgs = drive(8.0, speed=3.0, yaw_rate=0.05)
+    # deliver every fix 0.08 s late, after the IMU and CAN messages that follow it
+    delayed = sorted(msgs, key=lambda m: m[1].t + (0.08 if m[0] == "gnss" else 0.0))
+    params = config.deep_merge(CFG["localization"], {"hold_back_s": 0.0})
+    loc = Localizer(params, PROFILE)
+    errs = []
+    for kind, msg, truth in delayed:
+        loc.push(kind, msg)
+        now = msg.t + (0.08 if kind == "gnss" else 0.0)
+        loc.process_until(now)
+    assert loc.counts["late"] > 30
+    _, errors = run_localizer(msgs)
+    final = loc.pose(8.0)
+    ref = next(e[4] for e in reversed(errors) if e[0] <= 8.0)
+    assert math.hypot(final.x - ref.x, final.y - ref.y) < 0.02
+
+
+def test_pose_is_carried_forward_and_withheld_when_sensors_fall_silent():
+    loc, errors = run_localizer(drive(5.0, speed=3.0))
+    p0, p1 = loc.pose(5.0), loc.pose(5.5)
+    assert p1.x - p0.x == pytest.approx(1.5, abs=0.02)
+    assert p1.cov_xx > p0.cov_xx
+    assert loc.pose(5.0 + loc.max_extrapolation_s + 0.01) is None
+
+
+def test_ukf_predict_plus_update_median_is_below_half_a_millisecond():
+    samples = ukf_step_benchmark(3000)
+    assert statistics.median(samples) < 0.5e-3
+
+
+def test_ukf_state_and_covariance_stay_sane_under_a_long_dead_reckoning():
+    f = PoseUKF(CFG["localization"])
+    f.initialize(0.0, 0.0, 0.0, 3.1, 3.0, 0.2, (1e-4, 1e-4, 1e-4, 1e-2, 1e-2))
+    for k in range(1, 3001):
+        f.update_yaw_rate(k * 0.02, 0.2, 4e-6)
+    assert np.all(np.linalg.eigvalsh(f.P) > 0)
+    assert -math.pi <= f.x[2] < math.pi
+
+
+# ---- the closed loop --------------------------------------------------------------------------
+
+def test_imu_yaw_offset_does_not_bias_the_estimate():
+    means = []
+    for offset in (0.12, -0.35):
+        r = closed_loop.run(seconds=40.0, overrides={"sim": {"imu": {"yaw_offset_rad": offset}}})
+        late = r["t"] > 10.0
+        err = np.degrees(wrap(r["est_yaw"][late] - r["yaw"][late]))
+        means.append(float(np.mean(err)))
+        assert np.sqrt(np.mean(err ** 2)) < 0.3
+    assert all(abs(m) < 0.1 for m in means)
+    assert abs(means[0] - means[1]) < 0.05
+
+
+def test_dead_zone_covariance_grows_error_stays_bounded_and_the_score_drops():
+    route_zone = next(z for z in closed_loop.Route.from_tour("default").zones if z.kind == "rtk_loss")
+    r = closed_loop.run(seconds=36.0, s0=route_zone.s_start - 25.0)
+    inside = ~r["rtk_available"] & r["has_pose"]
+    assert inside.sum() > 100
+    cov = r["cov"][inside]
+    assert cov[-1] > 20 * cov[0] and np.all(np.diff(cov) > -1e-9)      # grows all the way through
+    err = np.hypot(r["est_x"] - r["x"], r["est_y"] - r["y"])
+    assert err[inside].max() < 0.5
+    rtk_ok, lost_ok = closed_loop.settled_masks(r["t"], r["rtk_available"])
+    assert r["score"][rtk_ok & r["has_pose"]].min() >= 0.9
+    assert r["score"][lost_ok].max() <= 0.3
+    assert r["summary"]["xte_max_m"] < 0.85
+
+
+# ---- the node as a real process -------------------------------------------------------------
+
+
+def feed(bus: Bus, clock: Clock, stop: threading.Event, fixes_after_s: float, yaw_offset: float = 0.12):
+    """A vehicle driving east at 2 m/s from x = 0 at t0: IMU 50 Hz, CAN 20 Hz, fixes 5 Hz."""
+    t0 = clock.now()
+    k = 0
+    while not stop.is_set():
+        t = clock.now()
+        x = 2.0 * (t - t0)
+        bus.publish("sensors/imu", Imu(t=t, yaw=yaw_offset, roll=0.0, pitch=0.0, gyro_x=0.0, gyro_y=0.0, gyro_z=0.0,
+                                       accel_x=0.0, accel_y=0.0, accel_z=9.81))
+        if k % 2 == 0:
+            bus.publish("sensors/can", CanFrame(t=t, wheel_speed_rad_s=2.0 / 0.28, speed_mps=2.0, steering_wheel_deg=0.0,
+                                                throttle_pedal=0.0, brake_pedal=0.0, steering_torque=False))
+        if k % 10 == 0 and t - t0 >= fixes_after_s:
+            bus.publish("gnss/fix", GnssFix(t=t, x=x, y=0.0, z=0.0, lat=40.0, lon=-3.7, easting=440000.0 + x,
+                                            northing=4474000.0, zone=30, hemisphere="N", quality=4, rtk=True,
+                                            satellites=16, hdop=0.7, var_x=RTK_VAR, var_y=RTK_VAR, var_z=2e-4))
+        k += 1
+        time.sleep(0.02)
+
+
+def wait_until(condition, timeout_s=10.0, what="condition"):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+@pytest.mark.stack
+def test_localization_and_odometry_manager_processes(router, spawn_node):
+    clock = Clock()
+    bus = Bus(router, "test", clock)
+    poses = bus.subscribe("localization/pose", queue=1000)
+    scores = bus.subscribe("odometry/score", queue=1000)
+    spawn_node("perception.localization", "localization", **clock.env())
+    spawn_node("managers.odometry", "odometry_manager", **clock.env())
+    wait_until(lambda: scores.latest is not None, 20.0, "the odometry manager's first score")
+    assert scores.latest.score == 0.0                     # no pose yet: no trust
+    stop = threading.Event()
+    feeder = threading.Thread(target=feed, args=(bus, clock, stop, 1.0), daemon=True)
+    started = clock.now()
+    feeder.start()
+    try:
+        time.sleep(0.8)
+        assert poses.latest is None                       # IMU and CAN alone: nothing published
+        wait_until(lambda: poses.latest is not None, 5.0, "a pose after the first fix")
+        first_pose_t = poses.latest.t
+        assert first_pose_t >= started + 1.0 - 0.1
+        time.sleep(3.0)
+        received = [m for _, m in poses.drain()]
+        rate = len(received) / (received[-1].t - received[0].t)
+        assert rate >= 20.0
+        last = received[-1]
+        truth_x = 2.0 * (last.t - started)
+        assert last.x == pytest.approx(truth_x, abs=0.1) and abs(last.y) < 0.05
+        assert abs(wrap(last.yaw)) < math.radians(1.0)   # the magnetometer's 0.12 rad is gone
+        assert last.rtk and last.gnss_age_s < 0.5
+        wait_until(lambda: scores.latest.score >= 0.9, 3.0, "a trusting score")
+    finally:
+        stop.set()
+        feeder.join()
+    # the sensors fall silent: localization stops publishing, the pose goes stale, score 0
+    wait_until(lambda: scores.latest.score == 0.0 and scores.latest.pose_age_s > 0.5, 5.0, "score 0 on a stale pose")
+    bus.close()

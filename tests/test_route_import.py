@@ -1,0 +1,446 @@
+"""`ares route import` / `ares route record` (ares/route_import.py): recorded drives -> route files.
+
+The NMEA logs here are "driven" by sampling a route at 5 Hz along a speed profile (slow in
+curves, a 60 s wait at a stop) through the simulator's own GNSS model with its RTK noise.
+"""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ares import cli, config
+from ares.bus import Bus
+from ares.clock import Clock
+from ares.messages import GnssSentences
+from ares.route import Route, RouteError
+from ares.route_import import (RouteImportError, detect_format, drop_standstill, import_route,
+                               read_nmea_points, resample_even)
+from ares.sim.plant import VehicleState
+from ares.sim.sensors import GnssSensor, nmea_sentence
+from perception.gnss import GnssProjector
+from perception.nmea import parse_sentence
+
+from conftest import REPO, free_port
+
+CFG = config.build_run_config()
+SIM = CFG["sim"]
+TOUR = Route.from_tour("default")
+# the tour's geometry without its rtk_loss zones: a route is recorded with RTK corrections
+TOUR_GEOMETRY = Route(name="tour geometry", x=TOUR.x, y=TOUR.y, z=TOUR.z, closed=True, width=TOUR.width)
+STOP_S, WAIT_S, HZ = 300.0, 60.0, 5.0
+
+
+# ---- making recordings ---------------------------------------------------------------------------
+
+def drive_log(route: Route, seed: int = 3, stop_s: float | None = STOP_S, wait_s: float = WAIT_S,
+              hz: float = HZ, cruise: float = 3.5, lateral_accel: float = 0.35, accel: float = 0.5) -> list[str]:
+    """NMEA (GGA + GST) of a drive from s = 0 to the end, recorded at `hz`: speed limited by the
+    curvature and by accel/decel ramps, starting and ending at rest, waiting wait_s at stop_s."""
+    ds = 0.25
+    s = np.arange(0.0, route.length, ds)
+    k = np.abs(np.interp(s, route.s, route.curvature))
+    v = np.clip(np.sqrt(lateral_accel / np.maximum(k, 1e-9)), 1.0, cruise)
+    stop_i = int(stop_s / ds) if stop_s is not None else None
+    v[0] = v[-1] = 0.0
+    if stop_i is not None:
+        v[stop_i] = 0.0
+    for i in range(1, len(s)):                      # accelerate out of every stop...
+        v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2 * accel * ds))
+    for i in range(len(s) - 2, -1, -1):             # ...and brake into it
+        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2 * accel * ds))
+    t = np.concatenate([[0.0], np.cumsum(ds / ((v[1:] + v[:-1]) / 2))])
+    if stop_i is not None:                          # the wait: time passes, s does not
+        t[stop_i + 1:] += wait_s
+        s, t = np.insert(s, stop_i + 1, s[stop_i]), np.insert(t, stop_i + 1, t[stop_i] + wait_s)
+    times = np.arange(0.0, t[-1], 1.0 / hz)
+    gnss = GnssSensor(route, SIM, rng=np.random.default_rng(seed), noise=True)
+    lines = []
+    for ti, si in zip(times, np.interp(times, t, s)):
+        x, y, z, _ = route.point_at(si)
+        lines += gnss.measure(VehicleState(t=float(ti), x=x, y=y, z=z, s=float(si)))["sentences"]
+    return lines
+
+
+def road(pieces, start=(0.0, 0.0), heading_deg=0.0, step=0.05) -> np.ndarray:
+    """Dense x, y of a road of straights ("L", metres) and arcs ("A", radius, degrees, + = left)."""
+    x, y, h = start[0], start[1], math.radians(heading_deg)
+    pts = [(x, y)]
+    for piece in pieces:
+        if piece[0] == "L":
+            n = max(int(piece[1] / step), 1)
+            for _ in range(n):
+                x, y = x + math.cos(h) * piece[1] / n, y + math.sin(h) * piece[1] / n
+                pts.append((x, y))
+        else:
+            _, radius, degrees = piece
+            sweep = math.radians(degrees)
+            n = max(int(abs(sweep) * radius / step), 1)
+            cx, cy = x - math.sin(h) * radius * math.copysign(1, sweep), y + math.cos(h) * radius * math.copysign(1, sweep)
+            for i in range(1, n + 1):
+                a = h - math.copysign(math.pi / 2, sweep) + sweep * i / n
+                pts.append((cx + radius * math.cos(a), cy + radius * math.sin(a)))
+            h += sweep
+            x, y = pts[-1]
+    return np.array(pts)
+
+
+# a campus service road, ~470 m: bends of 12-30 m radius, a hairpin of 14 m, a gentle hill
+CAMPUS_ROAD = [("L", 40), ("A", 25, 90), ("L", 35), ("A", 14, -180), ("L", 30), ("A", 30, 60),
+               ("L", 45), ("A", 12, 90), ("L", 40), ("A", 20, -75), ("L", 60)]
+
+
+def campus_road_truth() -> Route:
+    xy = road(CAMPUS_ROAD, start=(-80.0, -60.0))
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    z = 4.0 * np.sin(math.pi * s / s[-1])           # over a low hill: grades under 3 %
+    return Route(name="campus road", x=xy[:, 0], y=xy[:, 1], z=z, closed=False, width=np.full(len(xy), 5.0))
+
+
+def write_campus_road_csv(path: Path, every_m: float = 1.0) -> Route:
+    """The campus road as a CSV of x,y,z every `every_m` metres (a few hundred points)."""
+    truth = campus_road_truth()
+    s = np.linspace(0.0, truth.s[-1], int(truth.s[-1] / every_m) + 1)
+    rows = ["x,y,z"] + [f"{np.interp(v, truth.s, truth.x):.3f},{np.interp(v, truth.s, truth.y):.3f},"
+                        f"{np.interp(v, truth.s, truth.z):.3f}" for v in s]
+    path.write_text("\n".join(rows) + "\n")
+    return truth
+
+
+# ---- measuring routes ----------------------------------------------------------------------------
+
+def deviations(points: np.ndarray, reference: Route, start_s: float | None = None):
+    """Distance of each point (taken in order) to the reference route, and the reference's yaw
+    and z there. The projection follows the drive (hints), so a crossing matches the right pass."""
+    dist, yaw, z, hint = [], [], [], start_s
+    for x, y in points[:, :2]:
+        s, xte, _ = reference.project(float(x), float(y), s_hint=hint)
+        hint = s
+        dist.append(abs(xte))
+        z.append(reference.point_at(s)[2])
+        # the tangent, not the yaw of the 0.25 m segment (which lags 0.02 rad on a 12 m arc)
+        ahead, behind = reference.point_at(s + 0.1), reference.point_at(s - 0.1)
+        yaw.append(math.atan2(ahead[1] - behind[1], ahead[0] - behind[0]))
+    return np.array(dist), np.array(yaw), np.array(z)
+
+
+def angle_diff(a, b):
+    return np.angle(np.exp(1j * (np.asarray(a) - np.asarray(b))))
+
+
+@pytest.fixture(scope="module")
+def tour_import(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("tour")
+    log = directory / "tour_drive.nmea"
+    log.write_text("\n".join(drive_log(TOUR_GEOMETRY)) + "\n")
+    out = directory / "tour_route.csv"
+    return log, import_route(log, out, cfg=CFG), out
+
+
+# ---- NMEA import -----------------------------------------------------------------------------------
+
+def test_nmea_log_of_the_tour_gives_its_geometry_within_centimetres(tour_import):
+    _, result, out = tour_import
+    dist, yaw_true, z_true = deviations(result.xyz, TOUR_GEOMETRY)
+    assert math.sqrt(np.mean(dist ** 2)) < 0.01 and dist.max() < 0.03
+    assert np.abs(angle_diff(result.yaw, yaw_true)).max() < 0.03     # yaw from adjacent poses
+    assert np.abs(result.xyz[:, 2] - z_true).max() < 0.05             # z kept (the tour climbs 10 m)
+    # and no stretch is missing: every point of the tour lies on the imported route
+    back = Route.from_csv(out)
+    covered, _, _ = deviations(np.column_stack([TOUR_GEOMETRY.x, TOUR_GEOMETRY.y]), back, start_s=0.0)
+    assert covered.max() < 0.03
+    assert back.length == pytest.approx(TOUR_GEOMETRY.length, rel=0.002)
+
+
+def test_the_standstill_is_de_duplicated(tour_import):
+    log, result, _ = tour_import
+    raw = read_nmea_points(log.read_bytes(), log.name, GnssProjector.from_config(CFG)).xyz
+    assert result.points_in == len(raw)
+    assert result.points_in - result.kept >= WAIT_S * HZ - 5          # the 60 s wait, ~300 fixes
+    stop = np.array(TOUR_GEOMETRY.point_at(STOP_S)[:2])
+    at_stop = lambda pts: int(np.sum(np.hypot(*(pts[:, :2] - stop).T) < 0.05))   # noqa: E731
+    assert at_stop(raw) >= WAIT_S * HZ
+    kept = drop_standstill(raw, 0.1)
+    assert len(kept) == result.kept and at_stop(kept) <= 1
+    assert np.hypot(*np.diff(kept[:, :2], axis=0).T).min() >= 0.1
+    # around the stop the route is as straight as the road (no tangle of noise)
+    back = Route.from_csv(tour_import[2])
+    near = np.abs(back.s - STOP_S) < 5.0
+    assert np.abs(back.curvature[near]).max() < 0.03
+
+
+def test_the_written_file_is_an_evenly_spaced_open_route_with_its_summary(tour_import):
+    log, result, out = tour_import
+    text = out.read_text().splitlines()
+    assert text[0].startswith(f"# ares route: source={log.name}, points={len(result.xyz)}, length_m=")
+    assert "x,y,z,yaw" in text
+    step = np.hypot(*np.diff(result.xyz[:, :2], axis=0).T)
+    assert step == pytest.approx(0.5, abs=0.005)
+    assert result.closed_loop and result.loop_gap_m < 1.0
+    summary = result.summary()
+    assert f"{result.points_in} fixes in, {result.kept} kept" in summary
+    assert "closed loop detected" in summary and "open route" in summary and "length 15" in summary
+    assert not Route.from_csv(out).closed
+
+
+def test_noise_free_log_lands_on_the_geometry_and_no_stop_means_nothing_to_drop(tmp_path):
+    line = Route(name="line", x=np.array([0.0, 50.0]), y=np.array([0.0, 20.0]), z=np.zeros(2), closed=False,
+                 width=np.full(2, 4.0))
+    gnss = GnssSensor(line, SIM, noise=False)
+    lines = []
+    for i in range(60):
+        x, y, z, _ = line.point_at(i * 0.9)
+        lines += gnss.measure(VehicleState(t=i * 0.2, x=x, y=y, z=z))["sentences"]
+    path = tmp_path / "line.nmea"
+    path.write_text("\n".join(lines))
+    result = import_route(path, cfg=CFG)
+    assert result.kept == result.points_in == 60 and not result.closed_loop
+    dist, _, _ = deviations(result.xyz, line)
+    assert dist.max() < 1e-3 and np.abs(angle_diff(result.yaw, math.atan2(20, 50))).max() < 1e-3
+
+
+# ---- CSV import ------------------------------------------------------------------------------------
+
+def test_csv_of_a_campus_road_keeps_its_geometry(tmp_path):
+    src = tmp_path / "campus_road.csv"
+    truth = write_campus_road_csv(src)
+    result = import_route(src, tmp_path / "route.csv", cfg=CFG)
+    assert 300 <= result.points_in <= 600 and result.fmt == "csv" and not result.closed_loop
+    dist, yaw_true, z_true = deviations(result.xyz, truth)
+    # points every metre on a 12 m arc are chords 1 cm inside it: the import may not add much
+    assert math.sqrt(np.mean(dist ** 2)) < 0.01 and dist.max() < 0.02
+    # (the smoothing eases the jump of curvature where a straight meets an arc: ~1 deg there)
+    assert np.abs(angle_diff(result.yaw, yaw_true)).max() < 0.03
+    assert result.length_m == pytest.approx(truth.length, rel=0.002)
+    assert np.abs(result.xyz[:, 2] - z_true).max() < 0.02
+    assert Route.from_csv(tmp_path / "route.csv").length == pytest.approx(result.length_m, rel=1e-3)
+
+
+@pytest.mark.parametrize("radius", [8.0, 12.0])
+def test_corners_are_not_cut(tmp_path, radius):
+    xy = road([("L", 30), ("A", radius, 90), ("L", 30)], step=0.1)
+    src = tmp_path / "corner.csv"
+    src.write_text("\n".join(f"{x:.4f},{y:.4f}" for x, y in xy))
+    truth = Route(name="corner", x=xy[:, 0], y=xy[:, 1], z=np.zeros(len(xy)), closed=False, width=np.full(len(xy), 4.0))
+    dist, _, _ = deviations(import_route(src, cfg=CFG).xyz, truth)
+    assert dist.max() < 0.01
+
+
+def test_rtk_noise_is_smoothed_away(tmp_path):
+    rng = np.random.default_rng(5)
+    x = np.arange(0.0, 150.0, 0.2)                 # a slow drive: a fix every 0.2 m
+    src = tmp_path / "noisy.csv"
+    src.write_text("\n".join(f"{a:.4f},{b:.4f}" for a, b in zip(x, rng.normal(0.0, 0.007, len(x)))))
+    result = import_route(src, cfg=CFG)
+    inner = result.xyz[6:-6]
+    assert math.sqrt(np.mean(inner[:, 1] ** 2)) < 0.0035             # 7 mm of noise -> under half
+    assert np.abs(result.yaw[6:-6]).max() < 0.02
+
+
+def test_drop_standstill_keeps_order_and_spacing():
+    pts = np.array([[0, 0, 0], [0.05, 0, 0], [0.02, 0.03, 0], [0.3, 0, 0], [0.35, 0, 0], [0.15, 0, 0], [1, 0, 0.5]], float)
+    kept = drop_standstill(pts, 0.1)
+    assert kept.tolist() == [[0, 0, 0], [0.3, 0, 0], [0.15, 0, 0], [1, 0, 0.5]]
+    even = resample_even(np.array([[0, 0, 0], [10.2, 0, 1.0]], float), 0.5)
+    assert len(even) == 21 and np.diff(even[:, 0]) == pytest.approx(0.51) and even[-1, 2] == 1.0
+
+
+def test_route_from_csv_reads_yaw_column_and_comments(tmp_path):
+    path = tmp_path / "r.csv"
+    path.write_text("# ares route: source=x, points=3, length_m=20\n# another comment\nx,y,z,yaw\n"
+                    "0,0,0,0\n10,0,1,0.785\n10,10,2,1.571\n")
+    route = Route.from_csv(path)
+    assert route.length == pytest.approx(20.0) and route.point_at(15.0)[:3] == pytest.approx((10.0, 5.0, 1.5))
+    path.write_text("x,y,z,yaw\n0,0,0,0\n10,0,1\n")
+    with pytest.raises(RouteError, match=":3: expected 4 finite"):
+        Route.from_csv(path)
+    path.write_text("x,y,z,yaw\n0,0,0,0\n10,0,1,nan\n")
+    with pytest.raises(RouteError, match=":3: expected 4 finite"):
+        Route.from_csv(path)
+
+
+# ---- bad files ---------------------------------------------------------------------------------------
+
+def good_lines(n: int = 20) -> list[str]:
+    gnss = GnssSensor(TOUR, SIM, noise=False)
+    out = []
+    for i in range(n):
+        x, y, z, _ = TOUR.point_at(30.0 + i)
+        out += gnss.measure(VehicleState(t=i * 0.2, x=x, y=y, z=z, s=30.0 + i))["sentences"]
+    return out
+
+
+def with_field(sentence: str, index: int, value: str) -> str:
+    fields = sentence[1:sentence.index("*")].split(",")
+    fields[index] = value
+    return nmea_sentence(",".join(fields))
+
+
+@pytest.mark.parametrize("bad, lineno, words", [
+    (lambda g: g[:-2] + ("00" if g[-2:] != "00" else "01"), 7, "checksum"),
+    (lambda g: g[:25], 9, "framing"),
+    (lambda g: with_field(g, 2, "4099.0000000"), 5, "latitude"),
+    (lambda g: with_field(g, 4, "01000.0000000"), 11, "utm zone"),
+    (lambda g: with_field(g, 7, "x"), 3, "satellites"),
+])
+def test_a_bad_nmea_line_is_named_and_can_be_skipped(tmp_path, bad, lineno, words):
+    lines = good_lines()
+    lines[lineno - 1] = bad(lines[lineno - 1])          # odd lines are GGA, even ones GST
+    src = tmp_path / "drive.nmea"
+    src.write_text("\n".join(lines) + "\n")
+    with pytest.raises(RouteImportError, match=f"drive.nmea:{lineno}: {words}"):
+        import_route(src, tmp_path / "out.csv", cfg=CFG)
+    assert not (tmp_path / "out.csv").exists()          # nothing half-written
+    result = import_route(src, tmp_path / "out.csv", skip_bad=True, cfg=CFG)
+    assert dict(result.skipped) == {words: 1}
+    assert f"1 bad lines skipped ({words}: 1)" in result.summary()
+    assert Route.from_csv(tmp_path / "out.csv").length > 15.0
+
+
+def test_other_sentences_no_fix_and_blank_lines_are_not_errors(tmp_path):
+    lines = good_lines(10)
+    rmc = nmea_sentence("GPRMC,100000.00,A,4024.0,N,00342.0,W,0.0,0.0,010124,,,A")
+    no_fix = nmea_sentence("GPGGA,095959.00,,,,,0,00,99.99,,,,,,")
+    src = tmp_path / "drive.nmea"
+    src.write_text("\n".join([no_fix, "", rmc] + lines + ["  "]) + "\r\n")
+    result = import_route(src, cfg=CFG)
+    assert result.points_in == 10 and result.no_fix == 1 and result.ignored == 1 + 10   # RMC + the GSTs
+    assert not result.skipped and "1 no-fix GGA lines ignored" in result.summary()
+
+
+@pytest.mark.parametrize("text, words", [
+    ("x,y\n0,0\n1,banana\n", "bad.csv:3: expected numbers"),
+    ("0,0\n1,2,3,4,5\n", "bad.csv:2: expected 2 or 3 numbers"),
+    ("0,0\nnan,1\n", "bad.csv:2: not a finite number"),
+    ("", "no points"),
+    ("# only a comment\nx,y\n", "no points"),
+    ("0,0\n0.01,0.02\n0.03,0\n", "never moves"),
+    (nmea_sentence("GPGGA,,,,,,0,00,99.99,,,,,,") + "\n", "no usable GGA fix"),
+])
+def test_bad_files_get_a_clear_error(tmp_path, text, words):
+    src = tmp_path / ("bad.nmea" if text.startswith("$") else "bad.csv")
+    src.write_text(text)
+    with pytest.raises(RouteImportError, match=words):
+        import_route(src, tmp_path / "out.csv", cfg=CFG)
+
+
+def test_binary_and_missing_files(tmp_path):
+    src = tmp_path / "bin.csv"
+    src.write_bytes(b"\x00\xff\xfe\x01" * 10)
+    with pytest.raises(RouteImportError, match="not a text file"):
+        import_route(src, cfg=CFG)
+    with pytest.raises(RouteImportError, match="cannot read"):
+        import_route(tmp_path / "missing.nmea", cfg=CFG)
+
+
+def test_format_detection():
+    assert detect_format(b"\n\n$GPGGA,...") == "nmea"
+    assert detect_format(b"x,y\n0,0\n") == "csv"
+    assert detect_format(b"") == "csv"
+
+
+# ---- the command line -----------------------------------------------------------------------------
+
+@pytest.fixture
+def no_run_config(monkeypatch):
+    monkeypatch.delenv(config.RUN_CONFIG_ENV, raising=False)
+
+
+def test_cli_imports_nmea_and_csv(tmp_path, tour_import, capsys, no_run_config):
+    log, _, _ = tour_import
+    out = tmp_path / "routes" / "tour.csv"
+    assert cli.main(["route", "import", str(log), "-o", str(out)]) == 0
+    line, = capsys.readouterr().out.splitlines()
+    assert line.startswith(f"imported {log.name}: ") and " kept " in line and "closed loop" in line
+    assert str(out) in line and Route.from_csv(out).length > 1500
+
+    src = tmp_path / "road.csv"
+    write_campus_road_csv(src)
+    out2 = tmp_path / "road_route.csv"
+    assert cli.main(["route", "import", str(src), "-o", str(out2), "--format", "csv", "--spacing", "1"]) == 0
+    assert "every 1.00 m" in capsys.readouterr().out
+    assert np.diff(Route.from_csv(out2).s).max() <= 0.25 + 1e-9    # read back: 0.25 m samples
+
+
+def test_cli_errors_exit_non_zero_with_the_line(tmp_path, capsys, no_run_config):
+    lines = good_lines(5)
+    lines[2] = lines[2][:-2] + ("00" if lines[2][-2:] != "00" else "01")
+    src = tmp_path / "drive.nmea"
+    src.write_text("\n".join(lines))
+    assert cli.main(["route", "import", str(src), "-o", str(tmp_path / "o.csv")]) == 1
+    err = capsys.readouterr().err
+    assert "ares: error: drive.nmea:3: checksum" in err and "--skip-bad" in err
+    assert cli.main(["route", "import", str(src), "-o", str(tmp_path / "o.csv"), "--skip-bad"]) == 0
+    assert "1 bad lines skipped (checksum: 1)" in capsys.readouterr().out
+    assert cli.main(["route", "import", str(src), "-o", str(tmp_path / "o.csv"), "--format", "csv"]) == 1
+    assert "drive.nmea:1: expected numbers" in capsys.readouterr().err
+    assert cli.main(["route", "import", str(tmp_path / "nope.nmea"), "-o", str(tmp_path / "o.csv")]) == 1
+    assert "cannot read" in capsys.readouterr().err
+    assert cli.main(["route", "import", str(src)]) == 2                  # -o is required
+    assert cli.main(["route", "import", str(src), "-o", "x.csv", "--spacing", "-1"]) == 2
+
+
+def env_without_run_config() -> dict:
+    env = {k: v for k, v in os.environ.items() if k != config.RUN_CONFIG_ENV}
+    env["PYTHONPATH"] = str(REPO)
+    return env
+
+
+def ares(*argv: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ares.cli", *argv], cwd=REPO, env=env_without_run_config(),
+                          capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL)
+
+
+def test_cli_exit_code_as_a_process(tmp_path):
+    src = tmp_path / "bad.csv"
+    src.write_text("x,y\n0,0\n1,banana\n")
+    done = ares("route", "import", str(src), "-o", str(tmp_path / "o.csv"))
+    assert done.returncode == 1 and "ares: error: bad.csv:3: expected numbers" in done.stderr
+    assert not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.stack
+@pytest.mark.timeout(60)
+def test_route_record_writes_what_arrives_on_sensors_gnss(router, port, tmp_path):
+    bus = Bus(router, "test", Clock())
+    stop = threading.Event()
+    line = Route(name="line", x=np.array([0.0, 100.0]), y=np.zeros(2), z=np.zeros(2), closed=False,
+                 width=np.full(2, 4.0))
+    gnss = GnssSensor(line, SIM, rng=np.random.default_rng(2), noise=True)
+
+    def feed() -> None:         # the simulated receiver, 20 Hz, driving east at 10 m/s
+        i = 0
+        while not stop.is_set():
+            x = min(i * 0.5, 100.0)
+            bus.publish("sensors/gnss", GnssSentences(t=i * 0.05, **gnss.measure(VehicleState(t=i * 0.05, x=x))))
+            i += 1
+            time.sleep(0.05)
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    log = tmp_path / "recorded.nmea"
+    try:
+        done = ares("route", "record", str(log), "--seconds", "2", "--router", f"tcp/127.0.0.1:{port}")
+    finally:
+        stop.set()
+        feeder.join()
+        bus.close()
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("recorded ")
+    lines = log.read_text().splitlines()
+    assert len(lines) >= 20 and all(parse_sentence(s) for s in lines)
+    result = import_route(log, tmp_path / "recorded_route.csv", cfg=CFG)
+    assert result.length_m > 5.0 and np.abs(result.xyz[:, 1]).max() < 0.03
+
+
+def test_route_record_without_a_stack_is_a_clear_error(tmp_path):
+    done = ares("route", "record", str(tmp_path / "x.nmea"), "--seconds", "1", "--router",
+                f"tcp/127.0.0.1:{free_port()}")
+    assert done.returncode == 1 and "no Zenoh router reachable" in done.stderr
