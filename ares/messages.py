@@ -9,6 +9,7 @@ are all rejected. Every message carries `t`, the stack time (s) at which it was 
 from __future__ import annotations
 
 import fnmatch
+from datetime import datetime
 from enum import Enum
 from typing import Literal
 
@@ -257,6 +258,70 @@ class CarState(Msg):
     speed_mps: float
     steering_wheel_deg: float
     reason: str = ""
+
+
+# ---- black box ----------------------------------------------------------------------------
+
+class Position(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    x: float                    # local frame, m
+    y: float
+    z: float
+    easting: float              # UTM
+    northing: float
+    zone: int
+    hemisphere: Literal["N", "S"]
+    lat: float
+    lon: float
+
+
+class SensorHealth(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    rate_hz: float
+    ok: bool
+
+
+class ProcessHealth(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    state: ProcessState
+    restarts: int = 0
+
+
+class VehicleRecord(BaseModel):
+    """One second of the vehicle's state, as the black box keeps it (ARES §3.8)."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    vehicle_id: str
+    time: datetime              # UTC, the whole second of vehicle time this record stands for
+    t: float                    # stack seconds of that second
+    position: Position | None = None
+    speed_mps: float | None = None
+    steering_wheel_deg: float | None = None
+    mode: DriveMode | None = None
+    scores: dict[str, float] = Field(default_factory=dict)          # manager -> score, as they appear
+    controller: str | None = None                                    # the active controller
+    sensors: dict[str, SensorHealth] = Field(default_factory=dict)   # gnss, imu, can, ...
+    processes: dict[str, ProcessHealth] = Field(default_factory=dict)
+    awareness_level: int | None = None      # 0 nominal, 1 critical, 2 low (self-awareness, later)
+    mission_state: str | None = None        # mission manager (later)
+    events: int = 0             # events recorded during this second (kept in full apart)
+
+
+class StoredEvent(BaseModel):
+    """An event as the black box keeps it: the bus Event plus its vehicle and absolute time."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    vehicle_id: str
+    time: datetime              # UTC vehicle time, sub-second
+    t: float
+    source: str
+    kind: str
+    level: EventLevel
+    message: str
+    data: dict[str, str | float | int | bool | None] = Field(default_factory=dict)
 
 
 # ---- services -----------------------------------------------------------------------------

@@ -12,6 +12,7 @@ import numpy as np
 from ares.route import Route
 
 SETTLE_S = 2.0      # after the start and after RTK comes or goes, the filter gets this long
+MOVING_MPS = 0.5    # the vehicle counts as under way from this speed
 BOUNDARY_S = 0.1    # samples this close to an RTK change are not attributed to either side
 
 
@@ -61,15 +62,19 @@ class LapTracker:
 class LocalizationTracker:
     """Pairs each pose estimate and odometry score with the truth at the same stack time.
 
-    `rtk` samples are those where the simulator's GNSS has RTK corrections and has had them for
-    SETTLE_S; `deadzone` samples are inside an RTK-loss zone (for the score: after SETTLE_S in it,
-    as the issue asks; for the position error: everywhere in it).
+    Nothing counts until SETTLE_S after both the first estimate and the vehicle getting under way:
+    before the first GNSS fix there is no estimate (score 0, by design) and, until the vehicle
+    moves, the heading is the magnetometer's offset guess. Then `rtk` samples are those where the
+    simulator's GNSS has had RTK corrections for SETTLE_S; `deadzone` samples are inside an
+    RTK-loss zone (for the score: after SETTLE_S in it, as the issue asks; for the position
+    error: everywhere in it).
     """
     truth_t: list[float] = field(default_factory=list)
     truth: list[tuple[float, float, float, bool]] = field(default_factory=list)   # x, y, yaw, rtk
     rtk_since: float | None = None          # stack time RTK availability last changed
     rtk_now: bool | None = None
-    start_t: float | None = None
+    moving_since: float | None = None     # the filter's heading converges once the vehicle moves
+    first_pose_t: float | None = None
     pos_err_rtk: list[float] = field(default_factory=list)
     pos_err_dead: list[float] = field(default_factory=list)
     yaw_err_rtk: list[float] = field(default_factory=list)
@@ -78,9 +83,9 @@ class LocalizationTracker:
     changes: list[tuple[float, bool]] = field(default_factory=list)   # (t, rtk available from t)
     pending: list[tuple[str, float, tuple]] = field(default_factory=list)   # newer than the truth so far
 
-    def add_truth(self, t: float, x: float, y: float, yaw: float, rtk: bool) -> None:
-        if self.start_t is None:
-            self.start_t = t
+    def add_truth(self, t: float, x: float, y: float, yaw: float, rtk: bool, v: float) -> None:
+        if self.moving_since is None and v >= MOVING_MPS:
+            self.moving_since = t
         if rtk != self.rtk_now:
             self.changes.append((t, rtk))
             self.rtk_now = rtk
@@ -107,7 +112,9 @@ class LocalizationTracker:
     def _settled_for(self, t: float) -> float:
         """Stack seconds since the start or the last change of RTK availability before t; minus
         infinity right at a change, where the truth's sampling cannot tell which side t is on."""
-        last = self.start_t if self.start_t is not None else t
+        if self.moving_since is None or self.first_pose_t is None:
+            return -math.inf
+        last = max(self.moving_since, self.first_pose_t)
         for change_t, _ in self.changes[1:]:
             if abs(change_t - t) <= BOUNDARY_S:
                 return -math.inf
@@ -122,6 +129,8 @@ class LocalizationTracker:
         return False
 
     def add_pose(self, t: float, x: float, y: float, yaw: float) -> None:
+        if self.first_pose_t is None:
+            self.first_pose_t = t
         if self._wait_for_truth("pose", t, (x, y, yaw)):
             return
         truth = self._truth_at(t)

@@ -151,7 +151,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             raise RunFailed("interrupted")
         for _, msg in truth.drain():
             tracker.update(msg.x, msg.y, msg.odometer_m)
-            localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available)
+            localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
         for _, pose in poses.drain():
             localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)
         for _, score in scores.drain():

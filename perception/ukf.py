@@ -112,7 +112,7 @@ def unscented_transform(sigmas: np.ndarray, Wm: np.ndarray, Wc: np.ndarray, nois
     """
     ref = sigmas[0]
     mean = ref + Wm @ residual_fn(sigmas, ref)
-    mean = ref + residual_fn(mean, ref)         # wraps the angles of the mean
+    mean = residual_fn(mean, np.zeros_like(mean))     # wraps the angles of the mean into [-π, π)
     dev = residual_fn(sigmas, mean)
     cov = (dev.T * Wc) @ dev + noise_cov
     return mean, cov

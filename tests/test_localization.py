@@ -14,6 +14,7 @@ from ares import config
 from ares.bus import Bus
 from ares.clock import Clock
 from ares.messages import CanFrame, GnssFix, Imu
+from ares.route import Route
 from ares.sim import closed_loop
 from perception.localization import Localizer
 from perception.ukf import PoseUKF, residual_angle, ukf_step_benchmark, unscented_transform
@@ -167,11 +168,13 @@ def test_wheel_speed_is_made_horizontal_with_the_pitch():
 # ---- the UKF ---------------------------------------------------------------------------------
 
 def test_unscented_transform_averages_angles_across_pi():
+    # three sigma points either side of ±π; a plain weighted mean would give ≈ 0.62 rad
     sig = np.array([[math.pi - 0.01], [-math.pi + 0.03], [math.pi - 0.05]])
     w = np.array([0.2, 0.4, 0.4])
     mean, cov = unscented_transform(sig, w, w, np.zeros((1, 1)), None, residual_angle)
     # offsets from π: 0.2·(−0.01) + 0.4·(+0.03) + 0.4·(−0.05) = −0.01
     assert abs(wrap(mean[0] - (math.pi - 0.01))) < 1e-9          # not ~0
+    assert -math.pi <= mean[0] < math.pi
     assert cov[0, 0] < 0.01
 
 
@@ -330,7 +333,7 @@ def test_imu_yaw_offset_does_not_bias_the_estimate():
 
 
 def test_dead_zone_covariance_grows_error_stays_bounded_and_the_score_drops():
-    route_zone = next(z for z in closed_loop.Route.from_tour("default").zones if z.kind == "rtk_loss")
+    route_zone = next(z for z in Route.from_tour("default").zones if z.kind == "rtk_loss")
     r = closed_loop.run(seconds=36.0, s0=route_zone.s_start - 25.0)
     inside = ~r["rtk_available"] & r["has_pose"]
     assert inside.sum() > 100

@@ -10,7 +10,7 @@ def feed(tracker, t_end, rtk_at, estimate_offset=0.0, score_at=lambda t, rtk: 0.
     t = 0.0
     while t <= t_end:
         rtk = rtk_at(t)
-        tracker.add_truth(t, 2 * t, 0.0, 0.0, rtk)
+        tracker.add_truth(t, 2 * t, 0.0, 0.0, rtk, 2.0)
         t = round(t + 0.05, 6)
     for k in range(int(t_end * 50)):
         tp = k / 50
@@ -38,9 +38,23 @@ def test_a_low_score_while_settling_is_not_counted():
 
 def test_estimates_that_arrive_before_the_truth_are_kept_until_it_does():
     tracker = LocalizationTracker()
-    tracker.add_truth(0.0, 0.0, 0.0, 0.0, True)
+    tracker.add_truth(0.0, 0.0, 0.0, 0.0, True, 2.0)
+    tracker.add_pose(0.0, 0.0, 0.0, 0.0)
     tracker.add_pose(3.0, 6.1, 0.0, math.radians(1.0))    # ahead of the truth received so far
     for k in range(1, 80):
-        tracker.add_truth(k * 0.05, 2 * k * 0.05, 0.0, 0.0, True)
+        tracker.add_truth(k * 0.05, 2 * k * 0.05, 0.0, 0.0, True, 2.0)
     assert tracker.summary()["loc_rmse_rtk_m"] == pytest.approx(0.1, abs=1e-6)
     assert tracker.summary()["yaw_rmse_deg"] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_nothing_counts_before_the_first_estimate_and_the_vehicle_moving():
+    tracker = LocalizationTracker()
+    for k in range(200):                       # standing still for 5 s, then 2 m/s
+        t = k * 0.05
+        v = 0.0 if t < 5 else 2.0
+        tracker.add_truth(t, 0.0, 0.0, 0.0, True, v)
+    tracker.add_pose(1.0, 0.0, 0.0, 0.0)      # the first estimate, before the vehicle moves
+    for k in range(500):
+        t = k * 0.02
+        tracker.add_score(t, 0.0 if t < 5 + SETTLE_S else 0.99)
+    assert tracker.summary()["score_min_rtk"] == 0.99
