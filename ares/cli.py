@@ -2,6 +2,7 @@
 
     ares run [--headless] [--manual] [--laps N] [--speed X] [--route FILE] [--vehicle NAME]
              [--passengers N] [--vehicle-id ID] [--router ENDPOINT] [--run-dir DIR]
+             [--store URI] [--seconds S]
     ares node NAME                 run one process of the stack in the foreground
     ares topics [--seconds S]      keys seen under ares/<vehicle_id>/**, rates, schemas, live processes
     ares echo KEY [--count N] [--seconds S]
@@ -12,6 +13,12 @@
     ares route record FILE [--seconds S]
                                    write the NMEA sentences of the running stack's receiver to FILE
     ares bench path [--json]       KD-tree build, path match and UKF step times (in-process)
+    ares bench blackbox [--json]   store ingest and hour query, latest-state API req/s over HTTPS
+    ares api [--host H] [--port P] [--store URI] [--insecure-http]
+                                   serve the black box's REST API (HTTPS; self-signed certificate if none configured)
+    ares users add NAME --role ROLE [--store URI]
+                                   add an API user; the password is read from stdin (asked twice on a terminal)
+    ares users list [--store URI] [--json]
 
 `topics` and `echo` connect in client mode to the running stack's router (the `bus.router`
 endpoint of the run configuration, or --router) and look under the configured vehicle id (or
@@ -70,6 +77,13 @@ def _non_negative_int(text: str) -> int:
     return value
 
 
+def _port(text: str) -> int:
+    value = _non_negative_int(text)
+    if value > 65535:
+        raise argparse.ArgumentTypeError(f"not a TCP port: {text}")
+    return value
+
+
 def _endpoint(text: str) -> str:
     if not ENDPOINT_RE.match(text):
         raise argparse.ArgumentTypeError(f"expected a Zenoh endpoint such as tcp/127.0.0.1:7447, got {text!r}")
@@ -117,6 +131,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--listen", type=_endpoint, metavar="ENDPOINT",
                      help="where the embedded router listens (default: bus.router, tcp/127.0.0.1:7447)")
     run.add_argument("--run-dir", metavar="DIR", help="where the run's config and logs go")
+    run.add_argument("--api-port", type=int, metavar="PORT", help="port of the REST API (default: api.port, 8443)")
+    run.add_argument("--store", metavar="URI",
+                     help="black box store for the recorder and the API: a mongodb:// URI or the embedded "
+                          "store's file (default: blackbox.store, data/blackbox.sqlite)")
+    run.add_argument("--seconds", type=_positive_float, metavar="S",
+                     help="headless: drive for S seconds of vehicle time (the tour repeats as needed) instead of --laps")
 
     node = sub.add_parser("node", help="run one process of the stack in the foreground",
                           description="Run one process of the process table in the foreground.")
@@ -169,6 +189,14 @@ def build_parser() -> argparse.ArgumentParser:
                                             "10,000 reachable-nearest matches with realistic hints, the raw KD "
                                             "queries, and one UKF step (perception.ukf), all in this process.")
     path.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    blackbox = bench_sub.add_parser(
+        "blackbox", help="black box: ingest rate, one-hour query with 7 days stored, latest-state API over HTTPS",
+        description="Ingests records in batches into a fresh embedded store, times one-hour queries with "
+                    "7 days of 1 Hz records (604,800) present, and loads the latest-state endpoint over "
+                    "HTTPS from a separate process (wrk when installed).")
+    blackbox.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    blackbox.add_argument("--seconds", type=_positive_float, default=10.0, metavar="S",
+                          help="duration of the API load (default 10)")
 
     route = sub.add_parser("route", help="route files: import a recorded drive, record an NMEA log",
                            description="Route files for `ares run --route FILE`.")
@@ -192,6 +220,32 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("file", metavar="FILE", help="NMEA log to write")
     rec.add_argument("--seconds", type=_positive_float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
     _add_connection_args(rec)
+
+    api = sub.add_parser("api", help="serve the black box's REST API over HTTPS",
+                         description="Serve the black box's REST API (read-only: records, events, reliability; "
+                                     "users for admins) over HTTPS with the configured certificate, or a self-signed "
+                                     "one for localhost kept in the API's state directory. Settings: the `api:` "
+                                     "section of the configuration.")
+    api.add_argument("--host", metavar="H", help="address to listen on (default api.host, 127.0.0.1)")
+    api.add_argument("--port", type=_port, metavar="P", help="port (default api.port, 8443)")
+    api.add_argument("--store", metavar="URI", help="mongodb:// URI or the embedded store's file "
+                                                     "(default: blackbox.store, else the embedded store)")
+    api.add_argument("--insecure-http", action="store_true",
+                     help="serve plain HTTP instead of HTTPS (tokens and records in clear: trusted networks only)")
+
+    users = sub.add_parser("users", help="REST API users: add, list",
+                           description="Users of the black box's REST API and their roles "
+                                       "(auditor, operator, fleet, admin).")
+    users_sub = users.add_subparsers(dest="users", metavar="ACTION")
+    add = users_sub.add_parser("add", help="add a user; the password is read from stdin",
+                               description="Add a user. The password is read from stdin: asked twice without "
+                                           "echo on a terminal; from a pipe, one line (or two identical lines).")
+    add.add_argument("name", metavar="NAME", help="user name (lower-case letters, digits, '_', '.', '-')")
+    add.add_argument("--role", required=True, choices=["auditor", "operator", "fleet", "admin"])
+    add.add_argument("--store", metavar="URI", help="mongodb:// URI or the embedded store's file")
+    lst = users_sub.add_parser("list", help="list users and their roles", description="List the API's users.")
+    lst.add_argument("--store", metavar="URI", help="mongodb:// URI or the embedded store's file")
+    lst.add_argument("--json", action="store_true", help="print one JSON object")
     return parser
 
 
@@ -428,9 +482,21 @@ def cmd_auto(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from ares import bench
-    if args.bench not in ("bus", "path"):
-        raise CliError("which benchmark? try `ares bench bus` or `ares bench path`")
+    if args.bench not in ("bus", "path", "blackbox"):
+        raise CliError("which benchmark? try `ares bench bus`, `ares bench path` or `ares bench blackbox`")
     progress = lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    if args.bench == "blackbox":
+        from blackbox.api_bench import run_api_bench
+        from blackbox.store_bench import run_store_bench
+        store = run_store_bench(progress=progress)
+        api = run_api_bench(progress=progress, seconds=args.seconds)
+        result = {**store, **{k: v for k, v in api.items() if k not in store}}
+        if args.json:
+            print(json.dumps(result))
+        else:
+            for key, value in result.items():
+                print(f"{key:32} {value}")
+        return 0
     if args.bench == "path":
         result = bench.run_path_bench(progress=progress)
         if args.json:
@@ -514,8 +580,98 @@ def _route_record(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- black box REST API ----------------------------------------------------------------------
+
+def _api_context(args: argparse.Namespace):
+    """(configuration, ApiSettings, store URI) of `ares api` / `ares users`."""
+    from ares import config
+    from blackbox.api import ApiSettings
+    try:
+        cfg = config.current()
+        settings = ApiSettings.from_config(cfg)
+    except (config.ConfigError, OSError, ValueError) as exc:
+        raise CliError(f"cannot read the configuration: {exc}") from None
+    uri = getattr(args, "store", None) or config.get(cfg, "blackbox.store") or None
+    return cfg, settings, uri
+
+
+def _open_store(uri: str | None):
+    from blackbox.store import StoreUnavailable, open_store
+    try:
+        store = open_store(uri)
+        store.ping()
+    except StoreUnavailable as exc:
+        raise CliError(f"black box store unavailable: {exc}") from None
+    return store
+
+
+def cmd_api(args: argparse.Namespace) -> int:
+    from blackbox.api import serve
+    _, settings, uri = _api_context(args)
+    try:
+        serve(settings, uri, insecure_http=args.insecure_http, host=args.host, port=args.port)
+    except OSError as exc:          # address in use, certificate directory not writable, ...
+        raise CliError(f"cannot serve the API: {exc}") from None
+    except ValueError as exc:       # e.g. a configured certificate without its key
+        raise CliError(str(exc)) from None
+    return 0
+
+
+def _read_new_password() -> str:
+    if sys.stdin.isatty():
+        import getpass
+        first = getpass.getpass("password: ")
+        if getpass.getpass("again: ") != first:
+            raise CliError("the two passwords differ")
+        return first
+    lines = sys.stdin.read().splitlines()
+    if not lines or not lines[0]:
+        raise CliError("no password on stdin (pipe one line, or two identical lines)")
+    if len(lines) > 2 or (len(lines) == 2 and lines[1] != lines[0]):
+        raise CliError("stdin must hold the password on one line, or twice on two lines")
+    return lines[0]
+
+
+def cmd_users(args: argparse.Namespace) -> int:
+    if args.users not in ("add", "list"):
+        raise CliError("which action? try `ares users add NAME --role ROLE` or `ares users list`")
+    _, settings, uri = _api_context(args)
+    from blackbox.auth import Passwords, UserError, add_user, check_new_user
+    from blackbox.store import StoreUnavailable
+    if args.users == "add":
+        password = _read_new_password()
+        try:            # before the store is opened: a bad name or password costs nothing
+            check_new_user(args.name, args.role, password, settings.auth.min_password_length)
+        except UserError as exc:
+            raise CliError(str(exc)) from None
+    store = _open_store(uri)
+    try:
+        if args.users == "add":
+            user = add_user(store, Passwords(settings.auth.argon2), args.name, args.role, password,
+                            settings.auth.min_password_length)
+            print(f"added {user.name} ({user.role})")
+            return 0
+        users = store.list_users()
+        if args.json:
+            print(json.dumps({"users": [{"name": u.name, "role": u.role, "created": u.created.isoformat()}
+                                        for u in users]}))
+        else:
+            for u in users:
+                print(f"{u.name:<32}  {u.role:<8}  {u.created.isoformat()}")
+            if not users:
+                print("(no users: add one with `ares users add NAME --role admin`)", file=sys.stderr)
+        return 0
+    except UserError as exc:
+        raise CliError(str(exc)) from None
+    except StoreUnavailable as exc:
+        raise CliError(f"black box store unavailable: {exc}") from None
+    finally:
+        store.close()
+
+
 COMMANDS = {"run": cmd_run, "node": cmd_node, "topics": cmd_topics, "echo": cmd_echo, "driver": cmd_driver,
-            "auto": cmd_auto, "bench": cmd_bench, "route": cmd_route}
+            "auto": cmd_auto, "bench": cmd_bench, "route": cmd_route,
+            "api": cmd_api, "users": cmd_users}
 
 
 def main(argv: list[str] | None = None) -> int:

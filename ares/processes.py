@@ -27,6 +27,9 @@ PROCESSES: list[ProcessSpec] = [
     ProcessSpec("path_manager", "managers.path", "path_manager.rate_hz", safety_relevant=True),
     ProcessSpec("dbw_bridge", "control.dbw_bridge", "dbw.rate_hz", safety_relevant=True),
     ProcessSpec("controller", "control.pure_pursuit", "controller.rate_hz", safety_relevant=True),
+    # the black box: losing it never stops the vehicle (the recorder spools; see blackbox/recorder.py)
+    ProcessSpec("blackbox", "blackbox.recorder", "blackbox.rate_hz", safety_relevant=False),
+    ProcessSpec("api", "blackbox.api_server", None, safety_relevant=False),
 ]
 
 

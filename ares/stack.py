@@ -2,8 +2,14 @@
 
 Headless, it engages Automatic mode itself (the Auto/Manual button on the simulated panel,
 then the `set_automatic_mode` service, as a safety driver and the navigation system would),
-drives N laps of the tour (or an open route to its end), measures the cross-track error of
-the simulator's ground truth against the route, and prints one JSON object as its last line.
+drives N laps of the tour (or an open route to its end; or, with --seconds, for that much
+vehicle time), measures the cross-track error of the simulator's ground truth against the
+route, and prints one JSON object as its last line, once the stack has stopped: its
+`blackbox_records` is read back from the black-box store after the recorder's final flush.
+
+The black box's store (`blackbox.store`, `--store URI`) is resolved here once: a relative file
+path becomes absolute against the working directory, so every process of the run (recorder,
+API) finds the same file.
 """
 from __future__ import annotations
 
@@ -14,6 +20,7 @@ import signal
 import sys
 import threading
 import time
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +34,8 @@ from ares.metrics import LapTracker, LocalizationTracker
 from ares.report import write_lap_svg
 from ares.route import Route, RouteError, load_route
 from ares.supervisor import Supervisor
+from blackbox.api_server import api_url
+from blackbox.recorder import open_configured_store, store_uri
 
 log = logging.getLogger("ares.run")
 
@@ -53,6 +62,10 @@ def overrides_from_args(args) -> dict:
     if getattr(args, "router", None):
         over["bus"]["router"] = args.router
         over["bus"]["embedded_router"] = False
+    if getattr(args, "store", None):
+        over["blackbox"] = {"store": args.store}
+    if getattr(args, "api_port", None):
+        over["api"] = {"port": args.api_port}
     return over
 
 
@@ -67,6 +80,7 @@ def run(args) -> int:
     try:
         cfg = config.build_run_config(overrides_from_args(args))
         route = load_route(cfg)
+        cfg.setdefault("blackbox", {})["store"] = store_uri(cfg)
     except (config.ConfigError, RouteError) as exc:
         print(f"ares run: {exc}", file=sys.stderr)
         return 2
@@ -81,9 +95,9 @@ def run(args) -> int:
     loop = threading.Thread(target=supervisor.run, args=(stop,), name="supervisor", daemon=True)
     loop.start()
     try:
-        if headless:
-            return _headless(args, cfg, route, supervisor.bus, clock, stop, run_dir)
-        return _interactive(args, cfg, route, supervisor.bus, clock, stop, run_dir)
+        if not headless:
+            return _interactive(args, cfg, route, supervisor.bus, clock, stop, run_dir)
+        result = _headless(args, cfg, route, supervisor.bus, clock, stop, run_dir)
     except RunFailed as exc:
         print(f"ares run: {exc} (logs in {run_dir / 'logs'})", file=sys.stderr)
         if headless:
@@ -95,6 +109,25 @@ def run(args) -> int:
         supervisor.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    # the stack has stopped and the recorder flushed what it held: count what the store has
+    result["blackbox_records"] = count_blackbox_records(cfg, clock)
+    print(json.dumps(result))
+    return 0
+
+
+def count_blackbox_records(cfg: dict, clock: Clock) -> int | None:
+    """Records stored for the run's vehicle since the run began (None if the store can't say)."""
+    try:
+        store = open_configured_store(cfg)
+        try:
+            # record times are vehicle time (epoch + stack t), ahead of the wall clock at --speed > 1
+            return store.count_records(cfg["vehicle_id"], datetime.fromtimestamp(clock.epoch, tz=timezone.utc),
+                                       datetime.fromtimestamp(clock.epoch + clock.now() + 2.0, tz=timezone.utc))
+        finally:
+            store.close()
+    except Exception as exc:        # a report, not a reason to fail the run
+        print(f"ares run: could not count the black box's records: {exc}", file=sys.stderr)
+        return None
 
 
 def _wait_for(condition, timeout_s: float, what: str, stop: threading.Event) -> None:
@@ -127,8 +160,9 @@ def engage_automatic(bus: Bus, car_state, stop: threading.Event) -> None:
         time.sleep(0.2)
 
 
-def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path) -> int:
+def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path) -> dict:
     laps = int(getattr(args, "laps", None) or 1)
+    seconds = getattr(args, "seconds", None)   # drive this long (vehicle time) instead of laps
     truth = bus.subscribe("sim/truth", queue=4096)
     car_state = bus.subscribe("dbw/car_state")
     status = bus.subscribe("control/status")
@@ -144,6 +178,8 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     target_m = laps * route.length if route.closed else route.length
     cruise = float(cfg["controller"]["cruise_speed_mps"])
     time_limit_s = 3.0 * target_m / (0.5 * cruise) + 60.0     # stack seconds
+    if seconds is not None:
+        time_limit_s = seconds + 60.0
     left_automatic = 0
     last_progress = 0.0
     while True:
@@ -164,7 +200,9 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
                                 f"{car_state.latest.reason})")
         else:
             left_automatic = 0
-        if route.closed and tracker.travelled_m >= target_m:
+        if seconds is not None and now - t_start >= seconds:
+            break
+        if route.closed and seconds is None and tracker.travelled_m >= target_m:
             break
         if not route.closed and status.latest is not None and status.latest.finished \
                 and truth.latest is not None and abs(truth.latest.v) < 0.05:
@@ -177,18 +215,20 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             print(f"[{now - t_start:6.0f} s] {tracker.travelled_m:6.0f} / {target_m:.0f} m", file=sys.stderr)
         time.sleep(0.05)
     lap_time = clock.now() - t_start
+    if seconds is not None and route.closed:
+        laps = max(int(tracker.travelled_m // route.length), 1)
     result = {"ok": True, "laps": laps if route.closed else 0, "route": route.name,
               "route_length_m": round(route.length, 2), "lap_time_s": round(lap_time / max(laps, 1), 2),
               "total_time_s": round(lap_time, 2), **tracker.summary(), **localization.summary(),
               "speed_factor": clock.speed, "wall_time_s": round(time.monotonic() - wall_start, 1),
-              "vehicle": cfg["vehicle"], "run_dir": str(run_dir)}
+              "vehicle": cfg["vehicle"], "run_dir": str(run_dir),
+              "t_start_s": round(t_start, 3), "t_end_s": round(t_start + lap_time, 3)}   # the drive, stack time
     picture = write_lap_svg(run_dir / "lap.svg", route, np.array(tracker.xs), np.array(tracker.ys),
                             np.array(tracker.progress), np.array(tracker.xte),
                             f"{route.name}: {result['distance_m']:.0f} m in {lap_time:.0f} s, "
                             f"{cfg['vehicle']}, controller pose from {cfg['controller']['pose_topic']}")
     result["plot"] = str(picture)
-    print(json.dumps(result))
-    return 0
+    return result
 
 
 def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path) -> int:
@@ -197,6 +237,7 @@ def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir:
     print(f"ARES is running: vehicle {cfg['vehicle_id']} ({cfg['vehicle']}) on '{route.name}' "
           f"({route.length:.0f} m), speed x{clock.speed:g}.\n"
           f"  router    {cfg['bus']['router']}\n"
+          f"  api       {api_url(cfg)}  (black box REST API; store {cfg['blackbox']['store']})\n"
           f"  logs      {run_dir / 'logs'}\n"
           f"  look      ares topics | ares echo dbw/car_state | ares echo supervisor/state\n"
           f"Ctrl-C stops everything.", flush=True)

@@ -75,7 +75,7 @@ class RecordStore(Protocol):
 
 def open_store(uri: str | None, now: Callable[[], datetime] = utc_now) -> RecordStore:
     """`mongodb://...` or `mongodb+srv://...` -> MongoDB; anything else is the embedded store's
-    file (default: the configured blackbox.store_path)."""
+    file (default: the configured blackbox_store.path)."""
     if uri and uri.startswith(("mongodb://", "mongodb+srv://")):
         from blackbox.mongo_store import MongoStore
         return MongoStore(uri, now=now)

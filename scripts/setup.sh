@@ -7,7 +7,7 @@ set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
 STAMP="$VENV/.ares-install-stamp"
-SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libgomp1)   # open3d needs libusb and libGL; numpy/open3d libgomp
+SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libgomp1 wrk)   # open3d needs libusb and libGL; numpy/open3d libgomp; wrk: API bench load
 
 say() { echo "[setup] $*" >&2; }
 

@@ -22,8 +22,11 @@ pytestmark = pytest.mark.stack
 
 def headless(*args: str, timeout_s: float = 600) -> dict:
     env = {**os.environ, "ARES_RUNS_DIR": os.environ.get("ARES_TEST_RUNS_DIR", "/tmp/ares-test-runs")}
-    listen = f"tcp/127.0.0.1:{free_port()}"     # never the default port of a stack running here
-    proc = subprocess.run([sys.executable, "-m", "ares.cli", "run", "--headless", "--listen", listen, *args],
+    listen = f"tcp/127.0.0.1:{free_port()}"     # never the default ports of a stack running here
+    isolation = ["--listen", listen, "--api-port", str(free_port())]
+    if "--store" not in args:   # keep test records out of the developer's data/
+        isolation += ["--store", os.path.join(env["ARES_RUNS_DIR"], f"blackbox-{os.getpid()}-{free_port()}.sqlite")]
+    proc = subprocess.run([sys.executable, "-m", "ares.cli", "run", "--headless", *isolation, *args],
                           cwd=REPO, env=env, capture_output=True, text=True, timeout=timeout_s,
                           stdin=subprocess.DEVNULL)
     lines = proc.stdout.strip().splitlines()
@@ -65,7 +68,8 @@ def test_speed_factor_does_not_change_the_result(tmp_path):
 
 
 def test_a_hung_controller_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):
-    cfg = make_run_config(free_port())
+    cfg = make_run_config(free_port(), {"blackbox": {"store": str(tmp_path / "bb.sqlite")},
+                                        "api": {"port": free_port()}})
     clock = Clock(speed=2.0)
     sup = Supervisor(cfg, PROCESSES, tmp_path / "run", clock)
     stop = threading.Event()

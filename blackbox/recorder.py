@@ -1,0 +1,488 @@
+"""The event register (ARES §3.8): one record of the vehicle's state per second, and every event.
+
+Inputs:   localization/pose (position), dbw/car_state (speed, steering, drive mode),
+          odometry/score and the other topics of blackbox.scores (manager scores),
+          control/status (active controller), supervisor/state (process health),
+          sensors/gnss, sensors/imu, sensors/can (message rates -> sensor health), events
+Outputs:  the black-box store (blackbox.store: VehicleRecord per second, StoredEvent per event);
+          events: blackbox_store_down (warning), blackbox_store_up, blackbox_spool_flushed,
+          blackbox_spool_overflow / blackbox_queue_overflow / blackbox_rejected (fault)
+Params:   blackbox.rate_hz, .store, .spool, .spool_max_entries, .queue_size, .batch_max,
+          .batch_wait_s, .retry_min_s, .retry_max_s, .shutdown_flush_s, .max_age_s,
+          .sensor_window_s, .sensors, .scores; the local frame origin as perception.gnss has it
+
+Records. Whenever stack time crosses a whole second k, the record for k is built from the
+latest value of each input: time = UTC of (clock.epoch + k), i.e. the vehicle's time, t = k.
+A value older than max_age_s is left out (null) rather than passed off as current. Position:
+the fused pose's local x, y plus the origin give UTM easting/northing, and the `utm` package
+gives latitude/longitude. Sensor health: each sensor's message rate over the last
+sensor_window_s against its minimum (DESIGN §3 awareness figures: GNSS ≥ 4 Hz, IMU ≥ 30 Hz).
+`events` counts the events of the second that ended at k (event t in [k − 1, k)); an event that
+arrives after its record was written is counted in the next record, so each event is counted
+once. If the loop falls behind and several seconds are crossed at once, each of them gets its
+record (never skipped, never written twice); a restarted recorder starts at the next second.
+
+Events are stored as they arrive, with time = epoch + event.t.
+
+Never blocking. The node's loop only builds documents and hands them to a writer thread
+through a bounded queue; the writer batches inserts. When an insert fails (StoreUnavailable or
+any other error), the batch goes to a disk spool (blackbox/spool.py) and the writer retries with
+a growing backoff; once the store answers, the spool is flushed in order and removed. Record
+inserts are idempotent per (vehicle, second), so a batch retried after an uncertain failure
+never duplicates a record (events are re-sent only when their own insert failed). On SIGTERM
+the writer gets shutdown_flush_s to write what is queued; the rest is spooled. A spool left
+over from an earlier run is flushed first. Health timing (backoff) is in wall seconds: it
+judges the store and the computer, not the simulated vehicle.
+
+Where the store is: `blackbox.store` is a mongodb:// URI or the embedded store's file. The
+default is the embedded store's `blackbox_store.path`, `data/blackbox.sqlite` under the
+working directory of `ares run` (it persists across runs: the black box keeps 7 days);
+`ares run --store URI` overrides it, and tests point it into their temporary directory. A
+relative path is made absolute by `ares run` so every process of the run agrees. The spool
+lives next to the embedded store (for MongoDB: under data/), one file per vehicle,
+`blackbox-spool-<vehicle_id>.sqlite`, so that the next start finds what was left.
+
+Vehicle time is epoch + t: at `--speed 5` it runs ahead of the wall clock, and so do the
+record times of a simulated run.
+"""
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import utm
+
+from ares import config
+from ares.messages import (CarState, ControllerStatus, Event, EventLevel, Pose, Position, ProcessHealth,
+                           SensorHealth, StoredEvent, SupervisorState, VehicleRecord)
+from ares.node import Node, run_node
+from perception.gnss import Origin
+from blackbox.spool import DEFAULT_MAX_ENTRIES, Item, Spool, split
+from blackbox.store import RecordStore, StoreUnavailable, open_store
+
+log = logging.getLogger("blackbox")
+
+DEFAULT_STORE = "data/blackbox.sqlite"
+MONGO_SCHEMES = ("mongodb://", "mongodb+srv://")
+DEFAULT_SENSORS = {"gnss": {"topic": "sensors/gnss", "min_hz": 4.0},
+                   "imu": {"topic": "sensors/imu", "min_hz": 30.0},
+                   "can": {"topic": "sensors/can", "min_hz": 10.0}}
+DEFAULT_SCORES = {"odometry": "odometry/score"}
+
+
+# ---- where the store and the spool are --------------------------------------------------------
+
+def is_mongo(uri: str) -> bool:
+    return uri.startswith(MONGO_SCHEMES)
+
+
+def store_uri(cfg: Mapping) -> str:
+    """blackbox.store (else the embedded store's blackbox_store.path): a MongoDB URI as it is;
+    a file path made absolute (against the working directory) so that processes started
+    elsewhere find the same file."""
+    where = str(config.get(cfg, "blackbox.store") or config.get(cfg, "blackbox_store.path") or DEFAULT_STORE)
+    return where if is_mongo(where) else str(Path(where).expanduser().resolve())
+
+
+def spool_path(cfg: Mapping) -> Path:
+    configured = config.get(cfg, "blackbox.spool")
+    if configured:
+        return Path(configured).expanduser().resolve()
+    uri = store_uri(cfg)
+    folder = Path(DEFAULT_STORE).parent.resolve() if is_mongo(uri) else Path(uri).parent
+    return folder / f"blackbox-spool-{cfg['vehicle_id']}.sqlite"
+
+
+def open_configured_store(cfg: Mapping) -> RecordStore:
+    uri = store_uri(cfg)
+    if not is_mongo(uri):
+        Path(uri).parent.mkdir(parents=True, exist_ok=True)
+    return open_store(uri)
+
+
+def vehicle_time(epoch: float, t: float) -> datetime:
+    return datetime.fromtimestamp(epoch + t, tz=timezone.utc)
+
+
+# ---- one record from the latest values -------------------------------------------------------
+
+def origin_from_config(cfg: Mapping) -> Origin | None:
+    """The local frame's origin, exactly as the GNSS node uses it; None if not configured."""
+    try:
+        return Origin.from_config(cfg)
+    except config.ConfigError:
+        return None
+
+
+def position_of(pose: Pose, origin: Origin | None) -> Position | None:
+    """Local x, y (+ origin) -> UTM -> latitude/longitude; None if it has no valid projection."""
+    if origin is None:
+        return None
+    easting, northing = origin.easting + pose.x, origin.northing + pose.y
+    try:
+        lat, lon = utm.to_latlon(easting, northing, origin.zone, northern=origin.northern)
+    except ValueError:          # utm's OutOfRangeError: a pose far outside the zone
+        return None
+    return Position(x=pose.x, y=pose.y, z=pose.z, easting=easting, northing=northing, zone=origin.zone,
+                    hemisphere="N" if origin.northern else "S", lat=float(lat), lon=float(lon))
+
+
+@dataclass
+class Snapshot:
+    """The latest usable value of each input when a record is built (None: missing or stale)."""
+    pose: Pose | None = None
+    car: CarState | None = None
+    controller: ControllerStatus | None = None
+    supervisor: SupervisorState | None = None
+    scores: dict[str, float] = field(default_factory=dict)
+    sensor_rates: dict[str, float] = field(default_factory=dict)
+
+
+def build_record(vehicle_id: str, epoch: float, k: int, snap: Snapshot, origin: Origin | None,
+                 sensor_min_hz: Mapping[str, float], events: int) -> VehicleRecord:
+    return VehicleRecord(
+        vehicle_id=vehicle_id, time=vehicle_time(epoch, k), t=float(k),
+        position=position_of(snap.pose, origin) if snap.pose is not None else None,
+        speed_mps=snap.car.speed_mps if snap.car is not None else None,
+        steering_wheel_deg=snap.car.steering_wheel_deg if snap.car is not None else None,
+        mode=snap.car.mode if snap.car is not None else None,
+        scores=dict(snap.scores),
+        controller=snap.controller.controller if snap.controller is not None else None,
+        sensors={name: SensorHealth(rate_hz=round(rate, 2), ok=rate >= float(sensor_min_hz[name]))
+                 for name, rate in snap.sensor_rates.items()},
+        processes={p.name: ProcessHealth(state=p.state, restarts=p.restarts)
+                   for p in (snap.supervisor.processes if snap.supervisor is not None else [])},
+        awareness_level=None,       # self-awareness manager: not yet in the stack
+        mission_state=None,         # mission manager: not yet in the stack
+        events=events)
+
+
+def stored_event(vehicle_id: str, epoch: float, ev: Event) -> StoredEvent:
+    return StoredEvent(vehicle_id=vehicle_id, time=vehicle_time(epoch, ev.t), t=ev.t, source=ev.source,
+                       kind=ev.kind, level=ev.level, message=ev.message, data=dict(ev.data))
+
+
+# ---- the writer thread -----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Notice:
+    """Something the writer wants published as an Event (by the node's own thread)."""
+    kind: str
+    message: str
+    level: EventLevel
+    data: dict
+
+
+class StoreWriter:
+    """Takes records and events from a bounded queue and writes them to the store in batches;
+    spools them to disk while the store fails, and flushes the spool once it is back.
+
+    The store is opened (and used) only on the writer's thread. Health timing is in wall
+    seconds (time.monotonic): it judges the store and the computer, not the simulated vehicle.
+    """
+
+    def __init__(self, open_store_fn: Callable[[], RecordStore], spool: Spool, *, queue_size: int = 10000,
+                 batch_max: int = 500, batch_wait_s: float = 0.5, retry_min_s: float = 0.5,
+                 retry_max_s: float = 5.0):
+        self._open_store = open_store_fn
+        self.spool = spool
+        self.batch_max = int(batch_max)
+        self.batch_wait_s = float(batch_wait_s)
+        self.retry_min_s, self.retry_max_s = float(retry_min_s), float(retry_max_s)
+        self.notices: queue.SimpleQueue[Notice] = queue.SimpleQueue()
+        self.store: RecordStore | None = None
+        self.records_written = 0
+        self.events_written = 0
+        self._queue: queue.Queue[Item] = queue.Queue(maxsize=int(queue_size))
+        self._down_since: float | None = None   # monotonic time of the failure; None: healthy
+        self._last_error = ""
+        self._retry_delay = self.retry_min_s
+        self._retry_at = 0.0
+        self._inflight: list[Item] = []         # what the thread holds outside queue and spool
+        self._stopping = threading.Event()
+        self._deadline = math.inf
+        self._thread = threading.Thread(target=self._run, name="blackbox-writer", daemon=True)
+
+    # ---- the node's side --------------------------------------------------------------------
+    def start(self) -> None:
+        self._thread.start()
+
+    def submit(self, item: Item) -> bool:
+        """Queue one record or event; False if the queue is full (never waits)."""
+        try:
+            self._queue.put_nowait(item)
+            return True
+        except queue.Full:
+            return False
+
+    @property
+    def store_up(self) -> bool:
+        return self._down_since is None and self.store is not None
+
+    def close(self, deadline_s: float) -> None:
+        """Write what is queued within deadline_s (wall), spool the rest, stop the thread."""
+        self._deadline = time.monotonic() + deadline_s
+        self._stopping.set()
+        self._thread.join(deadline_s)
+        if self._thread.is_alive():
+            # stuck in a store call: keep on disk what it holds and what is still queued (a
+            # duplicate, should the call still succeed, is absorbed by the idempotent insert)
+            left = list(self._inflight) + self._take(0.0)
+            log.warning("store call still running at shutdown: spooling %d items", len(left))
+            self.spool.append(left)
+        elif self.store is not None:
+            try:
+                self.store.close()
+            except Exception:
+                log.exception("closing the store")
+        self.spool.close()
+
+    # ---- the thread ----------------------------------------------------------------------
+    def _run(self) -> None:
+        self._ensure_store()
+        while True:
+            stopping = self._stopping.is_set()
+            items = self._take(0.0 if stopping else self.batch_wait_s)
+            if stopping and not items:
+                return
+            self._inflight = items
+            try:
+                self._write(items, stopping)
+            except Exception:       # a bug here must not end the black box: keep the items
+                log.exception("writer error; spooling %d items", len(items))
+                self.spool.append(items)
+            self._inflight = []
+
+    def _take(self, wait_s: float) -> list[Item]:
+        items: list[Item] = []
+        try:
+            items.append(self._queue.get(timeout=wait_s) if wait_s > 0 else self._queue.get_nowait())
+        except queue.Empty:
+            return items
+        while len(items) < self.batch_max:
+            try:
+                items.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        return items
+
+    def _write(self, items: list[Item], stopping: bool) -> None:
+        if self.spool.pending or not self.store_up:
+            # keep the order: new items queue up behind what already waits on disk
+            if items:
+                self._to_spool(items)
+            if not stopping and time.monotonic() >= self._retry_at:
+                self._flush_spool()
+            return
+        if not items:
+            return
+        try:
+            self._insert(items)
+        except Exception as exc:
+            self._to_spool(items)
+            self._went_down(exc)
+
+    def _insert(self, items: Sequence[Item]) -> None:
+        records, events = split(items)
+        try:
+            if records:
+                self.store.insert_records(records)
+            if events:
+                self.store.insert_events(events)
+        except (ValueError, TypeError) as exc:
+            if isinstance(exc, StoreUnavailable):
+                raise
+            self._insert_one_by_one(items, exc)
+            return
+        self.records_written += len(records)
+        self.events_written += len(events)
+
+    def _insert_one_by_one(self, items: Sequence[Item], exc: Exception) -> None:
+        """A data error (not an unreachable store): find the items the store refuses and drop
+        only those, so that one bad document cannot stall the black box forever."""
+        log.warning("the store refused a batch (%r): inserting one by one", exc)
+        for item in items:
+            try:
+                if isinstance(item, VehicleRecord):
+                    self.store.insert_records([item])
+                    self.records_written += 1
+                else:
+                    self.store.insert_events([item])
+                    self.events_written += 1
+            except (ValueError, TypeError) as item_exc:
+                if isinstance(item_exc, StoreUnavailable):
+                    raise
+                self._notify("blackbox_rejected", f"the store refused a {type(item).__name__} at t={item.t}: "
+                             f"{item_exc!r}; dropped", EventLevel.FAULT, t=item.t, error=repr(item_exc)[:200])
+
+    def _to_spool(self, items: list[Item]) -> None:
+        dropped = self.spool.append(items)
+        if dropped:
+            self._notify("blackbox_spool_overflow", f"black-box spool full ({self.spool.max_entries} entries): "
+                         f"dropped the {dropped} oldest", EventLevel.FAULT, dropped=dropped,
+                         dropped_total=self.spool.dropped_total)
+
+    def _ensure_store(self) -> bool:
+        if self.store is None:
+            try:
+                self.store = self._open_store()
+            except Exception as exc:
+                self._went_down(exc)
+                return False
+        return True
+
+    def _flush_spool(self) -> None:
+        if not self._ensure_store():
+            return
+        flushed = 0
+        while self.spool.pending:
+            if self._stopping.is_set() and time.monotonic() >= self._deadline:
+                return
+            upto, chunk = self.spool.peek(self.batch_max)
+            try:
+                self._insert(chunk)
+            except Exception as exc:
+                self._went_down(exc)
+                return
+            self.spool.ack(upto)
+            flushed += len(chunk)
+        self._came_up(flushed)
+
+    def _went_down(self, exc: Exception) -> None:
+        now = time.monotonic()
+        self._last_error = f"{type(exc).__name__}: {exc}"[:300]
+        if self._down_since is None:
+            self._down_since = now
+            self._retry_delay = self.retry_min_s
+            self._notify("blackbox_store_down", f"black-box store unavailable ({self._last_error}); "
+                         f"spooling to {self.spool.path}", EventLevel.WARNING, error=self._last_error)
+        else:
+            self._retry_delay = min(self._retry_delay * 2.0, self.retry_max_s)
+        self._retry_at = now + self._retry_delay
+
+    def _came_up(self, flushed: int) -> None:
+        if self._down_since is not None:
+            down_s = time.monotonic() - self._down_since
+            self._notify("blackbox_store_up", f"black-box store back after {down_s:.1f} s; "
+                         f"{flushed} spooled items written", EventLevel.INFO,
+                         down_s=round(down_s, 2), flushed=flushed)
+        elif flushed:
+            self._notify("blackbox_spool_flushed", f"{flushed} items left in the spool by an earlier run "
+                         "written to the store", EventLevel.INFO, flushed=flushed)
+        self._down_since = None
+        self._retry_delay = self.retry_min_s
+        self._retry_at = 0.0
+
+    def _notify(self, kind: str, message: str, level: EventLevel, **data) -> None:
+        self.notices.put(Notice(kind, message, level, data))
+
+
+# ---- the node --------------------------------------------------------------------------------
+
+class Recorder(Node):
+    name = "blackbox"
+    rate_key = "blackbox.rate_hz"
+    default_rate_hz = 5.0
+
+    def setup(self) -> None:
+        bb = config.get(self.cfg, "blackbox", {}) or {}
+        self.vehicle_id = self.cfg["vehicle_id"]
+        self.max_age_s = float(bb.get("max_age_s", 2.0))
+        self.sensor_window_s = float(bb.get("sensor_window_s", 2.0))
+        self.shutdown_flush_s = float(bb.get("shutdown_flush_s", 1.5))
+        self.origin = origin_from_config(self.cfg)
+        if self.origin is None:
+            self.log.warning("no local frame origin configured: records will carry no position")
+
+        self.pose = self.bus.subscribe("localization/pose")
+        self.car = self.bus.subscribe("dbw/car_state")
+        self.controller = self.bus.subscribe("control/status")
+        self.supervisor = self.bus.subscribe("supervisor/state")
+        self.scores = {name: self.bus.subscribe(topic) for name, topic in (bb.get("scores") or DEFAULT_SCORES).items()}
+        sensors = bb.get("sensors") or DEFAULT_SENSORS
+        self.sensors = {name: self.bus.subscribe(s["topic"]) for name, s in sensors.items()}
+        self.sensor_min_hz = {name: float(s["min_hz"]) for name, s in sensors.items()}
+        self.events = self.bus.subscribe("events", queue=int(bb.get("event_queue", 4096)))
+
+        self.writer = StoreWriter(
+            lambda: open_configured_store(self.cfg),
+            Spool(spool_path(self.cfg), int(bb.get("spool_max_entries", DEFAULT_MAX_ENTRIES))),
+            queue_size=int(bb.get("queue_size", 10000)), batch_max=int(bb.get("batch_max", 500)),
+            batch_wait_s=float(bb.get("batch_wait_s", 0.5)), retry_min_s=float(bb.get("retry_min_s", 0.5)),
+            retry_max_s=float(bb.get("retry_max_s", 5.0)))
+        if self.writer.spool.pending:
+            self.log.info("%d items left in %s: flushing them first", len(self.writer.spool), self.writer.spool.path)
+        self.writer.start()
+
+        # the first second crossed from now on; a restart in the same run picks up from here
+        self.next_k = math.floor(self.clock.now()) + 1
+        self.event_counts: collections.Counter[int] = collections.Counter()
+        self.lost = 0
+        self._last_lost_event = -math.inf
+        self.log.info("recording %s to %s (spool %s)", self.vehicle_id, store_uri(self.cfg), self.writer.spool.path)
+
+    def step(self, now: float) -> None:
+        for _, ev in self.events.drain():
+            self._submit(stored_event(self.vehicle_id, self.clock.epoch, ev), now)
+            # the record of second k counts the events of [k - 1, k); one that comes after its
+            # record was written goes to the next one
+            self.event_counts[max(math.floor(ev.t) + 1, self.next_k)] += 1
+        while self.next_k <= now:
+            k = self.next_k
+            record = build_record(self.vehicle_id, self.clock.epoch, k, self.snapshot(now), self.origin,
+                                  self.sensor_min_hz, self.event_counts.pop(k, 0))
+            self._submit(record, now)
+            self.next_k = k + 1
+        self._publish_notices()
+
+    def snapshot(self, now: float) -> Snapshot:
+        def fresh(sub):
+            return sub.latest if sub.age(now) <= self.max_age_s else None
+        return Snapshot(
+            pose=fresh(self.pose), car=fresh(self.car), controller=fresh(self.controller),
+            supervisor=fresh(self.supervisor),
+            scores={name: float(msg.score) for name, sub in self.scores.items() if (msg := fresh(sub)) is not None},
+            sensor_rates={name: sub.rate_hz(self.sensor_window_s) for name, sub in self.sensors.items()})
+
+    def _submit(self, item: Item, now: float) -> None:
+        if self.writer.submit(item):
+            return
+        # the writer is stuck (a store call that does not return) and its queue is full
+        self.lost += 1
+        if now - self._last_lost_event >= 10.0:
+            self._last_lost_event = now
+            self.event("blackbox_queue_overflow", f"black-box writer queue full: {self.lost} items lost so far",
+                       EventLevel.FAULT, lost=self.lost)
+
+    def _publish_notices(self) -> None:
+        while True:
+            try:
+                n = self.writer.notices.get_nowait()
+            except queue.Empty:
+                return
+            self.event(n.kind, n.message, n.level, **n.data)
+
+    def teardown(self) -> None:
+        writer = getattr(self, "writer", None)
+        if writer is None:
+            return
+        writer.close(self.shutdown_flush_s)
+        self._publish_notices()
+        self.log.info("stopped: %d records and %d events written, %d spooled, %d lost",
+                      writer.records_written, writer.events_written, len(writer.spool), self.lost)
+
+
+def main() -> None:
+    run_node(Recorder)
+
+
+if __name__ == "__main__":
+    main()

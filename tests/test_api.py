@@ -1,0 +1,469 @@
+"""The black box REST API (blackbox/api.py) against a real embedded store on a temporary file.
+
+The helpers at the top (seed, settings, clients) are reused by test_api_security.py and
+test_api_schema.py.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import time
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from ares.messages import EventLevel, Position, ProcessHealth, SensorHealth, StoredEvent, VehicleRecord
+from blackbox.api import CSV_COLUMNS, RECORD_FIELDS, ApiSettings, create_app
+from blackbox.auth import ROLES, add_user
+from blackbox.store import StoreUnavailable
+
+VEHICLE = "shuttle01"
+OTHER = "shuttle02"
+PASSWORD = "correct horse battery"
+N_RECORDS = 1800                    # the last 30 min at 1 Hz
+FAULT_AT = 1200                     # seconds into the window: a FAULT, 60 s in MANUAL, back in AUTOMATIC
+FAST_ARGON2 = {"time_cost": 1, "memory_kib": 64, "parallelism": 1}
+
+
+def api_settings(**overrides) -> ApiSettings:
+    """Test settings: cheap hashing, and limits out of the way unless a test sets them."""
+    base = {"auth": {"argon2": FAST_ARGON2},
+            "rate_limit": {"client_per_s": 10_000, "client_burst": 10_000, "token_per_s": 100, "token_burst": 100},
+            "blacklist": {"failed_logins": 1000, "abuse_requests_per_s": 100_000}}
+    for key, value in overrides.items():
+        base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value
+    return ApiSettings.model_validate(base)
+
+
+def seed(store, now: datetime | None = None) -> datetime:
+    """N_RECORDS of VEHICLE ending one second before `now`, events, one record of OTHER; the
+    time of the first record."""
+    now = (now or store.now()).replace(microsecond=0)
+    first = now - timedelta(seconds=N_RECORDS)
+    procs = {"controller": ProcessHealth(state="running"), "dbw_bridge": ProcessHealth(state="running")}
+    records = []
+    for i in range(N_RECORDS):
+        manual = FAULT_AT <= i < FAULT_AT + 60
+        records.append(VehicleRecord(
+            vehicle_id=VEHICLE, time=first + timedelta(seconds=i), t=float(i),
+            position=Position(x=float(i), y=-2.5, z=0.0, easting=440000.0 + i, northing=4474000.0, zone=30,
+                              hemisphere="N", lat=40.4, lon=-3.7),
+            speed_mps=0.0 if manual else 3.0, steering_wheel_deg=1.5, mode="MANUAL" if manual else "AUTOMATIC",
+            scores={"odometry": 0.9}, controller="pure_pursuit",
+            sensors={"gnss": SensorHealth(rate_hz=5.0, ok=True)}, processes=procs, events=0))
+    store.insert_records(records)
+    store.insert_records([VehicleRecord(vehicle_id=OTHER, time=first, t=0.0, mode="READY")])
+    events = [StoredEvent(vehicle_id=VEHICLE, time=first + timedelta(seconds=FAULT_AT, milliseconds=300),
+                          t=FAULT_AT + 0.3, source="dbw_bridge", kind="watchdog", level=EventLevel.FAULT,
+                          message="setpoint timeout")]
+    for i in range(0, N_RECORDS, 60):      # 30 mode_change events
+        events.append(StoredEvent(vehicle_id=VEHICLE, time=first + timedelta(seconds=i, milliseconds=500),
+                                  t=i + 0.5, source="dbw_bridge", kind="mode_change", level=EventLevel.INFO,
+                                  message=f"event {i}", data={"i": i}))
+    store.insert_events(events)
+    return first
+
+
+def add_role_users(store, app) -> None:
+    for role in ROLES:
+        if store.get_user(role) is None:
+            add_user(store, app.state.passwords, role, role, PASSWORD, 10)
+
+
+def token_for(client: TestClient, name: str, password: str = PASSWORD) -> str:
+    r = client.post("/api/v1/auth/token", data={"username": name, "password": password})
+    assert r.status_code == 200, r.text
+    return r.json()["access_token"]
+
+
+def auth(token: str) -> dict:
+    return {"Authorization": f"Bearer {token}"}
+
+
+def open_test_store(path: Path):
+    from blackbox.sqlite_store import SqliteStore
+    # no fsync per commit: durability across power cuts is the store's own tests' business
+    return SqliteStore(str(path), settings={"synchronous": "OFF"})
+
+
+@pytest.fixture
+def store(tmp_path: Path):
+    s = open_test_store(tmp_path / "blackbox.sqlite")
+    yield s
+    s.close()
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """(client, app, store, first record time, {role: token}), shared by the module's read-only
+    tests (the ones that write use fresh names)."""
+    store = open_test_store(tmp_path_factory.mktemp("api") / "blackbox.sqlite")
+    first = seed(store)
+    app = create_app(store, api_settings())
+    add_role_users(store, app)
+    client = TestClient(app)
+    tokens = {role: token_for(client, role) for role in ROLES}
+    yield client, app, store, first, tokens
+    store.close()
+
+
+def iso(dt: datetime) -> str:
+    return dt.astimezone(timezone.utc).isoformat().replace("+00:00", "Z")
+
+
+# ---- health, auth ------------------------------------------------------------------------------
+
+def test_health(world):
+    client, *_ = world
+    r = client.get("/api/v1/health")
+    assert r.status_code == 200 and r.json() == {"status": "ok", "store": "ok", "detail": None}
+
+
+def test_token_and_renew(world):
+    client, app, _, _, tokens = world
+    r = client.post("/api/v1/auth/token", data={"username": "auditor", "password": PASSWORD})
+    body = r.json()
+    assert body["token_type"] == "bearer" and body["expires_in"] == 900 and body["role"] == "auditor"
+    assert app.state.tokens.verify(body["access_token"]).name == "auditor"
+    r = client.post("/api/v1/auth/renew", headers=auth(tokens["fleet"]))
+    assert r.status_code == 200
+    renewed = r.json()["access_token"]
+    assert renewed != tokens["fleet"] and r.json()["role"] == "fleet"
+    assert client.get("/api/v1/vehicles", headers=auth(renewed)).status_code == 200
+    assert client.post("/api/v1/auth/renew").status_code == 401
+
+
+def test_wrong_password_and_unknown_user(world):
+    client, *_ = world
+    for name, pw in (("auditor", "nope nope nope"), ("nobody", PASSWORD)):
+        r = client.post("/api/v1/auth/token", data={"username": name, "password": pw})
+        assert r.status_code == 401 and r.json()["detail"] == "wrong user name or password"
+        assert r.headers["www-authenticate"] == "Bearer"
+    r = client.post("/api/v1/auth/token", data={"username": "auditor"})
+    assert r.status_code == 422 and "password" in r.json()["detail"]
+
+
+# ---- vehicles and latest -------------------------------------------------------------------------
+
+def test_vehicles(world):
+    client, _, _, _, tokens = world
+    r = client.get("/api/v1/vehicles", headers=auth(tokens["fleet"]))
+    assert r.status_code == 200
+    by_id = {v["vehicle_id"]: v for v in r.json()["vehicles"]}
+    assert set(by_id) == {VEHICLE, OTHER}
+    assert by_id[VEHICLE]["mode"] == "AUTOMATIC" and by_id[OTHER]["mode"] == "READY"
+
+
+def test_latest_and_its_cache(store):
+    seed(store)
+    app = create_app(store, api_settings(limits={"latest_cache_s": 0.3}))
+    add_role_users(store, app)
+    client = TestClient(app)
+    h = auth(token_for(client, "fleet"))
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/latest", headers=h)
+    assert r.status_code == 200 and r.headers["content-type"] == "application/json"
+    latest = VehicleRecord.model_validate(r.json())
+    assert latest.t == N_RECORDS - 1 and latest.mode.value == "AUTOMATIC"
+    store.insert_records([VehicleRecord(vehicle_id=VEHICLE, time=latest.time + timedelta(seconds=1), t=N_RECORDS,
+                                        mode="MANUAL")])
+    assert client.get(f"/api/v1/vehicles/{VEHICLE}/latest", headers=h).json()["t"] == N_RECORDS - 1   # cached
+    time.sleep(0.35)
+    assert client.get(f"/api/v1/vehicles/{VEHICLE}/latest", headers=h).json()["t"] == N_RECORDS
+
+
+def test_unknown_vehicle_404(world):
+    client, _, _, _, tokens = world
+    for path in ("latest", "records", "events", "reliability", "export"):
+        r = client.get(f"/api/v1/vehicles/nosuch/{path}", headers=auth(tokens["auditor"]))
+        assert r.status_code == 404, path
+        assert "unknown vehicle 'nosuch'" in r.json()["detail"]
+
+
+# ---- records -----------------------------------------------------------------------------------
+
+def test_records_paging(world):
+    client, _, _, first, tokens = world
+    h = auth(tokens["auditor"])
+    window = {"start": iso(first), "end": iso(first + timedelta(seconds=N_RECORDS))}
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", params={**window, "page_size": 500}, headers=h)
+    body = r.json()
+    assert r.status_code == 200 and body["total"] == N_RECORDS and len(body["records"]) == 500
+    assert body["fields"] is None and set(body["records"][0]) == set(RECORD_FIELDS)
+    VehicleRecord.model_validate(body["records"][0])
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", params={**window, "page_size": 500, "page": 4}, headers=h)
+    page4 = r.json()["records"]
+    assert len(page4) == N_RECORDS - 1500 and page4[0]["t"] == 1500 and page4[-1]["t"] == N_RECORDS - 1
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", params={**window, "page_size": 500, "page": 5}, headers=h)
+    assert r.status_code == 200 and r.json()["records"] == []
+    # a sub-window: start inclusive, end exclusive
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={
+        "start": iso(first + timedelta(seconds=10)), "end": iso(first + timedelta(seconds=20))})
+    assert [rec["t"] for rec in r.json()["records"]] == [float(i) for i in range(10, 20)]
+
+
+def test_records_default_window_is_last_hour(world):
+    client, _, _, _, tokens = world
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", params={"page_size": 1}, headers=auth(tokens["operator"]))
+    body = r.json()
+    assert r.status_code == 200 and body["total"] == N_RECORDS
+    start, end = datetime.fromisoformat(body["start"]), datetime.fromisoformat(body["end"])
+    assert end - start == timedelta(hours=1)
+
+
+def test_field_selection(world):
+    client, _, _, first, tokens = world
+    h = auth(tokens["auditor"])
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h,
+                   params={"fields": "speed_mps, mode,position", "start": iso(first), "page_size": 3})
+    body = r.json()
+    assert r.status_code == 200 and body["fields"] == ["time", "speed_mps", "mode", "position"]
+    assert all(set(rec) == {"time", "speed_mps", "mode", "position"} for rec in body["records"])
+    assert body["records"][0]["position"]["easting"] == 440000.0
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={"fields": "speed_mps,altitude,_id"})
+    assert r.status_code == 422
+    assert "unknown field(s) 'altitude', '_id'" in r.json()["detail"]
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"start": "2020-01-01T00:00:00Z"}, "retention"),
+    ({"end": "2999-01-01T00:00:00Z"}, "retention"),
+    ({"start": "0001-01-01T00:00:00Z"}, "retention"),
+    ({"page_size": 100000}, "page_size"),
+    ({"page": 0}, "page"),
+    ({"start": "2025-01-01T00:00:00"}, "timezone"),       # naive: ambiguous
+    ({"start": "yesterday"}, "start"),
+])
+def test_records_bad_parameters_422(world, params, message):
+    client, _, _, _, tokens = world
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", params=params, headers=auth(tokens["auditor"]))
+    assert r.status_code == 422
+    assert message in r.json()["detail"]
+
+
+def test_start_after_end_422(world):
+    client, _, _, first, tokens = world
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=auth(tokens["auditor"]),
+                   params={"start": iso(first + timedelta(seconds=60)), "end": iso(first)})
+    assert r.status_code == 422 and "must be before end" in r.json()["detail"]
+
+
+# ---- export ------------------------------------------------------------------------------------
+
+def test_export_jsonl(world):
+    client, _, _, first, tokens = world
+    params = {"start": iso(first + timedelta(seconds=100)), "end": iso(first + timedelta(seconds=1300)), "format": "jsonl"}
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/export", params=params, headers=auth(tokens["auditor"]))
+    assert r.status_code == 200 and r.headers["content-type"].startswith("application/x-ndjson")
+    assert r.headers["content-disposition"].startswith(f'attachment; filename="{VEHICLE}_')
+    lines = r.text.splitlines()
+    assert len(lines) == 1200
+    records = [VehicleRecord.model_validate_json(line) for line in lines]
+    assert [rec.t for rec in records] == [float(i) for i in range(100, 1300)]
+    assert records[FAULT_AT - 100].mode.value == "MANUAL"
+
+
+def test_export_csv(world):
+    client, _, _, first, tokens = world
+    params = {"start": iso(first), "end": iso(first + timedelta(seconds=N_RECORDS)), "format": "csv"}
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/export", params=params, headers=auth(tokens["auditor"]))
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/csv")
+    rows = list(csv.reader(io.StringIO(r.text)))
+    assert tuple(rows[0]) == CSV_COLUMNS
+    assert len(rows) == 1 + N_RECORDS
+    row = dict(zip(rows[0], rows[11]))
+    assert row["vehicle_id"] == VEHICLE and float(row["t"]) == 10.0 and row["mode"] == "AUTOMATIC"
+    assert float(row["position.x"]) == 10.0 and row["position.hemisphere"] == "N"
+    assert row["time"] == iso(first + timedelta(seconds=10))
+    assert json.loads(row["scores"]) == {"odometry": 0.9}
+    assert json.loads(row["sensors"]) == {"gnss": {"rate_hz": 5.0, "ok": True}}
+    assert row["awareness_level"] == ""          # None -> empty cell
+
+
+def test_export_bad_format_and_roles(world):
+    client, _, _, _, tokens = world
+    url = f"/api/v1/vehicles/{VEHICLE}/export"
+    assert client.get(url, params={"format": "xml"}, headers=auth(tokens["auditor"])).status_code == 422
+    for role in ("operator", "fleet", "admin"):
+        r = client.get(url, headers=auth(tokens[role]))
+        assert r.status_code == 403 and "needs auditor" in r.json()["detail"]
+
+
+# ---- events and reliability ----------------------------------------------------------------------
+
+def test_events(world):
+    client, _, _, first, tokens = world
+    h = auth(tokens["fleet"])
+    url = f"/api/v1/vehicles/{VEHICLE}/events"
+    r = client.get(url, headers=h, params={"start": iso(first), "page_size": 20})
+    body = r.json()
+    assert r.status_code == 200 and len(body["events"]) == 20 and body["has_more"] is True
+    StoredEvent.model_validate(body["events"][0])
+    r = client.get(url, headers=h, params={"start": iso(first), "page_size": 20, "page": 2})
+    assert len(r.json()["events"]) == 11 and r.json()["has_more"] is False
+    r = client.get(url, headers=h, params={"start": iso(first), "kind": "watchdog"})
+    events = r.json()["events"]
+    assert [e["kind"] for e in events] == ["watchdog"] and events[0]["level"] == "fault"
+    r = client.get(url, headers=h, params={"start": iso(first), "kind": "watchdog,mode_change", "page_size": 100})
+    assert len(r.json()["events"]) == 31
+    assert client.get(url, headers=h, params={"kind": "a b"}).status_code == 422
+
+
+def test_reliability(world):
+    client, _, _, first, tokens = world
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/reliability", headers=auth(tokens["operator"]),
+                   params={"start": iso(first), "end": iso(first + timedelta(seconds=N_RECORDS)), "t_hours": 2})
+    body = r.json()
+    assert r.status_code == 200, body
+    assert body["records"] == N_RECORDS and body["failures"] == 1 and body["open_failures"] == 0
+    operating_h = (N_RECORDS - 60) / 3600
+    repair_h = 59.7 / 3600                  # fault at 1200.3 s, up again in the record of 1260 s
+    assert body["operating_hours"] == pytest.approx(operating_h)
+    assert body["repair_hours"] == pytest.approx(repair_h)
+    assert body["mtbf_hours"] == pytest.approx(operating_h)
+    assert body["mttr_hours"] == pytest.approx(repair_h)
+    assert body["availability"] == pytest.approx(operating_h / (operating_h + repair_h))
+    assert body["reliability"] == pytest.approx(pytest.importorskip("math").exp(-2 / operating_h))
+    assert "AUTOMATIC" in body["definitions"]
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/reliability", headers=auth(tokens["operator"]),
+                   params={"t_hours": 0})
+    assert r.status_code == 422
+
+
+# ---- users -------------------------------------------------------------------------------------
+
+def test_users_admin_only(world):
+    client, _, _, _, tokens = world
+    h = auth(tokens["admin"])
+    names = [u["name"] for u in client.get("/api/v1/users", headers=h).json()]
+    assert names == sorted(ROLES)
+    assert all("password" not in json.dumps(u) for u in client.get("/api/v1/users", headers=h).json())
+    r = client.post("/api/v1/users", headers=h, json={"name": "carol", "role": "auditor", "password": "0123456789ab"})
+    assert r.status_code == 201 and r.json()["role"] == "auditor"
+    assert token_for(client, "carol", "0123456789ab")
+    r = client.post("/api/v1/users", headers=h, json={"name": "carol", "role": "fleet", "password": "0123456789ab"})
+    assert r.status_code == 409
+    r = client.post("/api/v1/users", headers=h, json={"name": "dave", "role": "fleet", "password": "short"})
+    assert r.status_code == 422 and "too short" in r.json()["detail"]
+    r = client.post("/api/v1/users", headers=h, json={"name": "Eve!", "role": "fleet", "password": "0123456789ab"})
+    assert r.status_code == 422
+    r = client.post("/api/v1/users", headers=h, json={"name": "eve", "role": "root", "password": "0123456789ab"})
+    assert r.status_code == 422
+    for role in ("auditor", "operator", "fleet"):
+        assert client.get("/api/v1/users", headers=auth(tokens[role])).status_code == 403
+        assert client.post("/api/v1/users", headers=auth(tokens[role]),
+                           json={"name": "mallory", "role": "admin", "password": "0123456789ab"}).status_code == 403
+
+
+# ---- roles, no writes, store down, documentation ----------------------------------------------
+
+ENDPOINTS = {
+    "/api/v1/vehicles": {"fleet", "auditor", "operator"},
+    f"/api/v1/vehicles/{VEHICLE}/latest": {"fleet", "auditor", "operator"},
+    f"/api/v1/vehicles/{VEHICLE}/records": {"auditor", "operator"},
+    f"/api/v1/vehicles/{VEHICLE}/export": {"auditor"},
+    f"/api/v1/vehicles/{VEHICLE}/events": {"auditor", "operator", "fleet"},
+    f"/api/v1/vehicles/{VEHICLE}/reliability": {"auditor", "operator", "fleet"},
+    "/api/v1/users": {"admin"},
+}
+
+
+def test_roles_matrix(world):
+    client, _, _, _, tokens = world
+    for path, allowed in ENDPOINTS.items():
+        assert client.get(path).status_code == 401, path
+        for role in ROLES:
+            status = client.get(path, headers=auth(tokens[role])).status_code
+            assert status == (200 if role in allowed else 403), (path, role, status)
+
+
+def test_nothing_alters_records(world):
+    client, app, _, _, tokens = world
+    h = auth(tokens["admin"])
+    for method in ("PUT", "DELETE", "PATCH", "POST"):
+        for path in (f"/api/v1/vehicles/{VEHICLE}/records", f"/api/v1/vehicles/{VEHICLE}/latest",
+                     f"/api/v1/vehicles/{VEHICLE}/events"):
+            assert client.request(method, path, headers=h).status_code == 405, (method, path)
+    schema = client.get("/openapi.json").json()
+    writes = {(p, m) for p, ops in schema["paths"].items() for m in ops if m in ("put", "delete", "patch", "post")}
+    assert writes == {("/api/v1/auth/token", "post"), ("/api/v1/auth/renew", "post"), ("/api/v1/users", "post")}
+
+
+def test_errors_documented(world):
+    client, *_ = world
+    paths = client.get("/openapi.json").json()["paths"]
+    for path in ("/api/v1/vehicles/{vehicle_id}/records", "/api/v1/vehicles/{vehicle_id}/export",
+                 "/api/v1/vehicles/{vehicle_id}/latest", "/api/v1/vehicles/{vehicle_id}/events",
+                 "/api/v1/vehicles/{vehicle_id}/reliability"):
+        assert {"200", "401", "403", "404", "422", "429", "503"} <= set(paths[path]["get"]["responses"]), path
+    for path, ops in paths.items():
+        for op in ops.values():
+            assert {"403", "429"} <= set(op["responses"]), path
+    assert paths["/api/v1/auth/token"]["post"]["requestBody"]["content"].keys() == {"application/x-www-form-urlencoded"}
+
+
+class DownStore:
+    """A store whose server is gone: every call raises StoreUnavailable."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.path = inner.path
+
+    def now(self):
+        return self.inner.now()
+
+    def __getattr__(self, name):
+        def fail(*_args, **_kwargs):
+            raise StoreUnavailable("connection refused")
+        return fail
+
+
+def test_store_down_503(store):
+    seed(store)
+    app = create_app(store, api_settings())
+    add_role_users(store, app)
+    client = TestClient(app)
+    tokens = {role: token_for(client, role) for role in ROLES}
+    down = TestClient(create_app(DownStore(store), api_settings()))
+    r = down.get("/api/v1/health")
+    assert r.status_code == 503 and r.json()["store"] == "unavailable"
+    for path, allowed in ENDPOINTS.items():
+        role = sorted(allowed)[0]
+        r = down.get(path, headers=auth(tokens[role]))
+        assert r.status_code == 503, path
+        assert r.json()["detail"] == "the black box store is unavailable; retry later"
+        assert r.headers["retry-after"] == "5"
+    r = down.post("/api/v1/auth/token", data={"username": "auditor", "password": PASSWORD})
+    assert r.status_code == 503
+
+
+# ---- CLI: users --------------------------------------------------------------------------------
+
+def test_cli_users(tmp_path, monkeypatch, capsys):
+    from ares import cli
+    db = str(tmp_path / "cli.sqlite")
+    monkeypatch.setattr("sys.stdin", io.StringIO("a long password\na long password\n"))
+    assert cli.main(["users", "add", "alice", "--role", "auditor", "--store", db]) == 0
+    monkeypatch.setattr("sys.stdin", io.StringIO("one line password\n"))
+    assert cli.main(["users", "add", "bob", "--role", "fleet", "--store", db]) == 0
+    monkeypatch.setattr("sys.stdin", io.StringIO("a long password\nanother password\n"))
+    assert cli.main(["users", "add", "carl", "--role", "fleet", "--store", db]) == 1
+    monkeypatch.setattr("sys.stdin", io.StringIO("short\n"))
+    assert cli.main(["users", "add", "carl", "--role", "fleet", "--store", db]) == 1
+    monkeypatch.setattr("sys.stdin", io.StringIO("a long password\n"))
+    assert cli.main(["users", "add", "alice", "--role", "admin", "--store", db]) == 1
+    err = capsys.readouterr().err
+    assert "differ" in err or "twice" in err
+    assert "too short" in err and "already exists" in err
+    assert cli.main(["users", "list", "--store", db, "--json"]) == 0
+    users = json.loads(capsys.readouterr().out)["users"]
+    assert [(u["name"], u["role"]) for u in users] == [("alice", "auditor"), ("bob", "fleet")]
+    # the hash is a real argon2id hash that the API accepts
+    from blackbox.sqlite_store import SqliteStore
+    s = SqliteStore(db)
+    app = create_app(s, api_settings())
+    assert token_for(TestClient(app), "bob", "one line password")
+    assert s.get_user("alice").password_hash.startswith("$argon2id$")
+    s.close()
