@@ -3,7 +3,7 @@
 Inputs:   the black-box store (blackbox.store, as the recorder uses it; `ares run --store URI`)
 Outputs:  HTTPS on api.host:api.port (blackbox/api.py: create_app, uvicorn_config);
           heartbeat/api from the server's own event loop; liveliness token alive/api
-Params:   the `api:` section (ApiSettings), blackbox.store, heartbeat.period_s
+Params:   the `api:` section (ApiSettings), blackbox.store, blackbox.nice, heartbeat.period_s
 
 The supervisor judges every process by its heartbeat. A uvicorn server has no loop of ours, so
 the heartbeat is an asyncio task started in the application's lifespan, on the event loop
@@ -37,7 +37,7 @@ from ares.bus import Bus
 from ares.clock import Clock
 from ares.messages import Event, EventLevel, Heartbeat
 from ares.node import PROCESS_ENV, setup_logging
-from blackbox.recorder import open_configured_store, store_uri
+from blackbox.recorder import lower_priority, open_configured_store, store_uri
 
 NAME = "api"
 GRACEFUL_SHUTDOWN_S = 1.5       # open connections (streamed exports) get this long on SIGTERM
@@ -139,10 +139,11 @@ def bind_when_free(host: str, port: int, beats: Heartbeats, stop: threading.Even
 def main() -> None:
     name = os.environ.get(PROCESS_ENV, NAME)
     setup_logging(name)
+    cfg = config.current()
+    lower_priority(cfg)             # before the heavy imports: the start-up is what competes most
     import uvicorn
 
     from blackbox.api import PREFIX, ApiSettings, create_app, uvicorn_config
-    cfg = config.current()
     clock = Clock.from_env()
     settings = ApiSettings.from_config(cfg)
     # uvicorn re-raises the SIGTERM it handled once it has stopped; with a handler of ours in

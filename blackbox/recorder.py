@@ -7,7 +7,7 @@ Inputs:   localization/pose (position), dbw/car_state (speed, steering, drive mo
 Outputs:  the black-box store (blackbox.store: VehicleRecord per second, StoredEvent per event);
           events: blackbox_store_down (warning), blackbox_store_up, blackbox_spool_flushed,
           blackbox_spool_overflow / blackbox_queue_overflow / blackbox_rejected (fault)
-Params:   blackbox.rate_hz, .store, .spool, .spool_max_entries, .queue_size, .batch_max,
+Params:   blackbox.rate_hz, .nice, .store, .spool, .spool_max_entries, .queue_size, .batch_max,
           .batch_wait_s, .retry_min_s, .retry_max_s, .shutdown_flush_s, .max_age_s,
           .sensor_window_s, .sensors, .scores; the local frame origin as perception.gnss has it
 
@@ -50,6 +50,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
+import os
 import queue
 import threading
 import time
@@ -76,6 +77,7 @@ DEFAULT_SENSORS = {"gnss": {"topic": "sensors/gnss", "min_hz": 4.0},
                    "imu": {"topic": "sensors/imu", "min_hz": 30.0},
                    "can": {"topic": "sensors/can", "min_hz": 10.0}}
 DEFAULT_SCORES = {"odometry": "odometry/score"}
+DEFAULT_NICE = 5                # blackbox.nice: CPU niceness of the recorder and the API (0: none)
 
 
 # ---- where the store and the spool are --------------------------------------------------------
@@ -480,7 +482,19 @@ class Recorder(Node):
                       writer.records_written, writer.events_written, len(writer.spool), self.lost)
 
 
+def lower_priority(cfg: Mapping) -> None:
+    """The black box (recorder, API) yields the CPU to the processes that drive the vehicle:
+    on a loaded 2-core computer their start-up and their loops come first."""
+    niceness = int(config.get(cfg, "blackbox.nice", DEFAULT_NICE) or 0)
+    if niceness > 0:
+        try:
+            os.nice(niceness)
+        except OSError as exc:
+            log.warning("could not lower the priority by %d: %s", niceness, exc)
+
+
 def main() -> None:
+    lower_priority(config.current())
     run_node(Recorder)
 
 

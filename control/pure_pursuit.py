@@ -27,7 +27,9 @@ from ares.messages import ControllerStatus, Setpoint
 from ares.node import Node, run_node
 from control.speed_profile import speed_profile  # noqa: F401  (re-exported: it used to live here)
 
-INPUT_TIMEOUT_S = 0.5       # older pose or path match: no setpoint (the bridge's watchdog stops)
+INPUT_TIMEOUT_S = 1.0       # older pose or path match: no setpoint (the bridge's watchdog stops). At --speed 5
+                            # 1 s of vehicle time is 0.2 s of wall time: less would read a busy
+                            # machine as a dead localization
 FINISH_DISTANCE_M = 0.5     # an open route is finished this close to its end
 
 

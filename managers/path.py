@@ -124,7 +124,7 @@ class PathIndex:
                    window_behind_m=params["window_behind_m"], window_ahead_m=params["window_ahead_m"])
 
     # ---- matching ---------------------------------------------------------------------------
-    def match(self, x: float, y: float, yaw: float, s_hint: float | None = None,
+    def match(self, x: float, y: float, yaw: float | None, s_hint: float | None = None,
               radius: float | None = None) -> Match | None:
         """The nearest reachable path pose within `radius` (default radius_m) of (x, y).
 
@@ -144,13 +144,16 @@ class PathIndex:
                 return None
         return self._refine(i, x, y, yaw, s_hint, search)
 
-    def _nearest_reachable(self, x: float, y: float, yaw: float, s_hint: float | None, r: float) -> int | None:
+    def _nearest_reachable(self, x: float, y: float, yaw: float | None, s_hint: float | None,
+                           r: float) -> int | None:
         cand = self.tree.query_ball_point((x, y), r)
         if not cand:
             return None
         c = np.array(cand, dtype=np.intp)
-        # heading agreement as a dot product of unit vectors: cos(dyaw) > cos(limit)
-        ok = self._cos_yaw[c] * math.cos(yaw) + self._sin_yaw[c] * math.sin(yaw) > self.cos_heading_limit
+        if yaw is None:     # heading not known yet (a standing vehicle's first fix): position only
+            ok = np.ones(len(c), dtype=bool)
+        else:               # heading agreement as a dot product of unit vectors: cos(dyaw) > cos(limit)
+            ok = self._cos_yaw[c] * math.cos(yaw) + self._sin_yaw[c] * math.sin(yaw) > self.cos_heading_limit
         if s_hint is not None:
             ds = self.route.s[c] - self._wrap(s_hint)
             if self.closed:     # signed along-route step, the short way round the loop
@@ -194,7 +197,7 @@ class PathIndex:
             progress = s_hint + self._step(self._wrap(s_hint), s)
         lap = int(progress // self.length) if self.closed else 0
         return Match(index=k, s=s, progress=progress, lap=lap, xte=xte,
-                     heading_error=wrap_angle(yaw - self._pyaw[k]), search=search)
+                     heading_error=0.0 if yaw is None else wrap_angle(yaw - self._pyaw[k]), search=search)
 
     def _wrap(self, s: float) -> float:
         return s % self.length if self.closed else s
@@ -251,8 +254,9 @@ class PathTracker:
         self.force_odometry_zones = frozenset(params["force_odometry_zones"])
         self.progress: float | None = None     # last matched progress: the next query's hint
 
-    def update(self, now: float, x: float, y: float, yaw: float) -> tuple[Match | None, PathMatch | None]:
-        m = self.index.match(x, y, yaw, self.progress)
+    def update(self, now: float, x: float, y: float, yaw: float,
+               yaw_known: bool = True) -> tuple[Match | None, PathMatch | None]:
+        m = self.index.match(x, y, yaw if yaw_known else None, self.progress)
         if m is None:
             return None, None       # keep the hint: the vehicle may come back to where it was
         self.progress = m.progress
@@ -280,6 +284,7 @@ class PathManager(Node):
         limits = speed_limits(route, self.cfg["controller"], self.cfg["vehicle_profile"])
         self.tracker = PathTracker(route, params, limits)
         self.pose_timeout_s = float(params["pose_timeout_s"])
+        self.max_heading_var = float(params["max_heading_sigma_rad"]) ** 2
         self.pose = self.bus.subscribe(params["pose_topic"])
         self.out = self.bus.publisher("path/match")
         self._lost = False
@@ -291,7 +296,10 @@ class PathManager(Node):
         if pose is None or self.pose.age(now) > self.pose_timeout_s:
             return  # nothing fresh to match: stay silent, the controller must not act on old news
         previous = self.tracker.progress
-        m, msg = self.tracker.update(now, pose.x, pose.y, pose.yaw)
+        # until the vehicle has moved, the UKF's heading may be a guess (no magnetometer reading
+        # before the first fix): then match by position, or the vehicle would never set off
+        yaw_known = pose.var_yaw <= self.max_heading_var
+        m, msg = self.tracker.update(now, pose.x, pose.y, pose.yaw, yaw_known)
         if m is None:
             if not self._lost:      # say it once, not at every step
                 self._lost = True

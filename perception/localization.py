@@ -77,6 +77,7 @@ class Localizer:
     def __init__(self, params: Mapping, vehicle_profile: Mapping):
         self.params = params
         self.ukf = PoseUKF(dict(params))
+        self._yaw_guess_pending = False      # initialised before any IMU message: heading unknown
         self.yaw_poses = YawFromPoses.from_config(dict(params.get("yaw_from_poses", {})))
         self.use_float_yaw = bool(params.get("yaw_from_poses", {}).get("use_without_rtk", False))
         self.wheels = WheelOdometry.from_profile(vehicle_profile)
@@ -177,6 +178,15 @@ class Localizer:
         self.pitch = imu.pitch
         self.imu_yaw = imu.yaw
         self.gyro_rate = imu.gyro_z
+        if self.ukf.initialized and self._yaw_guess_pending:
+            # the first fix came before any IMU message: take the magnetometer's heading as the
+            # first guess now rather than keep "heading unknown" until the vehicle has moved
+            f = self.ukf
+            f.x[YAW] = imu.yaw
+            f.P[YAW, :] = 0.0
+            f.P[:, YAW] = 0.0
+            f.P[YAW, YAW] = self.init_yaw_var_imu
+            self._yaw_guess_pending = False
         if not self.ukf.initialized or self._lateness(imu.t) is None:
             return
         t = self._advance(imu.t)
@@ -200,6 +210,7 @@ class Localizer:
         self.altitude.initialize(fix.t, fix.z, fix.var_z)
         self.heading = 0.0
         self.yaw_poses.reset()
+        self._yaw_guess_pending = self.imu_yaw is None
 
     def _on_fix(self, fix: GnssFix) -> None:
         self.counts["gnss"] += 1

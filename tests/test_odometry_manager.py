@@ -121,7 +121,7 @@ def test_odometry_manager_process_scores_poses_and_distrusts_stale_ones(router, 
     assert scores.latest.score < 0.01
     publish_for(0.5, 1e-4)
     assert scores.latest.score > 0.95
-    time.sleep(0.9)                                        # the poses stop: stale after 0.5 s
+    time.sleep(PARAMS["stale_after_s"] + 0.5)              # the poses stop: stale after stale_after_s
     stale = [m for _, m in scores.drain() if m.pose_age_s > PARAMS["stale_after_s"] + 0.05]
     assert stale and all(m.score == 0.0 for m in stale)
     assert 20.0 * 0.8 <= scores.rate_hz(1.0)               # published at its configured rate

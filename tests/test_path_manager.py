@@ -332,3 +332,12 @@ def test_path_bench_reports_build_match_and_ukf_figures(monkeypatch):
     fake.ukf_step_benchmark = lambda n: [0.002, 0.001, 0.003][: max(n, 1)]
     monkeypatch.setitem(sys.modules, "perception.ukf", fake)
     assert bench._ukf_step(3)[0] == pytest.approx(2.0)      # median of per-step seconds, in ms
+
+
+def test_a_pose_with_an_unknown_heading_is_matched_by_position(index, tour):
+    # before the vehicle has moved, the UKF's heading may be a guess; matching must not depend
+    # on it, or a shuttle whose first fix came before its IMU would never set off
+    x, y, yaw = offset_pose(tour, 400.0, 0.5)
+    assert index.match(x, y, yaw + math.pi) is None
+    m = index.match(x, y, None)
+    assert m is not None and m.s == pytest.approx(400.0, abs=0.5)

@@ -66,7 +66,8 @@ def test_curvature_points_the_vehicle_back_to_the_route(tour, tour_index):
     assert m_left.xte > 0 > m_right.xte
     # the speed target is the limit at the match
     assert left.v == pytest.approx(np.interp(m_left.s, tour.s, tour_index.speed_limit), abs=1e-3)
-    assert left.lookahead_m == pytest.approx(1.0 + 0.75 * 2.0)
+    params = CFG["controller"]
+    assert left.lookahead_m == pytest.approx(params["lookahead_min_m"] + params["lookahead_gain_s"] * 2.0)
 
 
 def test_on_a_circle_pure_pursuit_commands_its_curvature():

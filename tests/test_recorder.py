@@ -16,7 +16,6 @@ import sys
 import threading
 import time
 from datetime import datetime, timezone
-from pathlib import Path
 
 import pytest
 import utm
@@ -248,6 +247,75 @@ def test_spool_keeps_order_drops_the_oldest_beyond_its_bound_and_disappears_when
     upto, chunk = again.peek(10)
     again.ack(upto)
     assert not again.pending and not path.exists()
+
+
+class FakeStore:
+    """A store that can be down, and refuses records with t in `refuse` (a data error)."""
+
+    def __init__(self):
+        self.down = False
+        self.refuse: set[float] = set()
+        self.records: dict[float, VehicleRecord] = {}
+        self.events: list[StoredEvent] = []
+
+    def insert_records(self, records):
+        from blackbox.store import StoreUnavailable
+        if self.down:
+            raise StoreUnavailable("down for the test")
+        if any(r.t in self.refuse for r in records):
+            raise ValueError("refused for the test")
+        new = [r for r in records if r.t not in self.records]
+        self.records.update((r.t, r) for r in records)
+        return len(new)
+
+    def insert_events(self, events):
+        from blackbox.store import StoreUnavailable
+        if self.down:
+            raise StoreUnavailable("down for the test")
+        self.events.extend(events)
+        return len(events)
+
+    def close(self):
+        pass
+
+
+def notices(writer) -> list[str]:
+    out = []
+    while not writer.notices.empty():
+        out.append(writer.notices.get().kind)
+    return out
+
+
+def test_writer_spools_while_the_store_is_down_and_drops_only_what_the_store_refuses(tmp_path):
+    from blackbox.recorder import StoreWriter
+    fake = FakeStore()
+    opened = []
+
+    def open_fake():
+        if not opened:                  # the first attempt to open fails, like a store not up yet
+            opened.append(1)
+            raise ConnectionError("not yet")
+        return fake
+    writer = StoreWriter(open_fake, Spool(tmp_path / "spool.sqlite"), batch_wait_s=0.05, retry_min_s=0.1,
+                         retry_max_s=0.2)
+    writer.start()
+    epoch = time.time()
+    for k in range(1, 4):
+        writer.submit(build_record("v1", epoch, k, Snapshot(), None, {}, 0))
+    wait_until(lambda: len(fake.records) == 3, 5, "the first records after the store opened")
+    assert notices(writer) == ["blackbox_store_down", "blackbox_store_up"]
+
+    fake.down = True
+    for k in range(4, 8):
+        writer.submit(build_record("v1", epoch, k, Snapshot(), None, {}, 0))
+    wait_until(lambda: len(writer.spool) == 4, 5, "the spooled records")
+    fake.refuse = {5.0}                 # back, but one record is refused by the store
+    fake.down = False
+    wait_until(lambda: not writer.spool.pending, 5, "the flush")
+    writer.close(1.0)
+    assert sorted(fake.records) == [1.0, 2.0, 3.0, 4.0, 6.0, 7.0]
+    assert notices(writer) == ["blackbox_store_down", "blackbox_rejected", "blackbox_store_up"]
+    assert not (tmp_path / "spool.sqlite").exists()
 
 
 def test_store_and_spool_locations(tmp_path, monkeypatch):
