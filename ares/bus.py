@@ -246,6 +246,12 @@ class Bus:
         self._subscriptions.append(sub)
         return sub
 
+    def unsubscribe(self, sub: Subscription) -> None:
+        kept = [s for s in self._subscriptions if s is not sub]
+        if len(kept) < len(self._subscriptions):
+            self._subscriptions = kept
+            sub._handle.undeclare()
+
     # ---- services -----------------------------------------------------------------------
     def serve(self, name: str, handler: Callable[[Msg], Msg]) -> None:
         """Offer a service. Requests are queued and answered by poll_services() on the

@@ -52,9 +52,11 @@ class LapTracker:
 
     def summary(self) -> dict:
         err = np.abs(np.array(self.xte)) if self.xte else np.array([math.nan])
+        worst = int(np.argmax(err)) if self.xte else None
         return {"distance_m": round(self.odometer_m, 2),
                 "xte_rmse_m": round(float(np.sqrt(np.mean(err ** 2))), 4),
-                "xte_max_m": round(float(np.max(err)), 4)}
+                "xte_max_m": round(float(np.max(err)), 4),
+                "xte_max_at_m": None if worst is None else round(self.progress[worst], 1)}
 
 
 

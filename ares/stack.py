@@ -41,6 +41,7 @@ log = logging.getLogger("ares.run")
 
 STARTUP_TIMEOUT_S = 60.0        # wall seconds for every process to come up and publish
 ENGAGE_TIMEOUT_S = 10.0
+READY_MAX_AGE_S = 0.5        # stack seconds: the controller's status is this fresh when it is ready
 
 
 class RunFailed(RuntimeError):
@@ -140,9 +141,23 @@ def _wait_for(condition, timeout_s: float, what: str, stop: threading.Event) -> 
         time.sleep(0.05)
 
 
+def wait_until_ready_to_drive(bus: Bus, stop: threading.Event) -> None:
+    """Until the controller steers from a fresh pose and path match (control/status is published
+    only then). Process start-up takes wall seconds, which at --speed X are X times as many
+    vehicle seconds: a run engaged before this would count them in its lap time."""
+    status = bus.subscribe("control/status")
+    try:
+        _wait_for(lambda: status.alive(READY_MAX_AGE_S), STARTUP_TIMEOUT_S,
+                  "the controller (localization, path manager and controller up and publishing)", stop)
+    finally:
+        bus.unsubscribe(status)
+
+
 def engage_automatic(bus: Bus, car_state, stop: threading.Event) -> None:
-    """Manual -> Ready with the panel button, then Ready -> Automatic with the service."""
+    """When the stack is ready to drive: Manual -> Ready with the panel button, then Ready ->
+    Automatic with the service."""
     _wait_for(lambda: car_state.latest is not None, STARTUP_TIMEOUT_S, "the drive-by-wire bridge", stop)
+    wait_until_ready_to_drive(bus, stop)
     if car_state.latest.mode == DriveMode.MANUAL:
         bus.call("sim/driver", DriverCommand(t=bus.clock.now(), action="BUTTON"))
         _wait_for(lambda: car_state.latest.mode == DriveMode.READY, ENGAGE_TIMEOUT_S, "Ready mode", stop)

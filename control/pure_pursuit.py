@@ -16,6 +16,13 @@ speed. The speed target is the limit at the match.
 
 Without a fresh pose and a fresh path match no setpoint is sent at all, so the drive-by-wire
 bridge's watchdog stops the vehicle rather than letting it steer from stale data.
+
+At start-up the heading is only the magnetometer's guess, off by its calibration offset (the
+ARES paper's reason for yaw from poses), until the vehicle has moved a few metres. Steering
+towards the goal with that heading turns a phantom error into a real one, which the vehicle then
+has to take out again at speed. So while the pose's heading is uncertain (sigma above
+controller.max_heading_sigma_rad) the controller follows the path's own curvature at no more
+than controller.creep_speed_mps, and pursues the goal point once the heading is known.
 """
 from __future__ import annotations
 
@@ -63,19 +70,26 @@ class PurePursuit:
         self.lookahead_gain = float(params["lookahead_gain_s"])
         self.lookahead_max = float(params["lookahead_max_m"])
         self.max_kappa = math.tan(float(vehicle["max_wheel_angle_rad"])) / float(vehicle["wheelbase_m"])
+        self.max_heading_sigma = float(params["max_heading_sigma_rad"])
+        self.creep_speed = float(params["creep_speed_mps"])
 
     def lookahead(self, v: float) -> float:
         return min(max(self.lookahead_min + self.lookahead_gain * abs(v), self.lookahead_min), self.lookahead_max)
 
     def command(self, x: float, y: float, yaw: float, v: float, ahead_x: Sequence[float],
                 ahead_y: Sequence[float], ahead_speed: Sequence[float],
-                distance_to_end_m: float | None = None) -> PursuitCommand:
+                distance_to_end_m: float | None = None, heading_sigma: float = 0.0,
+                ahead_curvature: Sequence[float] = ()) -> PursuitCommand:
         """Setpoint for a vehicle at (x, y, yaw) moving at v, following the ahead poses
         (the first one is the vehicle's match on the route)."""
         lookahead = self.lookahead(v)
         finished = distance_to_end_m is not None and distance_to_end_m < FINISH_DISTANCE_M
         if finished or len(ahead_x) == 0:
             return PursuitCommand(0.0, 0.0, lookahead, finished)
+        if heading_sigma > self.max_heading_sigma:
+            path_kappa = float(ahead_curvature[0]) if len(ahead_curvature) else 0.0
+            return PursuitCommand(min(float(ahead_speed[0]), self.creep_speed),
+                                  max(-self.max_kappa, min(self.max_kappa, path_kappa)), lookahead, finished)
         gx, gy = goal_point(ahead_x, ahead_y, lookahead)
         dx, dy = gx - x, gy - y
         distance = math.hypot(dx, dy)
@@ -105,7 +119,9 @@ class PurePursuitNode(Node):
                 or self.path.age(now) > INPUT_TIMEOUT_S:
             return  # stay silent, so the bridge's watchdog stops the vehicle
         cmd = self.pursuit.command(pose.x, pose.y, pose.yaw, pose.v, match.ahead_x, match.ahead_y,
-                                   match.ahead_speed, match.distance_to_end_m)
+                                   match.ahead_speed, match.distance_to_end_m,
+                                   heading_sigma=math.sqrt(max(pose.var_yaw, 0.0)),
+                                   ahead_curvature=match.ahead_curvature)
         self.setpoints.put(Setpoint(t=now, v=cmd.v, kappa=cmd.kappa, source=self.name))
         self.status.put(ControllerStatus(t=now, controller="pure_pursuit", s=match.s, xte=match.xte,
                                          heading_error=match.heading_error, lookahead_m=cmd.lookahead_m,

@@ -90,6 +90,23 @@ def test_curvature_is_clamped_to_the_vehicle(tour, tour_index):
     assert abs(cmd.kappa) == pytest.approx(math.tan(vp["max_wheel_angle_rad"]) / vp["wheelbase_m"])
 
 
+def test_with_an_uncertain_heading_it_creeps_along_the_paths_curvature(tour, tour_index):
+    """At start-up the heading is the magnetometer's offset guess: steering from it would turn a
+    phantom heading error into a real one. The controller follows the path's curvature, slowly."""
+    pp = PurePursuit(CFG["controller"], CFG["vehicle_profile"])
+    x, y, _, yaw = tour.point_at(400.0)
+    ahead = tour_index.ahead(tour.index_at(400.0), 30.0, 0.5, s=400.0)
+    guessed_yaw = yaw + 0.12                                   # the paper's calibration offset
+    unsure = pp.command(x, y, guessed_yaw, 0.0, ahead.x, ahead.y, ahead.speed,
+                        heading_sigma=pp.max_heading_sigma * 2, ahead_curvature=ahead.curvature)
+    assert unsure.kappa == pytest.approx(ahead.curvature[0])
+    assert unsure.v == pytest.approx(min(ahead.speed[0], pp.creep_speed))
+    sure = pp.command(x, y, guessed_yaw, 0.0, ahead.x, ahead.y, ahead.speed,
+                      heading_sigma=pp.max_heading_sigma / 2, ahead_curvature=ahead.curvature)
+    assert sure.kappa < ahead.curvature[0] - 0.02               # it steers back against the believed error
+    assert sure.v == pytest.approx(ahead.speed[0])
+
+
 def test_the_goal_point_is_interpolated_along_the_path_ahead():
     xs, ys = [0.0, 1.0, 1.0, 1.0], [0.0, 0.0, 1.0, 2.0]      # an L: 1 m east, then north
     assert goal_point(xs, ys, 0.5) == pytest.approx((0.5, 0.0))

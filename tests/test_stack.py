@@ -60,11 +60,13 @@ def test_speed_factor_does_not_change_the_result(tmp_path):
     route.write_text("\n".join(f"{x:.3f},{y:.3f}" for x, y in points))
     real_time = headless("--route", str(route), "--speed", "1")
     fast = headless("--route", str(route), "--speed", "5")
-    # the machine is shared and has two cores: "the same" means within a few per cent
-    assert fast["lap_time_s"] == pytest.approx(real_time["lap_time_s"], rel=0.10)
+    # measured on this two-core machine: lap times within 0.6 %, xte within 1 cm; the margins
+    # are for a shared, noisy machine (the clock starts when the stack is ready to drive, so
+    # process start-up, wall seconds that are 5x as many vehicle seconds, is not in the lap)
+    assert fast["lap_time_s"] == pytest.approx(real_time["lap_time_s"], rel=0.05)
     assert fast["distance_m"] == pytest.approx(real_time["distance_m"], rel=0.02)
-    assert abs(fast["xte_rmse_m"] - real_time["xte_rmse_m"]) < 0.05
-    assert abs(fast["xte_max_m"] - real_time["xte_max_m"]) < 0.15
+    assert abs(fast["xte_rmse_m"] - real_time["xte_rmse_m"]) < 0.03
+    assert abs(fast["xte_max_m"] - real_time["xte_max_m"]) < 0.08
 
 
 def test_a_hung_controller_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):

@@ -99,13 +99,16 @@ class _Navigator:
         profile = cfg["vehicle_profile"]
         self.tracker = PathTracker(route, cfg["path_manager"], speed_limits(route, cfg["controller"], profile))
         self.pursuit = PurePursuit(cfg["controller"], profile)
+        self.max_heading_var = float(cfg["path_manager"]["max_heading_sigma_rad"]) ** 2
 
-    def command(self, t: float, x: float, y: float, yaw: float, v: float) -> tuple[float, float] | None:
-        _, match = self.tracker.update(t, x, y, yaw)
+    def command(self, t: float, x: float, y: float, yaw: float, v: float,
+                var_yaw: float = 0.0) -> tuple[float, float] | None:
+        _, match = self.tracker.update(t, x, y, yaw, var_yaw <= self.max_heading_var)
         if match is None:
             return None
         cmd = self.pursuit.command(x, y, yaw, v, match.ahead_x, match.ahead_y, match.ahead_speed,
-                                   match.distance_to_end_m)
+                                   match.distance_to_end_m, heading_sigma=math.sqrt(max(var_yaw, 0.0)),
+                                   ahead_curvature=match.ahead_curvature)
         return cmd.v, cmd.kappa
 
 
@@ -236,7 +239,7 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
                 cmd = navigator.command(t, st.x, st.y, st.yaw, st.v)
             else:
                 pose = localizer.pose(t)
-                cmd = None if pose is None else navigator.command(t, pose.x, pose.y, pose.yaw, pose.v)
+                cmd = None if pose is None else navigator.command(t, pose.x, pose.y, pose.yaw, pose.v, pose.var_yaw)
             if cmd is not None:
                 setpoint, setpoint_t = cmd, t
 
