@@ -7,6 +7,9 @@ overrides setup(), step(now) and teardown(). `python -m <module>` runs it throug
 The heartbeat is sent from the loop itself (not a thread), so a loop that is stuck — even one
 busy-looping while holding the GIL, which keeps the liveliness token alive — stops its
 heartbeat and the supervisor notices.
+
+A node whose parent (the supervisor) has gone, killed rather than stopped, stops too: no orphan
+keeps driving a bus nobody watches. The drive-by-wire board brakes when its bridge goes quiet.
 """
 from __future__ import annotations
 
@@ -43,6 +46,7 @@ class Node:
         self._hb_last_wall = 0.0
         self.loop_overruns = 0
         self._last_step_ms = 0.0
+        self._parent_pid = os.getppid()
 
     # ---- to override --------------------------------------------------------------------
     def setup(self) -> None:
@@ -93,6 +97,9 @@ class Node:
                 self.step(now)
                 self._last_step_ms = (time.perf_counter() - started) * 1e3
                 self._heartbeat()
+                if os.getppid() != self._parent_pid:
+                    self.log.warning("parent process %d is gone: stopping", self._parent_pid)
+                    break
                 next_t += period
                 lag = self.clock.now() - next_t
                 if lag > period:

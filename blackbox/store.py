@@ -51,6 +51,11 @@ class RecordStore(Protocol):
                 skip: int = 0, limit: int = 1000) -> list[dict]:
         """Records with start <= time < end, oldest first."""
 
+    def records_json(self, vehicle_id: str, start: datetime, end: datetime, *,
+                     skip: int = 0, limit: int = 1000) -> bytes:
+        """records() as one JSON array (UTF-8), `time` as RFC 3339 with Z: what a handler
+        sends on, without building and encoding the dicts again."""
+
     def count_records(self, vehicle_id: str, start: datetime, end: datetime) -> int: ...
 
     def events(self, vehicle_id: str, start: datetime, end: datetime, *,

@@ -12,7 +12,7 @@ def test_store_bench_small_run(tmp_path):
     assert result["ingest_records_per_s"] > 0
     assert result["fill_records_per_s"] > 0
     assert 0 < result["query_hour_p50_ms"] <= result["query_hour_p95_ms"]
-    assert result["query_hour_json_p50_ms"] > 0
+    assert result["query_hour_dicts_p50_ms"] > 0
     assert result["engine"].startswith("sqlite")
     assert 500 < result["record_bytes"] < 5000
     assert result["file_mb"] > 0

@@ -342,3 +342,49 @@ def test_a_taken_router_port_is_a_clear_error(tmp_path):
         cfg = make_run_config(taken.getsockname()[1])
         with pytest.raises(RuntimeError, match="cannot host the embedded router .* already running"):
             Supervisor(cfg, [], tmp_path / "run", Clock())
+
+
+SUPERVISOR_SCRIPT = """
+import sys, time
+from pathlib import Path
+from ares.clock import Clock
+from ares.processes import ProcessSpec
+from ares.supervisor import Supervisor
+from tests.conftest import make_run_config
+run_dir, port = Path(sys.argv[1]), int(sys.argv[2])
+sup = Supervisor(make_run_config(port), [ProcessSpec(n, "tests.nodes.ticker", None, False) for n in ("alpha", "beta")],
+                 run_dir, Clock())
+sup.start()
+while not all(c.pid for c in sup.children.values()) or not all(c.state.value == "running" for c in sup.children.values()):
+    sup.step()
+    time.sleep(0.05)
+(run_dir / "pids").write_text(" ".join(str(c.pid) for c in sup.children.values()))
+while True:
+    sup.step()
+    time.sleep(0.1)
+"""
+
+
+def test_a_killed_supervisor_leaves_no_orphan(tmp_path, port, monkeypatch):
+    """SIGKILL gives the supervisor no chance to stop its children: they notice the parent is
+    gone and stop by themselves."""
+    import subprocess
+    import sys
+
+    from tests.conftest import REPO
+    monkeypatch.setenv(CONTROL_DIR_ENV, str(tmp_path))
+    sup = subprocess.Popen([sys.executable, "-c", SUPERVISOR_SCRIPT, str(tmp_path), str(port)], cwd=REPO)
+    try:
+        deadline = time.monotonic() + 30
+        while not (tmp_path / "pids").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        pids = [int(p) for p in (tmp_path / "pids").read_text().split()]
+        assert len(pids) == 2 and all(pid_alive(p) for p in pids)
+        sup.kill()
+        sup.wait()
+        killed = time.monotonic()
+        while any(pid_alive(p) for p in pids) and time.monotonic() - killed < 10:
+            time.sleep(0.05)
+        assert not any(pid_alive(p) for p in pids), "children outlived their supervisor"
+    finally:
+        sup.kill()
