@@ -30,7 +30,7 @@ from typing import Callable, Iterator, Sequence
 
 import orjson
 from pymongo import ASCENDING, DESCENDING, MongoClient
-from pymongo.errors import (AutoReconnect, CollectionInvalid, ConnectionFailure, ExecutionTimeout,
+from pymongo.errors import (AutoReconnect, BulkWriteError, CollectionInvalid, ConnectionFailure, ExecutionTimeout,
                             NetworkTimeout, OperationFailure, PyMongoError, ServerSelectionTimeoutError)
 
 from ares import config
@@ -49,6 +49,8 @@ DEFAULTS = {
 # the server cannot be reached, or did not answer in time
 UNAVAILABLE = (ServerSelectionTimeoutError, AutoReconnect, NetworkTimeout, ExecutionTimeout, ConnectionFailure)
 NAMESPACE_EXISTS = 48           # server error code: the collection was created meanwhile
+DUPLICATE_KEY = 11000           # server error code: a unique index refused the document
+EVENT_IDENTITY = ("vehicle_id", "time", "source", "kind", "message")   # the same event, stored once
 RETENTION_S = int(RETENTION.total_seconds())
 _PROJECTION = {"_id": 0}
 
@@ -107,6 +109,8 @@ class MongoStore:
         # again for the same index is a no-op, and covers older servers
         self._records.create_index([("vehicle_id", ASCENDING), ("time", ASCENDING)])
         self._events.create_index([("vehicle_id", ASCENDING), ("time", ASCENDING)])
+        # an event is stored once: a batch retried after an uncertain failure adds nothing
+        self._events.create_index([(f, ASCENDING) for f in EVENT_IDENTITY], unique=True, name="event_once")
         self._events.create_index("time", expireAfterSeconds=RETENTION_S)
         self._users.create_index("name", unique=True)
 
@@ -192,8 +196,15 @@ class MongoStore:
         if not docs:
             return 0
         with self._call():
-            self._events.insert_many(docs, ordered=True)     # ordered: events of one instant keep their order
-        return len(docs)
+            # unordered, so a duplicate does not stop the rest; events of one instant still read
+            # back in arrival order, by their client-made, increasing ObjectIds
+            try:
+                return len(self._events.insert_many(docs, ordered=False).inserted_ids)
+            except BulkWriteError as exc:
+                errors = exc.details.get("writeErrors", [])
+                if any(e.get("code") != DUPLICATE_KEY for e in errors) or exc.details.get("writeConcernErrors"):
+                    raise
+                return int(exc.details.get("nInserted", 0))
 
     def events(self, vehicle_id: str, start: datetime, end: datetime, *,
                kinds: Sequence[str] | None = None, skip: int = 0, limit: int = 1000) -> list[dict]:

@@ -6,7 +6,8 @@ Layout:
   time order, so an hour is one contiguous range read, and `INSERT OR IGNORE` makes a retried
   batch a no-op for the seconds already stored;
 - events (vehicle_id, ts, kind, doc), indexed on (vehicle_id, ts): several events may share a
-  second, so they are not deduplicated;
+  second, but the same event twice (a retried batch) is stored once (unique on all columns;
+  files from before that rule are de-duplicated when first opened);
 - users (name, role, password_hash, created).
 
 Concurrency: WAL journal (readers never wait for the writer). FastAPI runs handlers in a
@@ -66,6 +67,8 @@ CREATE TABLE IF NOT EXISTS events (
     doc TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS events_vehicle_ts ON events (vehicle_id, ts);
+DELETE FROM events WHERE rowid NOT IN (SELECT min(rowid) FROM events GROUP BY vehicle_id, ts, kind, doc);
+CREATE UNIQUE INDEX IF NOT EXISTS events_once ON events (vehicle_id, ts, kind, doc);
 CREATE TABLE IF NOT EXISTS users (
     name TEXT PRIMARY KEY,
     role TEXT NOT NULL,
@@ -148,7 +151,7 @@ class SqliteStore:
         if conn.execute("PRAGMA journal_mode = WAL").fetchone()[0].lower() != "wal":
             raise sqlite3.OperationalError("could not switch the journal to WAL")
         present = {row[0] for row in conn.execute("SELECT name FROM sqlite_master")}
-        if present >= {"records", "events", "events_vehicle_ts", "users"}:
+        if present >= {"records", "events", "events_vehicle_ts", "events_once", "users"}:
             # an existing file: no write lock needed, so a restarted reader can serve queries
             # even while another process holds the write lock
             with self._lock:
@@ -268,9 +271,11 @@ class SqliteStore:
         if not rows:
             return 0
         with self._connection(write=True) as conn:
-            conn.executemany("INSERT INTO events (vehicle_id, ts, kind, doc) VALUES (?, ?, ?, ?)", rows)
+            before = conn.total_changes
+            conn.executemany("INSERT OR IGNORE INTO events (vehicle_id, ts, kind, doc) VALUES (?, ?, ?, ?)", rows)
+            new = conn.total_changes - before
         self._purge_if_due()
-        return len(rows)
+        return new
 
     def events(self, vehicle_id: str, start: datetime, end: datetime, *,
                kinds: Sequence[str] | None = None, skip: int = 0, limit: int = 1000) -> list[dict]:

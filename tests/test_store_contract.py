@@ -211,6 +211,14 @@ def test_events_range_kinds_and_paging(store):
     assert seconds_of(store.events("w", at(0), at(10))) == [1.0]
 
 
+def test_a_retried_event_batch_adds_nothing(store):
+    batch = [event("v", 3.0, "mode_change"), event("v", 3.0, "watchdog"), event("v", 4.5)]
+    assert store.insert_events(batch) == 3
+    assert store.insert_events(batch) == 0                           # retried after an uncertain failure
+    assert store.insert_events([batch[2], event("v", 5.0)]) == 1       # overlapping
+    assert seconds_of(store.events("v", at(0), at(10))) == [3.0, 3.0, 4.5, 5.0]
+
+
 def test_events_of_one_instant_keep_their_order(store):
     store.insert_events([event("v", 3.0, f"k{i}") for i in range(5)])
     assert [d["kind"] for d in store.events("v", at(0), at(10))] == [f"k{i}" for i in range(5)]
@@ -324,6 +332,24 @@ def test_sqlite_restart_keeps_the_data(tmp_path, clock):
         assert seconds_of(second.events("v", at(0), at(10))) == [1.5]
         assert second.get_user("ana") == user
         assert second.insert_records([record("v", s) for s in range(12)]) == 2
+    finally:
+        second.close()
+
+
+def test_sqlite_file_from_before_unique_events_is_deduplicated_on_opening(tmp_path, clock):
+    import sqlite3
+    path = str(tmp_path / "blackbox.sqlite")
+    first = SqliteStore(path, now=clock, settings=SQLITE_SETTINGS)
+    first.insert_events([event("v", 1.5), event("v", 2.5)])
+    first.close()
+    with sqlite3.connect(path) as conn:         # as such a file was: no unique index, a duplicate
+        conn.execute("DROP INDEX events_once")
+        conn.execute("INSERT INTO events SELECT * FROM events WHERE ts = (SELECT min(ts) FROM events)")
+    conn.close()
+    second = SqliteStore(path, now=clock, settings=SQLITE_SETTINGS)
+    try:
+        assert seconds_of(second.events("v", at(0), at(10))) == [1.5, 2.5]
+        assert second.insert_events([event("v", 1.5)]) == 0
     finally:
         second.close()
 
