@@ -120,6 +120,7 @@ class SqliteStore:
         self._purge_interval = timedelta(seconds=float(self.settings["purge_interval_s"]))
         self._idle: queue.SimpleQueue[_Connection] = queue.SimpleQueue()
         self._lock = threading.Lock()       # guards the fields below
+        self._schema_lock = threading.Lock()
         self._ready = False                 # schema created (done lazily: the file may be locked at start)
         self._closed = False
         self._last_purge: datetime | None = None
@@ -135,14 +136,29 @@ class SqliteStore:
             conn.execute(f"PRAGMA synchronous = {self.settings['synchronous']}")
             # reads of an hour (~5 MB) map the file's pages instead of copying them
             conn.execute(f"PRAGMA mmap_size = {int(self.settings['mmap_size_mb']) * 2**20}")
-            with self._lock:
-                ready = self._ready
-            if not ready:
-                self._create_schema(conn)
+            with self._schema_lock:         # one thread sets the file up; the others wait
+                if not self._ready:
+                    self._create_schema_retrying(conn)
         except BaseException:
             conn.close()
             raise
         return conn
+
+    def _create_schema_retrying(self, conn: _Connection) -> None:
+        """_create_schema, retried for up to the busy timeout: switching a new file to WAL takes
+        an exclusive lock, and SQLite reports a clash with another process doing the same as
+        "database is locked" at once, without waiting in its busy handler."""
+        deadline = time.monotonic() + self._busy_timeout_s
+        pause = 0.01
+        while True:
+            try:
+                self._create_schema(conn)
+                return
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() + pause > deadline:
+                    raise
+            time.sleep(pause)
+            pause = min(pause * 2, 0.2)
 
     def _create_schema(self, conn: _Connection) -> None:
         # page size only counts before the first table exists; large pages keep a ~1.4 kB record
