@@ -228,16 +228,20 @@ class SqliteStore:
 
     # ---- records ---------------------------------------------------------------------------
 
-    def insert_records(self, records: Sequence[VehicleRecord]) -> int:
-        rows = [_record_row(r) for r in records]
+    def _insert_new(self, sql: str, rows: list[tuple]) -> int:
+        """executemany an INSERT OR IGNORE in one transaction; how many rows were new."""
         if not rows:
             return 0
         with self._connection(write=True) as conn:
             before = conn.total_changes
-            conn.executemany("INSERT OR IGNORE INTO records (vehicle_id, ts, doc) VALUES (?, ?, ?)", rows)
+            conn.executemany(sql, rows)
             new = conn.total_changes - before
         self._purge_if_due()
         return new
+
+    def insert_records(self, records: Sequence[VehicleRecord]) -> int:
+        return self._insert_new("INSERT OR IGNORE INTO records (vehicle_id, ts, doc) VALUES (?, ?, ?)",
+                                [_record_row(r) for r in records])
 
     def latest(self, vehicle_id: str) -> dict | None:
         with self._connection() as conn:
@@ -250,12 +254,15 @@ class SqliteStore:
                 skip: int = 0, limit: int = 1000) -> list[dict]:
         if limit <= 0:
             return []
+        return _decode_records(self._record_rows("ts, doc", vehicle_id, start, end, skip, limit))
+
+    def _record_rows(self, columns: str, vehicle_id: str, start: datetime, end: datetime,
+                     skip: int, limit: int) -> list[tuple]:
         with self._connection() as conn:
-            rows = conn.execute(
-                "SELECT ts, doc FROM records WHERE vehicle_id = ? AND ts >= ? AND ts < ? "
+            return conn.execute(
+                f"SELECT {columns} FROM records WHERE vehicle_id = ? AND ts >= ? AND ts < ? "
                 "ORDER BY ts LIMIT ? OFFSET ?",
                 (vehicle_id, _first_second_from(start), _first_second_from(end), limit, max(skip, 0))).fetchall()
-        return _decode_records(rows)
 
     def records_json(self, vehicle_id: str, start: datetime, end: datetime, *,
                      skip: int = 0, limit: int = 1000) -> bytes:
@@ -264,11 +271,7 @@ class SqliteStore:
         objects per record and encoding them again (an hour: ~4 ms instead of ~35 ms)."""
         if limit <= 0:
             return b"[]"
-        with self._connection() as conn:
-            rows = conn.execute(
-                "SELECT CAST(doc AS BLOB) FROM records WHERE vehicle_id = ? AND ts >= ? AND ts < ? "
-                "ORDER BY ts LIMIT ? OFFSET ?",
-                (vehicle_id, _first_second_from(start), _first_second_from(end), limit, max(skip, 0))).fetchall()
+        rows = self._record_rows("CAST(doc AS BLOB)", vehicle_id, start, end, skip, limit)
         return b"[" + b",".join([row[0] for row in rows]) + b"]"
 
     def count_records(self, vehicle_id: str, start: datetime, end: datetime) -> int:
@@ -283,15 +286,8 @@ class SqliteStore:
     # ---- events ------------------------------------------------------------------------------
 
     def insert_events(self, events: Sequence[StoredEvent]) -> int:
-        rows = [_event_row(e) for e in events]
-        if not rows:
-            return 0
-        with self._connection(write=True) as conn:
-            before = conn.total_changes
-            conn.executemany("INSERT OR IGNORE INTO events (vehicle_id, ts, kind, doc) VALUES (?, ?, ?, ?)", rows)
-            new = conn.total_changes - before
-        self._purge_if_due()
-        return new
+        return self._insert_new("INSERT OR IGNORE INTO events (vehicle_id, ts, kind, doc) VALUES (?, ?, ?, ?)",
+                                [_event_row(e) for e in events])
 
     def events(self, vehicle_id: str, start: datetime, end: datetime, *,
                kinds: Sequence[str] | None = None, skip: int = 0, limit: int = 1000) -> list[dict]:

@@ -252,10 +252,14 @@ class PathTracker:
         self.ahead_length_m = float(params["ahead_length_m"])
         self.ahead_step_m = float(params["ahead_step_m"])
         self.force_odometry_zones = frozenset(params["force_odometry_zones"])
+        self.max_heading_var = float(params["max_heading_sigma_rad"]) ** 2
         self.progress: float | None = None     # last matched progress: the next query's hint
 
     def update(self, now: float, x: float, y: float, yaw: float,
-               yaw_known: bool = True) -> tuple[Match | None, PathMatch | None]:
+               var_yaw: float = 0.0) -> tuple[Match | None, PathMatch | None]:
+        # until the vehicle has moved, the UKF's heading may be a guess (no magnetometer reading
+        # before the first fix): then match by position, or the vehicle would never set off
+        yaw_known = var_yaw <= self.max_heading_var
         m = self.index.match(x, y, yaw if yaw_known else None, self.progress)
         if m is None:
             return None, None       # keep the hint: the vehicle may come back to where it was
@@ -284,7 +288,6 @@ class PathManager(Node):
         limits = speed_limits(route, self.cfg["controller"], self.cfg["vehicle_profile"])
         self.tracker = PathTracker(route, params, limits)
         self.pose_timeout_s = float(params["pose_timeout_s"])
-        self.max_heading_var = float(params["max_heading_sigma_rad"]) ** 2
         self.pose = self.bus.subscribe(params["pose_topic"])
         self.out = self.bus.publisher("path/match")
         self._lost = False
@@ -296,10 +299,7 @@ class PathManager(Node):
         if pose is None or self.pose.age(now) > self.pose_timeout_s:
             return  # nothing fresh to match: stay silent, the controller must not act on old news
         previous = self.tracker.progress
-        # until the vehicle has moved, the UKF's heading may be a guess (no magnetometer reading
-        # before the first fix): then match by position, or the vehicle would never set off
-        yaw_known = pose.var_yaw <= self.max_heading_var
-        m, msg = self.tracker.update(now, pose.x, pose.y, pose.yaw, yaw_known)
+        m, msg = self.tracker.update(now, pose.x, pose.y, pose.yaw, pose.var_yaw)
         if m is None:
             if not self._lost:      # say it once, not at every step
                 self._lost = True

@@ -99,11 +99,10 @@ class _Navigator:
         profile = cfg["vehicle_profile"]
         self.tracker = PathTracker(route, cfg["path_manager"], speed_limits(route, cfg["controller"], profile))
         self.pursuit = PurePursuit(cfg["controller"], profile)
-        self.max_heading_var = float(cfg["path_manager"]["max_heading_sigma_rad"]) ** 2
 
     def command(self, t: float, x: float, y: float, yaw: float, v: float,
                 var_yaw: float = 0.0) -> tuple[float, float] | None:
-        _, match = self.tracker.update(t, x, y, yaw, var_yaw <= self.max_heading_var)
+        _, match = self.tracker.update(t, x, y, yaw, var_yaw)
         if match is None:
             return None
         cmd = self.pursuit.command(x, y, yaw, v, match.ahead_x, match.ahead_y, match.ahead_speed,
