@@ -265,6 +265,24 @@ class Publisher(Generic[M]):
             self.tap(self.topic, payload)
 
 
+class PublisherFamily:
+    """The publishers of a family of keys (`sim/clock/*`), each made when first used:
+    `family["localization"]` publishes on `sim/clock/localization`."""
+
+    def __init__(self, bus: "BaseBus", pattern: str, tap: Callable[[str, bytes], None] | None = None):
+        self.topic = pattern
+        self._bus = bus
+        self._tap = tap
+        self._made: dict[str, Publisher] = {}
+
+    def __getitem__(self, name: str) -> Publisher:
+        pub = self._made.get(name)
+        if pub is None:
+            pub = self._made[name] = self._bus.publisher(self.topic.replace("*", name))
+            pub.tap = self._tap
+        return pub
+
+
 class BaseBus:
     """Typed pub/sub and services over a transport; subclasses provide the `_declare_*`,
     `_query` and liveliness methods."""

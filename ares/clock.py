@@ -115,6 +115,7 @@ class DrivenClock(Clock):
         super().__init__(utc_epoch)
         self._t = float(start)
         self._changed = threading.Condition()
+        self._waiting_for: list[float] = []     # the times waiters need: earlier ticks wake nobody
 
     def now(self) -> float:
         return self._t
@@ -123,16 +124,21 @@ class DrivenClock(Clock):
         with self._changed:
             if t > self._t:
                 self._t = t
-                self._changed.notify_all()
+                if any(t >= needed for needed in self._waiting_for):
+                    self._changed.notify_all()
 
     def wait_until(self, t: float, stop: threading.Event, max_wall_s: float) -> bool:
         deadline = time.monotonic() + max_wall_s
         with self._changed:
-            while self._t < t and not stop.is_set():
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self._changed.wait(min(left, 0.05))     # 50 ms: notice `stop` without a second condition
+            self._waiting_for.append(t)
+            try:
+                while self._t < t and not stop.is_set():
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        break
+                    self._changed.wait(min(left, 0.05))     # 50 ms: notice `stop` without a second condition
+            finally:
+                self._waiting_for.remove(t)
             return self._t >= t
 
     def env(self) -> dict[str, str]:

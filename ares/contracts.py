@@ -20,6 +20,7 @@ from ares.node import IMPLICIT_OUTPUTS
 from ares.processes import PROCESSES, Process
 
 SUPERVISOR = "supervisor"
+CLOCK_FOR_STEPPERS, CLOCK_FOR_OTHERS = "sim/clock/*", "sim/clock"
 
 
 def contract(spec: Process, cfg: Mapping) -> dict:
@@ -37,6 +38,7 @@ def contract(spec: Process, cfg: Mapping) -> dict:
         "safety_relevant": spec.safety_relevant,
         "sim_only": spec.sim_only,
         "steps": cls.steps,
+        "drives_clock": cls.drives_clock(),
         "inputs": [{"topic": i.topic, "schema": i.entry.schema.schema_name(), "max_age_s": i.max_age_s(params),
                     "queue": i.queue_size(params), "doc": i.doc} for i in cls.inputs()],
         "outputs": [{"topic": o.topic, "schema": o.entry.schema.schema_name(), "rate_hz": o.rate_hz(params),
@@ -102,6 +104,8 @@ def graph(contracts: list[dict]) -> dict[str, dict[str, list[str]]]:
             entry(i["topic"])["subscribers"].append(c["process"])
         for implicit in IMPLICIT_OUTPUTS:
             entry(implicit)["publishers"].append(c["process"])
+        if not c["drives_clock"]:   # --speed max: steppers hear the time when due, the others now and then
+            entry(CLOCK_FOR_STEPPERS if c["steps"] else CLOCK_FOR_OTHERS)["subscribers"].append(c["process"])
     for topic in supervisor.OUTPUTS:
         entry("heartbeat/*" if topic.startswith("heartbeat/") else topic)["publishers"].append(SUPERVISOR)
     for topic in supervisor.INPUTS:
@@ -184,7 +188,8 @@ def markdown(c: dict) -> list[str]:
 
 def graph_markdown(topic_graph: dict[str, dict[str, list[str]]]) -> list[str]:
     lines = ["## Topic graph", "", "Every topic, who publishes it and who reads it (`events`, heartbeats and "
-             "`clock/done`: every process).", ""]
+             "`clock/done`: every process; the clock topics at `--speed max` only; the drawing leaves those out).",
+             ""]
     rows = []
     for topic, ends in topic_graph.items():
         entry = topics.find(topic)
@@ -193,7 +198,7 @@ def graph_markdown(topic_graph: dict[str, dict[str, list[str]]]) -> list[str]:
     lines += _table(["topic", "schema", "published by", "read by"], rows)
     lines += ["```mermaid", "flowchart LR"]
     for topic, ends in topic_graph.items():
-        if topic in IMPLICIT_OUTPUTS:
+        if topic in IMPLICIT_OUTPUTS or topic in (CLOCK_FOR_STEPPERS, CLOCK_FOR_OTHERS):
             continue
         for pub in ends["publishers"]:
             for sub in ends["subscribers"]:

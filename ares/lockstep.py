@@ -3,9 +3,14 @@
 The simulator is the clock master. Every other process it feeds (the participants, listed in
 `lockstep.participants` by `ares run` from the topic graph) steps on the period grid of its
 own rate and, after each step, reports on `clock/done` the time its next step is due. The
-master moves the clock (`sim/clock`) from t to a later time only once every participant is due
-later than t, i.e. has done its work for t. So a slow process slows the simulation instead of
-receiving stale data, and a run gives the same figures as at real time.
+master moves the clock from t to a later time only once every participant is due later than
+t, i.e. has done its work for t. So a slow process slows the simulation instead of receiving
+stale data, and a run gives the same figures as at real time.
+
+A participant hears the time on its own key (`sim/clock/<process>`) when its step is due, and
+only then: with a dozen processes on two cores, waking every process at every tick would cost
+more than the steps themselves. The processes outside the lockstep (supervisor, API) hear it on
+`sim/clock` every `broadcast_period_s`.
 
 Between two ticks the simulator advances its physics and publishes its sensors (stamped with
 their own times) before publishing the tick: a process stepping at time t has seen every
@@ -22,7 +27,7 @@ import threading
 import time
 from dataclasses import dataclass
 
-from ares.bus import BaseBus
+from ares.bus import BaseBus, Publisher, PublisherFamily
 from ares.config import LockstepSettings
 from ares.messages import ClockDone, ClockTick
 
@@ -37,7 +42,8 @@ class _Participant:
 
 
 class LockstepMaster:
-    def __init__(self, bus: BaseBus, settings: LockstepSettings, start: float):
+    def __init__(self, bus: BaseBus, settings: LockstepSettings, start: float, ticks: Publisher | None = None,
+                 participant_ticks: PublisherFamily | None = None):
         self.bus = bus
         self.settings = settings
         self.t = float(start)
@@ -46,7 +52,9 @@ class LockstepMaster:
         self._ticked_at = time.monotonic()     # a participant due now became due at the latest tick
         self.participants = {name: _Participant() for name in settings.participants}
         self.left_out_events: list[tuple[str, bool]] = []       # (process, left out?) for the node to report
-        self._ticks = bus.publisher("sim/clock")
+        self._ticks = ticks or bus.publisher("sim/clock")
+        self._participant_ticks = participant_ticks or PublisherFamily(bus, "sim/clock/*")
+        self._broadcast_at = -float("inf")
         bus.subscribe("clock/done", on_message=self._on_done)
 
     def _on_done(self, _topic: str, done: ClockDone) -> None:      # a transport thread: record and return
@@ -104,15 +112,29 @@ class LockstepMaster:
         return waiting
 
     def tick(self, t: float) -> None:
+        """Move the clock to t: tell every participant due by then (and any not in step, so that
+        it can catch up), and now and then everyone else."""
         with self._cond:
             self.t = t
             self._ticked_at = time.monotonic()
-        self._ticks.put(ClockTick(t=t))
+            due = [name for name, p in self.participants.items()
+                   if p.next_due is None or p.left_out or p.next_due <= t + 1e-9]
+            broadcast = t - self._broadcast_at >= self.settings.broadcast_period_s - 1e-9
+            if broadcast:
+                self._broadcast_at = t
+        self._send(t, due, broadcast)
 
     def repeat_tick(self) -> None:
-        """The current time again, for a participant that missed it (started or restarted while
-        the tick went out): it would otherwise wait for a tick that never comes."""
-        self._ticks.put(ClockTick(t=self.t))
+        """The current time again, to everyone, for a participant that missed it (started or
+        restarted while the tick went out): it would otherwise wait for a tick that never comes."""
+        self._send(self.t, list(self.participants), True)
+
+    def _send(self, t: float, participants: list[str], broadcast: bool) -> None:
+        tick = ClockTick(t=t)
+        for name in participants:
+            self._participant_ticks[name].put(tick)
+        if broadcast:
+            self._ticks.put(tick)
 
     def take_changes(self) -> list[tuple[str, bool]]:
         with self._cond:

@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any, Callable, ClassVar
 
 from ares import config, topics
-from ares.bus import BaseBus, Bus, Publisher, RejectCounter, Subscription
+from ares.bus import BaseBus, Bus, Publisher, PublisherFamily, RejectCounter, Subscription
 from ares.clock import Clock, DrivenClock
 from ares.config import Params
 from ares.messages import ClockDone, Event, EventLevel, Heartbeat
@@ -137,8 +137,8 @@ class Output(_Port):
 
     def __init__(self, topic: str, *, rate: float | str | None = None, doc: str = ""):
         super().__init__(topic, doc)
-        if self.entry.is_pattern:
-            raise ContractError(f"output {topic!r} is a pattern; a node publishes named keys")
+        if self.entry.is_pattern and rate is not None:
+            raise ContractError(f"output {topic!r} is a family of keys: it has no single rate")
         self.rate = rate
 
     def rate_hz(self, params: Params) -> float | None:
@@ -185,6 +185,11 @@ class Node:
         return {v.ares_service: k for k, v in _class_attrs(cls).items() if callable(v) and hasattr(v, "ares_service")}
 
     @classmethod
+    def drives_clock(cls) -> bool:
+        """Whether this node publishes the time at --speed max (the simulator)."""
+        return any(o.topic == "sim/clock" for o in cls.outputs())
+
+    @classmethod
     def loop_rate_hz(cls, params: Params) -> float:
         return float(cls.rate) if isinstance(cls.rate, (int, float)) else float(getattr(params, cls.rate))
 
@@ -224,6 +229,9 @@ class Node:
                                                       max_age=inp.max_age_s(self.params), latched=self.steps,
                                                       tap=took)
         for out in self.outputs():
+            if out.entry.is_pattern:        # a family of keys (sim/clock/<process>): one publisher per key
+                self._ports[out.attr] = PublisherFamily(raw_bus, out.topic, gave)
+                continue
             pub = raw_bus.publisher(out.topic)
             pub.tap = gave
             self._ports[out.attr] = pub
@@ -234,9 +242,11 @@ class Node:
         self._events.tap = gave
         self._heartbeats = raw_bus.publisher(f"heartbeat/{self.name}")
         self._driven = isinstance(self.clock, DrivenClock)
-        if self._driven:
+        if self._driven and not self.drives_clock():
             self._done = raw_bus.publisher("clock/done")
-            raw_bus.subscribe("sim/clock", on_message=lambda _topic, tick: self.clock.advance(tick.t))
+            # a participant hears the time when its step is due, and only then; others hear it now and then
+            ticks = f"sim/clock/{self.name}" if self.name in self.core.lockstep.participants else "sim/clock"
+            raw_bus.subscribe(ticks, on_message=lambda _topic, tick: self.clock.advance(tick.t))
         for name, method in self.services().items():
             raw_bus.serve(name, getattr(self, method))
 
@@ -444,7 +454,7 @@ class _DeclaredBus:
         self._allowed = {o.topic for o in node.outputs()} | {t.replace("*", node.name) for t in IMPLICIT_OUTPUTS}
 
     def publisher(self, topic: str, reliable: bool | None = None) -> Publisher:
-        if topic not in self._allowed:
+        if topic not in self._allowed and not any(topics.covers(o.topic, topic) for o in self._node.outputs()):
             raise ContractError(f"{self._node.name} publishes {topic!r} but its contract does not declare it: "
                                 f"add `Output({topic!r}, ...)` to {type(self._node).__name__}")
         return self._bus.publisher(topic, reliable)

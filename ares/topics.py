@@ -51,7 +51,10 @@ TOPIC_TABLE: list[Topic] = [
     Topic("heartbeat/*", m.Heartbeat, "each process's heartbeat, sent from its loop", shared=True),
     Topic("supervisor/state", m.SupervisorState, "every process: state, restarts, silence"),
     Topic("events", m.Event, "things that happened, for people and the black box", reliable=True, shared=True),
-    Topic("sim/clock", m.ClockTick, "the stack time when the simulator drives it (--speed max)", reliable=True),
+    Topic("sim/clock", m.ClockTick, "--speed max: the stack time, for the processes outside the lockstep",
+          reliable=True),
+    Topic("sim/clock/*", m.ClockTick, "--speed max: the stack time, to one participant of the lockstep when its "
+                                      "step is due", reliable=True),
     Topic("clock/done", m.ClockDone, "a process finished its step (--speed max)", reliable=True, shared=True),
     # the simulated vehicle
     Topic("sim/truth", m.VehicleTruth, "ground truth, for evaluation only"),
@@ -111,6 +114,11 @@ def find(name: str) -> Topic | None:
                 and name.count("/") == candidate.name.count("/"):
             return candidate
     return None
+
+
+def covers(pattern: str, key: str) -> bool:
+    """Whether a family such as `sim/clock/*` has `key` as one of its keys."""
+    return "*" in pattern and fnmatch.fnmatchcase(key, pattern) and key.count("/") == pattern.count("/")
 
 
 def matching(pattern: str) -> list[Topic]:

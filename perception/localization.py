@@ -206,11 +206,7 @@ class Localizer:
         if self.ukf.initialized and self._yaw_guess_pending:
             # the first fix came before any IMU message: take the magnetometer's heading as the
             # first guess now rather than keep "heading unknown" until the vehicle has moved
-            f = self.ukf
-            f.x[YAW] = imu.yaw
-            f.P[YAW, :] = 0.0
-            f.P[:, YAW] = 0.0
-            f.P[YAW, YAW] = self.init_yaw_var_imu
+            self.ukf.reset_yaw(imu.yaw, self.init_yaw_var_imu)
             self._yaw_guess_pending = False
         if not self.ukf.initialized or self._lateness(imu.t) is None:
             return

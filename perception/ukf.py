@@ -214,6 +214,9 @@ class PoseUKF:
         self.ut_angle = self._ut(residual_angle)
         self.rejected_fixes = 0
         self._last_float_fix_t: float | None = None
+        # the sigma points were drawn from the current (x, P): a measurement at the time of the
+        # last prediction needs no prediction of its own (the filter already holds its prior)
+        self._sigmas_current = False
 
     @staticmethod
     def _ut(residual_fn):
@@ -239,11 +242,22 @@ class PoseUKF:
         self.ukf.x = np.array([x, y, wrap_angle(yaw), v, yaw_rate], dtype=float)
         self.ukf.P = np.diag(np.asarray(variances, dtype=float))
         self.t = float(t)
+        self._sigmas_current = False
         self.rejected_fixes = 0
+
+    def reset_yaw(self, yaw: float, variance: float) -> None:
+        """A new guess of the heading, uncorrelated with the rest of the state."""
+        self.ukf.x[YAW] = yaw
+        self.ukf.P[YAW, :] = 0.0
+        self.ukf.P[:, YAW] = 0.0
+        self.ukf.P[YAW, YAW] = variance
+        self._sigmas_current = False
 
     # ---- predict ----------------------------------------------------------------------------
     def predict_to(self, t: float) -> None:
         dt = max(t - self.t, 0.0)
+        if dt == 0.0 and self._sigmas_current:
+            return
         self.ukf.Q = self.q_rate * dt
         try:
             self.ukf.predict(dt, UT=self.ut_state)
@@ -251,6 +265,7 @@ class PoseUKF:
             self._repair()
             self.ukf.predict(dt, UT=self.ut_state)
         self.t = max(self.t, t)
+        self._sigmas_current = True
 
     def extrapolate(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """State and covariance at a later time without changing the filter (for publishing
@@ -271,6 +286,7 @@ class PoseUKF:
         self.ukf.update(z, R=R, UT=ut, hx=hx)
         P = self.ukf.P
         self.ukf.P = 0.5 * (P + P.T)
+        self._sigmas_current = False
 
     # ---- updates ----------------------------------------------------------------------------
     def update_position(self, t: float, x: float, y: float, var_x: float, var_y: float, rtk: bool) -> bool:

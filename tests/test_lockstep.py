@@ -84,14 +84,15 @@ class Counter(Node):
         rate_hz: float = param(20.0, "loop rate", unit="Hz", gt=0)
 
     def setup(self) -> None:
-        self.steps: list[float] = []
+        self.stepped: list[float] = []
 
     def step(self, now: float) -> None:
-        self.steps.append(now)
+        self.stepped.append(now)
 
 
 def test_a_node_steps_exactly_on_its_grid_and_holds_the_clock_until_done():
     cfg = config.core_defaults()
+    cfg["lockstep"]["participants"] = ["counter"]
     network = MemoryNetwork()
     clock = DrivenClock(0.0)
     node = Counter(cfg, clock=clock, bus=network.bus("counter", clock))
@@ -109,4 +110,31 @@ def test_a_node_steps_exactly_on_its_grid_and_holds_the_clock_until_done():
     finally:
         node.stop()
         runner.join(5)
-    assert node.steps == pytest.approx([round(0.05 * k, 9) for k in range(1, 11)], abs=1e-12)
+    assert node.stepped == pytest.approx([round(0.05 * k, 9) for k in range(1, 11)], abs=1e-12)
+
+
+def test_a_participant_hears_the_time_only_when_it_is_due_and_the_others_now_and_then():
+    network = MemoryNetwork()
+    heard = {name: network.bus(name, ManualClock()).subscribe(topic, queue=100)
+             for name, topic in (("localization", "sim/clock/localization"), ("controller", "sim/clock/controller"),
+                                 ("api", "sim/clock"))}
+    settings = LockstepSettings(participants=["localization", "controller"], broadcast_period_s=0.05)
+    master = LockstepMaster(network.bus("sim", ManualClock()), settings, start=0.0)
+    reporter = network.bus("participants", ManualClock())
+
+    def done(process: str, t: float, next_due: float) -> None:
+        reporter.publish("clock/done", ClockDone(t=t, process=process, next_due=next_due))
+    done("localization", 0.0, 0.02)
+    done("controller", 0.0, 0.05)
+    t = 0.0
+    while t < 0.2 - 1e-9:
+        assert master.wait_done(NEVER, max_wall_s=1.0)
+        t = master.next_due()
+        master.tick(t)
+        for name, period in (("localization", 0.02), ("controller", 0.05)):
+            if master.participants[name].next_due <= t + 1e-9:
+                done(name, t, grid_after(t, period))
+    ticks = {name: [round(m.t, 9) for _, m in sub.drain()] for name, sub in heard.items()}
+    assert ticks["localization"] == [0.02, 0.04, 0.06, 0.08, 0.1, 0.12, 0.14, 0.16, 0.18, 0.2]
+    assert ticks["controller"] == [0.05, 0.1, 0.15, 0.2]
+    assert ticks["api"] == [0.02, 0.08, 0.14, 0.2]          # at least 0.05 s apart

@@ -54,6 +54,7 @@ class Simulator(Node):
     truth = Output("sim/truth", rate="truth_hz", doc="ground truth, for evaluation only")
     panel = Output("vehicle/panel", doc="driver actions")
     clock_ticks = Output("sim/clock", doc="--speed max: the stack time, moved on when every participant is done")
+    participant_ticks = Output("sim/clock/*", doc="--speed max: the time, to each participant when it is due")
     clock_done = Input("clock/done", doc="--speed max: each participant's next due time (ares.lockstep)")
 
     def setup(self) -> None:
@@ -168,7 +169,8 @@ class Simulator(Node):
         if not self._driven:
             super().loop()
             return
-        master = LockstepMaster(self.bus, self.core.lockstep, start=self.clock.now())
+        master = LockstepMaster(self.bus, self.core.lockstep, start=self.clock.now(), ticks=self.clock_ticks,
+                                participant_ticks=self.participant_ticks)
         while not self.stopping and not self.parent_gone():
             done = master.wait_done(self._stop, self._hb_period_s)
             self._report_lockstep(master)
