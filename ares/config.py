@@ -102,6 +102,9 @@ class UtmOrigin(Params):
     easting: float = param(440000.0, "easting of the origin", unit="m")
     northing: float = param(4474000.0, "northing of the origin", unit="m")
     altitude_m: float = param(650.0, "altitude of the origin above mean sea level", unit="m")
+    reach_km: float = param(100.0, "positions farther than this from the origin are refused (a wrong fix or a "
+                                   "wrong configuration); nearer ones are projected in the origin's zone, even "
+                                   "across a zone boundary", unit="km", gt=0)
 
 
 # ---- vehicle profiles ------------------------------------------------------------------------

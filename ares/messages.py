@@ -140,7 +140,7 @@ class GnssFix(Msg):
     them), projected to UTM and to the stack's local frame (UTM minus the configured origin)."""
     x: float                    # local frame, metres east of the origin
     y: float                    # metres north
-    z: float                    # metres above the origin's altitude
+    z: float | None             # metres above the origin's altitude; None: the receiver sent no altitude
     lat: float
     lon: float
     easting: float
@@ -149,11 +149,11 @@ class GnssFix(Msg):
     hemisphere: Literal["N", "S"]
     quality: int                # GGA fix quality: 1 GPS, 2 DGPS, 4 RTK fixed, 5 RTK float, ...
     rtk: bool                   # RTK corrections in use (quality 4)
-    satellites: int
-    hdop: float
+    satellites: int | None      # None: not sent
+    hdop: float | None
     var_x: float                # position variances, m^2
     var_y: float
-    var_z: float
+    var_z: float | None
 
 
 class Pose(Msg):

@@ -3,7 +3,9 @@
 A built-in tour is described in config/tours/*.yaml as a closed polygon whose corners are
 rounded with circular arcs (a road with fillets), an elevation profile along the path, road
 widths, POIs and zones (GNSS-correction dead zones, intersections). An open route can also
-be read from a CSV of x,y[,z] points.
+be read from a CSV of x,y[,z] points; such a file may say where on Earth its frame is (a
+`# origin: lat=..., lon=..., altitude_m=..., utm_zone=..., hemisphere=...` comment, written by
+`ares route import`), and a run that drives it uses that origin instead of the configured one.
 
 Every consumer (simulator, controllers, the headless runner) builds the same Route from the
 same description, so no process has to ship the geometry to another.
@@ -12,13 +14,16 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import utm
 
 from ares import config
-from ares.config import CoreConfig, TourDescription
+from ares.config import CoreConfig, TourDescription, UtmOrigin
+from ares.geodesy import FrameError, origin_at
 from ares.geometry import project_on_segments, signed_distance
 
 SAMPLE_SPACING_M = 0.25
@@ -56,6 +61,7 @@ class Route:
     width: np.ndarray
     pois: list[Poi] = field(default_factory=list)
     zones: list[Zone] = field(default_factory=list)
+    origin: UtmOrigin | None = None     # where on Earth the frame is, when the route file says
 
     def __post_init__(self) -> None:
         if len(self.x) < 2:
@@ -185,7 +191,77 @@ class Route:
             raise RouteError(f"{path}: a route needs at least two points, found {len(points)}")
         xyz = resample(np.array(points), SAMPLE_SPACING_M)
         return cls(name=name or path.stem, x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], closed=False,
-                   width=np.full(len(xyz), 4.0))
+                   width=np.full(len(xyz), 4.0), origin=origin_in(text, path))
+
+
+# ---- a route file's origin ------------------------------------------------------------
+
+_ORIGIN_LINE = re.compile(r"#\s*origin:(.*)")
+_ORIGIN_KEYS = {"lat": float, "lon": float, "altitude_m": float, "utm_zone": int, "hemisphere": str,
+                "easting": float, "northing": float}
+
+
+def origin_comment(origin: UtmOrigin) -> str:
+    """The comment line (without '# ') that records a frame's origin in a route file."""
+    lat, lon = utm.to_latlon(origin.easting, origin.northing, origin.zone, northern=origin.hemisphere == "N",
+                             strict=False)
+    return (f"origin: lat={float(lat):.9f}, lon={float(lon):.9f}, altitude_m={origin.altitude_m:.3f}, "
+            f"utm_zone={origin.zone}, hemisphere={origin.hemisphere}, easting={origin.easting:.3f}, "
+            f"northing={origin.northing:.3f}")
+
+
+def origin_in(text: str, path: Path | str = "route") -> UtmOrigin | None:
+    """The origin a route file's comment records; None when it records none. lat, lon and
+    altitude_m are needed; the UTM zone and hemisphere default to the position's own, easting
+    and northing to its projection there."""
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            return None                 # the comments come first
+        m = _ORIGIN_LINE.match(stripped)
+        if m:
+            return _parse_origin(m[1], f"{path}:{lineno}")
+    return None
+
+
+def read_origin(path: str | Path) -> UtmOrigin | None:
+    try:
+        with open(path, errors="replace") as f:
+            head = "".join(line for line, _ in zip(f, range(50)))
+    except OSError as exc:
+        raise RouteError(f"{path}: cannot read: {exc.strerror}") from exc
+    return origin_in(head, path)
+
+
+def _parse_origin(text: str, where: str) -> UtmOrigin:
+    values = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        key, _, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if key not in _ORIGIN_KEYS:
+            raise RouteError(f"{where}: unknown origin key {key!r}; known: {', '.join(_ORIGIN_KEYS)}")
+        try:
+            values[key] = _ORIGIN_KEYS[key](value)
+        except ValueError:
+            raise RouteError(f"{where}: origin {key} must be a {_ORIGIN_KEYS[key].__name__}, got {value!r}") from None
+    missing = [k for k in ("lat", "lon", "altitude_m") if k not in values]
+    if missing:
+        raise RouteError(f"{where}: the origin needs {', '.join(missing)}")
+    try:
+        own = origin_at(values["lat"], values["lon"], values["altitude_m"])
+    except FrameError as exc:
+        raise RouteError(f"{where}: {exc}") from None
+    zone, hemisphere = values.get("utm_zone", own.zone), values.get("hemisphere", own.hemisphere)
+    if hemisphere not in ("N", "S") or not 1 <= zone <= 60:
+        raise RouteError(f"{where}: origin utm_zone must be 1-60 and hemisphere N or S")
+    easting, northing, _, _ = utm.from_latlon(values["lat"], values["lon"], force_zone_number=zone,
+                                              force_northern=hemisphere == "N")
+    given = (values.get("easting", easting), values.get("northing", northing))
+    if math.hypot(given[0] - easting, given[1] - northing) > 1.0:
+        raise RouteError(f"{where}: the origin's easting and northing disagree with its latitude and longitude "
+                         f"by {math.hypot(given[0] - easting, given[1] - northing):.1f} m")
+    return UtmOrigin(zone=zone, hemisphere=hemisphere, easting=float(given[0]), northing=float(given[1]),
+                     altitude_m=values["altitude_m"])
 
 
 def resample(points: np.ndarray, spacing: float) -> np.ndarray:

@@ -1,10 +1,18 @@
 """Route files from a recorded drive (`ares route import`): the ARES path manager's global path
 is "recorded from the real vehicle" (DESIGN §3) — this turns such a recording into a route.
 
-Input: a CSV of x,y[,z] metres in the local frame, or an NMEA log written while driving (GGA
-lines give the positions; GST and other sentence types are ignored). Steps:
+Input: a CSV of x,y[,z] metres in the local frame, or an NMEA log as a receiver or logger writes
+it (the format is told from the content). In a log, comment and header lines (any text, any
+encoding), CRLF line ends, NMEA 4 tag blocks and timestamp prefixes are allowed; every sentence
+is parsed strictly (perception.nmea) and counted: positions come from the GGA fixes (from RMC,
+else GLL, when a log has none), one per epoch; sentences without a position and lines without
+a fix are skipped; a line with a bad checksum or broken fields is skipped under its reason (or,
+with `strict`, fails the import naming the line). Steps:
 
-1. projection to the local frame, exactly as the GNSS node does (perception.gnss);
+1. projection to a local frame: the configured origin's when the drive lies within its reach,
+   else one at the drive's first fix (a drive recorded anywhere on Earth). Every fix is
+   projected in the origin's UTM zone, so a drive across a zone boundary stays continuous; the
+   route file records the origin, and a run that drives the route uses it;
 2. de-duplication of standstill fixes: a vehicle waiting at a stop yields hundreds of nearly
    identical fixes, which would make a tangle of tiny zig-zags; a point closer than
    `min_step_m` to the last kept one is dropped (order is kept);
@@ -20,8 +28,8 @@ lines give the positions; GST and other sentence types are ignored). Steps:
    altitude noise;
 5. yaw from the neighbouring poses (central differences).
 
-The output is a CSV with a '# ares route: ...' comment and the header x,y,z,yaw, which
-Route.from_csv reads back. A recording whose end comes back to its start is reported as a
+The output is a CSV with '# ares route: ...' and '# origin: ...' comments and the header
+x,y,z,yaw, which Route.from_csv reads back. A recording whose end comes back to its start is reported as a
 closed loop; the file stays an open route (its two ends simply meet).
 """
 from __future__ import annotations
@@ -29,23 +37,28 @@ from __future__ import annotations
 import collections
 import math
 import os
+import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
+from typing import Iterator, Mapping
 
 import numpy as np
 from scipy.signal import savgol_filter
 
 from ares import config
-from ares.config import Params, param
-from ares.geodesy import LocalFrame
-from ares.route import RouteError
-from perception.gnss import RTK_FIXED, GnssParams, GnssProjector
-from perception.nmea import Gga, NmeaError, parse_sentence
+from ares.config import Params, UtmOrigin, param
+from ares.geodesy import FrameError, LocalFrame, origin_at
+from ares.route import RouteError, origin_comment
+from perception.gnss import RTK_FIXED
+from perception.nmea import Gga, Gll, NmeaError, Other, Position, Rmc, address, parse_sentence
 
 FORMATS = ("auto", "csv", "nmea")
 SMOOTHING_STEP_M = 0.1      # resampling step the smoothing filter works on
+DETECT_LINES = 2000         # lines looked at to tell NMEA from CSV
+POSITION_KINDS = ("GGA", "RMC", "GLL")      # in order of preference: GGA has quality and altitude
+# where a sentence starts after a logger's prefix (a timestamp, a port name): "$GNGGA," or "!AIVDM,"
+_SENTENCE_START = re.compile(rb"(?:^|\s)([$!](?:[A-Z0-9]{5}|P[A-Z0-9]{1,8})[,*])")
 
 
 class RouteImportError(RouteError):
@@ -74,10 +87,9 @@ class ImportResult:
     spacing_m: float
     closed_loop: bool
     loop_gap_m: float                   # distance from the last point to the first
-    skipped: collections.Counter = field(default_factory=collections.Counter)  # bad lines, by reason
-    no_fix: int = 0                     # GGA lines saying the receiver had no fix
-    ignored: int = 0                    # other sentences (GST, RMC, ...)
-    non_rtk: int = 0                    # fixes without RTK fixed: metre-level errors
+    log: "NmeaLog | None" = None        # what an NMEA log held, line by line
+    origin: UtmOrigin | None = None     # the route's frame (NMEA); a CSV is in the configured one
+    origin_source: str = ""             # "configured" or "first fix"
     output: str = ""
 
     @property
@@ -90,34 +102,61 @@ class ImportResult:
         return self.length_m / max(len(self.xyz) - 1, 1)
 
     def summary(self) -> str:
-        unit = "fixes" if self.fmt == "nmea" else "points"
-        parts = [f"{self.source}: {self.points_in} {unit} in, {self.kept} kept "
-                 f"({self.points_in - self.kept} standstill/duplicates dropped), "
+        """What was used and what was skipped, by sentence type and reason: a few lines."""
+        unit = f"{self.log.used} fixes" if self.log else "points"
+        lines = [f"{self.source}{f' -> {self.output}' if self.output else ''}: {self.points_in} {unit} in, "
+                 f"{self.kept} kept ({self.points_in - self.kept} standstill/duplicates dropped), "
                  f"{len(self.xyz)} route points every {self.step_m:.2f} m, length {self.length_m:.1f} m"]
         if self.closed_loop:
-            parts.append(f"closed loop detected (end {self.loop_gap_m:.2f} m from start), written as an open route")
-        if self.skipped:
-            reasons = ", ".join(f"{r}: {n}" for r, n in sorted(self.skipped.items()))
-            parts.append(f"{sum(self.skipped.values())} bad lines skipped ({reasons})")
-        if self.no_fix:
-            parts.append(f"{self.no_fix} no-fix GGA lines ignored")
-        if self.ignored:
-            parts.append(f"{self.ignored} non-GGA sentences ignored")
-        if self.non_rtk:
-            parts.append(f"warning: {self.non_rtk} fixes without RTK (quality != {RTK_FIXED}), errors up to metres")
-        text = "; ".join(parts)
-        return f"{text} -> {self.output}" if self.output else text
+            lines.append(f"closed loop detected (end {self.loop_gap_m:.2f} m from start), written as an open route")
+        if self.origin is not None:
+            o = self.origin
+            lines.append(f"origin ({'the configured one' if self.origin_source == 'configured' else 'the first fix'}): "
+                         f"UTM {o.zone}{o.hemisphere} {o.easting:.2f} E {o.northing:.2f} N, altitude "
+                         f"{o.altitude_m:.1f} m; a run that drives this route uses it")
+        if self.log is not None:
+            lines += self.log.report()
+        return "\n  ".join(lines)
 
 
 # ---- reading --------------------------------------------------------------------------------
 
-def detect_format(data: bytes) -> str:
-    """'nmea' when the first non-blank line starts with '$', else 'csv'."""
-    for raw in data.splitlines():
-        line = raw.strip()
-        if line:
-            return "nmea" if line.startswith(b"$") else "csv"
-    return "csv"
+def sentence_of(line: bytes) -> bytes | None:
+    """The NMEA sentence in a log line, without a tag block or a logger's prefix (a timestamp,
+    a port name) before it; None for a comment, header or other text line."""
+    line = line.strip()
+    if line.startswith(b"\\"):                 # NMEA 4 tag block: \s:GPS1,c:1700000000*5A\$GPGGA,...
+        end = line.find(b"\\", 1)
+        line = line[end + 1:] if end > 0 else line
+    if line[:1] in (b"$", b"!"):
+        return line
+    m = _SENTENCE_START.search(line)
+    return line[m.start(1):] if m else None
+
+
+def _is_csv_row(line: bytes) -> bool:
+    cells = line.split(b",")
+    try:
+        return len(cells) >= 2 and all(math.isfinite(float(c)) for c in cells)
+    except ValueError:
+        return False
+
+
+def detect_format(data: bytes) -> str | None:
+    """'nmea' when more of the first lines hold NMEA sentences than x,y rows, 'csv' when rows
+    win; comments, headers and blank lines count for neither. None when there is neither."""
+    sentences = rows = 0
+    for raw in data.splitlines()[:DETECT_LINES]:
+        line = raw.strip().lstrip(b"\xef\xbb\xbf")
+        if not line:
+            continue
+        if sentence_of(line) is not None:
+            sentences += 1
+        elif _is_csv_row(line):
+            rows += 1
+    if sentences == rows == 0:
+        return None
+    return "nmea" if sentences > rows else "csv"
 
 
 def read_csv_points(data: bytes, source: str) -> np.ndarray:
@@ -151,45 +190,145 @@ def read_csv_points(data: bytes, source: str) -> np.ndarray:
 
 
 @dataclass
-class NmeaPoints:
-    xyz: np.ndarray
-    skipped: collections.Counter
-    no_fix: int
-    ignored: int
-    non_rtk: int
+class NmeaLog:
+    """What an NMEA log held: the positions used, and every other line counted."""
+    used: str                           # the sentence type the positions come from: GGA, RMC or GLL
+    fixes: list[tuple[int, Position]]   # (line number, position), file order, one per epoch
+    sentences: collections.Counter      # valid sentences, by address (GNGGA, GPGSV, SDDPT, PUBX)
+    no_fix: collections.Counter         # position sentences saying the receiver had no fix, by type
+    bad: collections.Counter            # rejected lines, by reason
+    first_bad: dict[str, int]           # reason -> line number of its first line
+    text_lines: int                     # comments, headers, other text
+    same_epoch: int                     # a second position of an epoch already used (another talker)
+    far: int = 0                        # fixes beyond the frame's reach (set by the projection)
+    non_rtk: int = 0                    # GGA fixes without RTK fixed: metre-level errors
+    no_altitude: int = 0                # fixes without altitude (interpolated between neighbours)
+
+    def report(self) -> list[str]:
+        unused = {a: n for a, n in self.sentences.items() if a[-3:] not in (self.used, "GST")}
+        other_positions = sorted(a for a in unused if a[-3:] in POSITION_KINDS)
+        lines = []
+        if unused:
+            lines.append("skipped, no position used: " + _counts(unused)
+                         + (f" ({', '.join(other_positions)}: positions taken from {self.used})" if other_positions else ""))
+        gst = {a: n for a, n in self.sentences.items() if a[-3:] == "GST"}
+        if gst:
+            lines.append(f"error statistics not needed for a route: {_counts(gst)}")
+        if self.no_fix:
+            lines.append("skipped, no fix: " + _counts(self.no_fix))
+        if self.same_epoch:
+            lines.append(f"skipped, same epoch as the fix before (another talker): {self.same_epoch}")
+        if self.text_lines:
+            lines.append(f"skipped, comment or header lines: {self.text_lines}")
+        if self.bad:
+            lines.append("skipped, bad lines: " + ", ".join(f"{r} {n} (first: line {self.first_bad[r]})"
+                                                            for r, n in sorted(self.bad.items())))
+        if self.far:
+            lines.append(f"skipped, fixes beyond the frame's reach: {self.far}")
+        if self.no_altitude:
+            lines.append(f"{self.no_altitude} fixes without altitude: z interpolated"
+                         if self.no_altitude < len(self.fixes) else "no altitude in the log: the route is flat (z = 0)")
+        if self.non_rtk:
+            lines.append(f"warning: {self.non_rtk} fixes without RTK (quality != {RTK_FIXED}), errors up to metres")
+        if self.used != "GGA":
+            lines.append(f"warning: positions from {self.used} carry no fix quality: their accuracy is unknown")
+        return lines
 
 
-def read_nmea_points(data: bytes, source: str, projector: GnssProjector, skip_bad: bool = False) -> NmeaPoints:
-    """Local positions of the GGA fixes of an NMEA log. A bad line raises RouteImportError
-    naming it, unless skip_bad (then it is counted by reason)."""
-    points = []
-    skipped: collections.Counter[str] = collections.Counter()
-    no_fix = ignored = non_rtk = 0
+def _counts(counter: Mapping[str, int]) -> str:
+    return ", ".join(f"{k} {n}" for k, n in sorted(counter.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
+def log_lines(data: bytes) -> Iterator[tuple[int, bytes | None]]:
+    """(line number, its sentence or None for a text line), blank lines left out."""
     for lineno, raw in enumerate(data.splitlines(), start=1):
-        if not raw.strip():
+        line = raw.strip().lstrip(b"\xef\xbb\xbf") if lineno == 1 else raw.strip()
+        if line:
+            yield lineno, sentence_of(line)
+
+
+def read_nmea_log(data: bytes, source: str, strict: bool = False) -> NmeaLog:
+    """Every line of a log counted; the positions of the preferred sentence type, one per epoch.
+    With `strict`, a bad line raises RouteImportError naming it."""
+    found: dict[str, list[tuple[int, Position]]] = {kind: [] for kind in POSITION_KINDS}
+    sentences: collections.Counter[str] = collections.Counter()
+    no_fix: collections.Counter[str] = collections.Counter()
+    bad: collections.Counter[str] = collections.Counter()
+    first_bad: dict[str, int] = {}
+    text_lines = 0
+    for lineno, line in log_lines(data):
+        if line is None:
+            text_lines += 1
             continue
         try:
-            sentence = parse_sentence(raw.strip())
-            if not isinstance(sentence, Gga):
-                ignored += 1            # GST: the route needs positions only
-                continue
-            p = projector.project(sentence.lat, sentence.lon, sentence.altitude_m)
+            sentence = parse_sentence(line)
         except NmeaError as exc:
-            if exc.reason == "unsupported sentence":
-                ignored += 1            # RMC, GSV, ...: a receiver's ordinary output
+            if exc.reason == "no fix":      # the receiver saying it has no position yet: not a bad line
+                no_fix[_kind_of(line)] += 1
                 continue
-            if exc.reason == "no fix":
-                no_fix += 1             # the receiver saying it has no position yet: not a bad line
-                continue
-            if not skip_bad:
-                raise RouteImportError(f"{source}:{lineno}: {exc.reason}: {exc} "
-                                       "(use --skip-bad to leave out bad lines)") from None
-            skipped[exc.reason] += 1
+            if strict:
+                raise RouteImportError(f"{source}:{lineno}: {exc.reason}: {exc}") from None
+            bad[exc.reason] += 1
+            first_bad.setdefault(exc.reason, lineno)
             continue
-        if sentence.quality != RTK_FIXED:
-            non_rtk += 1
-        points.append((p.x, p.y, p.z))
-    return NmeaPoints(np.array(points, dtype=float).reshape(-1, 3), skipped, no_fix, ignored, non_rtk)
+        sentences[address(sentence)] += 1
+        if not isinstance(sentence, Other) and sentence.kind in found:
+            found[sentence.kind].append((lineno, sentence))
+    used = next((kind for kind in POSITION_KINDS if found[kind]), "GGA")
+    fixes: list[tuple[int, Position]] = []
+    same_epoch = 0
+    for lineno, fix in found[used]:
+        # receivers that send GPGGA and GNGGA of one epoch: the first of the epoch is kept
+        last = fixes[-1][1] if fixes else None
+        if last is not None and fix.time and fix.time == last.time and fix.talker != last.talker:
+            same_epoch += 1
+            continue
+        fixes.append((lineno, fix))
+    return NmeaLog(used=used, fixes=fixes, sentences=sentences, no_fix=no_fix, bad=bad, first_bad=first_bad,
+                   text_lines=text_lines, same_epoch=same_epoch)
+
+
+def _kind_of(line: bytes) -> str:
+    """GGA, RMC, GLL of a no-fix line (its address passed the checks before the fix did)."""
+    return line[3:6].decode("ascii", "replace")
+
+
+def frame_for(log: NmeaLog, configured: UtmOrigin) -> tuple[UtmOrigin, str]:
+    """The route's origin: the configured one when the drive's first fix lies within its reach
+    (routes of one site share its frame), else the first fix itself."""
+    first = log.fixes[0][1]
+    try:
+        LocalFrame(configured).project(first.lat, first.lon, None)
+        return configured, "configured"
+    except FrameError:
+        altitude = next((f.altitude_m for _, f in log.fixes if f.altitude_m is not None), 0.0)
+        return origin_at(first.lat, first.lon, altitude, reach_km=configured.reach_km), "first fix"
+
+
+def project_fixes(log: NmeaLog, frame: LocalFrame, source: str, strict: bool = False) -> np.ndarray:
+    """x, y, z of the log's fixes in the frame; fixes beyond its reach counted (or, with
+    `strict`, an error); missing altitudes interpolated between their neighbours."""
+    points = []
+    for lineno, fix in log.fixes:
+        try:
+            p = frame.project(fix.lat, fix.lon, fix.altitude_m)
+        except FrameError as exc:
+            if strict:
+                raise RouteImportError(f"{source}:{lineno}: {exc.reason}: {exc}") from None
+            log.far += 1
+            continue
+        if isinstance(fix, Gga) and fix.quality != RTK_FIXED:
+            log.non_rtk += 1
+        points.append((p.x, p.y, math.nan if p.z is None else p.z))
+    xyz = np.array(points, dtype=float).reshape(-1, 3)
+    missing = np.isnan(xyz[:, 2])
+    log.no_altitude = int(missing.sum())
+    if missing.all():
+        xyz[:, 2] = 0.0
+    elif missing.any():
+        index = np.arange(len(xyz))
+        xyz[missing, 2] = np.interp(index[missing], index[~missing], xyz[~missing, 2])
+    return xyz
 
 
 # ---- geometry -------------------------------------------------------------------------------
@@ -271,7 +410,7 @@ def write_route_csv(path: Path, xyz: np.ndarray, yaw: np.ndarray, comments: list
 # ---- the whole import -----------------------------------------------------------------------
 
 def import_route(source: str | Path, output: str | Path | None = None, fmt: str = "auto",
-                 spacing_m: float | None = None, skip_bad: bool = False,
+                 spacing_m: float | None = None, strict: bool = False,
                  cfg: Mapping | None = None) -> ImportResult:
     """Read a recording, build the route, write it to `output` (if given)."""
     source = Path(source)
@@ -287,17 +426,25 @@ def import_route(source: str | Path, output: str | Path | None = None, fmt: str 
         data = source.read_bytes()
     except OSError as exc:
         raise RouteImportError(f"{source}: cannot read: {exc.strerror}") from None
-    fmt = detect_format(data) if fmt == "auto" else fmt
     name = source.name
-    extra = {}
+    if b"\x00" in data[:65536]:
+        raise RouteImportError(f"{name}: not a text file (byte {data.index(bytes(1))} is NUL)")
+    if fmt == "auto":
+        fmt = detect_format(data)
+        if fmt is None:
+            raise RouteImportError(f"{name}: no points: neither NMEA sentences nor rows of x,y[,z] metres "
+                                   f"in its first {DETECT_LINES} lines")
+    log = origin = None
+    origin_source = ""
     if fmt == "nmea":
-        projector = GnssProjector(LocalFrame(config.core(cfg).origin_utm), config.section(cfg, "gnss", GnssParams))
-        got = read_nmea_points(data, name, projector, skip_bad)
-        points = got.xyz
-        extra = dict(skipped=got.skipped, no_fix=got.no_fix, ignored=got.ignored, non_rtk=got.non_rtk)
+        log = read_nmea_log(data, name, strict)
+        if not log.fixes:
+            detail = f" ({_counts(log.no_fix)} without a fix)" if log.no_fix else ""
+            raise RouteImportError(f"{name}: no usable position (GGA, RMC or GLL) in the log{detail}")
+        origin, origin_source = frame_for(log, config.core(cfg).origin_utm)
+        points = project_fixes(log, LocalFrame(origin), name, strict)
         if len(points) == 0:
-            detail = f" ({got.no_fix} without a fix)" if got.no_fix else ""
-            raise RouteImportError(f"{name}: no usable GGA fix in the log{detail}")
+            raise RouteImportError(f"{name}: no fix within {origin.reach_km:g} km of the route's origin")
     else:
         points = read_csv_points(data, name)
         if len(points) == 0:
@@ -312,12 +459,15 @@ def import_route(source: str | Path, output: str | Path | None = None, fmt: str 
     # a loop must be long compared with the gap, or a short back-and-forth would count
     closed = gap <= settings.loop_close_m and length > 10 * settings.loop_close_m
     result = ImportResult(source=name, fmt=fmt, points_in=len(points), kept=len(kept), xyz=xyz, yaw=yaw,
-                          spacing_m=settings.spacing_m, closed_loop=closed, loop_gap_m=gap, **extra)
+                          spacing_m=settings.spacing_m, closed_loop=closed, loop_gap_m=gap, log=log,
+                          origin=origin, origin_source=origin_source)
     if output is not None:
         output = Path(output)
         comments = [f"ares route: source={name}, points={len(xyz)}, length_m={result.length_m:.2f}",
                     f"format={fmt}, points_in={len(points)}, kept={len(kept)}, spacing_m={settings.spacing_m:g}, "
                     f"closed_loop={'yes (written as an open route)' if closed else 'no'}"]
+        if origin is not None:
+            comments.append(origin_comment(origin))
         try:
             write_route_csv(output, xyz, yaw, comments)
         except OSError as exc:

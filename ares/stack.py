@@ -36,7 +36,7 @@ from ares.clock import Clock, DrivenClock, ScaledClock, WallClock
 from ares.messages import DriveMode, DriverCommand
 from ares.metrics import LapTracker, LocalizationTracker
 from ares.report import write_lap_svg
-from ares.route import Route, RouteError, load_route
+from ares.route import Route, RouteError, load_route, read_origin
 from ares.supervisor import Supervisor
 from blackbox.api_server import api_url
 from blackbox.recorder import open_configured_store, store_uri
@@ -124,8 +124,13 @@ def run(args) -> int:
 
 
 def prepare(files: tuple[str, ...], overrides: dict, speed: float | str) -> dict:
-    """The run configuration, validated; the store made absolute; the lockstep's participants."""
+    """The run configuration, validated; the route file's origin, if it has one; the store made
+    absolute; the lockstep's participants."""
     cfg = run_config.build(files, overrides)
+    if cfg["route_file"]:
+        origin = read_origin(cfg["route_file"])
+        if origin is not None:      # a recorded route brings its frame: the configured origin is for the others
+            cfg["origin_utm"] = {**origin.model_dump(), "reach_km": cfg["origin_utm"]["reach_km"]}
     store = config.section(cfg, "blackbox_store", StoreSettings)
     cfg["blackbox_store"]["uri"] = store_uri(store)
     if speed != 1 and not cfg["simulate"]:

@@ -129,7 +129,7 @@ def position_of(pose: Pose, frame: LocalFrame) -> Position | None:
     easting, northing = frame.utm_of(pose.x, pose.y)
     try:
         lat, lon = frame.to_latlon(pose.x, pose.y)
-    except ValueError:          # utm's OutOfRangeError: a pose far outside the zone
+    except ValueError:          # a pose beyond what UTM can express
         return None
     return Position(x=pose.x, y=pose.y, z=pose.z, easting=easting, northing=northing, zone=frame.zone,
                     hemisphere="N" if frame.northern else "S", lat=lat, lon=lon)

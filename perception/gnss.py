@@ -1,7 +1,7 @@
 """From a validated GGA (and the GST of the same epoch, when the receiver sends one) to a fix in
 UTM and in the stack's local frame (ARES §3.1: "NMEA GGA in, UTM out").
 
-The local frame and the checks on a position (its UTM zone must be the origin's) are
+The local frame and the checks on a position (within the frame's reach of the origin) are
 ares.geodesy's. Variances: a GST's latitude / longitude / altitude standard deviations, squared
 (the receiver's own estimate), else figures by fix quality from config — the paper's ≈ 5e-5 m²
 with RTK fixed (quality 4) and ≈ 0.5 m² without corrections.
@@ -19,7 +19,7 @@ RTK_FIXED = 4               # GGA fix quality of an RTK fixed solution
 
 
 class GnssError(NmeaError):
-    """A well-formed sentence whose fix cannot be used (e.g. outside the site's UTM zone)."""
+    """A well-formed sentence whose fix cannot be used (e.g. hundreds of km from the site)."""
 
 
 class GnssParams(Params):
@@ -46,8 +46,8 @@ class GnssProjector:
         self.default_variance_m2 = params.default_variance_m2
         self.vertical_variance_factor = params.vertical_variance_factor
 
-    def project(self, lat: float, lon: float, altitude_m: float) -> Projected:
-        """UTM and local coordinates; GnssError("utm zone" / "utm range") if unusable."""
+    def project(self, lat: float, lon: float, altitude_m: float | None) -> Projected:
+        """UTM and local coordinates; GnssError("far from origin" / "utm range") if unusable."""
         try:
             return self.frame.project(lat, lon, altitude_m)
         except FrameError as exc:
@@ -62,14 +62,14 @@ class GnssProjector:
 
     def fix(self, gga: Gga, gst: Gst | None = None, t: float = 0.0) -> GnssFix:
         """The GnssFix message of a GGA; a GST is used only if it belongs to the same epoch."""
-        if gst is not None and gst.time != gga.time:
+        if gst is not None and (not gga.time or gst.time != gga.time):
             gst = None
         p = self.project(gga.lat, gga.lon, gga.altitude_m)
         var_x, var_y, var_z = self.variances(gga, gst)
-        return GnssFix(t=t, x=p.x, y=p.y, z=p.z, lat=gga.lat, lon=gga.lon, easting=p.easting,
+        return GnssFix(t=t, x=p.x, y=p.y, z=p.z, var_z=None if p.z is None else var_z, lat=gga.lat, lon=gga.lon, easting=p.easting,
                        northing=p.northing, zone=p.zone, hemisphere=p.hemisphere, quality=gga.quality,
                        rtk=gga.quality == RTK_FIXED, satellites=gga.satellites, hdop=gga.hdop,
-                       var_x=var_x, var_y=var_y, var_z=var_z)
+                       var_x=var_x, var_y=var_y)
 
 
 def pair_epochs(sentences: Iterable[Gga | Gst], earlier_gst: Gst | None = None) -> list[tuple[Gga, Gst | None]]:
@@ -82,9 +82,9 @@ def pair_epochs(sentences: Iterable[Gga | Gst], earlier_gst: Gst | None = None) 
             continue
         match = None
         for other in sentences:     # the last GST of that time wins: "the most recent"
-            if isinstance(other, Gst) and other.time == s.time:
+            if isinstance(other, Gst) and s.time and other.time == s.time:
                 match = other
-        if match is None and earlier_gst is not None and earlier_gst.time == s.time:
+        if match is None and earlier_gst is not None and s.time and earlier_gst.time == s.time:
             match = earlier_gst
         pairs.append((s, match))
     return pairs

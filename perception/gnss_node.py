@@ -52,7 +52,7 @@ class GnssNode(Node):
     def _publish(self, gga: Gga, gst: Gst | None, t: float, now: float) -> None:
         try:
             fix = self.projector.fix(gga, gst, t=t)
-        except NmeaError as exc:        # a well-formed fix the site cannot use (wrong UTM zone)
+        except NmeaError as exc:        # a well-formed fix the site cannot use (far from the origin)
             self.reader.reject(exc)
             self._rejected(f"{gga.talker}GGA {gga.time} {gga.lat:.6f},{gga.lon:.6f}", exc, now)
             return
@@ -67,8 +67,7 @@ class GnssNode(Node):
         last = self._last_event.get(reason)
         if last is None or now - last >= self.event_period_s:
             self._last_event[reason] = now
-            # an unknown sentence type is ordinary receiver chatter, not a fault
-            level = EventLevel.INFO if reason == "unsupported sentence" else EventLevel.WARNING
+            level = EventLevel.INFO if reason == "no fix" else EventLevel.WARNING
             # (the event is logged too: that covers the first line of each reason)
             self.event("nmea_rejected", f"NMEA line rejected ({reason}, {n} so far): {error}: {line!r:.120}", level,
                        reason=reason, count=n, rejected_total=self.reader.total_rejected,

@@ -41,6 +41,7 @@ from perception.wheel_odometry import WheelOdometry
 from perception.yaw_from_poses import PoseFix, YawFromPoses, YawFromPosesParams
 
 KINDS = ("gnss", "imu", "can")
+UNKNOWN_Z_VAR_M2 = 1.0e6     # the altitude before any fix has given one: the first that does takes over
 
 
 class InitialHeading(Params):
@@ -86,8 +87,9 @@ class AltitudeFilter:
         self.var = 0.0
         self.t: float | None = None
 
-    def initialize(self, t: float, z: float, var: float) -> None:
-        self.t, self.z, self.var = t, z, var
+    def initialize(self, t: float, z: float | None, var: float | None) -> None:
+        """From the first fix; a fix without altitude starts at the origin's, not yet known."""
+        self.t, self.z, self.var = (t, z, var) if z is not None and var is not None else (t, 0.0, UNKNOWN_Z_VAR_M2)
 
     def predict(self, t: float, climb_rate: float) -> None:
         dt = max(t - self.t, 0.0)
@@ -254,6 +256,16 @@ class Localizer:
             self.counts["gated"] += 1
         else:
             self._fused_fix(fix)
+        if fix.z is not None and fix.var_z is not None:
+            self._altitude_update(fix)
+        # Yaw from this fix and the last one d metres behind it (eqs. 1-2).
+        m = self.yaw_poses.add(PoseFix(fix.t, fix.x, fix.y, fix.var_x, fix.var_y, fix.rtk, heading_at_fix),
+                               float(f.x[V]))
+        if m is not None and (fix.rtk or self.use_float_yaw):
+            self.counts["yaw"] += 1
+            f.update_yaw(t, m.yaw + f.x[W] * late, m.variance)
+
+    def _altitude_update(self, fix: GnssFix) -> None:
         z_var = fix.var_z
         if not fix.rtk:
             interval = None if self._last_float_z_t is None else fix.t - self._last_float_z_t
@@ -262,12 +274,6 @@ class Localizer:
         else:
             self._last_float_z_t = None
         self.altitude.update(fix.z, z_var)
-        # Yaw from this fix and the last one d metres behind it (eqs. 1-2).
-        m = self.yaw_poses.add(PoseFix(fix.t, fix.x, fix.y, fix.var_x, fix.var_y, fix.rtk, heading_at_fix),
-                               float(f.x[V]))
-        if m is not None and (fix.rtk or self.use_float_yaw):
-            self.counts["yaw"] += 1
-            f.update_yaw(t, m.yaw + f.x[W] * late, m.variance)
 
     def _fused_fix(self, fix: GnssFix) -> None:
         self.last_fix_t = fix.t

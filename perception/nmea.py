@@ -1,15 +1,23 @@
-"""A strict parser for the two NMEA 0183 sentences ARES uses: GGA (the fix) and GST (its error
-statistics), from any GNSS talker (GP, GN, GL, GA, GB, ...).
+"""A strict parser for the NMEA 0183 sentences that carry a position — GGA (the fix), RMC and GLL
+— and GST (the fix's error statistics), from any talker (GP, GN, GL, GA, GB, BD, ...). Every other
+well-framed sentence (GSA, GSV, VTG, ZDA, an echo sounder's DPT, a compass's HDG, proprietary
+`$P...`, AIS `!AIVDM`) passes its checksum and comes back as `Other`: a receiver's ordinary
+output, not an error.
 
 Why not pynmea2 alone: it checks the checksum but parses fields lazily, so a sentence with a
 valid checksum and garbage fields "parses" and fails later, or worse yields a plausible number
 (DESIGN §5). Here every field is checked before a sentence is returned, and a line is either a
-fully valid, frozen `Gga` / `Gst` or an `NmeaError` whose `reason` is a short machine-readable
-word ("checksum", "framing", "field count", "latitude", "no fix", "unsupported sentence", ...)
-and whose message names the field. Nothing else escapes `parse_sentence`.
+fully valid, frozen sentence or an `NmeaError` whose `reason` is a short machine-readable word
+("checksum", "framing", "field count", "latitude", "no fix", ...) and whose message names the
+field. Nothing else escapes `parse_sentence`.
+
+Every form NMEA 0183 allows is accepted: times with or without fractional seconds, empty
+("null") fields wherever the data may be unavailable (altitude, geoid separation, HDOP,
+satellites, the differential fields), integer altitudes, GGA with or without a fix (quality 0
+is "no fix"), RMC of 11, 12 (mode) or 13 (navigational status) fields, GLL of 5, 6 or 7.
 
 `NmeaReader` wraps the parser for a stream of lines and counts what it accepted (by sentence
-type) and rejected (by reason).
+address: talker and type) and rejected (by reason).
 """
 from __future__ import annotations
 
@@ -20,10 +28,6 @@ from dataclasses import dataclass
 from typing import Iterable, Iterator
 
 from ares.nmea import checksum
-
-# Talkers of GNSS receivers: GPS, combined GNSS, GLONASS, Galileo, BeiDou (two spellings),
-# QZSS, NavIC.
-TALKERS = frozenset({"GP", "GN", "GL", "GA", "GB", "BD", "GQ", "GI"})
 
 # The standard says 82 characters, but high-precision receivers (and our simulator, with seven
 # decimals of a minute for millimetre RTK fixes) exceed it; anything much longer is garbage.
@@ -38,13 +42,18 @@ MAX_DGPS_STATION_ID = 1023
 
 GGA_FIELDS = 14     # time, lat, N/S, lon, E/W, quality, sats, hdop, alt, M, geoid, M, age, station
 GST_FIELDS = 8      # time, rms, semi-major, semi-minor, orientation, sigma lat, lon, alt
+RMC_FIELDS = (11, 12, 13)   # time, status, lat, N/S, lon, E/W, speed, course, date, magvar, E/W
+                            # [, mode (NMEA 2.3)] [, navigational status (NMEA 4.1)]
+GLL_FIELDS = (4, 5, 6, 7)   # lat, N/S, lon, E/W [, time] [, status (2.x)] [, mode (2.3)]
+MODE_NO_FIX = "N"           # RMC / GLL mode indicator: data not valid
 
 _TIME_RE = re.compile(r"(\d{2})(\d{2})(\d{2}(?:\.\d{1,6})?)", re.ASCII)
-_LAT_RE = re.compile(r"(\d{2})(\d{2}\.\d{1,10})", re.ASCII)
-_LON_RE = re.compile(r"(\d{3})(\d{2}\.\d{1,10})", re.ASCII)
+_LAT_RE = re.compile(r"(\d{2})(\d{2}(?:\.\d{0,10})?)", re.ASCII)    # ddmm[.mmmm]
+_LON_RE = re.compile(r"(\d{3})(\d{2}(?:\.\d{0,10})?)", re.ASCII)    # dddmm[.mmmm]
 _UNSIGNED_RE = re.compile(r"\d+(?:\.\d*)?|\.\d+", re.ASCII)  # no exponent, no nan/inf, no sign
 _SIGNED_RE = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)", re.ASCII)
 _ADDRESS_RE = re.compile(r"[A-Z0-9]{5}|P[A-Z0-9]{1,8}", re.ASCII)  # talker + type, or proprietary
+_DATE_RE = re.compile(r"(\d{2})(\d{2})(\d{2})", re.ASCII)
 _HEX = frozenset("0123456789ABCDEFabcdef")
 
 
@@ -60,17 +69,48 @@ class NmeaError(ValueError):
 class Gga:
     """A GGA fix that passed every check (quality 1-8: a position is present)."""
     talker: str
-    time: str                   # hhmmss.ss as sent: pairs a GST with its GGA
-    seconds_of_day: float
+    time: str                   # hhmmss[.ss] as sent ("" when the receiver left it empty): pairs a GST
+    seconds_of_day: float | None
     lat: float                  # degrees, north positive
     lon: float                  # degrees, east positive
     quality: int                # 1 GPS, 2 DGPS, 3 PPS, 4 RTK fixed, 5 RTK float, 6 dead reckoning, ...
-    satellites: int
-    hdop: float
-    altitude_m: float           # above mean sea level
+    satellites: int | None
+    hdop: float | None
+    altitude_m: float | None    # above mean sea level
     geoid_separation_m: float | None
     dgps_age_s: float | None
     dgps_station: int | None
+
+    kind = "GGA"
+
+
+@dataclass(frozen=True)
+class Rmc:
+    """RMC, the recommended minimum: a position (status A) with speed, course and date; no altitude."""
+    talker: str
+    time: str
+    seconds_of_day: float | None
+    lat: float
+    lon: float
+    speed_knots: float | None
+    course_deg: float | None
+    date: str                   # ddmmyy as sent, or ""
+
+    kind = "RMC"
+    altitude_m = None
+
+
+@dataclass(frozen=True)
+class Gll:
+    """GLL: a latitude and longitude (status A, or no status in the oldest form); no altitude."""
+    talker: str
+    time: str
+    seconds_of_day: float | None
+    lat: float
+    lon: float
+
+    kind = "GLL"
+    altitude_m = None
 
 
 @dataclass(frozen=True)
@@ -87,8 +127,26 @@ class Gst:
     sigma_lon_m: float
     sigma_alt_m: float
 
+    kind = "GST"
 
-Sentence = Gga | Gst
+
+@dataclass(frozen=True)
+class Other:
+    """A well-framed sentence with a valid checksum that carries no position ARES uses: GSA, GSV,
+    VTG, ZDA, instruments' DPT, HDG, MWV, proprietary `$P...` (`kind` is its address after the
+    talker, e.g. "GSV", or the whole address of a proprietary or encapsulated sentence, e.g.
+    "PUBX", "!AIVDM")."""
+    talker: str                 # "" for a proprietary or encapsulated sentence
+    kind: str
+
+
+Position = Gga | Rmc | Gll
+Sentence = Gga | Rmc | Gll | Gst | Other
+
+
+def address(sentence: Sentence) -> str:
+    """The sentence's address as sent: GNGGA, SDDPT, PUBX."""
+    return f"{sentence.talker}{sentence.kind}"
 
 
 # ---- framing ------------------------------------------------------------------------------
@@ -110,16 +168,16 @@ def _frame(line: str | bytes) -> tuple[str, str, list[str]]:
         raise NmeaError("framing", "empty line")
     if len(line) > MAX_LINE_CHARS:
         raise NmeaError("framing", f"line of {len(line)} characters (at most {MAX_LINE_CHARS})")
-    if line[0] != "$":
-        raise NmeaError("framing", "does not start with '$'")
+    if line[0] not in "$!":
+        raise NmeaError("framing", "does not start with '$' (or '!' for encapsulated data)")
     if any(not (" " <= ch <= "~") for ch in line):
         raise NmeaError("framing", "contains a control or non-ASCII character")
     star = line.find("*")
     if star < 0:
         raise NmeaError("framing", "no '*' before the checksum")
     body, given = line[1:star], line[star + 1:]
-    if "$" in body or "*" in given:
-        raise NmeaError("framing", "more than one '$' or '*'")
+    if "$" in body or "!" in body or "*" in given:
+        raise NmeaError("framing", "more than one '$', '!' or '*'")
     if len(given) != 2 or not set(given) <= _HEX:
         raise NmeaError("framing", f"checksum must be two hex digits, got {given!r}")
     expected = checksum(body)
@@ -130,7 +188,9 @@ def _frame(line: str | bytes) -> tuple[str, str, list[str]]:
     if not _ADDRESS_RE.fullmatch(address):
         raise NmeaError("framing", f"bad address field {address!r}")
     if address.startswith("P"):
-        raise NmeaError("unsupported sentence", f"proprietary sentence {address}")
+        return "", address, fields[1:]          # proprietary: the maker's own layout
+    if line[0] == "!":
+        return "", "!" + address, fields[1:]    # encapsulated data (AIS): never a fix here
     return address[:2], address[2:], fields[1:]
 
 
@@ -180,9 +240,30 @@ def _angle(text: str, hemisphere: str, kind: str) -> float:
     return -value if hemisphere == letters[1] else value
 
 
-def _metres_unit(text: str, reason: str, name: str) -> None:
-    if text != "M":
+def _optional_time(text: str) -> float | None:
+    return None if text == "" else _time(text)
+
+
+def _metres_unit(text: str, reason: str, name: str, optional: bool = False) -> None:
+    if text != "M" and not (optional and text == ""):
         raise NmeaError(reason, f"{name} unit must be M, got {text!r}")
+
+
+def _status(text: str, kind: str) -> None:
+    """RMC / GLL status: A = data valid, V = void (the receiver has no fix)."""
+    if text == "V":
+        raise NmeaError("no fix", f"{kind} status V: the receiver has no fix")
+    if text != "A":
+        raise NmeaError("status", f"{kind} status must be A or V, got {text!r}")
+
+
+def _mode(text: str, kind: str) -> None:
+    """The NMEA 2.3 mode indicator (A autonomous, D differential, E estimated, F float RTK,
+    M manual, N not valid, P precise, R RTK, S simulator)."""
+    if text == MODE_NO_FIX:
+        raise NmeaError("no fix", f"{kind} mode N: data not valid")
+    if not re.fullmatch(r"[ADEFMPRS]?", text, re.ASCII):
+        raise NmeaError("mode", f"{kind} mode indicator must be one of A D E F M N P R S, got {text!r}")
 
 
 # ---- sentences ------------------------------------------------------------------------------
@@ -197,24 +278,22 @@ def _gga(talker: str, f: list[str]) -> Gga:
     quality = int(f[5])
     if quality == 0:
         raise NmeaError("no fix", "fix quality 0: the receiver has no fix")
-    seconds = _time(f[0])
+    seconds = _optional_time(f[0])
     lat = _angle(f[1], f[2], "latitude")
     lon = _angle(f[3], f[4], "longitude")
-    if not re.fullmatch(r"\d{1,2}", f[6], re.ASCII):
+    if f[6] != "" and not re.fullmatch(r"\d{1,2}", f[6], re.ASCII):
         raise NmeaError("satellites", f"satellites in use must be an integer 0-99, got {f[6]!r}")
-    hdop = _number(f[7], "hdop", "HDOP")
-    altitude = _number(f[8], "altitude", "altitude", signed=True)
-    if not ALTITUDE_RANGE_M[0] <= altitude <= ALTITUDE_RANGE_M[1]:
+    hdop = _optional_number(f[7], "hdop", "HDOP")
+    # Null fields are the standard's way of saying "not available": altitude and geoid
+    # separation may each be empty, with or without their unit letter.
+    altitude = _optional_number(f[8], "altitude", "altitude", signed=True)
+    if altitude is not None and not ALTITUDE_RANGE_M[0] <= altitude <= ALTITUDE_RANGE_M[1]:
         raise NmeaError("altitude", f"altitude {altitude} m outside {ALTITUDE_RANGE_M}")
-    _metres_unit(f[9], "altitude", "altitude")
-    # Many receivers leave the geoid separation empty (value and unit): that is allowed.
-    if f[10] == "" and f[11] == "":
-        geoid = None
-    else:
-        geoid = _number(f[10], "geoid", "geoid separation", signed=True)
-        if abs(geoid) > GEOID_SEPARATION_MAX_M:
-            raise NmeaError("geoid", f"geoid separation {geoid} m beyond ±{GEOID_SEPARATION_MAX_M}")
-        _metres_unit(f[11], "geoid", "geoid separation")
+    _metres_unit(f[9], "altitude", "altitude", optional=altitude is None)
+    geoid = _optional_number(f[10], "geoid", "geoid separation", signed=True)
+    if geoid is not None and abs(geoid) > GEOID_SEPARATION_MAX_M:
+        raise NmeaError("geoid", f"geoid separation {geoid} m beyond ±{GEOID_SEPARATION_MAX_M}")
+    _metres_unit(f[11], "geoid", "geoid separation", optional=geoid is None)
     age = _optional_number(f[12], "dgps", "age of differential corrections")
     if f[13] == "":
         station = None
@@ -223,8 +302,49 @@ def _gga(talker: str, f: list[str]) -> Gga:
     else:
         raise NmeaError("dgps", f"differential station id must be 0-{MAX_DGPS_STATION_ID}, got {f[13]!r}")
     return Gga(talker=talker, time=f[0], seconds_of_day=seconds, lat=lat, lon=lon, quality=quality,
-               satellites=int(f[6]), hdop=hdop, altitude_m=altitude, geoid_separation_m=geoid,
-               dgps_age_s=age, dgps_station=station)
+               satellites=int(f[6]) if f[6] else None, hdop=hdop, altitude_m=altitude,
+               geoid_separation_m=geoid, dgps_age_s=age, dgps_station=station)
+
+
+def _rmc(talker: str, f: list[str]) -> Rmc:
+    if len(f) not in RMC_FIELDS:
+        raise NmeaError("field count", f"RMC has 11, 12 or 13 fields after the address, got {len(f)}")
+    _status(f[1], "RMC")     # first: a void RMC leaves the position empty
+    if len(f) >= 12:
+        _mode(f[11], "RMC")
+    if len(f) == 13 and not re.fullmatch(r"[SCUV]?", f[12], re.ASCII):
+        raise NmeaError("status", f"RMC navigational status must be S, C, U or V, got {f[12]!r}")
+    seconds = _optional_time(f[0])
+    lat = _angle(f[2], f[3], "latitude")
+    lon = _angle(f[4], f[5], "longitude")
+    speed = _optional_number(f[6], "speed", "speed over ground")
+    course = _optional_number(f[7], "course", "course over ground")
+    if course is not None and course > 360.0:
+        raise NmeaError("course", f"course {course} deg beyond 360")
+    if f[8]:
+        m = _DATE_RE.fullmatch(f[8])
+        if not m or not (1 <= int(m[1]) <= 31 and 1 <= int(m[2]) <= 12):
+            raise NmeaError("date", f"date must be ddmmyy, got {f[8]!r}")
+    variation = _optional_number(f[9], "variation", "magnetic variation")
+    if variation is not None and variation > 180.0:
+        raise NmeaError("variation", f"magnetic variation {variation} deg beyond 180")
+    if f[10] not in ("", "E", "W"):
+        raise NmeaError("variation", f"magnetic variation direction must be E or W, got {f[10]!r}")
+    return Rmc(talker=talker, time=f[0], seconds_of_day=seconds, lat=lat, lon=lon, speed_knots=speed,
+               course_deg=course, date=f[8])
+
+
+def _gll(talker: str, f: list[str]) -> Gll:
+    if len(f) not in GLL_FIELDS:
+        raise NmeaError("field count", f"GLL has 4 to 7 fields after the address, got {len(f)}")
+    if len(f) >= 6:
+        _status(f[5], "GLL")
+    if len(f) == 7:
+        _mode(f[6], "GLL")
+    lat = _angle(f[0], f[1], "latitude")
+    lon = _angle(f[2], f[3], "longitude")
+    time = f[4] if len(f) >= 5 else ""
+    return Gll(talker=talker, time=time, seconds_of_day=_optional_time(time), lat=lat, lon=lon)
 
 
 def _gst(talker: str, f: list[str]) -> Gst:
@@ -247,18 +367,16 @@ def _gst(talker: str, f: list[str]) -> Gst:
                sigma_lon_m=sigma_lon, sigma_alt_m=sigma_alt)
 
 
-_PARSERS = {"GGA": _gga, "GST": _gst}
+_PARSERS = {"GGA": _gga, "RMC": _rmc, "GLL": _gll, "GST": _gst}
 
 
 def parse_sentence(line: str | bytes) -> Sentence:
-    """One line -> a validated Gga or Gst, else NmeaError (and nothing else)."""
+    """One line -> a validated Gga, Rmc, Gll, Gst or Other, else NmeaError (and nothing else)."""
     try:
         talker, kind, fields = _frame(line)
-        parser = _PARSERS.get(kind)
+        parser = _PARSERS.get(kind) if talker else None
         if parser is None:
-            raise NmeaError("unsupported sentence", f"{talker}{kind} is not a sentence this parser reads")
-        if talker not in TALKERS:
-            raise NmeaError("unsupported sentence", f"talker {talker!r} is not a GNSS receiver")
+            return Other(talker=talker, kind=kind)
         return parser(talker, fields)
     except NmeaError:
         raise
@@ -284,7 +402,7 @@ class NmeaReader:
         except NmeaError as exc:
             self.reject(exc)
             return None
-        self.accepted["GGA" if isinstance(sentence, Gga) else "GST"] += 1
+        self.accepted[address(sentence)] += 1
         return sentence
 
     def reject(self, error: NmeaError) -> int:

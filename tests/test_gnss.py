@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 from hypothesis import given, settings
@@ -10,7 +11,7 @@ from hypothesis import strategies as st
 from ares import config, run_config
 from ares.clock import ManualClock
 from ares.config import UtmOrigin
-from ares.geodesy import LocalFrame
+from ares.geodesy import LocalFrame, origin_at
 from ares.membus import MemoryNetwork
 from ares.messages import GnssSentences
 from ares.nmea import sentence as nmea_sentence
@@ -98,11 +99,11 @@ def test_variances_and_origin_come_from_config_even_after_the_json_round_trip():
 
 
 @pytest.mark.parametrize("lat, lon, reason", [
-    ("4024.0000000", "00900.0000000", "utm zone"),      # 9 deg W: zone 29, next door
-    ("4024.0000000", "01000.0000000", "utm zone"),      # wrong hemisphere of longitude (E): zone 32
-    ("8500.0000000", "00342.0000000", "utm range"),     # beyond UTM's 84 deg N
+    ("4024.0000000", "00900.0000000", "far from origin"),   # 9 deg W: zone 29, ~450 km away
+    ("4024.0000000", "01000.0000000", "far from origin"),   # wrong hemisphere of longitude (E): zone 32
+    ("8500.0000000", "00342.0000000", "utm range"),         # beyond UTM's 84 deg N
 ])
-def test_a_fix_outside_the_sites_utm_zone_is_rejected(lat, lon, reason):
+def test_a_fix_far_from_the_sites_origin_is_rejected(lat, lon, reason):
     ew = "E" if lon.startswith("010") else "W"
     gga = parse_sentence(gga_with({2: lat, 4: lon, 5: ew}))
     with pytest.raises(GnssError) as info:
@@ -112,9 +113,26 @@ def test_a_fix_outside_the_sites_utm_zone_is_rejected(lat, lon, reason):
 
 def test_a_southern_fix_is_rejected_for_a_northern_origin():
     gga = parse_sentence(gga_with({3: "S"}))
-    with pytest.raises(GnssError, match="zone 30S") as info:
+    with pytest.raises(GnssError, match="km from the site's origin") as info:
         PROJECTOR.fix(gga)
-    assert info.value.reason == "utm zone"
+    assert info.value.reason == "far from origin"
+
+
+@pytest.mark.parametrize("lat, lon, dlat, dlon", [
+    (52.3, 11.998, 0.0, 1e-5),          # eastwards across 12 E: zone 32 into 33
+    (-33.9, 149.998, 0.0, 1e-5),        # across 150 E in the south: zone 55 into 56
+    (0.002, 27.0, -1e-5, 0.0),          # southwards across the equator
+    (-0.002, -36.0, 1e-5, 0.0),         # northwards across it
+])
+def test_fixes_across_a_zone_boundary_or_the_equator_stay_continuous(lat, lon, dlat, dlon):
+    """The frame stays in the origin's zone and hemisphere: a drive across a zone boundary or
+    the equator moves on smoothly, with no jump of hundreds of kilometres."""
+    frame = LocalFrame(origin_at(lat, lon, 30.0))
+    points = [frame.project(lat + i * dlat, lon + i * dlon, None) for i in range(400)]    # ~0.4 km
+    assert {p.zone for p in points} == {frame.zone} and all(p.z is None for p in points)
+    steps = [math.hypot(b.x - a.x, b.y - a.y) for a, b in zip(points, points[1:])]
+    assert 0.5 < min(steps) and max(steps) / min(steps) < 1.0001
+    assert frame.to_latlon(points[-1].x, points[-1].y) == pytest.approx((lat + 399 * dlat, lon + 399 * dlon), abs=1e-8)
 
 
 def test_pairing_takes_the_gst_of_the_same_time_in_either_order():
@@ -162,8 +180,8 @@ def test_gnss_node_publishes_fixes_for_good_lines_and_survives_bad_ones(gnss_nod
         "\x00\xff garbage",                                                      # framing
         gga_with({2: "4099.0000000"}),                                            # latitude
         gga_with({6: "0"}),                                                       # no fix
-        gga_with({2: "4024.0000000", 4: "00900.0000000"}),                        # utm zone
-        nmea_sentence("GPRMC,100000.00,A,4024.0,N,00342.0,W,0.0,0.0,010124,,,A"),  # unsupported
+        gga_with({2: "4024.0000000", 4: "00900.0000000"}),                        # far from origin
+        nmea_sentence("GPRMC,100000.00,A,4024.0,N,00342.0,W,0.0,0.0,010124,,,A"),  # not used, not bad
     ]
     for i in range(5):
         t = 10.0 + i
@@ -179,7 +197,7 @@ def test_gnss_node_publishes_fixes_for_good_lines_and_survives_bad_ones(gnss_nod
     rejections = [e for _, e in events.drain() if e.kind == "nmea_rejected"]
     assert all(e.source == "gnss" for e in rejections)
     assert sorted(e.data["reason"] for e in rejections) == sorted(
-        {"checksum", "framing", "latitude", "no fix", "utm zone", "unsupported sentence"})
+        {"checksum", "framing", "latitude", "no fix", "far from origin"})
     assert all(e.data["count"] == 1 for e in rejections)
 
     # still alive and well after the garbage; 10 s after the first, a reason is reported again

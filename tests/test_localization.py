@@ -436,3 +436,16 @@ def test_localization_and_odometry_manager_nodes():
     last_pose_t = max(m.t for _, m in loop.poses.drain())
     assert last_pose_t <= silent_from + PARAMS.max_extrapolation_s
     assert loop.scores.latest.score == 0.0 and loop.scores.latest.pose_age_s > 0.5
+
+
+def test_fixes_without_altitude_track_the_position_and_leave_the_height_alone():
+    """A receiver that sends no altitude (GGA's altitude empty): x, y as usual; z starts unknown
+    and is taken from the first fix that has one."""
+    messages = drive(20.0, yaw0=0.2)
+    no_z = [(k, m.model_copy(update={"z": None, "var_z": None}) if k == "gnss" and m.t < 10.0 else m, truth)
+            for k, m, truth in messages]
+    early, early_errors = run_localizer([m for m in no_z if m[1].t < 10.0])
+    assert max(math.hypot(e[1], e[2]) for e in early_errors if e[0] > 5.0) < 0.05
+    assert early.altitude.var >= 1e5            # still unknown: no fix has given a height
+    loc, errors = run_localizer(no_z)
+    assert loc.altitude.var < 1.0 and abs(errors[-1][4].z) < 0.05     # the fixes from 10 s on said z = 0

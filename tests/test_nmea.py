@@ -1,6 +1,7 @@
-"""The strict NMEA parser (perception/nmea.py): differential against pynmea2 on valid sentences,
-fuzzing with malformed ones (nothing but NmeaError escapes, nothing malformed yields a fix),
-and one hand-written case per rejection reason."""
+"""The strict NMEA parser (perception/nmea.py): differential against pynmea2 on valid sentences
+(GGA in every form the standard allows, RMC, GLL, GST), fuzzing with malformed ones (nothing but
+NmeaError escapes, nothing malformed yields a fix), and one hand-written case per rejection
+reason."""
 from __future__ import annotations
 
 import collections
@@ -19,7 +20,7 @@ from ares.route import Route
 from ares.sim.params import SimGnssParams
 from ares.sim.sensors import GnssSensor
 from ares.sim.vehicle import VehicleState
-from perception.nmea import Gga, Gst, NmeaError, NmeaReader, parse_sentence
+from perception.nmea import Gga, Gll, Gst, NmeaError, NmeaReader, Other, Rmc, parse_sentence
 
 ROUTE = Route.from_tour("default")
 FRAME = LocalFrame(UtmOrigin())
@@ -49,24 +50,58 @@ def decimals(max_digits: int = 7):
         lambda n: st.just("") if n == 0 else st.text("0123456789", min_size=n, max_size=n).map(lambda d: "." + d))
 
 
-@st.composite
-def valid_gga(draw) -> str:
-    talker = draw(st.sampled_from(["GP", "GN", "GL", "GA", "GB"]))
-    hh, mm, ss = draw(st.integers(0, 23)), draw(st.integers(0, 59)), draw(st.integers(0, 59))
-    time = f"{hh:02d}{mm:02d}{ss:02d}{draw(decimals(3))}"
+TALKERS = ["GP", "GN", "GL", "GA", "GB", "BD", "GQ", "GI", "II", "IN"]
+
+
+def hhmmss(draw) -> str:
+    return f"{draw(st.integers(0, 23)):02d}{draw(st.integers(0, 59)):02d}{draw(st.integers(0, 59)):02d}{draw(decimals(3))}"
+
+
+def lat_lon(draw) -> tuple[str, str, str, str]:
     lat = f"{draw(st.integers(0, 89)):02d}{draw(st.integers(0, 59)):02d}.{draw(st.integers(0, 10**7 - 1)):07d}"
     lon = f"{draw(st.integers(0, 179)):03d}{draw(st.integers(0, 59)):02d}.{draw(st.integers(0, 10**4 - 1))}"
-    ns, ew = draw(st.sampled_from("NS")), draw(st.sampled_from("EW"))
+    return lat, draw(st.sampled_from("NS")), lon, draw(st.sampled_from("EW"))
+
+
+@st.composite
+def valid_gga(draw, nulls: bool = False) -> str:
+    """A GGA with a fix; with `nulls`, the fields a receiver may leave empty sometimes are."""
+    empty = (lambda: draw(st.booleans())) if nulls else (lambda: False)
+    talker = draw(st.sampled_from(TALKERS))
+    time = "" if empty() else hhmmss(draw)
+    lat, ns, lon, ew = lat_lon(draw)
     quality = draw(st.integers(1, 8))
     sats = draw(st.integers(0, 99))
-    sats = f"{sats:02d}" if draw(st.booleans()) else str(sats)
-    hdop = f"{draw(st.integers(0, 99))}{draw(decimals(2))}"
+    sats = "" if empty() else f"{sats:02d}" if draw(st.booleans()) else str(sats)
+    hdop = "" if empty() else f"{draw(st.integers(0, 99))}{draw(decimals(2))}"
     alt = f"{draw(st.sampled_from(['', '-']))}{draw(st.integers(0, 999))}{draw(decimals(3))}"
-    geoid = draw(st.one_of(st.just(("", "")),
+    alt = ("", draw(st.sampled_from(["", "M"]))) if empty() else (alt, "M")
+    geoid = draw(st.one_of(st.just(("", "")), st.just(("", "M")),
                            st.tuples(st.integers(-100, 100).map(lambda g: f"{g}.{abs(g) % 10}"), st.just("M"))))
     age, station = draw(st.sampled_from([("", ""), ("1.0", "0001"), ("2", "1023")]))
-    body = f"{talker}GGA,{time},{lat},{ns},{lon},{ew},{quality},{sats},{hdop},{alt},M,{geoid[0]},{geoid[1]},{age},{station}"
+    body = (f"{talker}GGA,{time},{lat},{ns},{lon},{ew},{quality},{sats},{hdop},{alt[0]},{alt[1]},{geoid[0]},"
+            f"{geoid[1]},{age},{station}")
     return nmea_sentence(body)
+
+
+@st.composite
+def valid_rmc(draw) -> str:
+    lat, ns, lon, ew = lat_lon(draw)
+    speed = "" if draw(st.booleans()) else f"{draw(st.integers(0, 99))}{draw(decimals(3))}"
+    course = "" if draw(st.booleans()) else f"{draw(st.integers(0, 359))}{draw(decimals(2))}"
+    date = f"{draw(st.integers(1, 28)):02d}{draw(st.integers(1, 12)):02d}{draw(st.integers(0, 99)):02d}"
+    variation = draw(st.sampled_from([",", "2.1,E", "0.5,W"]))
+    tail = draw(st.sampled_from(["", ",A", ",D", ",R", ",F", ",A,V", ",D,S"]))
+    return nmea_sentence(f"{draw(st.sampled_from(TALKERS))}RMC,{hhmmss(draw)},A,{lat},{ns},{lon},{ew},{speed},"
+                         f"{course},{date},{variation}{tail}")
+
+
+@st.composite
+def valid_gll(draw) -> str:
+    lat, ns, lon, ew = lat_lon(draw)
+    tail = draw(st.sampled_from(["", f",{hhmmss(draw)}", f",{hhmmss(draw)},A", f",{hhmmss(draw)},A,A",
+                                 f",{hhmmss(draw)},A,D"]))
+    return nmea_sentence(f"{draw(st.sampled_from(TALKERS))}GLL,{lat},{ns},{lon},{ew}{tail}")
 
 
 @st.composite
@@ -80,14 +115,20 @@ def valid_gst(draw) -> str:
 
 def assert_same_as_pynmea2(line: str, parsed) -> None:
     ref = pynmea2.parse(line, check=True)
-    if isinstance(parsed, Gga):
-        assert ref.sentence_type == "GGA"
+    optional = lambda text, kind: kind(text) if text else None      # noqa: E731
+    if isinstance(parsed, (Gga, Rmc, Gll)):
+        assert ref.sentence_type == parsed.kind
         assert parsed.lat == pytest.approx(ref.latitude, abs=1e-9)
         assert parsed.lon == pytest.approx(ref.longitude, abs=1e-9)
+    if isinstance(parsed, Gga):
         assert parsed.quality == int(ref.gps_qual)
-        assert parsed.satellites == int(ref.num_sats)
-        assert parsed.hdop == float(ref.horizontal_dil)
+        assert parsed.satellites == optional(ref.num_sats, int)
+        assert parsed.hdop == optional(ref.horizontal_dil, float)
         assert parsed.altitude_m == ref.altitude
+    elif isinstance(parsed, Rmc):
+        assert parsed.speed_knots == ref.spd_over_grnd and parsed.course_deg == ref.true_course
+    elif isinstance(parsed, Gll):
+        assert parsed.time == (ref.data[4] if len(ref.data) > 4 else "")
     else:
         assert ref.sentence_type == "GST"
         assert (parsed.sigma_lat_m, parsed.sigma_lon_m, parsed.sigma_alt_m) == (
@@ -151,9 +192,18 @@ def test_line_endings_lower_case_checksum_and_bytes_are_accepted():
     (nmea_sentence("gpgga,1,2"), "framing", "address"),
     (GGA[:-2] + ("00" if GGA[-2:] != "00" else "01"), "checksum", "does not match"),
     (GGA.replace("5321.6802", "5321.6803"), "checksum", "does not match"),   # checksum kept
-    (nmea_sentence("GPRMC,092750.000,A,5321.6802,N,00630.3372,W,0.02,31.66,280511,,,A"), "unsupported sentence", "GPRMC"),
-    (nmea_sentence("PUBX,00,1"), "unsupported sentence", "proprietary"),
-    (nmea_sentence(GGA_BODY.replace("GPGGA", "XXGGA")), "unsupported sentence", "talker"),
+    (nmea_sentence("GPRMC,092750.000,V,,,,,,,280511,,,N"), "no fix", "status V"),
+    (nmea_sentence("GPRMC,092750.000,A,5321.6802,N,00630.3372,W,0.02,31.66,280511,,,N"), "no fix", "mode N"),
+    (nmea_sentence("GPRMC,092750.000,X,5321.6802,N,00630.3372,W,0.02,31.66,280511,,"), "status", "A or V"),
+    (nmea_sentence("GPRMC,092750.000,A,5321.6802,N,00630.3372,W,0.02,31.66,280511"), "field count", "11, 12 or 13"),
+    (nmea_sentence("GPRMC,092750.000,A,5321.6802,N,00630.3372,W,0.02,31.66,321399,,"), "date", "ddmmyy"),
+    (nmea_sentence("GPRMC,092750.000,A,5321.6802,N,00630.3372,W,0.02,361.0,280511,,"), "course", "360"),
+    (nmea_sentence("GPRMC,092750.000,A,5321.6802,N,00630.3372,W,0.02,31.66,280511,1.0,X"), "variation", "E or W"),
+    (nmea_sentence("GPRMC,092750.000,A,5321.6802,N,00630.3372,W,0.02,31.66,280511,,,Q"), "mode", "mode indicator"),
+    (nmea_sentence("GPGLL,5321.6802,N,00630.3372,W,092750.000,V,N"), "no fix", "status V"),
+    (nmea_sentence("GPGLL,5321.6802,N,00630.3372,W,092750.000,A,N"), "no fix", "mode N"),
+    (nmea_sentence("GPGLL,5321.6802,N,00630.3372"), "field count", "4 to 7"),
+    (nmea_sentence("GPGLL,,,,,092750.000,A,A"), "latitude", "ddmm"),
     (nmea_sentence(GGA_BODY + ",extra"), "field count", "14 fields"),
     (nmea_sentence("GPGST,092750.000,0.01,0.01"), "field count", "8 fields"),
     (with_field(GGA, 6, "0"), "no fix", "no fix"),
@@ -190,6 +240,44 @@ def test_each_rejection_has_its_reason_and_names_the_field(line, reason, words):
     assert words in str(info.value)
 
 
+@pytest.mark.parametrize("line, expected", [
+    # what a real receiver's log holds beside its fixes: parsed, checked, not an error
+    (nmea_sentence("GPGSV,3,1,11,03,03,111,00,04,15,270,00,06,01,010,00,13,06,292,00"), Other("GP", "GSV")),
+    (nmea_sentence("GNGSA,A,3,10,07,05,02,29,04,08,13,,,,,1.72,1.03,1.38"), Other("GN", "GSA")),
+    (nmea_sentence("GPVTG,054.7,T,034.4,M,005.5,N,010.2,K"), Other("GP", "VTG")),
+    (nmea_sentence("GPZDA,201530.00,04,07,2002,00,00"), Other("GP", "ZDA")),
+    (nmea_sentence("SDDPT,3.4,0.0"), Other("SD", "DPT")),
+    (nmea_sentence("HCHDG,101.1,,,7.1,W"), Other("HC", "HDG")),
+    (nmea_sentence("WIMWV,214.8,R,0.1,K,A"), Other("WI", "MWV")),
+    (nmea_sentence("PUBX,00,081350.00,4717.113210,N"), Other("", "PUBX")),
+    (nmea_sentence("PGRME,15.0,M,45.0,M,25.0,M"), Other("", "PGRME")),
+    ("!AIVDM,1,1,,A,13aEOK?P00PD2wVMdLDRhgvL289?,0*26", Other("", "!AIVDM")),
+])
+def test_sentences_without_a_position_are_recognised_not_rejected(line, expected):
+    assert parse_sentence(line) == expected
+
+
+def test_position_forms_from_any_talker_with_null_fields():
+    # whole seconds, an integer altitude, no geoid separation (its unit kept), no HDOP: all allowed
+    gga = parse_sentence(nmea_sentence("INGGA,094736,4807.038,N,01131.000,E,1,,,545,M,,M,,"))
+    assert (gga.talker, gga.seconds_of_day, gga.altitude_m, gga.geoid_separation_m, gga.hdop, gga.satellites) == (
+        "IN", 9 * 3600 + 47 * 60 + 36, 545.0, None, None, None)
+    no_altitude = parse_sentence(nmea_sentence("GNGGA,094736.00,3351.5040,S,15112.8110,E,4,12,0.6,,,,,,"))
+    assert no_altitude.altitude_m is None and no_altitude.lat == pytest.approx(-(33 + 51.504 / 60))
+    whole_minutes = parse_sentence(nmea_sentence("GPGGA,094736,4807,N,01131,E,1,08,0.9,545.4,M,47.0,M,,"))
+    assert whole_minutes.lat == pytest.approx(48 + 7 / 60)
+    rmc = parse_sentence(nmea_sentence("GARMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W"))
+    assert isinstance(rmc, Rmc) and rmc.date == "230394" and rmc.altitude_m is None
+    gll = parse_sentence(nmea_sentence("BDGLL,4916.45,N,12311.12,W"))       # the oldest form: no time
+    assert isinstance(gll, Gll) and gll.time == "" and gll.lon == pytest.approx(-(123 + 11.12 / 60))
+
+
+@settings(max_examples=300, deadline=None)
+@given(line=st.one_of(valid_gga(nulls=True), valid_rmc(), valid_gll()))
+def test_every_valid_form_of_the_position_sentences_agrees_with_pynmea2(line):
+    assert_same_as_pynmea2(line, parse_sentence(line))
+
+
 def test_a_number_too_big_for_a_float_is_rejected(monkeypatch):
     # 400 digits read as float('inf'): even past the line-length guard, no infinite sigma gets out
     from perception import nmea
@@ -202,15 +290,15 @@ def test_a_number_too_big_for_a_float_is_rejected(monkeypatch):
 # ---- fuzzing: malformed lines -------------------------------------------------------------------
 
 BAD_FIELDS = {   # field index (0 = address) -> values that must be refused, with the reason
-    1: (["", "246000", "126000", "120060.00", "12000", "1200000", "ab0000", "nan", "-12000"], "time"),
+    1: (["246000", "126000", "120060.00", "12000", "1200000", "ab0000", "nan", "-12000"], "time"),
     2: (["", "9100.0", "4060.0", "400.0", "-4025.1", "4025.1e1", "9000.0001", "inf", "40 25.1"], "latitude"),
     3: (["", "E", "n", "X", "NN"], "latitude"),
     4: (["", "18100.0", "00360.0", "0036.0", "nan", "+00342.1"], "longitude"),
     5: (["", "N", "w", "EW"], "longitude"),
     6: (["", "9", "-1", "10", "a", "4.0"], "quality"),
-    7: (["", "100", "-1", "1.5", "x", "1e1"], "satellites"),
-    8: (["", "-0.5", "nan", "inf", "1e3", "Infinity", "0x1"], "hdop"),
-    9: (["", "nan", "-inf", "1e3", "99999", "-5000", "--1", "1.2.3"], "altitude"),
+    7: (["100", "-1", "1.5", "x", "1e1"], "satellites"),
+    8: (["-0.5", "nan", "inf", "1e3", "Infinity", "0x1"], "hdop"),
+    9: (["nan", "-inf", "1e3", "99999", "-5000", "--1", "1.2.3"], "altitude"),
     10: (["", "F", "m", "MM"], "altitude"),
     11: (["nan", "500", "x", "1e1"], "geoid"),
     12: (["F", "", "m"], "geoid"),

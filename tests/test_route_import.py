@@ -24,13 +24,14 @@ from ares.messages import GnssSentences
 from ares.nmea import sentence as nmea_sentence
 from ares.route import Route, RouteError
 from ares.route_import import (RouteImportError, RouteImportSettings, detect_format, drop_standstill, import_route,
-                               read_nmea_points, resample_even)
+                               project_fixes, read_nmea_log, resample_even)
 from ares.sim.params import SimParams
 from ares.sim.sensors import GnssSensor
 from ares.sim.vehicle import VehicleState
 from perception.gnss import GnssParams, GnssProjector
 
 from conftest import REPO, free_port
+from receiver_logs import drive_times
 
 CFG = run_config.build()
 SIM_GNSS = config.section(CFG, "sim", SimParams).gnss
@@ -44,29 +45,13 @@ STOP_S, WAIT_S, HZ = 300.0, 60.0, 5.0
 # ---- making recordings ---------------------------------------------------------------------------
 
 def drive_log(route: Route, seed: int = 3, stop_s: float | None = STOP_S, wait_s: float = WAIT_S,
-              hz: float = HZ, cruise: float = 3.5, lateral_accel: float = 0.35, accel: float = 0.5) -> list[str]:
-    """NMEA (GGA + GST) of a drive from s = 0 to the end, recorded at `hz`: speed limited by the
-    curvature and by accel/decel ramps, starting and ending at rest, waiting wait_s at stop_s."""
-    ds = 0.25
-    s = np.arange(0.0, route.length, ds)
-    k = np.abs(np.interp(s, route.s, route.curvature))
-    v = np.clip(np.sqrt(lateral_accel / np.maximum(k, 1e-9)), 1.0, cruise)
-    stop_i = int(stop_s / ds) if stop_s is not None else None
-    v[0] = v[-1] = 0.0
-    if stop_i is not None:
-        v[stop_i] = 0.0
-    for i in range(1, len(s)):                      # accelerate out of every stop...
-        v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2 * accel * ds))
-    for i in range(len(s) - 2, -1, -1):             # ...and brake into it
-        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2 * accel * ds))
-    t = np.concatenate([[0.0], np.cumsum(ds / ((v[1:] + v[:-1]) / 2))])
-    if stop_i is not None:                          # the wait: time passes, s does not
-        t[stop_i + 1:] += wait_s
-        s, t = np.insert(s, stop_i + 1, s[stop_i]), np.insert(t, stop_i + 1, t[stop_i] + wait_s)
-    times = np.arange(0.0, t[-1], 1.0 / hz)
+              hz: float = HZ, **profile) -> list[str]:
+    """NMEA (GGA + GST) of a drive from s = 0 to the end through the simulator's GNSS model,
+    recorded at `hz`, waiting wait_s at stop_s."""
+    times, s = drive_times(route, hz, stop_s, wait_s, **profile)
     gnss = GnssSensor(route, SIM_GNSS, FRAME, rng=np.random.default_rng(seed), noise=True)
     lines = []
-    for ti, si in zip(times, np.interp(times, t, s)):
+    for ti, si in zip(times, s):
         x, y, z, _ = route.point_at(si)
         lines += gnss.measure(VehicleState(t=float(ti), x=x, y=y, z=z, s=float(si)))["sentences"]
     return lines
@@ -164,8 +149,7 @@ def test_nmea_log_of_the_tour_gives_its_geometry_within_centimetres(tour_import)
 
 def test_the_standstill_is_de_duplicated(tour_import):
     log, result, _ = tour_import
-    projector = GnssProjector(FRAME, config.section(CFG, "gnss", GnssParams))
-    raw = read_nmea_points(log.read_bytes(), log.name, projector).xyz
+    raw = project_fixes(read_nmea_log(log.read_bytes(), log.name), FRAME, log.name)
     assert result.points_in == len(raw)
     assert result.points_in - result.kept >= WAIT_S * HZ - 5          # the 60 s wait, ~300 fixes
     stop = np.array(TOUR_GEOMETRY.point_at(STOP_S)[:2])
@@ -189,7 +173,9 @@ def test_the_written_file_is_an_evenly_spaced_open_route_with_its_summary(tour_i
     assert step == pytest.approx(0.5, abs=0.005)
     assert result.closed_loop and result.loop_gap_m < 1.0
     summary = result.summary()
-    assert f"{result.points_in} fixes in, {result.kept} kept" in summary
+    assert f"{result.points_in} GGA fixes in, {result.kept} kept" in summary
+    assert "origin (the configured one)" in summary and result.origin == config.core(CFG).origin_utm
+    assert Route.from_csv(out).origin == result.origin
     assert "closed loop detected" in summary and "open route" in summary and "length 15" in summary
     assert not Route.from_csv(out).closed
 
@@ -291,20 +277,24 @@ def with_field(sentence: str, index: int, value: str) -> str:
     (lambda g: g[:-2] + ("00" if g[-2:] != "00" else "01"), 7, "checksum"),
     (lambda g: g[:25], 9, "framing"),
     (lambda g: with_field(g, 2, "4099.0000000"), 5, "latitude"),
-    (lambda g: with_field(g, 4, "01000.0000000"), 11, "utm zone"),
+    (lambda g: with_field(g, 4, "01000.0000000"), 11, "far from origin"),
     (lambda g: with_field(g, 7, "x"), 3, "satellites"),
 ])
-def test_a_bad_nmea_line_is_named_and_can_be_skipped(tmp_path, bad, lineno, words):
+def test_a_bad_nmea_line_is_counted_and_skipped_or_with_strict_named(tmp_path, bad, lineno, words):
     lines = good_lines()
     lines[lineno - 1] = bad(lines[lineno - 1])          # odd lines are GGA, even ones GST
     src = tmp_path / "drive.nmea"
     src.write_text("\n".join(lines) + "\n")
     with pytest.raises(RouteImportError, match=f"drive.nmea:{lineno}: {words}"):
-        import_route(src, tmp_path / "out.csv", cfg=CFG)
+        import_route(src, tmp_path / "out.csv", strict=True, cfg=CFG)
     assert not (tmp_path / "out.csv").exists()          # nothing half-written
-    result = import_route(src, tmp_path / "out.csv", skip_bad=True, cfg=CFG)
-    assert dict(result.skipped) == {words: 1}
-    assert f"1 bad lines skipped ({words}: 1)" in result.summary()
+    result = import_route(src, tmp_path / "out.csv", cfg=CFG)
+    if words == "far from origin":
+        assert result.log.far == 1 and not result.log.bad
+        assert "fixes beyond the frame's reach: 1" in result.summary()
+    else:
+        assert dict(result.log.bad) == {words: 1}
+        assert f"skipped, bad lines: {words} 1 (first: line {lineno})" in result.summary()
     assert Route.from_csv(tmp_path / "out.csv").length > 15.0
 
 
@@ -315,8 +305,10 @@ def test_other_sentences_no_fix_and_blank_lines_are_not_errors(tmp_path):
     src = tmp_path / "drive.nmea"
     src.write_text("\n".join([no_fix, "", rmc] + lines + ["  "]) + "\r\n")
     result = import_route(src, cfg=CFG)
-    assert result.points_in == 10 and result.no_fix == 1 and result.ignored == 1 + 10   # RMC + the GSTs
-    assert not result.skipped and "1 no-fix GGA lines ignored" in result.summary()
+    assert result.points_in == 10 and dict(result.log.no_fix) == {"GGA": 1}
+    assert result.log.sentences == {"GPGGA": 10, "GPGST": 10, "GPRMC": 1} and not result.log.bad
+    summary = result.summary()
+    assert "skipped, no fix: GGA 1" in summary and "GPRMC 1 (GPRMC: positions taken from GGA)" in summary
 
 
 @pytest.mark.parametrize("text, words", [
@@ -326,7 +318,9 @@ def test_other_sentences_no_fix_and_blank_lines_are_not_errors(tmp_path):
     ("", "no points"),
     ("# only a comment\nx,y\n", "no points"),
     ("0,0\n0.01,0.02\n0.03,0\n", "never moves"),
-    (nmea_sentence("GPGGA,,,,,,0,00,99.99,,,,,,") + "\n", "no usable GGA fix"),
+    (nmea_sentence("GPGGA,,,,,,0,00,99.99,,,,,,") + "\n", "no usable position.*GGA 1 without a fix"),
+    ("# a logger's header\n" + nmea_sentence("GPGSV,1,1,01,03,03,111,00") + "\n", "no usable position"),
+    ("# a logger's header, nothing else\n", "neither NMEA sentences nor rows"),
 ])
 def test_bad_files_get_a_clear_error(tmp_path, text, words):
     src = tmp_path / ("bad.nmea" if text.startswith("$") else "bad.csv")
@@ -347,7 +341,11 @@ def test_binary_and_missing_files(tmp_path):
 def test_format_detection():
     assert detect_format(b"\n\n$GPGGA,...") == "nmea"
     assert detect_format(b"x,y\n0,0\n") == "csv"
-    assert detect_format(b"") == "csv"
+    assert detect_format(b"") is None and detect_format(b"# just words\n") is None
+    header = "Logger v2.1 \u2014 Bootsfahrt M\u00fcnchen\r\n# port COM3 @ 38400\r\n".encode()
+    assert detect_format(header + b"$GPGGA,1*00\r\n$GPRMC,2*00\r\n") == "nmea"
+    assert detect_format(b"\xef\xbb\xbfx,y\n# c\n0,0\n1,1\n$GPGGA,x*00\n") == "csv"      # rows win
+    assert detect_format(b"2024-05-01T09:47:36Z $GNGGA,1*00\n\\s:GPS1*5A\\$GPRMC,2*00\n") == "nmea"
 
 
 # ---- configuration: the route_import section ------------------------------------------------------
@@ -379,9 +377,9 @@ def test_cli_imports_nmea_and_csv(tmp_path, tour_import, capsys, no_run_config):
     log, _, _ = tour_import
     out = tmp_path / "routes" / "tour.csv"
     assert cli.main(["route", "import", str(log), "-o", str(out)]) == 0
-    line, = capsys.readouterr().out.splitlines()
-    assert line.startswith(f"imported {log.name}: ") and " kept " in line and "closed loop" in line
-    assert str(out) in line and Route.from_csv(out).length > 1500
+    line = capsys.readouterr().out
+    assert line.startswith(f"imported {log.name} -> {out}: ") and " kept " in line and "closed loop" in line
+    assert Route.from_csv(out).length > 1500
 
     src = tmp_path / "road.csv"
     write_campus_road_csv(src)
@@ -396,11 +394,10 @@ def test_cli_errors_exit_non_zero_with_the_line(tmp_path, capsys, no_run_config)
     lines[2] = lines[2][:-2] + ("00" if lines[2][-2:] != "00" else "01")
     src = tmp_path / "drive.nmea"
     src.write_text("\n".join(lines))
-    assert cli.main(["route", "import", str(src), "-o", str(tmp_path / "o.csv")]) == 1
-    err = capsys.readouterr().err
-    assert "ares: error: drive.nmea:3: checksum" in err and "--skip-bad" in err
-    assert cli.main(["route", "import", str(src), "-o", str(tmp_path / "o.csv"), "--skip-bad"]) == 0
-    assert "1 bad lines skipped (checksum: 1)" in capsys.readouterr().out
+    assert cli.main(["route", "import", str(src), "-o", str(tmp_path / "o.csv"), "--strict"]) == 1
+    assert "ares: error: drive.nmea:3: checksum" in capsys.readouterr().err
+    assert cli.main(["route", "import", str(src), "-o", str(tmp_path / "o.csv")]) == 0
+    assert "skipped, bad lines: checksum 1 (first: line 3)" in capsys.readouterr().out
     assert cli.main(["route", "import", str(src), "-o", str(tmp_path / "o.csv"), "--format", "csv"]) == 1
     assert "drive.nmea:1: expected numbers" in capsys.readouterr().err
     assert cli.main(["route", "import", str(tmp_path / "nope.nmea"), "-o", str(tmp_path / "o.csv")]) == 1
@@ -465,7 +462,7 @@ def test_route_record_writes_what_arrives_on_sensors_gnss(router, port, tmp_path
     # what arrived while recording, one sentence a line, nothing lost or reordered in between
     start = published.index(lines[0])
     assert lines == published[start:start + len(lines)]
-    fixes = read_nmea_points(log.read_bytes(), log.name, GnssProjector(FRAME, GnssParams())).xyz
+    fixes = project_fixes(read_nmea_log(log.read_bytes(), log.name), FRAME, log.name)
     result = import_route(log, tmp_path / "recorded_route.csv", cfg=CFG)
     assert np.abs(result.xyz[:, 1]).max() < 0.03
     assert result.length_m == pytest.approx(fixes[-1, 0] - fixes[0, 0], abs=0.05)

@@ -15,7 +15,7 @@
     ares echo KEY [--count N] [--seconds S]
                                    print messages on a topic, one JSON object per line
     ares bench bus [--json] [--seconds S] [--mode peer|client]
-    ares route import FILE -o ROUTE [--format auto|csv|nmea] [--spacing M] [--skip-bad]
+    ares route import FILE -o ROUTE [--format auto|csv|nmea] [--spacing M] [--strict]
                                    build a route file from a CSV of x,y[,z] or an NMEA log
     ares route record FILE [--seconds S]
                                    write the NMEA sentences of the running stack's receiver to FILE

@@ -14,17 +14,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
                                   description="Route files for `ares run --route FILE`.")
     route_sub = route.add_subparsers(dest="route", metavar="ACTION")
     imp = route_sub.add_parser("import", help="build a route file from a CSV of x,y[,z] metres or an NMEA log",
-                               description="Build a route from a recorded drive: project GGA fixes to the local "
-                                           "frame, drop standstill duplicates, resample evenly, smooth, add yaw. "
-                                           "Writes a CSV x,y,z,yaw that `ares run --route` reads.")
-    imp.add_argument("file", metavar="FILE", help="the recording: CSV of x,y[,z] metres, or NMEA (GGA lines)")
+                               description="Build a route from a recorded drive: project the fixes (GGA; RMC or "
+                                           "GLL when a log has none) to a local frame, drop standstill "
+                                           "duplicates, resample evenly, smooth, add yaw. Writes a CSV x,y,z,yaw "
+                                           "with its origin that `ares run --route` reads. A receiver's log is "
+                                           "read as it comes: comments, headers, CRLF, other sentences and "
+                                           "talkers are counted and skipped, and so is a bad line, by reason.")
+    imp.add_argument("file", metavar="FILE", help="the recording: CSV of x,y[,z] metres, or an NMEA log")
     imp.add_argument("-o", "--output", required=True, metavar="ROUTE", help="route file to write (CSV)")
     imp.add_argument("--format", choices=["auto", "csv", "nmea"], default="auto",
-                     help="input format (default: auto, NMEA if the first line starts with '$')")
+                     help="input format (default: auto, NMEA when most lines hold NMEA sentences)")
     imp.add_argument("--spacing", type=positive_float, metavar="M",
                      help="distance between route points, metres (default gnss.route_import.spacing_m, 0.5)")
-    imp.add_argument("--skip-bad", action="store_true",
-                     help="leave out malformed NMEA lines (counted and reported) instead of failing")
+    imp.add_argument("--strict", action="store_true",
+                     help="fail on the first bad NMEA line (bad checksum, broken field, beyond the frame's "
+                          "reach) instead of skipping and counting it")
     rec = route_sub.add_parser("record", help="write the NMEA sentences arriving on sensors/gnss to a file",
                                description="Record an NMEA log from the running stack's GNSS receiver "
                                            "(sensors/gnss), one sentence per line, until --seconds or Ctrl-C. "
@@ -53,7 +57,7 @@ def _route_import(args: argparse.Namespace) -> int:
         raise CliError(f"cannot read the run configuration: {exc}") from None
     try:
         result = route_import.import_route(args.file, args.output, fmt=args.format, spacing_m=args.spacing,
-                                           skip_bad=args.skip_bad, cfg=cfg)
+                                           strict=args.strict, cfg=cfg)
         Route.from_csv(args.output)     # what `ares run --route` will do: it must read it back
     except RouteError as exc:
         raise CliError(str(exc)) from None
