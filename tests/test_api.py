@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from ares.config import VEHICLE_ID_PATTERN
 from ares.messages import EventLevel, Position, ProcessHealth, SensorHealth, StoredEvent, VehicleRecord
 from blackbox.api import CSV_COLUMNS, RECORD_FIELDS, ApiSettings, create_app
 from blackbox.auth import ROLES, add_user
@@ -182,6 +183,18 @@ def test_unknown_vehicle_404(world):
         r = client.get(f"/api/v1/vehicles/nosuch/{path}", headers=auth(tokens["auditor"]))
         assert r.status_code == 404, path
         assert "unknown vehicle 'nosuch'" in r.json()["detail"]
+
+
+def test_vehicle_id_is_a_configured_one(world):
+    """The path's vehicle id is what a stack's configuration allows (ares.config), in ASCII: the
+    same for the schema's reader (ECMA 262, where \\s is no NEL) and the server (where it is)."""
+    client, _, _, _, tokens = world
+    op = client.get("/openapi.json").json()["paths"]["/api/v1/vehicles/{vehicle_id}/latest"]["get"]
+    (param,) = [p for p in op["parameters"] if p["name"] == "vehicle_id"]
+    assert param["schema"]["pattern"] == VEHICLE_ID_PATTERN
+    for bad in ("shuttle\x8501", "shuttle 01", "a" * 65, "é"):
+        r = client.get(f"/api/v1/vehicles/{bad}/latest", headers=auth(tokens["auditor"]))
+        assert r.status_code == 422, repr(bad)
 
 
 # ---- records -----------------------------------------------------------------------------------
@@ -515,6 +528,9 @@ def test_login_form_is_what_its_schema_says(world):
     assert client.post(url, data={**form, "grant_type": "client_credentials"}).status_code == 422
     r = client.post(url, data={**form, "scope": "admin"})
     assert r.status_code == 422 and r.json()["errors"][0]["loc"] == ["body", "scope"]
+    # the longest fields the schema allows, in 4-byte characters: a wrong password, not a refused form
+    r = client.post(url, data={"username": "\U0001d57f" * 64, "password": "\U0001d57f" * 256, "grant_type": "password"})
+    assert r.status_code == 401, r.text
     body = client.get("/openapi.json").json()["paths"][url]["post"]["requestBody"]["content"]
     schema = client.get("/openapi.json").json()["components"]["schemas"]["LoginForm"]
     assert body["application/x-www-form-urlencoded"]["schema"] == {"$ref": "#/components/schemas/LoginForm"}

@@ -43,7 +43,9 @@ def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock
         redoc_url="/redoc" if settings.docs else None,
         telemetry={"tracing": False, "metrics": False, "logs": False, "operation_spans": False},
         max_body_size=settings.limits.max_body_bytes,
-        form_limits={"max_fields": 8, "max_files": 0, "max_part_size": 1024},
+        # the login form: a few fields, none over what its schema allows (256 characters of up to 4 bytes,
+        # percent-encoded: 3 kB)
+        form_limits={"max_fields": 8, "max_files": 0, "max_part_size": 4096},
     )
     app.state.services = services
     app.state.state_dir = sdir              # the TLS certificate's home (blackbox.api.server)

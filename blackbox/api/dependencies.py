@@ -9,6 +9,7 @@ from fastapi import HTTPException, Path, Query, Security
 from fastapi.security import OAuth2PasswordBearer
 from pydantic import AwareDatetime, BeforeValidator
 
+from ares.config import VEHICLE_ID_PATTERN      # what a stack's vehicle id may be: the ids of its records
 from blackbox.api.repository import Repository
 from blackbox.api.settings import TOKEN_PATH, ApiSettings, LimitSettings
 from blackbox.auth import AuthError, Claims, Passwords, Tokens
@@ -20,8 +21,6 @@ ROLES_RECORDS = ("auditor", "operator")                 # browse records
 ROLES_EXPORT = ("auditor",)                             # export records (the black box interface)
 ROLES_EVENTS = ("auditor", "operator", "fleet")         # events and reliability summaries
 ROLES_ADMIN = ("admin",)
-
-VEHICLE_ID_PATTERN = r"^[^/*$?#\s]{1,64}$"              # one key segment of ares/<vehicle_id>/... (ares.cli)
 
 
 # ---- the application's services ------------------------------------------------------------------

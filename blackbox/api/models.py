@@ -156,7 +156,7 @@ def new_user_model(min_password_length: int) -> type[NewUser]:
 # Every error answer of the API, documented on the operations that can give it. A method a path
 # does not have is answered 405 with an Allow header (app.answer_other_methods); an unknown path 404.
 ERROR_DESCRIPTIONS = {
-    400: "Malformed body: not parseable, too many form fields, or a form field over 1 kB",
+    400: "Malformed body: not parseable, too many form fields, or a form field over 4 kB",
     401: "Not authenticated: no token, or an expired, malformed or forged one (send Authorization: Bearer <token>)",
     403: "Forbidden: the token's role may not do this, or the client address is blacklisted "
          "after an abnormal flow of requests (then with Retry-After)",
