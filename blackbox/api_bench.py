@@ -124,7 +124,7 @@ def run_api_bench(progress: Callable[[str], None] | None = None, seconds: float 
         cfg["api"] = ApiSettings.model_validate({
             "state_dir": str(tmp), "host": "127.0.0.1", "port": port, "log_level": "warning",
             "rate_limit": {"client_per_s": 1e9, "client_burst": 1e9},
-            "blacklist": {"abuse_requests_per_s": 1e9}}).model_dump(mode="json")
+            "blacklist": {"abuse_requests_per_s": 1e10}}).model_dump(mode="json")
         run_cfg = config.write_run_config(cfg, tmp / "run_config.json")
         env = {**os.environ, config.RUN_CONFIG_ENV: str(run_cfg)}
         env.pop("ARES_API_SECRET", None)

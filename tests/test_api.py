@@ -15,10 +15,11 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from ares.config import VEHICLE_ID_PATTERN
 from ares.messages import EventLevel, Position, ProcessHealth, SensorHealth, StoredEvent, VehicleRecord
 from blackbox.api import CSV_COLUMNS, RECORD_FIELDS, ApiSettings, create_app
 from blackbox.auth import ROLES, add_user
-from blackbox.store import StoreSettings, StoreUnavailable
+from blackbox.store import RETENTION, StoreSettings, StoreUnavailable
 
 VEHICLE = "shuttle01"
 OTHER = "shuttle02"
@@ -184,6 +185,18 @@ def test_unknown_vehicle_404(world):
         assert "unknown vehicle 'nosuch'" in r.json()["detail"]
 
 
+def test_vehicle_id_is_a_configured_one(world):
+    """The path's vehicle id is what a stack's configuration allows (ares.config), in ASCII: the
+    same for the schema's reader (ECMA 262, where \\s is no NEL) and the server (where it is)."""
+    client, _, _, _, tokens = world
+    op = client.get("/openapi.json").json()["paths"]["/api/v1/vehicles/{vehicle_id}/latest"]["get"]
+    (param,) = [p for p in op["parameters"] if p["name"] == "vehicle_id"]
+    assert param["schema"]["pattern"] == VEHICLE_ID_PATTERN
+    for bad in ("shuttle\x8501", "shuttle 01", "a" * 65, "é"):
+        r = client.get(f"/api/v1/vehicles/{bad}/latest", headers=auth(tokens["auditor"]))
+        assert r.status_code == 422, repr(bad)
+
+
 # ---- records -----------------------------------------------------------------------------------
 
 def test_records_paging(world):
@@ -232,24 +245,42 @@ def test_field_selection(world):
     client, _, _, first, tokens = world
     h = auth(tokens["auditor"])
     r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h,
-                   params={"fields": "speed_mps, mode,position", "start": iso(first), "page_size": 3})
+                   params={"fields": "speed_mps,mode,position", "start": iso(first), "page_size": 3})
     body = r.json()
     assert r.status_code == 200 and body["fields"] == ["time", "speed_mps", "mode", "position"]
     assert all(set(rec) == {"time", "speed_mps", "mode", "position"} for rec in body["records"])
     assert body["records"][0]["position"]["easting"] == 440000.0
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={"fields": "mode,time", "page_size": 1})
+    assert r.status_code == 200 and r.json()["fields"] == ["time", "mode"]
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={"fields": "", "page_size": 1})
+    assert r.status_code == 200 and r.json()["fields"] is None      # nothing selected: every field
+    # the schema's array of field names, comma-separated, each once: anything else is refused
     r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={"fields": "speed_mps,altitude,_id"})
     assert r.status_code == 422
     assert "unknown field(s) 'altitude', '_id'" in r.json()["detail"]
+    for bad in ("speed_mps, mode", "speed_mps,,mode", "mode,mode"):
+        r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={"fields": bad})
+        assert r.status_code == 422, bad
+
+
+def test_fields_enumerated_in_the_schema(world):
+    client, *_ = world
+    op = client.get("/openapi.json").json()["paths"]["/api/v1/vehicles/{vehicle_id}/records"]["get"]
+    (fields,) = [p for p in op["parameters"] if p["name"] == "fields"]
+    assert fields["in"] == "query" and fields["style"] == "form" and fields["explode"] is False
+    assert fields["schema"]["items"]["enum"] == list(RECORD_FIELDS) and fields["schema"]["uniqueItems"] is True
 
 
 @pytest.mark.parametrize("params, message", [
-    ({"start": "2020-01-01T00:00:00Z"}, "retention"),
-    ({"end": "2999-01-01T00:00:00Z"}, "retention"),
-    ({"start": "0001-01-01T00:00:00Z"}, "retention"),
     ({"page_size": 100000}, "page_size"),
     ({"page": 0}, "page"),
-    ({"start": "2025-01-01T00:00:00"}, "timezone"),       # naive: ambiguous
+    ({"start": "2025-01-01T00:00:00"}, "UTC offset"),     # naive: ambiguous
     ({"start": "yesterday"}, "start"),
+    ({"start": "0.5"}, "RFC 3339"),                      # pydantic alone: 0.5 s after 1970
+    ({"end": "2026-01-31"}, "RFC 3339"),
+    ({"end": "2026-01-31 08:00:00Z"}, "RFC 3339"),
+    ({"end": "2026-01-31T08:59:60Z"}, "leap second"),    # only at 23:59:60 UTC
+    ({"fields": "mode,altitude"}, "unknown field"),
 ])
 def test_records_bad_parameters_422(world, params, message):
     client, _, _, _, tokens = world
@@ -258,11 +289,76 @@ def test_records_bad_parameters_422(world, params, message):
     assert message in r.json()["detail"]
 
 
-def test_start_after_end_422(world):
-    client, _, _, first, tokens = world
-    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=auth(tokens["auditor"]),
-                   params={"start": iso(first + timedelta(seconds=60)), "end": iso(first)})
-    assert r.status_code == 422 and "must be before end" in r.json()["detail"]
+def test_windows_beyond_the_retention_are_clipped(store):
+    """Any date-time is a valid bound (the schema says so): what the window holds inside the
+    7-day retention is served, and the answer says that the window was clipped."""
+    now = store.now().replace(microsecond=0)
+    oldest = now - RETENTION
+    # every 10 s from 400 s before the retention's start to 60 s after it: events, then records
+    # (the first insert purged what had expired; the records are in before the next purge is due)
+    store.insert_events([StoredEvent(vehicle_id=VEHICLE, time=oldest + timedelta(seconds=s, milliseconds=500),
+                                     t=s + 0.5, source="test", kind="mark", level=EventLevel.INFO, message=str(s))
+                         for s in range(-400, 60, 10)])
+    store.insert_records([VehicleRecord(vehicle_id=VEHICLE, time=oldest + timedelta(seconds=s), t=float(s),
+                                        mode="READY") for s in range(-400, 60, 10)])
+    app = create_app(store, api_settings(), VEHICLE_ID)
+    add_role_users(store, app)
+    client = TestClient(app)
+    h = auth(token_for(client, "auditor"))
+    url = f"/api/v1/vehicles/{VEHICLE}"
+    inside = [float(s) for s in range(10, 60, 10)]      # the one at the retention's start may have just left it
+
+    def get(path, **params):
+        r = client.get(f"{url}/{path}", params=params, headers=h)
+        assert r.status_code == 200, (path, params, r.text)
+        return r
+
+    long_ago = {"start": "2000-01-01T00:00:00Z", "end": iso(oldest + timedelta(seconds=60))}
+    body = get("records", page_size=1000, **long_ago).json()
+    assert body["clipped"] is True and datetime.fromisoformat(body["start"]) >= oldest
+    assert [r["t"] for r in body["records"]][-5:] == inside and min(r["t"] for r in body["records"]) >= 0
+    body = get("events", page_size=1000, kind="mark", **long_ago).json()
+    assert body["clipped"] is True and [e["t"] for e in body["events"]][-5:] == [t + 0.5 for t in inside]
+    body = get("reliability", **long_ago).json()
+    assert body["clipped"] is True and 5 <= body["records"] <= 6
+    r = get("export", **long_ago)
+    assert r.headers["x-window-clipped"] == "true" and len(r.text.splitlines()) in (5, 6)
+    assert datetime.fromisoformat(r.headers["x-window-start"]) >= oldest
+    assert r.headers["x-window-end"] == iso(oldest + timedelta(seconds=60))
+
+    # a start a moment before the retention's ("now - 7 days" computed earlier) is served as asked
+    body = get("records", page_size=1000, start=iso(oldest - timedelta(seconds=100))).json()
+    assert body["clipped"] is False and [r["t"] for r in body["records"]][:3] == [-100.0, -90.0, -80.0]
+    # not clipped: the window asked for
+    r = get("export", start=iso(oldest + timedelta(seconds=5)), end=iso(oldest + timedelta(seconds=35)))
+    assert r.headers["x-window-clipped"] == "false" and len(r.text.splitlines()) == 3
+    assert get("records", start=iso(now - timedelta(hours=2)))
+    assert get("records").json()["clipped"] is False
+
+    # wholly before the retention, reversed, or empty: nothing, at end = start
+    for params in ({"start": "2000-01-01T00:00:00Z", "end": "2000-01-02T00:00:00Z"},
+                   {"end": "2000-01-02T00:00:00Z"},
+                   {"start": iso(now - timedelta(minutes=1)), "end": iso(now - timedelta(minutes=2))},
+                   {"start": iso(now + timedelta(days=1))}):
+        for path in ("records", "events", "reliability"):
+            body = get(path, **params).json()
+            assert body["clipped"] is True and body["start"] == body["end"], (path, params)
+            assert body.get("total", 0) == 0 and body.get("events", []) == [], path
+            assert body.get("records", 0) in (0, []), path
+        r = get("export", **params)
+        assert r.text == "" and r.headers["x-window-clipped"] == "true"
+        assert r.headers["x-window-start"] == r.headers["x-window-end"]
+    body = get("records", start=iso(now), end=iso(now)).json()
+    assert body["clipped"] is False and body["total"] == 0          # empty as asked
+    # RFC 3339 has them: the year 0000, a leap second
+    assert get("records", start="0000-01-01T00:00:00Z").json()["clipped"] is True
+    leap = (now - timedelta(days=1)).replace(hour=15, minute=59, second=0)
+    body = get("records", start=leap.strftime("%Y-%m-%dT%H:%M:60-08:00"), end=iso(now)).json()
+    assert body["start"] == iso(leap.replace(hour=23, second=59, microsecond=999999))
+    # the extremes of date-time: no overflow, the latest there is
+    body = get("records", start="0001-01-01T00:00:00+01:00", end="9999-12-31T23:59:59-01:00").json()
+    assert body["clipped"] is True and body["end"].startswith("9999-12-31T23:59:59")
+    assert body["total"] in (5, 6)
 
 
 # ---- export ------------------------------------------------------------------------------------
@@ -361,7 +457,7 @@ def test_users_admin_only(world):
     r = client.post("/api/v1/users", headers=h, json={"name": "carol", "role": "fleet", "password": "0123456789ab"})
     assert r.status_code == 409
     r = client.post("/api/v1/users", headers=h, json={"name": "dave", "role": "fleet", "password": "short"})
-    assert r.status_code == 422 and "too short" in r.json()["detail"]
+    assert r.status_code == 422 and "password" in r.json()["detail"] and "at least 10" in r.json()["detail"]
     r = client.post("/api/v1/users", headers=h, json={"name": "Eve!", "role": "fleet", "password": "0123456789ab"})
     assert r.status_code == 422
     r = client.post("/api/v1/users", headers=h, json={"name": "eve", "role": "root", "password": "0123456789ab"})
@@ -406,6 +502,41 @@ def test_nothing_alters_records(world):
     assert writes == {("/api/v1/auth/token", "post"), ("/api/v1/auth/renew", "post"), ("/api/v1/users", "post")}
 
 
+def test_other_methods_get_405_and_allow(world):
+    """Every method a path does not have: 405, with Allow listing exactly the path's methods (the
+    schema's), whatever the path's first route is (/users has GET and POST)."""
+    client, *_ = world
+    paths = client.get("/openapi.json").json()["paths"]
+    for path, ops in paths.items():
+        url = path.replace("{vehicle_id}", VEHICLE)
+        documented = {m.upper() for m in ops}
+        for method in {"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS", "TRACE"} - documented:
+            r = client.request(method, url)
+            assert r.status_code == 405, (method, path)
+            assert set(r.headers["allow"].split(", ")) == documented, (method, path)
+    assert client.options("/api/v1/users").headers["allow"] == "GET, POST"
+    assert client.get("/api/v1/auth/token").headers["allow"] == "POST"
+    assert client.options("/api/v1/nothing").status_code == 404
+
+
+def test_login_form_is_what_its_schema_says(world):
+    client, *_ = world
+    url = "/api/v1/auth/token"
+    form = {"username": "auditor", "password": PASSWORD}
+    assert client.post(url, data=form).status_code == 200
+    assert client.post(url, data={**form, "grant_type": "password"}).status_code == 200
+    assert client.post(url, data={**form, "grant_type": "client_credentials"}).status_code == 422
+    r = client.post(url, data={**form, "scope": "admin"})
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == ["body", "scope"]
+    # the longest fields the schema allows, in 4-byte characters: a wrong password, not a refused form
+    r = client.post(url, data={"username": "\U0001d57f" * 64, "password": "\U0001d57f" * 256, "grant_type": "password"})
+    assert r.status_code == 401, r.text
+    body = client.get("/openapi.json").json()["paths"][url]["post"]["requestBody"]["content"]
+    schema = client.get("/openapi.json").json()["components"]["schemas"]["LoginForm"]
+    assert body["application/x-www-form-urlencoded"]["schema"] == {"$ref": "#/components/schemas/LoginForm"}
+    assert schema["additionalProperties"] is False and schema["required"] == ["username", "password"]
+
+
 def test_errors_documented(world):
     client, *_ = world
     paths = client.get("/openapi.json").json()["paths"]
@@ -415,7 +546,14 @@ def test_errors_documented(world):
         assert {"200", "401", "403", "404", "422", "429", "503"} <= set(paths[path]["get"]["responses"]), path
     for path, ops in paths.items():
         for op in ops.values():
-            assert {"403", "429"} <= set(op["responses"]), path
+            assert {"403", "413", "429"} <= set(op["responses"]), path
+            assert op["responses"]["429"]["headers"]["Retry-After"]["required"] is True, path
+            if "401" in op["responses"]:
+                assert op["responses"]["401"]["headers"]["WWW-Authenticate"]["required"] is True, path
+    assert paths["/api/v1/users"]["post"]["requestBody"]["content"]["application/json"]["schema"] == {
+        "$ref": "#/components/schemas/NewUser"}
+    new_user = client.get("/openapi.json").json()["components"]["schemas"]["NewUser"]
+    assert new_user["properties"]["password"]["minLength"] == 10           # auth.min_password_length
     assert paths["/api/v1/auth/token"]["post"]["requestBody"]["content"].keys() == {"application/x-www-form-urlencoded"}
 
 

@@ -1,54 +1,143 @@
-"""Property-based check of the REST API against its own OpenAPI schema (schemathesis 4).
+"""The REST API against its own OpenAPI schema, live: schemathesis' command line against a real
+`ares api` server (uvicorn, HTTPS with its self-signed certificate, verified) over a store that
+holds records, with every check schemathesis has (`--checks all`: conformance of status codes,
+content types, headers and bodies, negative data rejected, positive data accepted, missing
+required headers, unsupported methods and their Allow header, authentication not ignored, ...)
+in all four phases: the schema's examples, coverage (boundary values and undeclared methods),
+fuzzing, and stateful sequences that follow the schema's links.
 
-For every operation, schemathesis generates requests from the schema (valid and invalid ones)
-and sends them through the ASGI app with a valid token of a role allowed to call it. Each
-response must: not be a server error, carry a status code the schema documents for that
-operation, have a documented content type, and match the documented response schema.
+The auditor's token goes with every request (the admin's for /users, which is the admin's
+only), paced at 30 requests/s, against the production rate limits and blacklist: the run must
+find nothing, and afterwards the client must not be blacklisted. One operation is left out of
+that run: the login form, because every generated login is a wrong password and a burst of
+those gets a client blacklisted by design (test_api_security proves it). The form is checked
+the same way in a run of its own, against a server whose failed-login limits are raised.
 
-schemathesis' parametrize needs the schema when the module is collected (its lazy fixture
-loader does not work with this pytest), so the app and its seeded store are built at import,
-in a temporary directory removed when the module's tests are done.
+A failure fails the test with schemathesis' report (each failure with a curl line to reproduce
+it, and the seed of the run).
 """
 from __future__ import annotations
 
-import atexit
+import json
 import shutil
-import tempfile
+import ssl
+import subprocess
+import sys
+from datetime import timedelta
 from pathlib import Path
 
+import httpx
 import pytest
-import schemathesis
-from fastapi.testclient import TestClient
-from hypothesis import HealthCheck, settings
-from schemathesis.checks import not_a_server_error
-from schemathesis.specs.openapi.checks import (content_type_conformance, response_schema_conformance,
-                                               status_code_conformance)
 
-from blackbox.api import create_app
-from tests.test_api import VEHICLE_ID, add_role_users, api_settings, auth, open_test_store, seed, token_for
+from blackbox.api.models import LoginForm
+from blackbox.auth import Argon2Settings, Passwords, add_user
+from tests.conftest import free_port
+from tests.test_api import PASSWORD, VEHICLE_ID, open_test_store, seed
+from tests.test_api_security import _start_server, _stop, _wait_serving
 
-CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance]
-
-_DIR = Path(tempfile.mkdtemp(prefix="ares-api-schema-"))
-atexit.register(shutil.rmtree, _DIR, True)      # also when the test is collected but not run
-_STORE = open_test_store(_DIR / "blackbox.sqlite")
-seed(_STORE)
-APP = create_app(_STORE, api_settings(), VEHICLE_ID)
-add_role_users(_STORE, APP)
-schema = schemathesis.openapi.from_asgi("/openapi.json", APP)
+PHASES = "examples,coverage,fuzzing,stateful"
+RATE = "30/s"
+MAX_EXAMPLES = 30               # per operation and phase: ~1,000 requests, ~35 s at 30/s
+LOGIN = "/api/v1/auth/token"
+RUN_TIMEOUT_S = 240
 
 
 @pytest.fixture(scope="module")
-def tokens():
-    client = TestClient(APP)
-    yield {role: token_for(client, role) for role in ("auditor", "admin")}
-    _STORE.close()
-    shutil.rmtree(_DIR, ignore_errors=True)
+def seeded(tmp_path_factory) -> Path:
+    """A store file with 30 min of records and events of two vehicles, an auditor, an admin, and
+    the user of the login form's example in the schema (whose login then works)."""
+    db = tmp_path_factory.mktemp("api-schema") / "blackbox.sqlite"
+    store = open_test_store(db)
+    seed(store)
+    passwords = Passwords(Argon2Settings(time_cost=1, memory_kib=64, parallelism=1))
+    for role in ("auditor", "admin"):
+        add_user(store, passwords, role, role, PASSWORD, 10)
+    example = LoginForm.model_json_schema()["examples"][0]
+    add_user(store, passwords, example["username"], "fleet", example["password"], 10)
+    store.close()
+    return db
 
 
-@schema.parametrize()
-@settings(max_examples=100, deadline=None, suppress_health_check=list(HealthCheck))
-def test_api_conforms_to_its_schema(case, tokens):
-    # the auditor may call every read endpoint (export included); users are the admin's
-    role = "admin" if case.path == "/api/v1/users" else "auditor"
-    case.call_and_validate(headers=auth(tokens[role]), checks=CHECKS)
+def schemathesis(tmp_path: Path, schema_url: str, cert: Path, headers: dict[str, str],
+                 per_path_headers: dict[str, dict[str, str]], *args: str) -> subprocess.CompletedProcess:
+    """`st run` with every check in every phase at RATE, verifying the server's certificate;
+    failing on warnings too (e.g. rate_limited: a 429 seen, missing_auth: a token refused)."""
+    def table(values: dict[str, str]) -> str:
+        return "{ " + ", ".join(f"{json.dumps(k)} = {json.dumps(v)}" for k, v in values.items()) + " }"
+    lines = [f"headers = {table(headers)}", "warnings = { fail-on = true }"]
+    for path, values in per_path_headers.items():
+        lines += ["[[operations]]", f"include-path = {json.dumps(path)}", f"headers = {table(values)}"]
+    cfg = tmp_path / "schemathesis.toml"
+    cfg.write_text("\n".join(lines) + "\n")
+    command = [sys.executable, "-m", "schemathesis.cli", "--config-file", str(cfg), "--no-color", "run", schema_url,
+               "--checks", "all", "--phases", PHASES, "--rate-limit", RATE, "--max-examples", str(MAX_EXAMPLES),
+               "--tls-verify", str(cert), "--workers", "1", *args]   # one worker: the rate is the bound anyway
+    return subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
+
+
+def report(run: subprocess.CompletedProcess) -> str:
+    return f"schemathesis exited {run.returncode}:\n{run.stdout}\n{run.stderr}"
+
+
+def login(client: httpx.Client, name: str) -> str:
+    r = client.post(LOGIN, data={"username": name, "password": PASSWORD})
+    assert r.status_code == 200, r.text
+    return r.json()["access_token"]
+
+
+def blacklistings(db: Path) -> list[dict]:
+    store = open_test_store(db)
+    try:
+        now = store.now()
+        return store.events(VEHICLE_ID, now - timedelta(hours=1), now + timedelta(hours=1), kinds=["ip_blacklisted"])
+    finally:
+        store.close()
+
+
+@pytest.mark.timeout(RUN_TIMEOUT_S + 60)
+def test_live_api_as_its_schema_says_at_30_per_s(tmp_path, seeded):
+    db = tmp_path / "blackbox.sqlite"
+    shutil.copy(seeded, db)
+    port = free_port()
+    server = _start_server(tmp_path, db, port)          # the production rate limits and blacklist
+    base = f"https://127.0.0.1:{port}"
+    cert = tmp_path / "state" / "tls" / "api_cert.pem"
+    try:
+        _wait_serving(server, port)
+        with httpx.Client(base_url=base, verify=ssl.create_default_context(cafile=str(cert)), timeout=10) as client:
+            auditor, admin = login(client, "auditor"), login(client, "admin")
+            run = schemathesis(tmp_path, f"{base}/openapi.json", cert, {"Authorization": f"Bearer {auditor}"},
+                               {"/api/v1/users": {"Authorization": f"Bearer {admin}"}}, "--exclude-path", LOGIN)
+            assert run.returncode == 0, report(run)
+            summary = run.stdout[run.stdout.index("Test Phases:"):]
+            for phase in ("Examples", "Coverage", "Fuzzing", "Stateful"):
+                assert f"✅ {phase}" in summary, report(run)         # ran, and found nothing
+            assert "No issues found" in run.stdout, report(run)
+            # the client is not blacklisted: it is still served, and no blacklisting was recorded
+            r = client.get("/api/v1/health")
+            assert r.status_code == 200, r.text
+    finally:
+        _stop(server)
+    assert blacklistings(db) == []
+    assert "blacklisted" not in server.log_path.read_text()
+
+
+@pytest.mark.timeout(RUN_TIMEOUT_S + 60)
+def test_login_form_as_its_schema_says(tmp_path, seeded):
+    db = tmp_path / "blackbox.sqlite"
+    shutil.copy(seeded, db)
+    port = free_port()
+    # every generated login is a failed one: the failed-login limits are raised out of the way
+    server = _start_server(tmp_path, db, port, api={"blacklist": {"failed_logins": 1_000_000},
+                                                    "rate_limit": {"token_per_s": 1000, "token_burst": 1000}})
+    cert = tmp_path / "state" / "tls" / "api_cert.pem"
+    try:
+        _wait_serving(server, port)
+        run = schemathesis(tmp_path, f"https://127.0.0.1:{port}/openapi.json", cert, {}, {}, "--include-path", LOGIN)
+        assert run.returncode == 0, report(run)
+        assert "No issues found" in run.stdout, report(run)
+        for phase in ("Examples", "Coverage", "Fuzzing"):
+            assert f"{phase}" in run.stdout[run.stdout.index("Test Phases:"):], report(run)
+    finally:
+        _stop(server)
+    assert blacklistings(db) == []

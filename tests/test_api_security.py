@@ -19,7 +19,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from ares import config, run_config
-from blackbox.api import create_app
+from blackbox.api import ApiSettings, create_app
 from blackbox.auth import Argon2Settings, Passwords, Tokens, add_user
 from blackbox.security import BlacklistSettings, Guard, RateLimitSettings
 from tests.conftest import REPO, free_port, wait_for_port
@@ -169,6 +169,49 @@ def test_guard_clock():
     assert guard.admit("b") is None                 # the blacklisting expires
 
 
+def test_steady_client_is_never_blacklisted_but_abnormal_flows_are():
+    """The production defaults, on a manual clock: a client at a steady 30 requests/s (also when
+    they come in bunches, 30 at the top of each second) is served for 5 minutes without one 429,
+    while a flood and a burst of failed logins from other addresses are still blacklisted."""
+    cfg = ApiSettings()
+    now = [1000.0]
+    guard = Guard(cfg.rate_limit, cfg.blacklist, now=lambda: now[0])
+    for ip, offsets in (("10.0.0.1", [i / 30 for i in range(30)]),          # evenly spread
+                        ("10.0.0.2", [i * 1e-4 for i in range(30)])):       # 30 back to back each second
+        start = now[0]
+        for second in range(300):
+            for dt in offsets:
+                now[0] = start + second + dt
+                assert guard.admit(ip) is None, (ip, second)
+        now[0] = start + 300
+        assert guard.blacklisted(ip) is None
+    # a flood: 150 requests/s from another address is blacklisted within the abuse window
+    verdicts = []
+    for i in range(150 * 10):
+        now[0] += 1 / 150
+        verdicts.append(guard.admit("10.0.0.3"))
+    assert any(v is not None and v.newly_blacklisted for v in verdicts) and guard.blacklisted("10.0.0.3")
+    # a burst of failed logins, one a second, is blacklisted (the ones refused with 429 count too)
+    for _ in range(cfg.blacklist.failed_logins):
+        now[0] += 1.0
+        assert guard.blacklisted("10.0.0.4") is None
+        if guard.admit("10.0.0.4", login=True) is None:
+            guard.login_failed("10.0.0.4")          # what the login handler does on a wrong password
+    assert guard.blacklisted("10.0.0.4")
+    # the steady clients are untouched by the others' blacklisting
+    assert guard.admit("10.0.0.1") is None and guard.admit("10.0.0.2") is None
+
+
+def test_rate_limit_and_blacklist_must_agree():
+    """A client that keeps to its rate limit must never reach the abuse threshold: settings where
+    it could are refused, naming both sections."""
+    with pytest.raises(ValueError, match="rate_limit and blacklist disagree"):
+        ApiSettings.model_validate({"rate_limit": {"client_per_s": 200}})
+    with pytest.raises(ValueError, match="rate_limit and blacklist disagree"):
+        ApiSettings.model_validate({"blacklist": {"abuse_requests_per_s": 40}})
+    ApiSettings.model_validate({"rate_limit": {"client_per_s": 90}})       # 100 + 90 * 10 <= 100 * 10
+
+
 # ---- headers, CORS, body size --------------------------------------------------------------------
 
 def test_security_headers_everywhere(store):
@@ -242,22 +285,30 @@ def test_self_signed_certificate_reused(tmp_path):
     assert self_signed(tmp_path, ["localhost", "127.0.0.1", "shuttle.local"])[1].read_text() != "garbage"
 
 
-def _start_server(tmp_path: Path, db: Path, port: int, *extra: str) -> subprocess.Popen:
+def _start_server(tmp_path: Path, db: Path, port: int, *extra: str, api: dict | None = None) -> subprocess.Popen:
+    """`ares api` on `port` over the store file `db`, state (key, certificate) in tmp_path/state,
+    the `api` section's defaults but for cheap hashing and what `api` overrides; its output in
+    tmp_path/api_<port>.log."""
     fast_hashing = {"argon2": {"time_cost": 1, "memory_kib": 64, "parallelism": 1}}
-    cfg = run_config.build(overrides={"api": {"state_dir": str(tmp_path / "state"), "log_level": "warning",
-                                              "auth": fast_hashing}})
+    section = config.deep_merge({"state_dir": str(tmp_path / "state"), "log_level": "warning", "auth": fast_hashing},
+                                api or {})
+    cfg = run_config.build(overrides={"api": section})
     run_cfg = config.write_run_config(cfg, tmp_path / f"run_{port}.json")
     env = {**os.environ, config.RUN_CONFIG_ENV: str(run_cfg), "PYTHONPATH": str(REPO)}
     env.pop("ARES_API_SECRET", None)
-    return subprocess.Popen([sys.executable, "-m", "ares.cli", "api", "--port", str(port), "--store", str(db), *extra],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    log = tmp_path / f"api_{port}.log"
+    with log.open("w") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "ares.cli", "api", "--port", str(port), "--store", str(db),
+                                 *extra], env=env, stdout=out, stderr=subprocess.STDOUT, text=True)
+    proc.log_path = log         # type: ignore[attr-defined]
+    return proc
 
 
 def _wait_serving(proc: subprocess.Popen, port: int, timeout_s: float = 20.0) -> None:
     try:
         wait_for_port(port, timeout_s, proc)
     except RuntimeError:
-        raise AssertionError(f"server exited {proc.returncode}: {proc.stdout.read()}") from None
+        raise AssertionError(f"server exited {proc.returncode}: {proc.log_path.read_text()}") from None
 
 
 def _stop(proc: subprocess.Popen) -> None:

@@ -7,10 +7,12 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
 from starlette.concurrency import run_in_threadpool
 
 from ares.clock import Clock
 from blackbox.api.dependencies import Services
+from blackbox.api.models import STORE_RETRY_AFTER_S
 from blackbox.api.repository import Repository
 from blackbox.api.routes import auth, events, health, records, users, vehicles
 from blackbox.api.settings import PREFIX, TOKEN_PATH, ApiSettings, state_dir
@@ -35,12 +37,15 @@ def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock
         version="1",
         description="Read-only access to the shuttle's black box: records of the last 7 days, events, "
                     "reliability figures. Authenticate at /api/v1/auth/token (OAuth2 password form) and "
-                    "send the token as `Authorization: Bearer <token>`; renew it before it expires.",
+                    "send the token as `Authorization: Bearer <token>`; renew it before it expires. A method "
+                    "a path does not have is answered 405 with an `Allow` header listing those it has.",
         docs_url="/docs" if settings.docs else None,
         redoc_url="/redoc" if settings.docs else None,
         telemetry={"tracing": False, "metrics": False, "logs": False, "operation_spans": False},
         max_body_size=settings.limits.max_body_bytes,
-        form_limits={"max_fields": 8, "max_files": 0, "max_part_size": 1024},
+        # the login form: a few fields, none over what its schema allows (256 characters of up to 4 bytes,
+        # percent-encoded: 3 kB)
+        form_limits={"max_fields": 8, "max_files": 0, "max_part_size": 4096},
     )
     app.state.services = services
     app.state.state_dir = sdir              # the TLS certificate's home (blackbox.api.server)
@@ -57,9 +62,37 @@ def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock
     app.add_exception_handler(StoreUnavailable, store_down)
     app.add_exception_handler(RequestValidationError, invalid)
 
+    methods: dict[str, set[str]] = {}       # path -> its methods
     for routes in (health, auth, vehicles, records, events, users):
-        app.include_router(routes.build_router(services), prefix=PREFIX)
+        router = routes.build_router(services)
+        app.include_router(router, prefix=PREFIX)
+        for route in router.routes:
+            if isinstance(route, APIRoute):
+                methods.setdefault(PREFIX + route.path, set()).update(route.methods)
+    answer_other_methods(app, methods)
     return app
+
+
+def answer_other_methods(app: FastAPI, methods: dict[str, set[str]]) -> None:
+    """A method that a path of the API does not have gets 405 with an `Allow` header that lists
+    exactly the methods the path has (those of the schema). Left to itself, Starlette answers
+    with the methods of the path's first route only (GET for /users, which has POST too)."""
+    for path, allowed in methods.items():
+        # after the path's own routes, for any method (an ASGI endpoint: Starlette gives it no
+        # method list): reached only when none of the path's routes took the request
+        app.router.add_route(path, MethodNotAllowed(", ".join(sorted(allowed))), include_in_schema=False)
+
+
+class MethodNotAllowed:
+    """ASGI endpoint: 405 with the path's Allow header."""
+
+    def __init__(self, allow: str):
+        self.allow = allow
+
+    async def __call__(self, scope, receive, send) -> None:
+        response = JSONResponse({"detail": f"method {scope['method']} not allowed here (allowed: {self.allow})"},
+                                status_code=405, headers={"Allow": self.allow})
+        await response(scope, receive, send)
 
 
 # ---- errors: one shape for all -------------------------------------------------------------------
@@ -67,7 +100,7 @@ def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock
 async def store_down(_request: Request, exc: StoreUnavailable) -> JSONResponse:
     log.warning("store unavailable: %s", exc)
     return JSONResponse({"detail": "the black box store is unavailable; retry later"}, status_code=503,
-                        headers={"Retry-After": "5"})
+                        headers={"Retry-After": str(STORE_RETRY_AFTER_S)})
 
 
 async def invalid(_request: Request, exc: RequestValidationError) -> JSONResponse:

@@ -1,12 +1,15 @@
 """What route handlers depend on: the application's services, the caller's role (`allow`), and
 the path and query parameters several routes share."""
+import re
 from dataclasses import dataclass
-from typing import Annotated, Callable
+from datetime import datetime, timezone
+from typing import Annotated, Any, Callable
 
 from fastapi import HTTPException, Path, Query, Security
 from fastapi.security import OAuth2PasswordBearer
-from pydantic import AwareDatetime
+from pydantic import AwareDatetime, BeforeValidator
 
+from ares.config import VEHICLE_ID_PATTERN      # what a stack's vehicle id may be: the ids of its records
 from blackbox.api.repository import Repository
 from blackbox.api.settings import TOKEN_PATH, ApiSettings, LimitSettings
 from blackbox.auth import AuthError, Claims, Passwords, Tokens
@@ -18,8 +21,6 @@ ROLES_RECORDS = ("auditor", "operator")                 # browse records
 ROLES_EXPORT = ("auditor",)                             # export records (the black box interface)
 ROLES_EVENTS = ("auditor", "operator", "fleet")         # events and reliability summaries
 ROLES_ADMIN = ("admin",)
-
-VEHICLE_ID_PATTERN = r"^[^/*$?#\s]{1,64}$"              # one key segment of ares/<vehicle_id>/... (ares.cli)
 
 
 # ---- the application's services ------------------------------------------------------------------
@@ -60,9 +61,35 @@ def allow(tokens: Tokens, *roles: str) -> Callable:
 
 # ---- shared parameters ---------------------------------------------------------------------------
 
-Start = Annotated[AwareDatetime | None, Query(description="window start, inclusive, with a UTC offset "
-                                              "(default: end - 1 h); at most 7 days ago")]
-End = Annotated[AwareDatetime | None, Query(description="window end, exclusive (default: now)")]
+RFC3339 = re.compile(r"(\d{4})-\d\d-\d\d[Tt](\d\d):(\d\d):(\d\d)(?:\.\d+)?(?:[Zz]|([+-])(\d\d):(\d\d))")
+
+
+def rfc3339(value: Any) -> Any:
+    """A query date-time as the schema has it (format date-time: RFC 3339 §5.6, with its offset).
+    pydantic alone would also take a number of seconds since 1970 ("0.5"), a date or a space for
+    the T, and refuses two things RFC 3339 has: the year 0000 (earlier than anything kept: the
+    earliest date-time there is) and a leap second (23:59:60 UTC: the end of its minute)."""
+    if not isinstance(value, str):
+        return value
+    m = RFC3339.fullmatch(value)
+    if m is None:
+        raise ValueError("not an RFC 3339 date-time with a UTC offset, e.g. 2026-01-31T08:00:00Z")
+    if m[1] == "0000":
+        return datetime.min.replace(tzinfo=timezone.utc)
+    if m[4] == "60":
+        offset = (int(m[6]) * 60 + int(m[7])) * (-1 if m[5] == "-" else 1) if m[5] else 0
+        if (int(m[2]) * 60 + int(m[3]) - offset) % 1440 != 23 * 60 + 59:
+            raise ValueError("a leap second (:60) is 23:59:60 UTC")
+        return f"{value[:m.start(4)]}59.999999{value[m.end(0) - (6 if m[5] else 1):]}"
+    return value
+
+
+Start = Annotated[AwareDatetime | None, BeforeValidator(rfc3339), Query(
+    description="window start, inclusive, with a UTC offset (default: end - 1 h). Records are kept 7 days: an "
+                "earlier start is served from the oldest kept, and the answer says `clipped`")]
+End = Annotated[AwareDatetime | None, BeforeValidator(rfc3339), Query(
+    description="window end, exclusive (default: now); at or before the start: nothing is served, and the answer "
+                "says `clipped`")]
 
 
 # the three below carry the settings into the schema (an example, bounds): route modules that

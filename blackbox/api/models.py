@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from ares.messages import DriveMode, StoredEvent, VehicleRecord
 from blackbox import reliability as rel
+from blackbox.auth import MAX_PASSWORD_CHARS, ROLES, USERNAME_RE
 
 JSON_OPTIONS = orjson.OPT_NAIVE_UTC | orjson.OPT_UTC_Z
 
@@ -20,8 +21,13 @@ def json_bytes(data: Any) -> bytes:
     return orjson.dumps(data, option=JSON_OPTIONS)
 
 
-def json_response(data: Any, status: int = 200) -> Response:
-    return Response(json_bytes(data), status_code=status, media_type="application/json")
+def iso_utc(dt: datetime) -> str:
+    """A UTC date-time as the JSON bodies write it (RFC 3339, Z)."""
+    return json_bytes(dt)[1:-1].decode()
+
+
+def json_response(data: Any, status: int = 200, headers: dict[str, str] | None = None) -> Response:
+    return Response(json_bytes(data), status_code=status, media_type="application/json", headers=headers)
 
 
 class FieldProblem(BaseModel):
@@ -40,6 +46,16 @@ class Health(BaseModel):
     status: Literal["ok", "degraded"]
     store: Literal["ok", "unavailable"]
     detail: str | None = None
+
+
+class LoginForm(BaseModel):
+    """The OAuth2 password form of POST /auth/token (application/x-www-form-urlencoded)."""
+    model_config = ConfigDict(extra="forbid", json_schema_extra={
+        "examples": [{"username": "alice", "password": "a long passphrase"}]})
+
+    username: str = Field(min_length=1, max_length=64)
+    password: str = Field(min_length=1, max_length=MAX_PASSWORD_CHARS)
+    grant_type: Literal["password"] = Field("password", description="OAuth2's; may be left out")
 
 
 class Token(BaseModel):
@@ -66,10 +82,16 @@ VehicleRecordFields = create_model(
     **{name: (f.annotation | None, Field(None, description=f.description)) for name, f in VehicleRecord.model_fields.items()})
 
 
+WINDOW_DOC = ("the window served, [start, end), in UTC: a start before the retention (the last 7 days) is moved "
+              "up to it, and an empty or reversed window serves nothing (end = start)")
+CLIPPED_DOC = "true when the window served is not the one asked for (see start, end)"
+
+
 class RecordsPage(BaseModel):
     vehicle_id: str
-    start: datetime
+    start: datetime = Field(description=WINDOW_DOC)
     end: datetime
+    clipped: bool = Field(description=CLIPPED_DOC)
     page: int
     page_size: int
     total: int = Field(description="records in the window")
@@ -79,8 +101,9 @@ class RecordsPage(BaseModel):
 
 class EventsPage(BaseModel):
     vehicle_id: str
-    start: datetime
+    start: datetime = Field(description=WINDOW_DOC)
     end: datetime
+    clipped: bool = Field(description=CLIPPED_DOC)
     page: int
     page_size: int
     has_more: bool
@@ -89,8 +112,9 @@ class EventsPage(BaseModel):
 
 class ReliabilityReport(BaseModel):
     vehicle_id: str
-    start: datetime
+    start: datetime = Field(description=WINDOW_DOC)
     end: datetime
+    clipped: bool = Field(description=CLIPPED_DOC)
     records: int = Field(description="records read in the window (one per second of vehicle time)")
     operating_hours: float = Field(description="hours up: mode AUTOMATIC with every process running")
     failures: int = Field(description="FAULT events that took the vehicle out of operation (one per outage)")
@@ -112,29 +136,54 @@ class UserInfo(BaseModel):
 
 
 class NewUser(BaseModel):
+    """A user to create; new_user_model gives the password its configured minimum length."""
     model_config = ConfigDict(extra="forbid")
 
-    name: str = Field(pattern=r"^[a-z][a-z0-9_.-]{1,31}$")
-    role: Literal["auditor", "operator", "fleet", "admin"]
-    password: str = Field(min_length=1, max_length=256)
+    name: str = Field(pattern=USERNAME_RE.pattern)
+    role: Literal[ROLES]     # type: ignore[valid-type]
+    password: str = Field(min_length=1, max_length=MAX_PASSWORD_CHARS)
 
 
+def new_user_model(min_password_length: int) -> type[NewUser]:
+    """NewUser whose schema says the configured shortest password (auth.min_password_length)."""
+    example = {"name": "carol", "role": "auditor",
+               "password": "a long passphrase".ljust(min_password_length, ".")}
+    return create_model("NewUser", __base__=NewUser, __doc__=NewUser.__doc__,
+                        __config__=ConfigDict(extra="forbid", json_schema_extra={"examples": [example]}),
+                        password=(str, Field(min_length=min_password_length, max_length=MAX_PASSWORD_CHARS)))
+
+
+# Every error answer of the API, documented on the operations that can give it. A method a path
+# does not have is answered 405 with an Allow header (app.answer_other_methods); an unknown path 404.
 ERROR_DESCRIPTIONS = {
-    400: "Malformed body: not parseable, too many form fields, or a form field over 1 kB",
+    400: "Malformed body: not parseable, too many form fields, or a form field over 4 kB",
     401: "Not authenticated: no token, or an expired, malformed or forged one (send Authorization: Bearer <token>)",
     403: "Forbidden: the token's role may not do this, or the client address is blacklisted "
-         "after an abnormal flow of requests",
+         "after an abnormal flow of requests (then with Retry-After)",
     404: "Unknown vehicle",
     409: "Already exists",
-    413: "Request body too large",
-    422: "Invalid parameters (bad time range, unknown field, out-of-range page, ...)",
+    413: "Request body too large (any request's: over api.limits.max_body_bytes)",
+    422: "Invalid parameters or body: a value outside its documented type, format, range, pattern or "
+         "enumeration (the offending ones in `errors`)",
     429: "Rate limited: retry after the Retry-After header's seconds",
-    503: "The black box store is unavailable: retry later",
+    503: "The black box store is unavailable: retry after the Retry-After header's seconds",
+}
+
+STORE_RETRY_AFTER_S = 5          # a store that is down: try again in this long
+
+RETRY_AFTER = {"description": "seconds to wait before trying again", "schema": {"type": "integer", "minimum": 0}}
+ERROR_HEADERS = {
+    401: {"WWW-Authenticate": {"description": "the scheme to authenticate with", "required": True,
+                               "schema": {"type": "string", "const": "Bearer"}}},
+    403: {"Retry-After": RETRY_AFTER},
+    429: {"Retry-After": {**RETRY_AFTER, "required": True}},
+    503: {"Retry-After": {**RETRY_AFTER, "required": True}},
 }
 
 
 def error_responses(*codes: int) -> dict:
     """The `responses` of a route that may answer `codes` (as ApiError)."""
-    # 403 (blacklist) and 429 (rate limit) can answer any request
-    return {code: {"model": ApiError, "description": ERROR_DESCRIPTIONS[code]}
-            for code in sorted({*codes, 403, 429})}
+    # any request can be answered 403 (blacklist), 413 (a body too large) and 429 (rate limit)
+    return {code: {"model": ApiError, "description": ERROR_DESCRIPTIONS[code],
+                   **({"headers": ERROR_HEADERS[code]} if code in ERROR_HEADERS else {})}
+            for code in sorted({*codes, 403, 413, 429})}

@@ -10,7 +10,7 @@ import io
 import logging
 import time
 from datetime import datetime, timedelta, timezone
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, NamedTuple
 
 from fastapi import HTTPException
 
@@ -32,6 +32,22 @@ def _utc(dt: datetime) -> datetime:
     return dt.astimezone(timezone.utc)
 
 
+def _utc_clamped(dt: datetime) -> tuple[datetime, bool]:
+    """(`dt` in UTC, True); a date-time whose UTC reading falls outside the years 1-9999
+    (0001-01-01T00:00+01:00, 9999-12-31T23:59-01:00): (the earliest or latest there is, False)."""
+    try:
+        return dt.astimezone(timezone.utc), True
+    except OverflowError:
+        return (datetime.min if dt.year == 1 else datetime.max).replace(tzinfo=timezone.utc), False
+
+
+class Window(NamedTuple):
+    """A time window as served: [start, end), in UTC; `clipped` when it is not the one asked for."""
+    start: datetime
+    end: datetime
+    clipped: bool
+
+
 class Repository:
     """Every store call of the API, and its caches: the latest record per vehicle, the vehicle list."""
 
@@ -43,6 +59,7 @@ class Repository:
         self.stack_time = stack_time            # t of the events the API writes
         self._latest: dict[str, tuple[float, bytes, dict]] = {}    # vehicle -> (expires, JSON, record)
         self._vehicles: tuple[float, list[str]] = (0.0, [])
+        self.grace = timedelta(seconds=limits.start_grace_s)
 
     def ping(self) -> None:
         self.store.ping()
@@ -93,31 +110,36 @@ class Repository:
             self._latest[vehicle_id] = (time.monotonic() + self.limits.latest_cache_s, body, doc)
         return body, doc
 
-    def window(self, start: datetime | None, end: datetime | None) -> tuple[datetime, datetime]:
-        """The queried window, checked: start < end, within the retention (the last 7 days)."""
+    def window(self, start: datetime | None, end: datetime | None) -> Window:
+        """The window served for the one asked: [start, end), omitted bounds defaulted (end: now;
+        start: the last default_window_s before end). Any date-time is a valid bound (the schema
+        says so): a start before the retention (the last 7 days) moves up to it, and a window that
+        is then empty or was reversed (end <= start) serves nothing, at end = start. `clipped`
+        tells the caller that the window served is not the one asked for."""
         now = _utc(self.store.now())
-        oldest = now - RETENTION - timedelta(seconds=self.limits.start_grace_s)
-        newest = now + RETENTION        # vehicle clocks may run ahead; beyond this it is a mistake
-        # bounds first: arithmetic on an arbitrary user datetime (year 1 or 9999) could overflow
-        for name, value in (("start", start), ("end", end)):
-            if value is not None and not oldest <= value <= newest:
-                raise HTTPException(422, f"{name} {value.isoformat()} is outside the black box's retention: "
-                                         f"records are kept {RETENTION.days} days, from {oldest.isoformat()}")
-        end = _utc(end) if end is not None else now
-        start = _utc(start) if start is not None else max(oldest, end - timedelta(seconds=self.limits.default_window_s))
-        if start >= end:
-            raise HTTPException(422, f"start ({start.isoformat()}) must be before end ({end.isoformat()})")
-        if end - start > RETENTION + timedelta(seconds=self.limits.start_grace_s):
-            raise HTTPException(422, f"window longer than the {RETENTION.days}-day retention")
-        return start, end
+        oldest = now - RETENTION
+        asked_end, exact_end = _utc_clamped(end) if end is not None else (now, True)
+        exact_start = True
+        if start is not None:
+            asked_start, exact_start = _utc_clamped(start)
+        elif asked_end > oldest + timedelta(seconds=self.limits.default_window_s):
+            asked_start = asked_end - timedelta(seconds=self.limits.default_window_s)
+        else:
+            asked_start = oldest
+        # a start a moment before the retention's (a client's "now - 7 days") is served as asked
+        served_start = oldest if asked_start < oldest - self.grace else asked_start
+        served_end = max(asked_end, served_start)
+        clipped = (served_start, served_end) != (asked_start, asked_end) or not (exact_start and exact_end)
+        return Window(served_start, served_end, clipped)
 
-    def records_page(self, vehicle_id: str, start: datetime, end: datetime, page: int, page_size: int,
+    def records_page(self, vehicle_id: str, window: Window, page: int, page_size: int,
                      fields: list[str] | None) -> bytes:
         """The page as JSON. Every field (no selection): the stored documents are spliced in as
         they are, which is ~5x faster than decoding them into dicts and encoding them again."""
+        start, end = window.start, window.end
         total = self.store.count_records(vehicle_id, start, end)
-        head = {"vehicle_id": vehicle_id, "start": start, "end": end, "page": page, "page_size": page_size,
-                "total": total, "fields": fields}
+        head = {"vehicle_id": vehicle_id, "start": start, "end": end, "clipped": window.clipped, "page": page,
+                "page_size": page_size, "total": total, "fields": fields}
         skip = (page - 1) * page_size
         if fields is None:
             records = self.store.records_json(vehicle_id, start, end, skip=skip, limit=page_size)
@@ -136,17 +158,18 @@ class Repository:
             last = rows[-1]["time"]
             cursor = (last if last.tzinfo else last.replace(tzinfo=timezone.utc)) + timedelta(microseconds=1)
 
-    def export(self, vehicle_id: str, start: datetime, end: datetime, fmt: str) -> Iterator[bytes]:
+    def export(self, vehicle_id: str, window: Window, fmt: str) -> Iterator[bytes]:
         """The export file of the window in `fmt` (csv or jsonl), chunk by chunk."""
-        return export_chunks(self.iter_records(vehicle_id, start, end, self.limits.export_batch), fmt)
+        return export_chunks(self.iter_records(vehicle_id, window.start, window.end, self.limits.export_batch), fmt)
 
-    def events_page(self, vehicle_id: str, start: datetime, end: datetime, kinds: list[str] | None,
+    def events_page(self, vehicle_id: str, window: Window, kinds: list[str] | None,
                     page: int, page_size: int) -> dict:
+        start, end = window.start, window.end
         rows = self.store.events(vehicle_id, start, end, kinds=kinds, skip=(page - 1) * page_size,
                                  limit=page_size + 1)
         fields = StoredEvent.model_fields
-        return {"vehicle_id": vehicle_id, "start": start, "end": end, "page": page, "page_size": page_size,
-                "has_more": len(rows) > page_size,
+        return {"vehicle_id": vehicle_id, "start": start, "end": end, "clipped": window.clipped, "page": page,
+                "page_size": page_size, "has_more": len(rows) > page_size,
                 "events": [{k: e.get(k) for k in fields} for e in rows[:page_size]]}
 
     def fault_times(self, vehicle_id: str, start: datetime, end: datetime) -> list[datetime]:
@@ -158,7 +181,8 @@ class Repository:
                 return out
             skip += batch
 
-    def reliability(self, vehicle_id: str, start: datetime, end: datetime, t_hours: float) -> dict:
+    def reliability(self, vehicle_id: str, window: Window, t_hours: float) -> dict:
+        start, end = window.start, window.end
         faults = self.fault_times(vehicle_id, start, end)
         count = 0
 
@@ -169,7 +193,7 @@ class Repository:
                 yield r
         until = min(end, _utc(self.store.now()))
         tally = rel.tally_window(counted(), faults, until=max(until, start))
-        return {"vehicle_id": vehicle_id, "start": start, "end": end, "records": count,
+        return {"vehicle_id": vehicle_id, "start": start, "end": end, "clipped": window.clipped, "records": count,
                 "open_failures": tally.open_failures, **tally.figures(t_hours).as_dict()}
 
     def authenticate(self, passwords: Passwords, name: str, password: str) -> User | None:
@@ -199,15 +223,18 @@ class Repository:
 # ---- parameters ----------------------------------------------------------------------------------
 
 def parse_fields(text: str | None) -> list[str] | None:
+    """The comma-separated field selection (the schema's array of RECORD_FIELDS, style form, not
+    exploded): each name once; the time always comes first. Nothing selected: None (every field)."""
     if not text:
         return None
-    names = [n.strip() for n in text.split(",") if n.strip()]
+    names = text.split(",")
     unknown = [n for n in names if n not in RECORD_FIELDS]
     if unknown:
         raise HTTPException(422, f"unknown field(s) {', '.join(repr(n) for n in unknown)}; "
                                  f"fields of a record: {', '.join(RECORD_FIELDS)}")
-    chosen = [*ALWAYS_SELECTED, *(n for n in names if n not in ALWAYS_SELECTED)]
-    return list(dict.fromkeys(chosen))
+    if len(set(names)) < len(names):
+        raise HTTPException(422, "a field is named twice in fields")
+    return [*ALWAYS_SELECTED, *(n for n in names if n not in ALWAYS_SELECTED)]
 
 
 def parse_kinds(text: str | None) -> list[str] | None:

@@ -4,6 +4,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from pydantic import model_validator
+
 from ares.config import Params, param
 from blackbox.auth import AuthSettings
 from blackbox.security import BlacklistSettings, HeaderSettings, RateLimitSettings
@@ -16,8 +18,9 @@ TOKEN_PATH = f"{PREFIX}/auth/token"
 
 class LimitSettings(Params):
     default_window_s: float = param(3600.0, "start/end omitted: the last hour", unit="s", gt=0)
-    start_grace_s: float = param(300.0, "a start of \"now - 7 days\" computed by a client a moment earlier is "
-                                        "still accepted", unit="s", ge=0)
+    start_grace_s: float = param(300.0, "a start up to this long before the 7-day retention is served as asked, "
+                                        "not clipped (a client's \"now - 7 days\" computed a moment earlier)",
+                                 unit="s", ge=0)
     default_page_size: int = param(100, "items per page when not asked", ge=1)
     max_page_size: int = param(1000, "most items per page", ge=1, le=10000)
     max_page: int = param(100_000, "highest page number", ge=1)
@@ -51,6 +54,22 @@ class ApiSettings(Params):
     rate_limit: RateLimitSettings = param(doc="per-client rate limits", factory=RateLimitSettings)
     blacklist: BlacklistSettings = param(doc="abnormal flows", factory=BlacklistSettings)
     headers: HeaderSettings = param(doc="security headers", factory=HeaderSettings)
+
+    @model_validator(mode="after")
+    def _within_the_rate_limit_is_never_abnormal(self) -> "ApiSettings":
+        # A client that is never refused by its bucket sends at most client_burst + client_per_s * T
+        # requests in any T seconds; the abuse estimate (blacklist) of such a client stays at or
+        # below that over abuse_window_s. Keep it under the abuse threshold, so that a client that
+        # keeps to its rate limit is never blacklisted.
+        rl, bl = self.rate_limit, self.blacklist
+        most = rl.client_burst + rl.client_per_s * bl.abuse_window_s
+        if most > bl.abuse_requests_per_s * bl.abuse_window_s:
+            raise ValueError(
+                f"rate_limit and blacklist disagree: a client keeping to its rate limit (client_burst "
+                f"{rl.client_burst:g} + client_per_s {rl.client_per_s:g}/s) may send {most:g} requests in "
+                f"abuse_window_s ({bl.abuse_window_s:g} s), more than blacklist.abuse_requests_per_s "
+                f"({bl.abuse_requests_per_s:g}/s) allows: it would be blacklisted")
+        return self
 
 
 

@@ -1,11 +1,11 @@
 """POST /auth/token (OAuth2 password form -> bearer token) and POST /auth/renew (a valid token
 -> a fresh one). Failed logins count towards the client's blacklisting."""
-from typing import Annotated, Literal
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, Form, HTTPException, Request
 
 from blackbox.api.dependencies import Services, allow
-from blackbox.api.models import Token, error_responses
+from blackbox.api.models import LoginForm, Token, error_responses
 from blackbox.auth import ROLES, Claims
 
 
@@ -14,11 +14,8 @@ def build_router(services: Services) -> APIRouter:
     router = APIRouter(tags=["auth"])
 
     @router.post("/auth/token", response_model=Token, responses=error_responses(400, 401, 413, 422, 503))
-    def token(request: Request,
-              username: Annotated[str, Form(min_length=1, max_length=64)],
-              password: Annotated[str, Form(min_length=1, max_length=256)],
-              grant_type: Annotated[Literal["password"] | None, Form()] = None) -> Token:
-        user = repo.authenticate(passwords, username, password)
+    def token(request: Request, form: Annotated[LoginForm, Form()]) -> Token:
+        user = repo.authenticate(passwords, form.username, form.password)
         if user is None:
             ip = request.client.host if request.client else "unknown"
             verdict = guard.login_failed(ip)

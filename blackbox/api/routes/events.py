@@ -28,9 +28,9 @@ def build_router(services: Services) -> APIRouter:
                kind: Annotated[str | None, Query(max_length=512, pattern=r"^[A-Za-z0-9_.,-]*$",
                                                  description="comma-separated event kinds (default: all)")] = None,
                page: Page = 1, page_size: PageSize = limits.default_page_size) -> Response:
-        start, end = repo.window(start, end)
+        window = repo.window(start, end)
         repo.require_vehicle(vehicle_id)
-        return json_response(repo.events_page(vehicle_id, start, end, parse_kinds(kind), page, page_size))
+        return json_response(repo.events_page(vehicle_id, window, parse_kinds(kind), page, page_size))
 
     @router.get("/vehicles/{vehicle_id}/reliability", response_model=ReliabilityReport,
                 responses=error_responses(401, 404, 422, 503))
@@ -38,9 +38,9 @@ def build_router(services: Services) -> APIRouter:
                     start: Start = None, end: End = None,
                     t_hours: Annotated[float, Query(gt=0, le=limits.max_t_hours,
                                                     description="mission time t of R(t), hours")] = 1.0) -> Response:
-        start, end = repo.window(start, end)
+        window = repo.window(start, end)
         repo.require_vehicle(vehicle_id)
-        report = repo.reliability(vehicle_id, start, end, t_hours)
+        report = repo.reliability(vehicle_id, window, t_hours)
         return json_response({**report, "definitions": ReliabilityReport.model_fields["definitions"].default})
 
     return router

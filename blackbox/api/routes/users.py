@@ -4,7 +4,7 @@ from typing import Annotated
 from fastapi import APIRouter, Depends
 
 from blackbox.api.dependencies import ROLES_ADMIN, Services, allow
-from blackbox.api.models import NewUser, UserInfo, error_responses
+from blackbox.api.models import UserInfo, error_responses, new_user_model
 from blackbox.auth import Claims
 
 
@@ -12,6 +12,7 @@ def build_router(services: Services) -> APIRouter:
     repo = services.repository
     Admin = Annotated[Claims, Depends(allow(services.tokens, *ROLES_ADMIN))]
     min_password_length = services.settings.auth.min_password_length
+    NewUserBody = new_user_model(min_password_length)
     router = APIRouter(tags=["users"])
 
     @router.get("/users", response_model=list[UserInfo], responses=error_responses(401, 503))
@@ -20,7 +21,7 @@ def build_router(services: Services) -> APIRouter:
 
     @router.post("/users", response_model=UserInfo, status_code=201,
                  responses=error_responses(400, 401, 409, 413, 422, 503))
-    def create_user(new: NewUser, _: Admin) -> UserInfo:
+    def create_user(new: NewUserBody, _: Admin) -> UserInfo:     # type: ignore[valid-type]
         user = repo.add_user(services.passwords, new.name, new.role, new.password, min_password_length)
         return UserInfo(name=user.name, role=user.role, created=user.created)
 
