@@ -57,8 +57,9 @@ FORMATS = ("auto", "csv", "nmea")
 SMOOTHING_STEP_M = 0.1      # resampling step the smoothing filter works on
 DETECT_LINES = 2000         # lines looked at to tell NMEA from CSV
 POSITION_KINDS = ("GGA", "RMC", "GLL")      # in order of preference: GGA has quality and altitude
-# where a sentence starts after a logger's prefix (a timestamp, a port name): "$GNGGA," or "!AIVDM,"
-_SENTENCE_START = re.compile(rb"(?:^|\s)([$!](?:[A-Z0-9]{5}|P[A-Z0-9]{1,8})[,*])")
+# where a sentence starts after a logger's prefix (a timestamp, a port name, then a space, a comma
+# or a semicolon): "$GNGGA," or "!AIVDM,"
+_SENTENCE_START = re.compile(rb"(?:^|[\s,;])([$!](?:[A-Z0-9]{5}|P[A-Z0-9]{1,8})[,*])")
 
 
 class RouteImportError(RouteError):

@@ -346,6 +346,7 @@ def test_format_detection():
     assert detect_format(header + b"$GPGGA,1*00\r\n$GPRMC,2*00\r\n") == "nmea"
     assert detect_format(b"\xef\xbb\xbfx,y\n# c\n0,0\n1,1\n$GPGGA,x*00\n") == "csv"      # rows win
     assert detect_format(b"2024-05-01T09:47:36Z $GNGGA,1*00\n\\s:GPS1*5A\\$GPRMC,2*00\n") == "nmea"
+    assert detect_format(b"1795427250.125,$GNGGA,1*00\n1795427250.250;COM3;$GNRMC,2*00\n") == "nmea"
 
 
 # ---- configuration: the route_import section ------------------------------------------------------
