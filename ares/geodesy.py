@@ -42,15 +42,21 @@ class Projected:
     hemisphere: str
 
 
-def origin_at(lat: float, lon: float, altitude_m: float, reach_km: float | None = None) -> UtmOrigin:
-    """The origin of a local frame at a geodetic position, in that position's own UTM zone."""
+def origin_at(lat: float, lon: float, altitude_m: float, reach_km: float | None = None,
+              zone: int | None = None, hemisphere: str | None = None) -> UtmOrigin:
+    """The origin of a local frame at a geodetic position, in that position's own UTM zone and
+    hemisphere unless they are given."""
+    northern = None if hemisphere is None else hemisphere == "N"
     try:
-        easting, northing, zone, letter = utm.from_latlon(lat, lon)
-    except utm.error.OutOfRangeError as exc:
+        easting, northing, own_zone, letter = utm.from_latlon(lat, lon, force_zone_number=zone,
+                                                              force_northern=northern)
+    except (utm.error.OutOfRangeError, ValueError) as exc:
         raise FrameError("utm range", f"position {lat:.6f}, {lon:.6f} has no UTM coordinates: {exc}") from None
+    if northern is None:
+        northern = letter >= "N"
     extra = {} if reach_km is None else {"reach_km": reach_km}
     # to the millimetre: what a route file records is then the origin exactly
-    return UtmOrigin(zone=zone, hemisphere="N" if letter >= "N" else "S", easting=round(float(easting), 3),
+    return UtmOrigin(zone=own_zone, hemisphere="N" if northern else "S", easting=round(float(easting), 3),
                      northing=round(float(northing), 3), altitude_m=round(float(altitude_m), 3), **extra)
 
 
@@ -65,13 +71,11 @@ class LocalFrame:
         """UTM (in the origin's zone) and local coordinates of a position; FrameError if it lies
         beyond the frame's reach or outside what UTM can express."""
         try:
-            easting, northing, _, _ = utm.from_latlon(lat, lon, force_zone_number=self.zone,
-                                                      force_northern=self.northern)
+            x, y = self.from_latlon_forced(lat, lon)
         except (utm.error.OutOfRangeError, ValueError) as exc:   # beyond UTM's 80 S .. 84 N, for instance
             raise FrameError("utm range", f"position {lat:.6f}, {lon:.6f} has no UTM coordinates: {exc}") from None
-        easting, northing = float(easting), float(northing)
         o = self.origin
-        x, y = easting - o.easting, northing - o.northing
+        easting, northing = o.easting + x, o.northing + y
         if not (math.isfinite(x) and math.isfinite(y)) or math.hypot(x, y) > self.reach_m:
             raise FrameError("far from origin", f"position {lat:.6f}, {lon:.6f} lies "
                                                 f"{math.hypot(x, y) / 1000.0:.0f} km from the site's origin "

@@ -247,21 +247,20 @@ def _parse_origin(text: str, where: str) -> UtmOrigin:
     missing = [k for k in ("lat", "lon", "altitude_m") if k not in values]
     if missing:
         raise RouteError(f"{where}: the origin needs {', '.join(missing)}")
+    zone, hemisphere = values.get("utm_zone"), values.get("hemisphere")
+    if hemisphere not in (None, "N", "S") or not 1 <= (zone or 1) <= 60:
+        raise RouteError(f"{where}: origin utm_zone must be 1-60 and hemisphere N or S")
     try:
-        own = origin_at(values["lat"], values["lon"], values["altitude_m"])
+        at = origin_at(values["lat"], values["lon"], values["altitude_m"], zone=zone, hemisphere=hemisphere)
     except FrameError as exc:
         raise RouteError(f"{where}: {exc}") from None
-    zone, hemisphere = values.get("utm_zone", own.zone), values.get("hemisphere", own.hemisphere)
-    if hemisphere not in ("N", "S") or not 1 <= zone <= 60:
-        raise RouteError(f"{where}: origin utm_zone must be 1-60 and hemisphere N or S")
-    easting, northing, _, _ = utm.from_latlon(values["lat"], values["lon"], force_zone_number=zone,
-                                              force_northern=hemisphere == "N")
-    given = (values.get("easting", easting), values.get("northing", northing))
-    if math.hypot(given[0] - easting, given[1] - northing) > 1.0:
+    given = (values.get("easting", at.easting), values.get("northing", at.northing))
+    off = math.hypot(given[0] - at.easting, given[1] - at.northing)
+    if off > 1.0:
         raise RouteError(f"{where}: the origin's easting and northing disagree with its latitude and longitude "
-                         f"by {math.hypot(given[0] - easting, given[1] - northing):.1f} m")
-    return UtmOrigin(zone=zone, hemisphere=hemisphere, easting=float(given[0]), northing=float(given[1]),
-                     altitude_m=values["altitude_m"])
+                         f"by {off:.1f} m")
+    return at.model_copy(update={"easting": float(given[0]), "northing": float(given[1]),
+                                 "altitude_m": values["altitude_m"]})
 
 
 def resample(points: np.ndarray, spacing: float) -> np.ndarray:

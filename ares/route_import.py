@@ -51,7 +51,7 @@ from ares.config import Params, UtmOrigin, param
 from ares.geodesy import FrameError, LocalFrame, origin_at
 from ares.route import RouteError, origin_comment
 from perception.gnss import RTK_FIXED
-from perception.nmea import Gga, Gll, NmeaError, Other, Position, Rmc, address, parse_sentence
+from perception.nmea import Gga, NmeaError, Other, Position, address, parse_sentence
 
 FORMATS = ("auto", "csv", "nmea")
 SMOOTHING_STEP_M = 0.1      # resampling step the smoothing filter works on

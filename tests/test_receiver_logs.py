@@ -14,7 +14,7 @@ import pytest
 
 from ares import config, run_config, stack
 from ares.clock import ManualClock
-from ares.geodesy import LocalFrame, origin_at
+from ares.geodesy import origin_at
 from ares.membus import MemoryNetwork
 from ares.messages import GnssSentences
 from ares.route import Route, RouteError, origin_comment, read_origin

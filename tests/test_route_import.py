@@ -28,7 +28,6 @@ from ares.route_import import (RouteImportError, RouteImportSettings, detect_for
 from ares.sim.params import SimParams
 from ares.sim.sensors import GnssSensor
 from ares.sim.vehicle import VehicleState
-from perception.gnss import GnssParams, GnssProjector
 
 from conftest import REPO, free_port
 from receiver_logs import drive_times
