@@ -149,6 +149,53 @@ class DbwPidParams(Params):
     throttle: PidGains
 
 
+class LidarLayers(Params):
+    count: int = param(doc="lasers in this block", ge=1)
+    top_deg: float = param(doc="elevation of the block's highest laser", unit="deg")
+    bottom_deg: float = param(doc="elevation of its lowest laser", unit="deg")
+
+
+class LidarModel(Params):
+    """A spinning LiDAR's datasheet: its lasers, azimuth resolution and range."""
+    layers: list[LidarLayers] = param(doc="blocks of evenly spaced lasers, top to bottom", min_length=1)
+    azimuth_step_deg: float = param(doc="angle between firings at 10 Hz", unit="deg", gt=0)
+    min_range_m: float = param(doc="closer returns are discarded by the sensor", unit="m", ge=0)
+    max_range_m: float = param(doc="farthest return (good reflectors)", unit="m", gt=0)
+    range_sigma_m: float = param(doc="range noise", unit="m", ge=0)
+
+    def elevations_deg(self) -> list[float]:
+        """Every laser's elevation, ring 0 the lowest."""
+        out: list[float] = []
+        for block in self.layers:
+            step = (block.top_deg - block.bottom_deg) / max(block.count - 1, 1)
+            out += [block.bottom_deg + i * step for i in range(block.count)]
+        return sorted(out)
+
+
+# The two sensor classes of the ARES shuttle (DESIGN §3): the HDL-64E's two blocks of 32 lasers
+# (+2° to −8.33° in 1/3° steps, −8.83° to −24.33° in 1/2° steps) and the VLP-16's ±15° in 2° steps.
+LIDAR_MODELS: dict[str, LidarModel] = {
+    "hdl64e": LidarModel(layers=[LidarLayers(count=32, top_deg=2.0, bottom_deg=-8.33),
+                                 LidarLayers(count=32, top_deg=-8.83, bottom_deg=-24.33)],
+                         azimuth_step_deg=0.17, min_range_m=0.9, max_range_m=120.0, range_sigma_m=0.02),
+    "vlp16": LidarModel(layers=[LidarLayers(count=16, top_deg=15.0, bottom_deg=-15.0)],
+                        azimuth_step_deg=0.2, min_range_m=0.5, max_range_m=100.0, range_sigma_m=0.03),
+}
+LIDAR_NAMES = ("roof", "front_left", "front_right")
+
+
+class LidarMount(Params):
+    """One LiDAR on the vehicle: its class and its extrinsics in the vehicle frame (origin at the
+    rear-axle centre on the road, x forward, y left, z up); rotations roll, pitch, yaw applied
+    about z, then y, then x (ZYX). Pitch positive tilts the sensor nose down."""
+    model: Literal["hdl64e", "vlp16"] = param(doc="sensor class (config.LIDAR_MODELS)")
+    xyz_m: tuple[float, float, float] = param(doc="position", unit="m")
+    rpy_deg: tuple[float, float, float] = param((0.0, 0.0, 0.0), "roll, pitch, yaw", unit="deg")
+
+    def datasheet(self) -> LidarModel:
+        return LIDAR_MODELS[self.model]
+
+
 class VehicleProfile(Params):
     """A vehicle: geometry, limits, masses, the raw actuators the simulator models and the gains
     of the drive-by-wire board's inner loops (DBW paper §4-5)."""
@@ -175,6 +222,9 @@ class VehicleProfile(Params):
     seats: int = param(doc="passenger seats", ge=0)
     actuators: ActuatorParams
     dbw_pid: DbwPidParams
+    ground_clearance_m: float = param(0.25, "underside of the body above the road", unit="m", ge=0)
+    lidars: dict[Literal["roof", "front_left", "front_right"], LidarMount] = param(
+        factory=dict, doc="the LiDARs and their extrinsics (ARES §3.4.1); `ares calibrate lidars` writes them")
 
 
 # ---- tours ------------------------------------------------------------------------------------
@@ -208,15 +258,89 @@ class TourZone(Params):
     s_end: float = param(unit="m", ge=0)
 
 
+VergeKind = Literal["grass", "rock_wall", "ravine", "kerb", "open"]
+VERGE_KINDS: tuple[str, ...] = ("grass", "rock_wall", "ravine", "kerb", "open")
+
+
+class TourVerge(Params):
+    """What lies beside the road over a stretch, on each side (the simulator's 3-D world)."""
+    s_start: float = param(unit="m", ge=0)
+    s_end: float = param(unit="m", ge=0)
+    left: VergeKind = param(doc="grass shoulder (no step, a gentle change of slope), rock_wall, ravine (a drop, "
+                                "no barrier), kerb, or open (no boundary)")
+    right: VergeKind = param(doc="as left")
+
+
 class TourDescription(Params):
     """A closed tour: a polygon whose corners are rounded with arcs, profiles along it."""
     name: str
     default_width_m: float = param(6.0, unit="m", gt=0)
+    default_verge: VergeKind = param("kerb", "the verge where `verges` says nothing")
+    verges: list[TourVerge] = param(factory=list, doc="verges stretch by stretch; intersections and road "
+                                                      "openings are open whatever they say")
     corners: list[TourCorner] = param(min_length=3)
     elevation: list[TourElevation] = param(min_length=1)
     narrow: list[TourStretch] = param(factory=list)
     pois: list[TourPoi] = param(factory=list)
     zones: list[TourZone] = param(factory=list)
+
+
+# ---- scenarios ----------------------------------------------------------------------------------
+
+class ScenarioPlace(Params):
+    """A place beside the route: arc length and lateral offset (left +)."""
+    s: float = param(doc="distance along the route", unit="m")
+    offset_m: float = param(0.0, "left (+) or right (−) of the route's centre line", unit="m")
+
+
+OBSTACLE_SIZES: dict[str, tuple[float, float, float]] = {     # length, width, height (m)
+    "box": (0.4, 0.4, 0.3), "crate": (0.8, 0.6, 0.6), "pedestrian": (0.5, 0.5, 1.75),
+    "cart": (1.8, 1.2, 1.5), "vehicle": (4.2, 1.8, 1.5)}
+
+
+class ScenarioObstacle(Params):
+    """A static obstacle (one place) or a moving one (a path walked at `speed_mps`)."""
+    name: str
+    kind: Literal["box", "crate", "pedestrian", "cart", "vehicle"]
+    size_m: tuple[float, float, float] | None = param(None, "length, width, height (default: the kind's)", unit="m")
+    path: list[ScenarioPlace] = param(doc="where it stands, or the path it follows", min_length=1)
+    speed_mps: float = param(0.0, "walking or driving speed along the path", unit="m/s", ge=0)
+    start_t_s: float | None = param(None, "starts moving at this stack time ...", unit="s", ge=0)
+    start_when_vehicle_at_s: float | None = param(None, "... or when the vehicle reaches this distance along the "
+                                                        "route (its first lap)", unit="m", ge=0)
+
+    def size(self) -> tuple[float, float, float]:
+        return self.size_m or OBSTACLE_SIZES[self.kind]
+
+
+class ScenarioAlongTour(Params):
+    """Obstacles of several sizes placed along the tour, beside the path the shuttle drives."""
+    every_m: float = param(40.0, "one obstacle every ...", unit="m", gt=0)
+    kinds: list[Literal["box", "crate", "pedestrian", "cart", "vehicle"]] = param(
+        factory=lambda: ["box", "crate", "pedestrian", "cart", "vehicle"], doc="in turn")
+    clearance_m: float = param(1.5, "gap between the route's centre line and the obstacle's near side", unit="m", ge=0)
+    skip_narrower_than_m: float = param(5.0, "no obstacle where the road is narrower", unit="m", gt=0)
+
+
+class ScenarioFault(Params):
+    kind: Literal["block_lidar"] = param(doc="block_lidar: an opaque cover over a LiDAR")
+    sensor: Literal["roof", "front_left", "front_right"]
+    at_t_s: float = param(doc="stack time it begins", unit="s", ge=0)
+    duration_s: float | None = param(None, "how long it lasts (for ever if not given)", unit="s", gt=0)
+
+
+class Scenario(Params):
+    """What happens around the simulated shuttle: obstacles and their motion, faults and their times."""
+    name: str
+    description: str = ""
+    obstacles: list[ScenarioObstacle] = param(factory=list)
+    along_tour: ScenarioAlongTour | None = param(None, "also place obstacles along the tour")
+    faults: list[ScenarioFault] = param(factory=list)
+
+
+def load_scenario(name: str) -> Scenario:
+    path = named_file("scenarios", name)
+    return validated(Scenario, load_yaml(path), str(path))
 
 
 # ---- the sections every process reads --------------------------------------------------------
@@ -227,6 +351,7 @@ class CoreConfig(Params):
     vehicle: str = param("ares_shuttle", "vehicle profile: a name in ares/config/vehicles/ or a YAML file")
     tour: str = param("default", "built-in tour: a name in ares/config/tours/ or a YAML file")
     route_file: str | None = param(None, "an open route (CSV of x,y[,z] metres) driven instead of the tour")
+    scenario: str | None = param(None, "simulated obstacles and faults: a name in ares/config/scenarios/ or a YAML file")
     simulate: bool = param(True, "run the simulated shuttle (the `sim` process) with the stack")
     origin_utm: UtmOrigin = param(doc="origin of the local frame", factory=UtmOrigin)
     bus: BusSettings = param(doc="the Zenoh bus", factory=BusSettings)

@@ -94,6 +94,32 @@ class VehicleTruth(Msg):
     passengers: int = 0
 
 
+class ObstacleBox(BaseModel):
+    """An obstacle's footprint and height in the local frame (the world's truth)."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    name: str
+    kind: str
+    x: float
+    y: float
+    yaw: float = 0.0
+    length_m: float = Field(gt=0)
+    width_m: float = Field(gt=0)
+    height_m: float = Field(gt=0)
+    moving: bool = False
+
+
+class WorldTruth(Msg):
+    """The simulated world's obstacles as they are now, for evaluation only."""
+    obstacles: list[ObstacleBox] = Field(default_factory=list)
+    blocked_lidars: list[str] = Field(default_factory=list)
+
+
+class LidarFault(Msg):
+    """Cover (or uncover) a simulated LiDAR: fault injection."""
+    sensor: Literal["roof", "front_left", "front_right"]
+    blocked: bool = True
+
+
 class GnssSentences(Msg):
     """Raw NMEA sentences from the receiver, as the serial port gives them."""
     sentences: list[str]
@@ -384,6 +410,46 @@ class PointCloud(BulkMsg):
     @property
     def size(self) -> int:
         return len(self.x)
+
+
+class RoadBoundary(BaseModel):
+    """A road boundary or the centre line in the vehicle frame: y = c0 + c1 x + c2 x² + ..., valid
+    between x_min and x_max."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    coefficients: list[float]
+    x_min: float
+    x_max: float
+    points: int = Field(0, ge=0)        # boundary points that support it (after the outliers went)
+
+    def y_at(self, x: float) -> float:
+        return float(sum(c * x ** i for i, c in enumerate(self.coefficients)))
+
+
+class RoadDetection(Msg):
+    """The road ahead as the LiDARs see it (ARES §3.4.2), in the vehicle frame."""
+    found: bool
+    left: RoadBoundary | None = None
+    right: RoadBoundary | None = None
+    centre: RoadBoundary | None = None
+    lateral_offset_m: float | None = None      # the vehicle's origin left (+) of the road's centre
+    heading_rad: float | None = None           # the vehicle's heading relative to the road (+ left)
+    width_m: float | None = None
+    confidence: float = Field(0.0, ge=0, le=1)
+
+
+class LidarHealth(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    rate_hz: float = Field(ge=0)            # sweeps received over the last second
+    points: int = Field(ge=0)               # in the last sweep
+    road_points: int = Field(ge=0)          # of them scored as road
+    age_s: float | None = None              # since the last sweep
+
+
+class LidarStatus(Msg):
+    """Per LiDAR: its rate and how much road it sees, for the awareness manager; the pipeline's
+    stage times."""
+    sensors: dict[str, LidarHealth]
+    stage_ms: dict[str, float] = Field(default_factory=dict)
 
 
 class OccupancyGrid(BulkMsg):

@@ -32,6 +32,7 @@ class Process:
 
 PROCESSES: list[Process] = [
     Process("sim", "ares.sim.node:Simulator", safety_relevant=True, sim_only=True),
+    Process("lidar_sim", "ares.sim.lidar_node:LidarSimulator", safety_relevant=True, sim_only=True),
     Process("gnss", "perception.gnss_node:GnssNode", safety_relevant=True),
     Process("localization", "perception.localization:LocalizationNode", safety_relevant=True),
     Process("odometry_manager", "managers.odometry:OdometryManager", safety_relevant=True),

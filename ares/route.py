@@ -51,6 +51,21 @@ class Zone:
         return self.s_start <= s <= self.s_end
 
 
+@dataclass(frozen=True)
+class Verge:
+    """What lies beside the road from s_start to s_end, left and right (config.VERGE_KINDS)."""
+    s_start: float
+    s_end: float
+    left: str
+    right: str
+
+    def contains(self, s: float) -> bool:
+        return self.s_start <= s < self.s_end
+
+
+OPEN_ZONES = ("intersection", "road_opening")    # no road boundary exists there
+
+
 @dataclass
 class Route:
     name: str
@@ -62,6 +77,8 @@ class Route:
     pois: list[Poi] = field(default_factory=list)
     zones: list[Zone] = field(default_factory=list)
     origin: UtmOrigin | None = None     # where on Earth the frame is, when the route file says
+    verges: list[Verge] = field(default_factory=list)
+    default_verge: str = "kerb"
 
     def __post_init__(self) -> None:
         if len(self.x) < 2:
@@ -151,6 +168,16 @@ class Route:
 
     def in_zone(self, s: float, kind: str) -> bool:
         return any(z.kind == kind for z in self.zones_at(s))
+
+    def verge_at(self, s: float) -> tuple[str, str]:
+        """(left, right) verge kinds at s: intersections and road openings are open."""
+        s = self.wrap_s(s)
+        if any(z.kind in OPEN_ZONES for z in self.zones_at(s)):
+            return "open", "open"
+        for verge in self.verges:
+            if verge.contains(s):
+                return verge.left, verge.right
+        return self.default_verge, self.default_verge
 
     # ---- construction ---------------------------------------------------------------
     @classmethod
@@ -319,7 +346,9 @@ def tour_from_description(desc: TourDescription) -> Route:
     pois = [Poi(p.name, p.s, tuple(p.actions)) for p in desc.pois]
     zones = [Zone(zd.kind, zd.s_start, zd.s_end) for zd in desc.zones]
     zones += [Zone("narrow", n.s_start, n.s_end) for n in desc.narrow]
-    return Route(name=desc.name, x=xy[:, 0], y=xy[:, 1], z=z, closed=True, width=width, pois=pois, zones=zones)
+    verges = [Verge(v.s_start, v.s_end, v.left, v.right) for v in desc.verges]
+    return Route(name=desc.name, x=xy[:, 0], y=xy[:, 1], z=z, closed=True, width=width, pois=pois, zones=zones,
+                 verges=verges, default_verge=desc.default_verge)
 
 
 def _filleted_loop(corners: np.ndarray, radii: list[float], spacing: float) -> np.ndarray:

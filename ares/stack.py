@@ -65,6 +65,8 @@ def overrides_from_args(args) -> dict:
         over["sim"]["passengers"] = args.passengers
     if getattr(args, "route", None):
         over["route_file"] = str(Path(args.route).resolve())
+    if getattr(args, "scenario", None):
+        over["scenario"] = args.scenario
     if getattr(args, "listen", None):
         over["bus"]["router"] = args.listen
     if getattr(args, "router", None):
@@ -131,6 +133,10 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str) -> dict
         origin = read_origin(cfg["route_file"])
         if origin is not None:      # a recorded route brings its frame: the configured origin is for the others
             cfg["origin_utm"] = {**origin.model_dump(), "reach_km": cfg["origin_utm"]["reach_km"]}
+    if cfg["scenario"]:
+        scenario = config.named_file("scenarios", cfg["scenario"])
+        config.load_scenario(str(scenario))           # a bad scenario stops the run here, with its error
+        cfg["scenario"] = str(scenario.resolve()) if scenario.suffix else cfg["scenario"]
     store = config.section(cfg, "blackbox_store", StoreSettings)
     cfg["blackbox_store"]["uri"] = store_uri(store)
     if speed != 1 and not cfg["simulate"]:

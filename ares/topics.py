@@ -58,6 +58,7 @@ TOPIC_TABLE: list[Topic] = [
     Topic("clock/done", m.ClockDone, "a process finished its step (--speed max)", reliable=True, shared=True),
     # the simulated vehicle
     Topic("sim/truth", m.VehicleTruth, "ground truth, for evaluation only"),
+    Topic("sim/world", m.WorldTruth, "the simulated world's obstacles, for evaluation only"),
     Topic("sensors/gnss", m.GnssSentences, "raw NMEA sentences from the receiver"),
     Topic("sensors/imu", m.Imu, "IMU: attitude, rates, specific force, magnetometer yaw"),
     Topic("sensors/can", m.CanFrame, "CAN: wheel speed, steering-wheel angle, pedals"),
@@ -79,11 +80,14 @@ TOPIC_TABLE: list[Topic] = [
     Topic("lidar/front_left/points", m.PointCloud, "the front-left 16-layer LiDAR, one sweep"),
     Topic("lidar/front_right/points", m.PointCloud, "the front-right 16-layer LiDAR, one sweep"),
     Topic("perception/grid", m.OccupancyGrid, "the local occupancy grid around the vehicle"),
+    Topic("perception/road", m.RoadDetection, "road boundaries, centre line, the vehicle's offset and heading"),
+    Topic("perception/lidar_status", m.LidarStatus, "per LiDAR: rate, points, road points; stage times"),
 ]
 
 SERVICE_TABLE: list[Service] = [
     Service("set_automatic_mode", m.Empty, m.ModeReply, "Ready -> Automatic (the software half of the switch)"),
     Service("sim/driver", m.DriverCommand, m.Ack, "a driver action on the simulated vehicle"),
+    Service("sim/lidar_fault", m.LidarFault, m.Ack, "cover or uncover a simulated LiDAR (fault injection)"),
     Service("supervisor/status", m.Empty, m.SupervisorState, "every process's state"),
 ]
 

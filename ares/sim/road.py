@@ -24,13 +24,26 @@ def grade_at(route: Route, s: float) -> float:
     return float(route.grade[i] + f * (route.grade[j] - route.grade[i]))
 
 
+ROUGHNESS_STREAM = 1   # the surface has its own random stream: the plant and the world draw the same one
+
+
+def roughness_for(route: Route, sim, wheelbase_m: float) -> "RoadRoughness":
+    """The road surface of this route and simulation (the same in the plant and the world)."""
+    return RoadRoughness(sim.road_roughness_m, wheelbase_m, sim.roughness_wavelength_m,
+                         sim.suspension.natural_hz, sim.suspension.damping_ratio,
+                         np.random.default_rng([sim.seed, ROUGHNESS_STREAM]),
+                         period_m=route.length if route.closed else None)
+
+
 class RoadRoughness:
     """A random but repeatable road surface felt through the suspension.
 
-    The surface height under the wheels is a sum of sinusoids in distance travelled, with
-    random phases and wavelengths between the configured bounds, amplitudes growing with
-    wavelength (longer undulations are larger, as in real road profiles) and scaled so the
-    surface RMS is `sigma_m`. The body follows through a second-order suspension, which gives
+    The surface height is a sum of sinusoids in the route's arc length s, with random phases and
+    wavelengths between the configured bounds, amplitudes growing with wavelength (longer
+    undulations are larger, as in real road profiles) and scaled so the surface RMS is
+    `sigma_m`. On a closed tour each wavelength is rounded to a whole number of waves per lap,
+    so the surface joins itself at the start line. The 3-D world the LiDARs see
+    (ares/sim/world.py) is built from the same surface, so the wheels ride what the sensors see. The body follows through a second-order suspension, which gives
     the IMU its vertical acceleration; the height difference between the front and rear axle
     tilts the body (pitch jitter). Nothing moves while the vehicle stands still.
     """
@@ -38,9 +51,11 @@ class RoadRoughness:
     N_WAVES = 12
 
     def __init__(self, sigma_m: float, wheelbase_m: float, wavelength_m: tuple[float, float],
-                 natural_hz: float, damping_ratio: float, rng: np.random.Generator):
+                 natural_hz: float, damping_ratio: float, rng: np.random.Generator, period_m: float | None = None):
         self.wheelbase_m = wheelbase_m
         lam = np.geomspace(wavelength_m[0], wavelength_m[1], self.N_WAVES)
+        if period_m:
+            lam = period_m / np.maximum(np.round(period_m / lam), 1.0)
         self.k = 2.0 * np.pi / lam                       # rad per metre
         amp = lam / lam.max()
         rms = math.sqrt(float(np.sum(amp ** 2)) / 2.0)
@@ -60,6 +75,10 @@ class RoadRoughness:
 
     def height(self, d: float) -> float:
         return float(np.sum(self.amp * np.sin(self.k * d + self.phase)))
+
+    def heights(self, s: np.ndarray) -> np.ndarray:
+        """The surface at many arc lengths at once (the world's mesh)."""
+        return np.sin(np.multiply.outer(np.asarray(s, dtype=float), self.k) + self.phase) @ self.amp
 
     def slope(self, d: float) -> float:
         return float(np.sum(self.amp * self.k * np.cos(self.k * d + self.phase)))

@@ -23,7 +23,7 @@ from ares.geometry import wrap_angle
 from ares.route import Route
 from ares.sim.actuators import SteeringActuator, TractionActuator
 from ares.sim.params import SimParams
-from ares.sim.road import RoadRoughness, grade_at
+from ares.sim.road import grade_at, roughness_for
 
 PHYSICS_DT = 0.01       # 100 Hz physics
 
@@ -91,8 +91,8 @@ class VehiclePlant:
                                          sim.passengers if passengers is None else passengers)
         self.driver = sim.driver
         self.rng = np.random.default_rng(sim.seed if seed is None else seed)
-        self.roughness = RoadRoughness(sim.road_roughness_m, self.wheelbase_m, sim.roughness_wavelength_m,
-                                       sim.suspension.natural_hz, sim.suspension.damping_ratio, self.rng)
+        self.roughness = roughness_for(route, sim if seed is None else sim.model_copy(update={"seed": seed}),
+                                       self.wheelbase_m)
         self.state = VehicleState()
         self.place_on_route(s0)
 
@@ -113,9 +113,9 @@ class VehiclePlant:
         st.x, st.y, st.yaw = x, y, yaw
         st.s = self.route.wrap_s(s)
         st.grade = grade_at(self.route, st.s)
-        self.roughness.settle(st.odometer)
+        self.roughness.settle(st.s)
         st.z = z + self.roughness.z_body
-        st.pitch = -math.atan(st.grade) + self.roughness.pitch_jitter(st.odometer)
+        st.pitch = -math.atan(st.grade) + self.roughness.pitch_jitter(st.s)
         st.v = st.yaw_rate = st.pitch_rate = st.accel = st.lateral_accel = st.vertical_accel = 0.0
         st.steering_wheel_deg = st.wheel_angle_rad = st.wheel_speed_rad_s = 0.0
         return st
@@ -188,10 +188,10 @@ class VehiclePlant:
         # way round goes down where the route goes up).
         st.grade = grade_at(self.route, st.s) * math.cos(st.yaw - road_yaw)
 
-        self.roughness.step(st.odometer, v_mid, dt)
+        self.roughness.step(st.s, v_mid, dt)
         pitch_prev = st.pitch
         st.z = z_road + self.roughness.z_body
-        st.pitch = -math.atan(st.grade) + self.roughness.pitch_jitter(st.odometer)
+        st.pitch = -math.atan(st.grade) + self.roughness.pitch_jitter(st.s)
         st.roll = 0.0
         st.pitch_rate = (st.pitch - pitch_prev) / dt
         st.vertical_accel = self.roughness.az_body

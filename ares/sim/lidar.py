@@ -1,0 +1,219 @@
+"""Simulated spinning LiDARs: rays cast into the world with open3d.
+
+Each sensor fires every laser of its datasheet (config.LIDAR_MODELS) at every azimuth step of a
+10 Hz revolution (every `azimuth_decimation`-th step, so tests can run light), from where its
+mount (vehicle profile, `lidars`) puts it on the vehicle's true pose. A return is the nearest of
+the world, the moving obstacles and the shuttle's own body; what a real sensor adds is added:
+
+- self-hits: rays that strike the body or another sensor's housing return from them, as the
+  lower rings did on the ARES shuttle (§3.5.1);
+- range noise (datasheet sigma), returns nearer than the minimum range discarded, and a range
+  that shrinks on dark surfaces (reach = max range × sqrt(reflectivity / 0.8): about 50 m on
+  asphalt, the HDL-64E's datasheet figure);
+- random dropouts, intensity from the material's reflectivity and the angle of incidence;
+- ghosts: a few spurious points in the near field in front of the sensor (interference, fog);
+- a blocked sensor (an opaque cover, on command): every ray stops at the cover, nearer than the
+  minimum range, so the point count falls to about zero, as the paper observed.
+
+Points are in the sensor's frame (x forward, y left, z up); rings numbered from the lowest laser.
+Motion during the 100 ms sweep is not modelled: each sweep is taken from one pose.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+from ares.config import LidarMount, Params, VehicleProfile, param
+from ares.sim.world import MATERIAL_IDS, REFLECTIVITY, Mesh, box_mesh, cylinder_mesh
+
+FULL_REACH_REFLECTIVITY = 0.8
+COVER_RANGE_M = 0.03
+
+
+class LidarSimParams(Params):
+    """The simulated LiDARs (ares/sim/lidar.py)."""
+    rate_hz: float = param(10.0, "revolutions per second", unit="Hz", gt=0)
+    azimuth_decimation: int = param(1, "fire every n-th azimuth step of the datasheet (1 = full resolution; "
+                                       "tests run lighter)", ge=1)
+    dropout: float = param(0.005, "share of returns lost at random", ge=0, lt=1)
+    intensity_sigma: float = param(0.05, "relative noise on the intensity", ge=0)
+    ghosts_per_sweep: float = param(8.0, "mean spurious near-field points per sweep and sensor", ge=0)
+    ghost_range_m: tuple[float, float] = param((0.6, 3.0), "ghosts appear between these ranges", unit="m")
+    ghost_half_angle_deg: float = param(60.0, "... within this angle either side of the sensor's front", unit="deg",
+                                        gt=0, le=180)
+    roadside_objects: bool = param(True, "trees and poles beside the road")
+    seed: int = param(11, "seed of the LiDARs' random streams (noise, dropouts, ghosts, roadside objects)", ge=0)
+
+
+def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll): a frame rotated by these angles, REP-103 signs."""
+    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def mount_pose(mount: LidarMount) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation, translation) of a sensor in the vehicle frame. Pitch positive is nose down:
+    REP-103's rotation about y with y to the left."""
+    roll, pitch, yaw = (math.radians(a) for a in mount.rpy_deg)
+    return rotation(roll, pitch, yaw), np.asarray(mount.xyz_m, dtype=float)
+
+
+def housing(mount: LidarMount) -> Mesh:
+    """The sensor's own can, centred on its optical centre."""
+    radius, height = (0.10, 0.28) if mount.model == "hdl64e" else (0.052, 0.072)
+    x, y, z = mount.xyz_m
+    return cylinder_mesh((x, y, z - height / 2), radius, height, "metal")
+
+
+def body_parts(vehicle: VehicleProfile) -> list[Mesh]:
+    """The shuttle's body as the LiDARs see it, in the vehicle frame: a box of its shape (rear axle
+    at x = 0) and, for a roof sensor, its mast."""
+    overhang = (vehicle.length_m - vehicle.wheelbase_m) / 2
+    height = vehicle.height_m or 2.0
+    clearance = vehicle.ground_clearance_m
+    parts = [box_mesh((vehicle.wheelbase_m / 2, 0.0, clearance), (vehicle.length_m, vehicle.width_m, height - clearance),
+                      0.0, "body")]
+    roof = vehicle.lidars.get("roof")
+    if roof is not None and roof.xyz_m[2] - 0.14 > height:
+        parts.append(cylinder_mesh((roof.xyz_m[0], roof.xyz_m[1], height), 0.03, roof.xyz_m[2] - 0.14 - height, "metal"))
+    return parts
+
+
+@dataclass
+class Sweep:
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    intensity: np.ndarray
+    ring: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return len(self.x)
+
+
+class SimulatedLidar:
+    """One sensor on the vehicle."""
+
+    def __init__(self, name: str, mount: LidarMount, vehicle: VehicleProfile, params: LidarSimParams,
+                 rng: np.random.Generator):
+        self.name = name
+        self.mount = mount
+        self.sheet = mount.datasheet()
+        self.params = params
+        self.rng = rng
+        self.rotation, self.position = mount_pose(mount)
+        elevation = np.radians(self.sheet.elevations_deg())
+        self.step = math.radians(self.sheet.azimuth_step_deg) * params.azimuth_decimation
+        azimuth = np.arange(0.0, 2 * math.pi - 1e-9, self.step)
+        el, az = np.meshgrid(elevation, azimuth, indexing="ij")           # ring-major, like a real packet order
+        self.ring = np.repeat(np.arange(len(elevation), dtype=np.uint8), len(azimuth))
+        self.elevation = el.ravel()
+        self.azimuth = az.ravel()
+        ce = np.cos(self.elevation)
+        self.dirs0 = np.stack([ce * np.cos(self.azimuth), ce * np.sin(self.azimuth), np.sin(self.elevation)],
+                              axis=1).astype(np.float32)
+        self.blocked = False
+        others = [housing(m) for n, m in vehicle.lidars.items() if n != name]
+        body = Mesh.join(body_parts(vehicle) + others)
+        self.body_scene = o3d.t.geometry.RaycastingScene()
+        self.body_scene.add_triangles(o3d.core.Tensor(body.vertices), o3d.core.Tensor(body.triangles))
+
+    @property
+    def rays_per_sweep(self) -> int:
+        return len(self.azimuth)
+
+    def directions(self, azimuth_offset: float = 0.0) -> np.ndarray:
+        """Unit vectors of every ray in the sensor frame, the revolution turned by an offset."""
+        return (self.dirs0 @ rotation(0.0, 0.0, azimuth_offset).T.astype(np.float32)).astype(np.float32)
+
+    def sweep(self, world_scene, vehicle_rotation: np.ndarray, vehicle_position: np.ndarray,
+              obstacles_scene=None, material_of=None) -> Sweep:
+        """One revolution from the vehicle's pose. `material_of(geometry_ids, primitive_ids)` gives
+        each world hit's material (World.material_of)."""
+        if self.blocked:
+            return self._empty()
+        rng = self.rng
+        spin = rotation(0.0, 0.0, rng.uniform(0.0, self.step))       # firing azimuths vary a little per turn
+        to_vehicle = self.rotation @ spin
+        to_world = vehicle_rotation @ to_vehicle
+        n = len(self.dirs0)
+        rays = np.empty((n, 6), dtype=np.float32)
+        rays[:, :3] = vehicle_rotation @ self.position + vehicle_position
+        rays[:, 3:] = self.dirs0 @ to_world.T.astype(np.float32)
+        hit = world_scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+        t = hit["t_hit"].numpy()
+        normal_source = np.zeros(n, dtype=np.int8)           # 0 world, 1 obstacle, 2 body
+        material = np.full(n, MATERIAL_IDS["asphalt"], dtype=np.uint8)
+        found = np.isfinite(t)
+        material[found] = material_of(hit["geometry_ids"].numpy()[found], hit["primitive_ids"].numpy()[found])
+        normals = [hit["primitive_normals"].numpy()]
+
+        if obstacles_scene is not None:
+            near = obstacles_scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+            t_obs = near["t_hit"].numpy()
+            closer = t_obs < t
+            t = np.where(closer, t_obs, t)
+            normal_source[closer] = 1
+            material[closer] = MATERIAL_IDS["metal"]
+            normals.append(near["primitive_normals"].numpy())
+        else:
+            normals.append(normals[0])
+
+        rays[:, :3] = self.position                          # the body, in the vehicle frame
+        rays[:, 3:] = self.dirs0 @ to_vehicle.T.astype(np.float32)
+        own = self.body_scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+        t_body = own["t_hit"].numpy()
+        closer = t_body < t
+        t = np.where(closer, t_body, t)
+        normal_source[closer] = 2
+        material[closer] = MATERIAL_IDS["body"]
+
+        # only the rays that hit something are worth the noise
+        idx = np.flatnonzero(np.isfinite(t))
+        t, material, source = t[idx], material[idx], normal_source[idx]
+        m = len(idx)
+        reflectivity = REFLECTIVITY[material]
+        dirs = self.dirs0[idx]
+        normal = np.where((source == 0)[:, None], normals[0][idx], normals[1][idx])
+        body_normal = own["primitive_normals"].numpy()[idx] @ vehicle_rotation.T.astype(np.float32)
+        normal = np.where((source == 2)[:, None], body_normal, normal)
+        incidence = np.abs(np.einsum("ij,ij->i", normal, dirs @ to_world.T.astype(np.float32)))
+        intensity = reflectivity * np.maximum(incidence, 0.05) * (
+            1.0 + self.params.intensity_sigma * rng.standard_normal(m, dtype=np.float32))
+        reach = self.sheet.max_range_m * np.sqrt(np.minimum(reflectivity / FULL_REACH_REFLECTIVITY, 1.0))
+        r = t + self.sheet.range_sigma_m * rng.standard_normal(m, dtype=np.float32)
+        keep = (r >= self.sheet.min_range_m) & (t <= reach) & (rng.random(m, dtype=np.float32) >= self.params.dropout)
+        points = (dirs[keep] @ spin.T.astype(np.float32)) * r[keep, None]
+        ghosts = self._ghosts()
+        return Sweep(x=np.concatenate([points[:, 0], ghosts[0]]).astype(np.float32),
+                     y=np.concatenate([points[:, 1], ghosts[1]]).astype(np.float32),
+                     z=np.concatenate([points[:, 2], ghosts[2]]).astype(np.float32),
+                     intensity=np.concatenate([np.clip(intensity[keep], 0.0, 1.0), ghosts[3]]).astype(np.float32),
+                     ring=np.concatenate([self.ring[idx][keep], ghosts[4]]).astype(np.uint8))
+
+    def _ghosts(self):
+        p, rng = self.params, self.rng
+        k = int(rng.poisson(p.ghosts_per_sweep))
+        elevation = np.radians(self.sheet.elevations_deg())
+        ring = rng.integers(0, len(elevation), k)
+        az = rng.uniform(-1.0, 1.0, k) * math.radians(p.ghost_half_angle_deg)
+        r = rng.uniform(max(p.ghost_range_m[0], self.sheet.min_range_m), p.ghost_range_m[1], k)
+        ce = np.cos(elevation[ring])
+        return (r * ce * np.cos(az), r * ce * np.sin(az), r * np.sin(elevation[ring]),
+                rng.uniform(0.0, 0.1, k), ring)
+
+    def _empty(self) -> Sweep:
+        # behind the cover every ray returns at a few centimetres, below the minimum range
+        none = np.zeros(0, dtype=np.float32)
+        return Sweep(none, none, none, none, np.zeros(0, dtype=np.uint8))
+
+
+def vehicle_pose(x: float, y: float, z: float, yaw: float, pitch: float, roll: float = 0.0):
+    """(rotation, position) of the vehicle frame in the world."""
+    return rotation(roll, pitch, yaw), np.array([x, y, z])

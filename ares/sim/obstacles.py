@@ -1,0 +1,119 @@
+"""A scenario's obstacles, where they are at any moment.
+
+A static obstacle stands at one place beside the route (arc length, lateral offset); a moving one
+follows its path at its speed once started, by the clock or when the vehicle reaches a point of
+the route, and stays at the path's end. `along_tour` places obstacles of several kinds in turn
+along the tour, alternately left and right of the path the shuttle drives, skipping
+intersections, road openings and narrow stretches.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ares.config import OBSTACLE_SIZES, Scenario, ScenarioAlongTour, ScenarioObstacle, ScenarioPlace
+from ares.messages import ObstacleBox
+from ares.route import OPEN_ZONES, Route
+from ares.sim.world import CROSSFALL, Mesh, box_mesh
+
+
+@dataclass
+class PlacedObstacle:
+    spec: ScenarioObstacle
+    xy: np.ndarray              # (k, 2) the path in the local frame
+    yaw_along: np.ndarray       # heading of each leg (a standing obstacle faces along the road)
+    base_z: np.ndarray          # ground height at each path point
+    started_at: float | None = None
+
+    @property
+    def moving(self) -> bool:
+        return len(self.xy) > 1 and self.spec.speed_mps > 0
+
+    def where(self, t: float) -> tuple[float, float, float, float]:
+        """(x, y, z of the base, yaw) at stack time t."""
+        if not self.moving or self.started_at is None:
+            return float(self.xy[0, 0]), float(self.xy[0, 1]), float(self.base_z[0]), float(self.yaw_along[0])
+        legs = np.hypot(*np.diff(self.xy, axis=0).T)
+        d = min(self.spec.speed_mps * max(t - self.started_at, 0.0), float(legs.sum()))
+        ends = np.cumsum(legs)
+        i = min(int(np.searchsorted(ends, d, side="right")), len(legs) - 1)
+        f = 1.0 if legs[i] == 0 else (d - (ends[i] - legs[i])) / legs[i]
+        x, y = self.xy[i] + f * (self.xy[i + 1] - self.xy[i])
+        z = self.base_z[i] + f * (self.base_z[i + 1] - self.base_z[i])
+        return float(x), float(y), float(z), float(self.yaw_along[i + 1])
+
+
+class ObstacleField:
+    def __init__(self, scenario: Scenario | None, route: Route, ground: Callable[[float], float]):
+        """`ground(s)` is the road crown's height at arc length s (World.centre_height)."""
+        self.route = route
+        self.ground = ground
+        specs = list(scenario.obstacles) if scenario else []
+        if scenario is not None and scenario.along_tour is not None:
+            specs += along_tour(route, scenario.along_tour)
+        self.obstacles = [self._place(spec) for spec in specs]
+
+    def _place(self, spec: ScenarioObstacle) -> PlacedObstacle:
+        xy, yaws, zs = [], [], []
+        for place in spec.path:
+            x, y, _, yaw = self.route.point_at(place.s)
+            xy.append((x - math.sin(yaw) * place.offset_m, y + math.cos(yaw) * place.offset_m))
+            yaws.append(yaw)
+            half = float(self.route.width[self.route.index_at(place.s)]) / 2
+            zs.append(float(self.ground(place.s)) - CROSSFALL * min(abs(place.offset_m), half))
+        xy = np.array(xy)
+        heading = [yaws[0]] + [math.atan2(b[1] - a[1], b[0] - a[0]) if np.any(b != a) else yaws[0]
+                               for a, b in zip(xy[:-1], xy[1:])]
+        return PlacedObstacle(spec, xy, np.array(heading), np.array(zs))
+
+    def update(self, t: float, vehicle_progress_m: float) -> list[str]:
+        """Start whatever is due; the names of those that started."""
+        started = []
+        for ob in self.obstacles:
+            if ob.started_at is not None or not ob.moving:
+                continue
+            spec = ob.spec
+            if (spec.start_t_s is not None and t >= spec.start_t_s) or (
+                    spec.start_when_vehicle_at_s is not None and vehicle_progress_m >= spec.start_when_vehicle_at_s) or (
+                    spec.start_t_s is None and spec.start_when_vehicle_at_s is None):
+                ob.started_at = t
+                started.append(spec.name)
+        return started
+
+    def boxes(self, t: float) -> list[ObstacleBox]:
+        out = []
+        for ob in self.obstacles:
+            x, y, _, yaw = ob.where(t)
+            length, width, height = ob.spec.size()
+            out.append(ObstacleBox(name=ob.spec.name, kind=ob.spec.kind, x=x, y=y, yaw=yaw, length_m=length,
+                                   width_m=width, height_m=height, moving=ob.moving))
+        return out
+
+    def mesh_near(self, t: float, x: float, y: float, reach_m: float) -> Mesh | None:
+        """The obstacles within reach of (x, y), as one mesh; None if there are none."""
+        parts = []
+        for ob in self.obstacles:
+            ox, oy, oz, yaw = ob.where(t)
+            if math.hypot(ox - x, oy - y) <= reach_m:
+                parts.append(box_mesh((ox, oy, oz - 0.05), ob.spec.size(), yaw, "metal"))
+        return Mesh.join(parts) if parts else None
+
+
+def along_tour(route: Route, spec: ScenarioAlongTour) -> list[ScenarioObstacle]:
+    out: list[ScenarioObstacle] = []
+    k = 0
+    for s in np.arange(spec.every_m / 2, route.length, spec.every_m):
+        s = float(s)
+        width = float(route.width[route.index_at(s)])
+        near_open = any(route.in_zone(s + d, kind) for kind in OPEN_ZONES for d in (-15.0, 0.0, 15.0))
+        if width < spec.skip_narrower_than_m or near_open:
+            continue
+        kind = spec.kinds[k % len(spec.kinds)]
+        side = 1.0 if k % 2 == 0 else -1.0
+        offset = side * (spec.clearance_m + OBSTACLE_SIZES[kind][1] / 2)
+        out.append(ScenarioObstacle(name=f"{kind}_{round(s)}", kind=kind, path=[ScenarioPlace(s=s, offset_m=offset)]))
+        k += 1
+    return out
