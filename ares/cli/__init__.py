@@ -11,6 +11,8 @@
     ares replay check|update FILE...
                                    process replay of recorded node inputs against their outputs
     ares calibrate odometry        re-run the experiment that chose the odometry score's a, b, c
+    ares calibrate lidars [--vehicle NAME] [--seed S] [--offset-m M] [--offset-deg D] [--write PATH] [--json]
+                                   find the LiDARs' extrinsics against each other in a simulated warehouse
     ares topics [--seconds S]      keys seen under ares/<vehicle_id>/**, rates, schemas, live processes
     ares echo KEY [--count N] [--seconds S]
                                    print messages on a topic, one JSON object per line

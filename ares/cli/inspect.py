@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .args import CliError, Command, positive_float
+from .args import CliError, Command, non_negative_int, positive_float
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
@@ -39,11 +39,24 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     replay.add_argument("action", choices=["check", "update"])
     replay.add_argument("files", nargs="+", metavar="FILE", help="recordings (*.jsonl.gz)")
 
-    calibrate = subparsers.add_parser("calibrate", help="re-run the experiments that chose parameters",
-                                      description="odometry: the odometry score's a, b, c (docs/odometry_score.md).")
-    calibrate.add_argument("what", choices=["odometry"])
-    calibrate.add_argument("--laps", type=positive_float, default=1.0, metavar="N")
-    calibrate.add_argument("--seed", type=int, default=None, metavar="S")
+    calibrate = subparsers.add_parser(
+        "calibrate", help="re-run the experiments that chose parameters",
+        description="odometry: the odometry score's a, b, c (docs/odometry_score.md). lidars: the LiDARs' "
+                    "extrinsics, found against each other in a simulated warehouse from a wrong first guess and "
+                    "compared with the profile's (ARES §3.4.1; ares/harness/lidar_calibration.py).")
+    calibrate.add_argument("what", choices=["odometry", "lidars"])
+    calibrate.add_argument("--laps", type=positive_float, default=1.0, metavar="N", help="odometry: laps to drive")
+    calibrate.add_argument("--seed", type=non_negative_int, default=None, metavar="S",
+                           help="odometry: the closed loop's; lidars: the scans' noise and the first guess (default 0)")
+    calibrate.add_argument("--vehicle", default="ares_shuttle", metavar="NAME",
+                           help="lidars: a profile in ares/config/vehicles/ or a YAML file (default: ares_shuttle)")
+    calibrate.add_argument("--offset-m", type=positive_float, default=0.10, metavar="M",
+                           help="lidars: how far off the first guess is (default: 0.10)")
+    calibrate.add_argument("--offset-deg", type=positive_float, default=3.0, metavar="DEG",
+                           help="lidars: how much the first guess is turned (default: 3)")
+    calibrate.add_argument("--write", metavar="PATH",
+                           help="lidars: write the profile with the calibrated extrinsics here (.yaml)")
+    calibrate.add_argument("--json", action="store_true", help="lidars: print one JSON object instead of the table")
     return {"describe": cmd_describe, "config": cmd_config, "replay": cmd_replay, "calibrate": cmd_calibrate}
 
 
@@ -148,6 +161,31 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    if args.what == "lidars":
+        return _calibrate_lidars(args)
     from ares.harness.odometry_score import calibrate
     calibrate(args.laps, args.seed)
+    return 0
+
+
+def _calibrate_lidars(args: argparse.Namespace) -> int:
+    from ares import config
+    from ares.harness import lidar_calibration
+    if args.write and not args.write.endswith((".yaml", ".yml")):
+        print(f"ares calibrate: --write {args.write}: the profile must be a .yaml file (so that --vehicle takes it)",
+              file=sys.stderr)
+        return 2
+    try:
+        report = lidar_calibration.calibrate(args.vehicle, args.seed or 0, args.offset_m, args.offset_deg)
+    except (config.ConfigError, ValueError) as exc:      # an unknown or invalid profile, no LiDARs to calibrate
+        print(f"ares calibrate: {exc}", file=sys.stderr)
+        return 2
+    if args.write:
+        try:
+            report["written"] = str(lidar_calibration.write_profile(report, args.write))
+        except OSError as exc:
+            raise CliError(f"cannot write {args.write}: {exc.strerror}") from None
+    print(json.dumps(report) if args.json else lidar_calibration.table(report))
+    if args.write and not args.json:
+        print(f"written: {report['written']}")
     return 0
