@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ares.messages import OccupancyGrid, RoadDetection, WorldTruth
+from ares.messages import LidarStatus, OccupancyGrid, RoadDetection, WorldTruth
 from ares.route import Route
 from ares.sim.world import BOUNDARY_VERGES
 
@@ -57,6 +57,7 @@ class PerceptionTracker:
     road_cells_occupied: int = 0
     stage_ms: list[float] = field(default_factory=list)
     blocked_points: dict[str, list[int]] = field(default_factory=dict)
+    waiting: list = field(default_factory=list)      # messages whose truth has not arrived yet
 
     def __post_init__(self) -> None:
         self.tree = cKDTree(np.stack([self.route.x, self.route.y], axis=1))
@@ -86,7 +87,28 @@ class PerceptionTracker:
         ok = half <= EDGE_WITHIN_M
         return (half if ok and left in BOUNDARY_VERGES else None, -half if ok and right in BOUNDARY_VERGES else None)
 
-    def add_road(self, msg: RoadDetection) -> bool:
+    def add_road(self, msg: RoadDetection) -> None:
+        if not self._road(msg):
+            self.waiting.append(msg)
+
+    def add_grid(self, grid: OccupancyGrid) -> None:
+        if not self._grid(grid):
+            self.waiting.append(grid)
+
+    def retry(self, give_up_s: float = 2.0) -> None:
+        """Judge what waited for its truth; drop what waited too long (the run's end, a gap)."""
+        latest = self.truth_t[-1] if self.truth_t else -math.inf
+        still = []
+        for msg in self.waiting:
+            done = self._road(msg) if isinstance(msg, RoadDetection) else self._grid(msg)
+            if not done and latest - msg.t < give_up_s:
+                still.append(msg)
+        self.waiting = still
+        horizon = latest - give_up_s - 1.0
+        for t in [t for t in self.worlds if t < horizon]:
+            del self.worlds[t]
+
+    def _road(self, msg: RoadDetection) -> bool:
         """One detection; False if the truth at its time is not known (yet)."""
         pose = self._pose_at(msg.t)
         if pose is None:
@@ -114,7 +136,7 @@ class PerceptionTracker:
                 self.centre_err.append(abs(xte))
         return True
 
-    def add_grid(self, grid: OccupancyGrid) -> bool:
+    def _grid(self, grid: OccupancyGrid) -> bool:
         pose = self._pose_at(grid.t)
         world = self.worlds.get(round(grid.t, 3))
         if pose is None or world is None:
@@ -161,11 +183,13 @@ class PerceptionTracker:
         self.road_cells_occupied += int((occupied[near] & road).sum())
         return True
 
-    def add_status(self, stage_ms: dict[str, float], points: dict[str, int], blocked: list[str]) -> None:
-        if "total" in stage_ms:
-            self.stage_ms.append(stage_ms["total"])
-        for name in blocked:
-            self.blocked_points.setdefault(name, []).append(points.get(name, 0))
+    def add_status(self, status: LidarStatus) -> None:
+        if "total" in status.stage_ms:
+            self.stage_ms.append(status.stage_ms["total"])
+        world = self.worlds.get(round(status.t, 3))
+        for name in (world.blocked_lidars if world else []):
+            if name in status.sensors:
+                self.blocked_points.setdefault(name, []).append(status.sensors[name].points)
 
     # ---- the figures -------------------------------------------------------------------------
     def summary(self) -> dict:

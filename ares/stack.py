@@ -35,6 +35,7 @@ from ares.bus import Bus, ServiceError
 from ares.clock import Clock, DrivenClock, ScaledClock, WallClock
 from ares.messages import DriveMode, DriverCommand
 from ares.metrics import LapTracker, LocalizationTracker
+from ares.perception_eval import PerceptionTracker
 from ares.report import write_lap_svg
 from ares.route import Route, RouteError, load_route, read_origin
 from ares.supervisor import Supervisor
@@ -227,6 +228,13 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     truth.drain()
     tracker = LapTracker(route)
     localization = LocalizationTracker()
+    vehicle = config.core(cfg).vehicle_profile
+    perceiving = bool(vehicle.lidars) and any(p.name == "lidar_perception" for p in processes.for_run(cfg["simulate"]))
+    perception = PerceptionTracker(route, front_bumper_x_m=(vehicle.length_m + vehicle.wheelbase_m) / 2)
+    roads = bus.subscribe("perception/road", queue=4096) if perceiving else None
+    grids = bus.subscribe("perception/grid", queue=256) if perceiving else None
+    worlds = bus.subscribe("sim/world", queue=1024) if perceiving else None
+    lidar_status = bus.subscribe("perception/lidar_status", queue=1024) if perceiving else None
     poses = bus.subscribe("localization/pose", queue=4096)
     scores = bus.subscribe("odometry/score", queue=4096)
     target_m = laps * route.length if route.closed else route.length
@@ -243,6 +251,17 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
         for _, msg in truth.drain():
             tracker.update(msg.x, msg.y, msg.odometer_m)
             localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
+            perception.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.s)
+        if perceiving:
+            for _, world in worlds.drain():
+                perception.add_world(world)
+            for _, road in roads.drain():
+                perception.add_road(road)
+            for _, grid in grids.drain():
+                perception.add_grid(grid)
+            for _, status in lidar_status.drain():
+                perception.add_status(status)
+            perception.retry()
         for _, pose in poses.drain():
             localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)
         for _, score in scores.drain():
@@ -281,6 +300,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     result = {"ok": True, "laps": laps if route.closed else 0, "route": route.name,
               "route_length_m": round(route.length, 2), "lap_time_s": round(lap_time / max(laps, 1), 2),
               "total_time_s": round(lap_time, 2), **tracker.summary(), **localization.summary(),
+              **(perception.summary() if perceiving else {}),
               "speed_factor": round(lap_time / max(wall_s, 1e-9), 2), "clock": clock.mode,
               "wall_time_s": round(wall_s, 1),
               "vehicle": cfg["vehicle"], "run_dir": str(run_dir),

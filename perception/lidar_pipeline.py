@@ -1,0 +1,126 @@
+"""One frame of the three LiDARs through perception (ARES §3.4–3.5), in order:
+
+    each sensor's points → vehicle frame (its extrinsics)
+    → merged → self-hit filter (the shape of the vehicle) → near-field ghost filter
+    → heightmap ground removal (Algorithm 2) → local occupancy grid (ray traced)
+    → road detection per ring (eqs. 7–10, Algorithm 1, two-step least squares)
+
+The same pipeline serves the perception process, `ares perception scan FILE` and
+`ares bench perception`; it keeps the last road model (eq. 10 measures against it).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ares.config import LidarMount, Params, VehicleProfile, param
+from perception.cloud_filters import BodyBox, CloudFilterParams, keep_mask
+from perception.extrinsics import apply, pose_matrix
+from perception.heightmap import ground_mask
+from perception.occupancy import OccupancyMapper, OccupancyParams
+from perception.road_detection import LidarFrame, RoadDetectionParams, RoadModel, RoadResult, detect_road
+
+RINGS_PER_SENSOR = 64       # ring ids are sensor index × 64 + laser: unique across the sensors
+
+
+class GroundParams(Params):
+    threshold_m: float = param(0.15, "a heightmap cell spanning less than this in height is ground (Algorithm 2: Th)",
+                               unit="m", gt=0)
+
+
+class LidarPipelineParams(Params):
+    """Perception of the three LiDARs (ARES §3.4–3.5)."""
+    rate_hz: float = param(10.0, "frames per second (the LiDARs' rate)", unit="Hz", gt=0)
+    max_age_s: float = param(0.25, "a sensor's sweep older than this is missing from the frame", unit="s", gt=0)
+    filters: CloudFilterParams = param(doc="self-hit and ghost filters (§3.5.1)", factory=CloudFilterParams)
+    ground: GroundParams = param(doc="heightmap ground removal (Algorithm 2), on the grid's cells",
+                                 factory=GroundParams)
+    grid: OccupancyParams = param(doc="the local occupancy grid (§3.5.2)", factory=OccupancyParams)
+    road: RoadDetectionParams = param(doc="road detection (§3.4.2)", factory=RoadDetectionParams)
+
+
+@dataclass
+class SensorSweep:
+    """One sensor's sweep as it arrives: points in its own frame and their ring."""
+    name: str
+    points: np.ndarray              # (n, 3) float32, sensor frame
+    ring: np.ndarray                # (n,) laser index, 0 = lowest
+
+
+@dataclass
+class FrameResult:
+    points: np.ndarray              # (N, 3) the merged cloud, vehicle frame, after the filters
+    sensor_index: np.ndarray        # (N,) which sensor each point came from
+    ground: np.ndarray              # (N,) the heightmap's ground mask
+    grid: np.ndarray                # (rows, cols) 0 free, 100 occupied, 255 unknown
+    road: RoadResult
+    raw_points: dict[str, int]      # per sensor, before the filters
+    road_points: dict[str, int]     # per sensor, points scored as road
+    removed: dict[str, int]         # self hits and ghosts
+    stage_ms: dict[str, float] = field(default_factory=dict)
+
+
+class LidarPipeline:
+    def __init__(self, vehicle: VehicleProfile, params: LidarPipelineParams | None = None,
+                 mounts: dict[str, LidarMount] | None = None):
+        self.params = params or LidarPipelineParams()
+        self.mounts = dict(mounts if mounts is not None else vehicle.lidars)
+        self.names = list(self.mounts)
+        self.extrinsics = {n: pose_matrix(*m.xyz_m, *(math.radians(a) for a in m.rpy_deg)) for n, m in self.mounts.items()}
+        self.origins = np.array([m.xyz_m for m in self.mounts.values()], dtype=np.float64).reshape(-1, 3)
+        self.min_range = np.array([m.datasheet().min_range_m for m in self.mounts.values()], dtype=np.float32)
+        self.body = BodyBox.of(vehicle, vehicle.height_m or self.params.filters.self_hit.body_height_m)
+        self.mapper = OccupancyMapper(self.params.grid, self.origins)
+        self.previous: RoadModel | None = None
+
+    def process(self, sweeps: list[SensorSweep]) -> FrameResult:
+        p = self.params
+        ms: dict[str, float] = {}
+        clock = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal clock
+            now = time.perf_counter()
+            ms[stage] = round((now - clock) * 1e3, 3)
+            clock = now
+
+        parts, index, rings, azimuths = [], [], [], []
+        raw = {s.name: len(s.points) for s in sweeps}
+        for sweep in sweeps:
+            k = self.names.index(sweep.name)
+            pts = np.asarray(sweep.points, dtype=np.float32)
+            parts.append(apply(self.extrinsics[sweep.name], pts))
+            index.append(np.full(len(pts), k, dtype=np.int16))
+            rings.append(k * RINGS_PER_SENSOR + np.asarray(sweep.ring, dtype=np.int32))
+            azimuths.append(np.arctan2(pts[:, 1], pts[:, 0]))
+        points = np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
+        sensor_index = np.concatenate(index) if index else np.zeros(0, np.int16)
+        ring_id = np.concatenate(rings) if rings else np.zeros(0, np.int32)
+        azimuth = np.concatenate(azimuths) if azimuths else np.zeros(0, np.float32)
+        lap("transform")
+
+        filters = p.filters.model_copy(deep=True)
+        keep = keep_mask(points, sensor_index, self.origins, self.body, filters, min_range_m=self.min_range)
+        removed = {"filtered": int(len(keep) - keep.sum())}
+        points, sensor_index, ring_id, azimuth = points[keep], sensor_index[keep], ring_id[keep], azimuth[keep]
+        lap("filters")
+
+        g = p.grid
+        shifted = points - np.array([g.centre_x_m, g.centre_y_m, 0.0], dtype=np.float32)
+        ground = ground_mask(shifted, g.width_m, g.height_m, g.cell_m, p.ground.threshold_m)
+        lap("ground")
+
+        cells = self.mapper.cells(points, ground, sensor_index)
+        lap("grid")
+
+        road = detect_road(LidarFrame(points, ring_id, azimuth, sensor_index.astype(np.int64), self.origins),
+                           p.road, self.previous)
+        self.previous = road.model if road.found else self.previous
+        lap("road")
+        ms["total"] = round(sum(ms.values()), 3)
+        road_points = {name: int(road.road_points_per_sensor[k]) if k < len(road.road_points_per_sensor) else 0
+                       for k, name in enumerate(self.names)}
+        return FrameResult(points, sensor_index, ground, cells, road, raw, road_points, removed, ms)
