@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ares.config import LidarMount, Params, VehicleProfile, param
-from perception.cloud_filters import BodyBox, CloudFilterParams, keep_mask
+from perception.cloud_filters import BodyBox, CloudFilterParams, ghost_mask, self_hit_mask
 from perception.extrinsics import apply, pose_matrix
 from perception.heightmap import ground_mask
 from perception.occupancy import OccupancyMapper, OccupancyParams
@@ -102,9 +102,14 @@ class LidarPipeline:
         azimuth = np.concatenate(azimuths) if azimuths else np.zeros(0, np.float32)
         lap("transform")
 
-        filters = p.filters.model_copy(deep=True)
-        keep = keep_mask(points, sensor_index, self.origins, self.body, filters, min_range_m=self.min_range)
-        removed = {"filtered": int(len(keep) - keep.sum())}
+        keep = ~self_hit_mask(points, self.body, p.filters.self_hit.margin_m)
+        removed = {"self_hits": int(len(keep) - keep.sum())}
+        index = np.flatnonzero(keep)
+        ghost = p.filters.ghost
+        ghosts = ghost_mask(points[index], sensor_index[index], self.origins, self.body, ghost.near_field_m,
+                            ghost.radius_m, ghost.min_neighbours, np.maximum(self.min_range, ghost.min_range_m))
+        keep[index[ghosts]] = False          # ghosts are judged once the self hits are gone (keep_mask)
+        removed["ghosts"] = int(ghosts.sum())
         points, sensor_index, ring_id, azimuth = points[keep], sensor_index[keep], ring_id[keep], azimuth[keep]
         lap("filters")
 
