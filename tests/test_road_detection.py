@@ -1,0 +1,410 @@
+"""Road detection (perception/road_detection.py, ARES §3.4.2): Algorithm 1 branch by branch,
+eqs. 7-10 by hand, the window features against a point-by-point reading, and synthetic scans
+of analytic roads.
+
+A synthetic ring is the footprint of a cone of laser beams on flat ground, a circle of radius
+h / tan(−elevation) about the sensor's foot, with the sensor's azimuth steps; each point is
+raised to the terrain's height there (a road with a 2.5 % crown and a verge beyond |s| = 3 m).
+A pitched corner sensor's rings are not circles and a beam hitting a kerb lands on its face,
+not beyond it; the detector relies on neither.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import statistics
+
+import numpy as np
+import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+from perception.road_detection import (GAP_M, LidarFrame, RoadDetectionParams, RoadModel, ScoreWeights,
+                                       boundary_distance_term, detect_road, fit_boundary, gradient_term,
+                                       normalized_azimuth_subtraction, relative_height_term, road_score)
+
+PI = math.pi
+poly = np.polynomial.polynomial
+
+# ---- Algorithm 1 ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("theta_ij, theta_s, expected", [
+    (7 * PI / 8, -7 * PI / 8, PI / 4),        # Δ = −7π/4 < −3π/2: remainder(Δ, π) = Δ + 2π
+    (5 * PI / 8, -5 * PI / 8, 7 * PI / 4),    # Δ = −5π/4 in [−3π/2, −π): π + mod(Δ, π) = π + 3π/4
+    (PI / 6, PI / 2, PI / 3),                 # Δ = π/3: itself
+    (-PI / 2, PI / 2, PI),                    # Δ = π: itself (Δ <= π)
+    (PI / 2, -PI / 2, -PI),                   # Δ = −π: itself (not < −π)
+    (-5 * PI / 8, 5 * PI / 8, PI / 4),        # Δ = 5π/4 > π: remainder(Δ, π) = Δ − π (5/4 rounds to 1)
+    (-7 * PI / 8, 7 * PI / 8, -PI / 4),       # Δ = 7π/4 > π: remainder(Δ, π) = Δ − 2π (7/4 rounds to 2)
+])
+def test_algorithm_1_on_each_branch(theta_ij, theta_s, expected):
+    assert normalized_azimuth_subtraction(theta_ij, theta_s) == pytest.approx(expected, abs=1e-12)
+
+
+def literal(theta_ij: float, theta_s: float) -> float:
+    """Algorithm 1 line by line with Python's own remainder (IEEE) and % (floored mod)."""
+    d = theta_s - theta_ij
+    if -3 * PI / 2 > d:
+        return math.remainder(d, PI)
+    elif d < -PI:
+        return PI + d % PI
+    elif d <= PI:
+        return d
+    return math.remainder(d, PI)
+
+
+angles = st.floats(-PI, PI, allow_nan=False)
+
+
+@given(st.lists(st.tuples(angles, angles), min_size=1, max_size=20))
+def test_algorithm_1_properties(pairs):
+    theta_ij, theta_s = np.array(pairs).T
+    got = normalized_azimuth_subtraction(theta_ij, theta_s)
+    for t, s, g in zip(theta_ij, theta_s, got):
+        d = s - t
+        assume(abs(abs(d) - 1.5 * PI) > 1e-9)          # remainder's tie at ±3π/2 goes to the even n
+        assert g == pytest.approx(literal(t, s), abs=1e-12)
+        assert -PI <= g < 2 * PI
+        turns = (g - d) / PI                        # always Δ plus a whole number of π
+        assert turns == pytest.approx(round(turns), abs=1e-9)
+        if -1.5 * PI <= d < -PI or PI < d <= 1.5 * PI:
+            assert round(turns) in (3, -1)          # the two middle ranges fold by π
+        else:
+            assert round(turns) % 2 == 0            # elsewhere by 2π: the wrapped difference ...
+            assert -PI <= g <= PI
+        if abs(math.remainder(d, 2 * PI)) < PI / 2:
+            assert g == pytest.approx(math.remainder(d, 2 * PI), abs=1e-12)   # ... always within a quarter turn
+
+
+# ---- eqs. 7-10 --------------------------------------------------------------------------------
+
+W = ScoreWeights(beta0=2, beta1=-1, beta2=0.1, beta3=2, beta4=3, beta5=4, beta6=0.2, beta7=3, beta8=2,
+                 beta9=0.3, beta10=0.5)
+
+
+def test_eqs_7_to_10_by_hand():
+    assert gradient_term(0.5, W) == pytest.approx(0.1 + 2 * 0.5 + 3 * 0.25 + 4 * 0.125)     # 2.35
+    assert relative_height_term(0.04, W) == pytest.approx(0.2 + 3 * 0.04 + 2 * 0.2)       # 0.72
+    assert boundary_distance_term(-2.0, W) == pytest.approx(0.3 + 0.5 * -2.0)             # −0.7
+    # β1 + ∇ + σ + d̂ = −1 + 2.35 + 0.72 − 0.7 = 1.37; β0 · 1.37 = 2.74
+    assert road_score(0.5, 0.04, -2.0, W) == pytest.approx(1 / (1 + math.exp(2.74)))
+    # no previous boundary (NaN or None): d̂ = 0, so 2 · (−1 + 2.35 + 0.72) = 4.14
+    assert road_score(0.5, 0.04, math.nan, W) == pytest.approx(1 / (1 + math.exp(4.14)))
+    assert road_score(0.5, 0.04, None, W) == pytest.approx(1 / (1 + math.exp(4.14)))
+    assert road_score(np.array([0.5, 0.5]), np.array([0.04, 0.04]), np.array([-2.0, np.nan]), W) == \
+        pytest.approx([1 / (1 + math.exp(2.74)), 1 / (1 + math.exp(4.14))])
+
+
+def test_default_weights_score_a_flat_road_as_road_and_a_kerb_not():
+    w = ScoreWeights()
+    assert road_score(0.03, 0.005, None, w) > 0.95
+    assert road_score(0.0, 0.12, None, w) < 0.5 and road_score(0.3, 0.0, None, w) < 0.5
+    assert road_score(1000.0, 1000.0, 1000.0, w) == 0.0 and road_score(0.0, 0.0, -1e6, w) == 1.0   # no overflow
+
+
+# ---- synthetic scans --------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Sensor:
+    origin: tuple[float, float, float]      # vehicle frame, m
+    yaw_deg: float
+    elevations_deg: tuple[float, ...]
+    step_deg: float
+    max_radius_m: float                     # rings reaching farther are left out (never on the ROI's ground)
+
+
+ROOF = Sensor((3.0, 0.0, 2.94), 0.0, tuple(np.r_[np.linspace(2.0, -8.33, 32), np.linspace(-8.83, -24.8, 32)]),
+              0.17, 40.0)
+# 16 lasers ±15°, pitched 15° down: −30° .. 0°; the near field only
+CORNER_L = Sensor((3.3, 0.95, 0.9), 45.0, tuple(np.arange(-30.0, 0.0, 2.0)), 0.2, 8.0)
+CORNER_R = dataclasses.replace(CORNER_L, origin=(3.3, -0.95, 0.9), yaw_deg=-45.0)
+SENSORS = (ROOF, CORNER_L, CORNER_R)
+HALF_WIDTH, CROWN = 3.0, 0.025
+
+
+def verge(kind: str, t: np.ndarray) -> np.ndarray:
+    """Height of the verge t metres beyond the road's edge, relative to the edge."""
+    return {"kerb": np.full_like(t, 0.12), "grass": 0.25 * t, "wall": np.full_like(t, 2.0),
+            "drop": np.full_like(t, -2.0), "open": np.zeros_like(t)}[kind]
+
+
+def lateral(X, Y, radius):
+    """s: signed distance from the road's centre line, + to its left. A bend of `radius` (+ left)
+    turns about (0, radius)."""
+    return Y if radius is None else radius - np.sign(radius) * np.hypot(X, Y - radius)
+
+
+def to_world(pose, x, y):
+    X0, Y0, yaw = pose[0], pose[1], math.radians(pose[2])
+    return X0 + math.cos(yaw) * x - math.sin(yaw) * y, Y0 + math.sin(yaw) * x + math.cos(yaw) * y
+
+
+def terrain(X, Y, left, right, radius, box):
+    s = lateral(X, Y, radius)
+    z = -CROWN * np.minimum(np.abs(s), HALF_WIDTH)
+    z = np.where(s > HALF_WIDTH, z + verge(left, s - HALF_WIDTH), z)
+    z = np.where(s < -HALF_WIDTH, z + verge(right, -s - HALF_WIDTH), z)
+    if box is not None:                     # (X0, X1, Y0, Y1, height): something standing on the road
+        X0, X1, Y0, Y1, h = box
+        z = np.where((X >= X0) & (X <= X1) & (Y >= Y0) & (Y <= Y1), z + h, z)
+    return z
+
+
+@functools.lru_cache(maxsize=None)
+def scan(pose=(0.0, 0.0, 0.0), left="kerb", right="kerb", radius=None, box=None, sensors=SENSORS,
+         far_rings=False) -> LidarFrame:
+    """A frame of the sensors, the vehicle at `pose` = (X, Y, yaw°) on the road. far_rings: the
+    rings that miss the ground nearby hit something 60 m away (a full-size frame)."""
+    parts = []
+    for index, sensor in enumerate(sensors):
+        theta = np.arange(-PI, PI, math.radians(sensor.step_deg))
+        for laser, elevation in enumerate(sensor.elevations_deg):
+            radius_m = sensor.origin[2] / math.tan(math.radians(-elevation)) if elevation < 0 else math.inf
+            if radius_m > sensor.max_radius_m and not far_rings:
+                continue
+            phi = theta + math.radians(sensor.yaw_deg)
+            r = min(radius_m, 60.0) if radius_m <= sensor.max_radius_m else 60.0
+            x, y = sensor.origin[0] + r * np.cos(phi), sensor.origin[1] + r * np.sin(phi)
+            z = terrain(*to_world(pose, x, y), left, right, radius, box) if r < 60.0 else np.full_like(x, 5.0)
+            seen = ~((x > -1.0) & (x < 4.0) & (np.abs(y) < 1.1))        # the vehicle's own body: filtered
+            parts.append((np.c_[x, y, z][seen], np.full(seen.sum(), 64 * index + laser), theta[seen],
+                          np.full(seen.sum(), index)))
+    if not parts:
+        return empty_frame(len(sensors))
+    points, ring, azimuth, sensor_index = (np.concatenate(a) for a in zip(*parts))
+    return LidarFrame(points.astype(np.float32), ring, azimuth, sensor_index, np.array([s.origin for s in sensors]))
+
+
+def empty_frame(sensors=3) -> LidarFrame:
+    return LidarFrame(np.zeros((0, 3), np.float32), np.zeros(0, int), np.zeros(0), np.zeros(0, int),
+                      np.zeros((sensors, 3)))
+
+
+def edge_errors(points, pose=(0.0, 0.0, 0.0), radius=None, side=1):
+    """How far each boundary point lies beyond the road's true edge on its side (m, + outwards)."""
+    return side * lateral(*to_world(pose, points[:, 0], points[:, 1]), radius) - HALF_WIDTH
+
+
+def true_edge(x, pose, radius, side):
+    """y of the true edge at each x, in the vehicle frame (by bisection on y)."""
+    lo, hi = np.full_like(x, -15.0), np.full_like(x, 15.0)
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        beyond = side * lateral(*to_world(pose, x, mid), radius) - HALF_WIDTH > 0
+        lo, hi = np.where(beyond == (side < 0), mid, lo), np.where(beyond == (side < 0), hi, mid)
+    return (lo + hi) / 2
+
+
+# ---- the window features against a point-by-point reading ------------------------------------
+
+def brute_force_scores(frame: LidarFrame, p: RoadDetectionParams) -> np.ndarray:
+    """Steps 1-3 of the module's docstring for one point at a time: reference on y = 0, no
+    previous boundary."""
+    scores = np.full(len(frame.points), np.nan)
+    x, y, z = frame.points.astype(float).T
+    roi = (x >= p.x_min_m) & (x <= p.x_max_m) & (np.abs(y) <= p.half_width_m)
+    for ring in np.unique(frame.ring_id):
+        members = np.flatnonzero(roi & (frame.ring_id == ring))
+        ahead = [i for i in members if x[i] > frame.sensor_origins[frame.sensor_index[i], 0]]
+        reference = min(ahead, key=lambda i: abs(y[i]))
+        assert abs(y[reference]) <= p.reference_max_offset_m
+        turn = {i: math.remainder(frame.azimuth[i] - frame.azimuth[reference], 2 * PI) for i in members}
+        ring_pts = sorted((i for i in members if abs(turn[i]) < PI / 2), key=turn.get)
+        steps = [math.hypot(x[a] - x[b], y[a] - y[b]) for a, b in zip(ring_pts, ring_pts[1:])]
+        spacing = statistics.mean(s for s in steps if s <= GAP_M)
+        reach = max(p.window, math.ceil(p.gradient_span_m / spacing))
+        for at, i in enumerate(ring_pts):
+            inward = -1 if turn[i] > 0 else 1
+            near = [at + inward * j for j in range(1, p.window + 1)]
+            far = at + inward * reach
+            if turn[i] == 0 or not (0 <= far < len(ring_pts) and 0 <= min(near) and max(near) < len(ring_pts)):
+                scores[i] = 1.0
+                continue
+            j = ring_pts[far]
+            gradient = abs(z[i] - z[j]) / math.hypot(x[i] - x[j], y[i] - y[j])
+            sigma = abs(z[i] - statistics.median_high(z[ring_pts[n]] for n in near))     # k even: the upper one
+            scores[i] = road_score(gradient, sigma, None, p.weights)
+    return scores
+
+
+@pytest.mark.parametrize("window", [4, 5])
+def test_window_features_match_a_point_by_point_reading(window):
+    rng = np.random.default_rng(7)
+    sensor = Sensor((1.0, 0.0, 2.0), 30.0, (-12.0, -16.0, -21.0), 1.5, 40.0)
+    frame = scan(left="kerb", right="wall", sensors=(sensor,))
+    noisy = frame.points + np.c_[np.zeros((len(frame.points), 2)), rng.normal(0, 0.02, len(frame.points))]
+    shuffle = rng.permutation(len(frame.points))           # the order of the points does not matter
+    frame = dataclasses.replace(frame, points=noisy.astype(np.float32)[shuffle], ring_id=frame.ring_id[shuffle],
+                                azimuth=frame.azimuth[shuffle], sensor_index=frame.sensor_index[shuffle])
+    # the reference on y = 0 as in the brute force, through a previous model whose eq. 10 weighs nothing
+    p = RoadDetectionParams(window=window, gradient_span_m=0.4, weights=ScoreWeights(beta9=0.0, beta10=0.0))
+    got = detect_road(frame, p, previous=RoadModel(np.array([3.0]), np.array([-3.0]), 6.0)).scores
+    expected = brute_force_scores(frame, p)
+    assert np.array_equal(np.isnan(got), np.isnan(expected))
+    assert np.nanmax(np.abs(got - expected)) < 1e-4
+    assert np.sum(got < 0.5) >= 5 and np.sum(got >= 0.5) >= 100    # both kinds of point are there
+
+
+# ---- boundaries and the road model ------------------------------------------------------------
+
+@pytest.mark.parametrize("verge_kind", ["kerb", "wall", "drop"])
+def test_a_straight_road_between_steps(verge_kind):
+    result = detect_road(scan(left=verge_kind, right=verge_kind))
+    for points, side in ((result.left_points, 1), (result.right_points, -1)):
+        assert len(points) >= 30
+        errors = edge_errors(points, side=side)
+        assert errors.max() <= 0.001 and errors.min() >= -0.06      # the last road point: within a spacing
+    x = np.linspace(0.0, 12.0, 25)
+    assert np.abs(poly.polyval(x, result.model.left) - 3.0).max() < 0.03
+    assert np.abs(poly.polyval(x, result.model.right) + 3.0).max() < 0.03
+    assert result.found and result.confidence > 0.9
+    assert abs(result.lateral_offset_m) < 0.02 and abs(result.heading_rad) < math.radians(0.3)
+    assert result.width_m == pytest.approx(6.0, abs=0.05)
+
+
+def test_a_gentle_change_of_slope_is_found_late_by_part_of_the_gradient_span():
+    """From −2.5 % to +25 %: ∇, taken over gradient_span_m, rises past its threshold only once
+    most of that span lies on the verge."""
+    frame = scan(left="grass", right="grass")
+    short = RoadDetectionParams(window=2, run=2, gradient_span_m=0.1)     # noise-free: short windows will do
+    for p, late in ((RoadDetectionParams(), 0.25), (short, 0.10)):
+        result = detect_road(frame, p)
+        for points, side in ((result.left_points, 1), (result.right_points, -1)):
+            errors = edge_errors(points, side=side)
+            assert len(points) >= 30 and errors.min() >= 0.0 and errors.max() <= late
+        assert result.found and result.confidence > 0.9
+
+
+@pytest.mark.parametrize("radius", [30.0, -30.0])
+def test_a_bend_of_30_m(radius):
+    first = detect_road(scan(left="kerb", right="kerb", radius=radius))
+    again = detect_road(scan(left="kerb", right="kerb", radius=radius), previous=first.model)
+    for result in (first, again):
+        for points, side in ((result.left_points, 1), (result.right_points, -1)):
+            errors = edge_errors(points, radius=radius, side=side)
+            assert len(points) >= 30 and errors.max() <= 0.001 and errors.min() >= -0.07
+        x = np.linspace(0.0, 12.0, 25)
+        for coef, side in ((result.model.left, 1), (result.model.right, -1)):
+            assert np.abs(poly.polyval(x, coef) - true_edge(x, (0, 0, 0), radius, side)).max() < 0.1
+        # a parabola is not an arc: at x = 0, ~4 m behind the nearest boundary point, it is off by some cm and 1-2°
+        assert abs(result.lateral_offset_m) < 0.1 and abs(result.heading_rad) < math.radians(2.0)
+        assert result.width_m == pytest.approx(6.0, abs=0.1) and result.confidence > 0.9
+
+
+@pytest.mark.parametrize("offset, yaw", [(0.5, 5.0), (-0.5, -5.0)])
+def test_lateral_offset_and_heading(offset, yaw):
+    result = detect_road(scan(pose=(0.0, offset, yaw)))
+    assert result.lateral_offset_m == pytest.approx(offset, abs=0.02)    # + : the vehicle is left of the centre
+    assert math.degrees(result.heading_rad) == pytest.approx(yaw, abs=0.3)   # + : it points left of the road
+    assert result.width_m == pytest.approx(6.0, abs=0.05)
+    assert edge_errors(result.left_points, (0.0, offset, yaw)).min() >= -0.06
+
+
+@pytest.mark.parametrize("x0, x1, offset_tolerance", [
+    (4.0, 5.0, 0.07),           # it hides the near field: x = 0 is extrapolated from x = 5 m on
+    (10.0, 10.6, 0.02),
+    (11.0, 11.4, 0.02),
+])
+def test_the_refit_drops_the_rings_that_stop_at_something_on_the_verge(x0, x1, offset_tolerance):
+    """A 0.5 m box whose face stands 1.4 m inside the left edge: the rings that meet it stop
+    short. A plain least-squares fit through all boundary points is pulled towards them (most
+    at the ends of the range); the two-step fit drops exactly them."""
+    result = detect_road(scan(box=(x0, x1, 1.6, 5.0, 0.5)))
+    fit, points = result.left_fit, result.left_points[result.left_points[:, 0] <= 12.0]
+    short = edge_errors(points) < -0.1
+    assert 2 <= short.sum() < len(points) / 3
+    assert np.array_equal(~fit.inliers, short)
+    x = np.linspace(points[fit.inliers, 0].min(), 12.0, 25)
+    plain = poly.polyfit(points[:, 0], points[:, 1], 2)
+    assert np.abs(poly.polyval(x, plain) - 3.0).max() > 0.2
+    assert np.abs(poly.polyval(x, fit.coef) - 3.0).max() < 0.03
+    assert result.lateral_offset_m == pytest.approx(0.0, abs=offset_tolerance)
+
+
+def test_fit_boundary_rejects_outliers_in_two_steps():
+    x = np.linspace(4.0, 12.0, 17)
+    y = 3.0 + 0.02 * x + 0.005 * np.sin(5 * x)
+    y[[3, 4, 5, 11]] -= [1.2, 1.3, 1.1, 0.8]                # two runs of rings that stopped short
+    p = RoadDetectionParams(poly_order=2)
+    fit = fit_boundary(x, y, p)
+    assert fit.inliers.tolist() == [i not in (3, 4, 5, 11) for i in range(17)]
+    error = {name: np.abs(poly.polyval(x, c) - 3.0 - 0.02 * x).max()
+             for name, c in (("plain", poly.polyfit(x, y, 2)), ("rough", fit.rough), ("refit", fit.coef))}
+    assert error["plain"] > 0.3 and error["rough"] < 0.2 and error["refit"] < 0.01
+    assert fit.rms_m < 0.005
+    assert fit_boundary(x[:4], y[:4], p) is None                          # fewer than min_points
+    assert fit_boundary(x[:6], y[:6], p) is None                          # bunched within 2.5 m of x
+
+
+def test_an_open_area_gives_no_boundary_on_its_side():
+    frame = scan(left="open", right="kerb")
+    alone = detect_road(frame)
+    assert len(alone.left_points) == 0 and alone.left_fit is None and alone.model.left is None
+    assert len(alone.right_points) >= 30
+    assert not alone.found and alone.confidence == 0.0                      # one side, no width known
+    tracked = detect_road(frame, previous=detect_road(scan()).model)       # the width from the last frame
+    assert tracked.found and 0.4 < tracked.confidence <= 0.5                # one side: at most half
+    assert tracked.lateral_offset_m == pytest.approx(0.0, abs=0.03)
+    assert tracked.width_m == pytest.approx(6.0, abs=0.05)
+
+
+def test_nothing_to_see():
+    for frame in (empty_frame(), scan(sensors=(dataclasses.replace(ROOF, elevations_deg=(-6.0, -5.0)),))):
+        result = detect_road(frame)                                        # nothing / only beyond the ROI
+        assert not result.found and result.confidence == 0.0
+        assert math.isnan(result.lateral_offset_m) and math.isnan(result.width_m)
+        assert len(result.left_points) == len(result.right_points) == 0
+        assert result.road_points_per_sensor.tolist() == [0] * len(frame.sensor_origins)
+        assert np.isnan(result.scores).all()
+
+
+def test_a_ring_across_its_sensors_azimuth_wrap():
+    """The roof sensor alone, mounted backwards: the road ahead lies across its ±π."""
+    p = RoadDetectionParams(fit_x_max_m=25.0)                  # the roof sees the ground from x = 9.3 m only
+    normal = detect_road(scan(sensors=(ROOF,)), p)
+    turned = detect_road(scan(sensors=(dataclasses.replace(ROOF, yaw_deg=180.0),)), p)
+    for result in (normal, turned):
+        for points, side in ((result.left_points, 1), (result.right_points, -1)):
+            errors = edge_errors(points, side=side)
+            assert len(points) >= 30 and errors.max() <= 0.001 and errors.min() >= -0.06
+        assert result.found and abs(result.lateral_offset_m) < 0.02 and abs(result.heading_rad) < 0.005
+    assert len(normal.left_points) == len(turned.left_points)
+
+
+def test_road_points_per_sensor():
+    frame = scan()
+    result = detect_road(frame)
+    counts = [np.sum(result.scores[frame.sensor_index == s] >= 0.5) for s in range(3)]
+    assert result.road_points_per_sensor.tolist() == counts and min(counts) > 1000
+    blind = scan(sensors=(ROOF, dataclasses.replace(CORNER_L, elevations_deg=()), CORNER_R))
+    assert detect_road(blind).road_points_per_sensor[1] == 0
+
+
+def test_the_previous_boundary_pulls_the_new_one_in_proportion_to_beta10():
+    """Eq. 10: with a previous left boundary at y = 2 (the edge is at 3), a point Δ̂ metres
+    beyond it adds β10·Δ̂ to the bracket: with β1 = −1 the flat road stops scoring as road at
+    Δ̂ = 1/β10. The default β10 leaves the kerb in charge; β10 = 2 stops at y ≈ 2.5."""
+    frame, wrong = scan(), RoadModel(np.array([2.0]), np.array([-3.0]), 5.0)
+    assert edge_errors(detect_road(frame, previous=wrong).left_points).min() >= -0.06
+    pulled = RoadDetectionParams(weights=ScoreWeights(beta10=2.0))
+    y = detect_road(frame, pulled, previous=wrong).left_points[:, 1]
+    assert len(y) >= 30 and 2.3 < y.min() and y.max() < 2.5      # the crown's own slope adds a little too
+
+
+def test_road_model_centre():
+    left, right = np.array([3.0, 0.1]), np.array([-3.0, 0.1])
+    assert RoadModel(left, right, None).centre() == pytest.approx([0.0, 0.1])
+    assert RoadModel(left, None, 6.0).centre() == pytest.approx([3.0 - 3.0 * math.hypot(1, 0.1), 0.1])
+    assert RoadModel(None, right, 6.0).centre() == pytest.approx([-3.0 + 3.0 * math.hypot(1, 0.1), 0.1])
+    assert RoadModel(left, None, None).centre() is None and RoadModel(None, None, 6.0).centre() is None
+
+
+def test_parameters_are_checked():
+    with pytest.raises(ValueError, match="run must not exceed window"):
+        RoadDetectionParams(window=3, run=4)
+    with pytest.raises(ValueError, match="min_points"):
+        RoadDetectionParams(poly_order=3, min_points=3)
+    with pytest.raises(ValueError):
+        RoadDetectionParams(x_min_m=30.0)
