@@ -443,6 +443,7 @@ class LidarHealth(BaseModel):
     points: int = Field(ge=0)               # in the last sweep
     road_points: int = Field(ge=0)          # of them scored as road
     age_s: float | None = None              # since the last sweep
+    blind: bool = False                     # its point count fell to about zero (covered, failed)
 
 
 class LidarStatus(Msg):

@@ -12,11 +12,13 @@ from collections import deque
 import numpy as np
 
 from ares.config import LIDAR_NAMES
-from ares.messages import LidarHealth, LidarStatus, OccupancyGrid, PointCloud, RoadBoundary, RoadDetection
+from ares.messages import EventLevel, LidarHealth, LidarStatus, OccupancyGrid, PointCloud, RoadBoundary, RoadDetection
 from ares.node import InputGroup, Node, Output
 from perception.lidar_pipeline import FrameResult, LidarPipeline, LidarPipelineParams, SensorSweep
 
 RATE_WINDOW_S = 1.0
+USUAL_FRAMES = 50           # a sensor's usual point count: the median of its last this many sweeps
+BLIND_SHARE = 0.05          # fewer points than this share of the usual: the sensor is blind (covered)
 
 
 def boundary(coefficients, x_min: float, x_max: float, points: int = 0) -> RoadBoundary | None:
@@ -56,6 +58,8 @@ class LidarPerception(Node):
         self.last_t: float | None = None
         self.arrivals = {name: deque() for name in LIDAR_NAMES}
         self.seen = {name: None for name in LIDAR_NAMES}
+        self.counts = {name: deque(maxlen=USUAL_FRAMES) for name in LIDAR_NAMES}
+        self.blind: set[str] = set()
 
     def step(self, now: float) -> None:
         fresh: dict[str, PointCloud] = {}
@@ -76,12 +80,29 @@ class LidarPerception(Node):
         frame = [SensorSweep(name, np.stack([m.x, m.y, m.z], axis=1), m.ring)
                  for name, m in fresh.items() if m.t == t]
         result = self.pipeline.process(frame)
+        self._watch_counts(result.raw_points)
         g = self.pipeline.mapper.grid
         self.grid.put(OccupancyGrid(t=t, frame="vehicle", resolution_m=g.cell_m, origin_x=g.origin_x,
                                     origin_y=g.origin_y, cells=result.grid))
         road_params = self.params.road
         self.road.put(road_message(t, result, (road_params.x_min_m, road_params.x_max_m)))
         self.status.put(self._status(t, now, result))
+
+    def _watch_counts(self, counts: dict[str, int]) -> None:
+        """A covered sensor's count falls to about zero (ARES §3.7): say so once, and once more
+        when it sees again."""
+        for name, n in counts.items():
+            usual = float(np.median(self.counts[name])) if len(self.counts[name]) >= 5 else None
+            blind = usual is not None and n < BLIND_SHARE * usual
+            if blind and name not in self.blind:
+                self.blind.add(name)
+                self.event("lidar_blind", f"{name} LiDAR returned {n} points, usually {usual:.0f}: covered or failed",
+                           EventLevel.WARNING, sensor=name, points=n, usual=round(usual))
+            elif not blind and name in self.blind and usual is not None:
+                self.blind.discard(name)
+                self.event("lidar_sees", f"{name} LiDAR sees again ({n} points)", sensor=name, points=n)
+            if not blind:
+                self.counts[name].append(n)
 
     def _status(self, t: float, now: float, result: FrameResult) -> LidarStatus:
         sensors = {}
@@ -92,5 +113,5 @@ class LidarPerception(Node):
             seen = self.seen[name]
             sensors[name] = LidarHealth(rate_hz=len(arrivals) / RATE_WINDOW_S, points=result.raw_points.get(name, 0),
                                         road_points=result.road_points.get(name, 0),
-                                        age_s=None if seen is None else round(now - seen, 3))
+                                        age_s=None if seen is None else round(now - seen, 3), blind=name in self.blind)
         return LidarStatus(t=t, sensors=sensors, stage_ms=result.stage_ms)

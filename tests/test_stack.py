@@ -16,7 +16,7 @@ from ares.processes import PROCESSES
 from ares.route import load_route
 from ares.stack import engage_automatic
 from ares.supervisor import Supervisor
-from tests.conftest import REPO, make_run_config, free_port
+from tests.conftest import LIGHT_LIDARS, REPO, make_run_config, free_port
 
 pytestmark = pytest.mark.stack
 
@@ -24,7 +24,7 @@ pytestmark = pytest.mark.stack
 def headless(*args: str, timeout_s: float = 600) -> dict:
     env = {**os.environ, "ARES_RUNS_DIR": os.environ.get("ARES_TEST_RUNS_DIR", "/tmp/ares-test-runs")}
     listen = f"tcp/127.0.0.1:{free_port()}"     # never the default ports of a stack running here
-    isolation = ["--listen", listen, "--api-port", str(free_port())]
+    isolation = ["--listen", listen, "--api-port", str(free_port()), "--config", str(LIGHT_LIDARS)]
     if "--store" not in args:   # keep test records out of the developer's data/
         isolation += ["--store", os.path.join(env["ARES_RUNS_DIR"], f"blackbox-{os.getpid()}-{free_port()}.sqlite")]
     proc = subprocess.run([sys.executable, "-m", "ares.cli", "run", "--headless", *isolation, *args],
@@ -36,7 +36,7 @@ def headless(*args: str, timeout_s: float = 600) -> dict:
 
 
 def test_a_full_lap_of_the_tour_as_fast_as_the_processes_keep_up():
-    result = headless("--laps", "1", "--speed", "max")
+    result = headless("--laps", "1", "--speed", "max", "--scenario", "obstacles_along_tour")
     assert result["ok"] and result["laps"] == 1 and result["clock"] == "driven"
     assert result["distance_m"] == pytest.approx(result["route_length_m"], rel=0.02)
     assert result["xte_rmse_m"] <= 0.35          # the DBW paper's real vehicle: 0.347 m
@@ -49,6 +49,12 @@ def test_a_full_lap_of_the_tour_as_fast_as_the_processes_keep_up():
     assert result["score_min_rtk"] >= 0.9
     assert result["score_max_deadzone"] <= 0.3
     assert result["loc_samples_rtk"] > 1000 and result["loc_samples_deadzone"] > 100
+    # perception (ARES §3.4-3.5), with the LiDARs light (tests/light_lidars.yaml)
+    assert result["road_frames"] > 2000 and result["road_detect_rate"] >= 0.95
+    assert result["road_edge_err_p50_m"] <= 0.15 and result["road_edge_err_p95_m"] <= 0.40
+    assert result["road_centre_err_p50_m"] <= 0.10
+    assert result["grid_obstacle_frames"] > 100 and result["grid_obstacle_recall"] >= 0.99
+    assert result["grid_false_occupied_road"] <= 0.005
 
 
 def test_the_simulator_driven_clock_gives_the_real_time_result(tmp_path):
