@@ -144,3 +144,15 @@ def test_the_readmes_manager_template_is_one_file_that_runs(cfg):
     finally:
         globals().pop(cls.__name__, None)
     assert len(_readme_template().splitlines()) <= 40, "the template is a reader's first manager: keep it short"
+
+
+def test_the_simulators_truth_reaches_no_process_of_the_stack(cfg):
+    # sim/truth and sim/world are for the evaluation (the headless runner) only: a vehicle-side
+    # process that read them would be steering by what a real shuttle cannot know
+    from ares.processes import PROCESSES
+    sim_only = {p.name for p in PROCESSES if p.sim_only}
+    for c in contracts.all_contracts(cfg):
+        if c["process"] in sim_only:
+            continue
+        read = {i["topic"] for i in c["inputs"]}
+        assert not read & {"sim/truth", "sim/world"}, c["process"]
