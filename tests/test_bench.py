@@ -41,3 +41,21 @@ def test_bus_bench_json():
     assert report["messages"] > 0 and report["payload_bytes"] > 0
     assert report["rejected"] == 0
     assert report["mode"] in ("peer", "client")
+
+
+def test_perception_bench_json():
+    result = subprocess.run([sys.executable, "-m", "ares.cli", "bench", "perception", "--json", "--frames", "2",
+                             "--repeats", "1"],
+                            cwd=REPO, capture_output=True, text=True, timeout=150, stdin=subprocess.DEVNULL)
+    assert result.returncode == 0, result.stderr
+    assert "[bench]" in result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    for key in ("ground_ms_p50", "grid_ms_p50", "road_ms_p50", "pipeline_ms_p50", "raycast_ms_p50",
+                "raycast_core_share_at_10hz", "filters_ms_p50", "transform_ms_p50", "pipeline_ground_ms_p50",
+                "raycast_as_run_ms_p50", "raycast_cast_rays_ms_p50", "scan_pipeline_ms_p50", "scan_stage_ms_p50",
+                "ground_scan_points_p50", "frame_points_p50", "load_avg_1m", "cpus", "method", "goals_met"):
+        assert key in report, key
+    assert report["frames"] == 2 and len(report["places"]) == 2
+    assert 100_000 < report["ground_scan_points_p50"] < 150_000         # a KITTI-dense 64-layer scan
+    assert report["frame_points_p50"] > 50_000                             # three sensors at full resolution
+    assert report["raycast_core_share_at_10hz"] == pytest.approx(report["raycast_ms_p50"] / 100.0, abs=1e-3)

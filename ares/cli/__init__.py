@@ -16,18 +16,27 @@
     ares topics [--seconds S]      keys seen under ares/<vehicle_id>/**, rates, schemas, live processes
     ares echo KEY [--count N] [--seconds S]
                                    print messages on a topic, one JSON object per line
+    ares driver button|throttle|brake|steer|release [VALUE] [--duration S]
+                                   act as the simulated shuttle's driver
+    ares auto                      ask the drive-by-wire bridge for Automatic mode
     ares bench bus [--json] [--seconds S] [--mode peer|client]
+    ares bench supervisor [--json] [--rounds N]
     ares route import FILE -o ROUTE [--format auto|csv|nmea] [--spacing M] [--strict]
                                    build a route file from a CSV of x,y[,z] or an NMEA log
     ares route record FILE [--seconds S]
                                    write the NMEA sentences of the running stack's receiver to FILE
     ares bench path [--json]       KD-tree build, path match and UKF step times (in-process)
+    ares bench perception [--json] [--frames N] [--repeats N]
+                                   LiDAR pipeline stage times, the simulated LiDARs' ray casting (in-process)
     ares bench blackbox [--json]   store ingest and hour query, latest-state API req/s over HTTPS
     ares api [--host H] [--port P] [--store URI] [--insecure-http]
                                    serve the black box's REST API (HTTPS; self-signed certificate if none configured)
     ares users add NAME --role ROLE [--store URI]
                                    add an API user; the password is read from stdin (asked twice on a terminal)
     ares users list [--store URI] [--json]
+    ares perception scan FILE [--sensor-height M] [--vehicle NAME] [--out PNG]
+                                   one LiDAR scan (KITTI .bin, .pcd, .ply) through the perception pipeline:
+                                   one JSON line and a top view (exit 2 when the file gives no usable scan)
 
 `topics` and `echo` connect in client mode to the running stack's router (the `bus.router`
 endpoint of the run configuration, or --router) and look under the configured vehicle id (or
@@ -40,10 +49,10 @@ import logging
 import os
 import sys
 
-from . import bench, blackbox, bus_tools, inspect, route, run
+from . import bench, blackbox, bus_tools, inspect, perception, route, run
 from .args import CliError, Command
 
-COMMAND_GROUPS = (run, inspect, bus_tools, bench, route, blackbox)     # in the order `ares --help` lists them
+COMMAND_GROUPS = (run, inspect, bus_tools, bench, route, blackbox, perception)   # as `ares --help` lists them
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,4 +1,4 @@
-"""`ares bench bus|path|blackbox`: the benchmarks."""
+"""`ares bench bus|path|blackbox|supervisor|perception`: the benchmarks."""
 from __future__ import annotations
 
 import argparse
@@ -29,6 +29,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
                                             "10,000 reachable-nearest matches with realistic hints, the raw KD "
                                             "queries, and one UKF step (perception.ukf), all in this process.")
     path.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    perception = bench_sub.add_parser(
+        "perception", help="LiDAR pipeline stage times and the simulated LiDARs' ray casting (in-process)",
+        description="At places along the built-in tour: the three simulated LiDARs' frame through "
+                    "LidarPipeline.process (stage medians), heightmap ground removal on a dense ~125,000-point "
+                    "64-layer scan, and the ray casting of the three sensors for one frame, single-threaded "
+                    "(its share of a core at 10 Hz) and on every core.")
+    perception.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    perception.add_argument("--frames", type=positive_int, default=8, metavar="N",
+                            help="places along the tour, evenly spaced (default 8)")
+    perception.add_argument("--repeats", type=positive_int, default=3, metavar="N",
+                            help="timed runs of the pipeline and the ground removal per place (default 3)")
     blackbox = bench_sub.add_parser(
         "blackbox", help="black box: ingest rate, one-hour query with 7 days stored, latest-state API over HTTPS",
         description="Ingests records in batches into a fresh embedded store, times one-hour queries with "
@@ -57,6 +68,9 @@ def _run(args: argparse.Namespace, progress):
     if args.bench == "supervisor":
         from ares.bench.supervisor import run_supervisor_bench
         return run_supervisor_bench(args.rounds, progress=progress), _key_per_line
+    if args.bench == "perception":
+        from ares.bench.perception import format_perception_result, run_perception_bench
+        return run_perception_bench(args.frames, args.repeats, progress=progress), format_perception_result
     if args.bench == "path":
         from ares.bench.path import format_path_result, run_path_bench
         return run_path_bench(progress=progress), format_path_result
@@ -68,9 +82,9 @@ def _run(args: argparse.Namespace, progress):
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    if args.bench not in ("bus", "path", "blackbox", "supervisor"):
-        raise CliError("which benchmark? try `ares bench bus`, `ares bench path`, `ares bench supervisor` "
-                       "or `ares bench blackbox`")
+    if args.bench not in ("bus", "path", "blackbox", "supervisor", "perception"):
+        raise CliError("which benchmark? try `ares bench bus`, `ares bench path`, `ares bench supervisor`, "
+                       "`ares bench perception` or `ares bench blackbox`")
     progress = lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     result, for_people = _run(args, progress)
     if args.json:
