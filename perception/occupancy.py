@@ -16,6 +16,12 @@ over its shadow, a low branch), which would put the obstacle at 0 m above "groun
 it. Where the window holds no ground point the ground is the vehicle frame's z = 0, the plane
 the wheels stand on; so is it for points outside the grid.
 
+A low flat-topped obstacle (a 0.3 m box) defeats the heightmap when only its top is seen: its
+cells span a few centimetres, so Algorithm 2 calls them ground. So a "ground" point is occupied
+too when it stands `min_height_m` or more above the floor around it: the lowest return within
+`floor_window_m` (the heightmap cells' minima, a square window). On the road that floor is a
+centimetre or two below the surface (cross-fall, roughness); beside a box it is the road.
+
 Free: the cells the rays crossed before their returns (perception/free_space.py, with its
 approximation); ground returns and obstacle returns both clear the cells in front of them, a
 ray stops at the first occupied cell, returns above the band clear nothing. Each sensor traces
@@ -25,6 +31,7 @@ Unknown: the rest — behind obstacles, outside every ray fan, never seen.
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import minimum_filter
 
 from ares.config import Params, param
 from ares.messages import OccupancyGrid
@@ -47,6 +54,8 @@ class OccupancyParams(Params):
     max_height_m: float = param(3.2, "upper bound: higher points (branches, signs) are passed under", unit="m", gt=0)
     ground_radius_m: float = param(1.0, "the local ground is the mean height of the ground points this close "
                                         "(square window)", unit="m", ge=0)
+    floor_window_m: float = param(0.4, "a ground point this much above the lowest return within this distance is "
+                                       "an obstacle's top (see the module's docstring)", unit="m", ge=0)
     azimuth_step_rad: float = param(0.005, "rays are traced in azimuth bins this wide around each sensor "
                                            "(no finer than the LiDARs' own step)", unit="rad", gt=0, le=0.1)
 
@@ -81,6 +90,7 @@ class OccupancyMapper:
                                  params.cell_m)
         self.tracer = FreeSpaceTracer(self.grid, np.asarray(sensor_origins)[:, :2], params.azimuth_step_rad)
         self.radius_cells = int(round(params.ground_radius_m / params.cell_m))
+        self.floor_cells = int(round(params.floor_window_m / params.cell_m))
 
     def cells(self, points: np.ndarray, ground: np.ndarray, sensor_index: np.ndarray) -> np.ndarray:
         """(rows, cols) uint8 grid, cells[row, col]: row along y, col along x. points: (N, ≥3)
@@ -95,6 +105,7 @@ class OccupancyMapper:
         above = z[others] - np.where(held, ground_z[np.where(held, flat[others], 0)], 0.0)
         occupied = np.zeros(self.grid.size, dtype=bool)
         occupied[flat[others[held & (above >= p.min_height_m) & (above <= p.max_height_m)]]] = True
+        occupied[flat[on_road][self._raised(flat[on_road], z[on_road], flat[inside], z[inside])]] = True
         returns = np.ones(len(points), dtype=bool)
         returns[others[above > p.max_height_m]] = False
         free = self.tracer.free(x, y, sensor_index, returns, occupied)
@@ -102,6 +113,17 @@ class OccupancyMapper:
         out[free] = FREE
         out[occupied] = OCCUPIED
         return out.reshape(self.grid.rows, self.grid.cols)
+
+    def _raised(self, cells: np.ndarray, z: np.ndarray, all_cells: np.ndarray, all_z: np.ndarray) -> np.ndarray:
+        """Which ground points stand min_height_m..max_height_m above the floor around them."""
+        if not len(cells):
+            return np.zeros(0, dtype=bool)
+        lowest = np.full(self.grid.size, np.inf, dtype=np.float32)
+        np.minimum.at(lowest, all_cells, all_z.astype(np.float32))
+        floor = minimum_filter(lowest.reshape(self.grid.rows, self.grid.cols), size=2 * self.floor_cells + 1,
+                               mode="nearest").reshape(-1)[cells]
+        rise = z - floor
+        return (rise >= self.params.min_height_m) & (rise <= self.params.max_height_m)
 
     def message(self, t: float, points: np.ndarray, ground: np.ndarray, sensor_index: np.ndarray,
                 frame: str = "vehicle") -> OccupancyGrid:

@@ -233,3 +233,17 @@ def test_isolated_rays_are_the_worst_case(seed, rays):
     fast, slow = fast_and_slow(*random_rays(np.random.default_rng(seed), rays))
     assert ((fast == OCCUPIED) == (slow == OCCUPIED)).all()
     assert (fast == slow).mean() >= 0.94          # 0.961 at worst over 300 seeds, 0.979 median
+
+
+def test_the_top_of_a_low_box_the_heightmap_called_ground_is_occupied():
+    # only the box's top was seen: its cells span millimetres, so Algorithm 2 calls them ground;
+    # the road around is the floor it stands 0.3 m above
+    road = [(x, y, 0.0) for x in np.arange(5.0, 9.0, 0.1) for y in np.arange(-1.0, 1.0, 0.1)
+            if not (6.6 <= x <= 7.0 and 0.0 <= y <= 0.4)]
+    top = [(x, y, 0.3) for x in np.arange(6.62, 7.0, 0.05) for y in np.arange(0.02, 0.4, 0.05)]
+    points = road + top
+    cells = grid_of(points, ground=np.ones(len(points), bool))
+    assert cells[cell(6.8, 0.2)] == OCCUPIED
+    assert counts(cells)["occupied"] == len({cell(x, y) for x, y, _ in top})     # the road stays clear
+    low = [(x, y, 0.1) for x, y, _ in top]                                      # a 0.1 m bump is not
+    assert counts(grid_of(road + low, ground=np.ones(len(road + low), bool)))["occupied"] == 0

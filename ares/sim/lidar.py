@@ -121,8 +121,22 @@ class SimulatedLidar:
         self.blocked = False
         others = [housing(m) for n, m in vehicle.lidars.items() if n != name]
         body = Mesh.join(body_parts(vehicle) + others)
-        self.body_scene = o3d.t.geometry.RaycastingScene()
-        self.body_scene.add_triangles(o3d.core.Tensor(body.vertices), o3d.core.Tensor(body.triangles))
+        body_scene = o3d.t.geometry.RaycastingScene()
+        body_scene.add_triangles(o3d.core.Tensor(body.vertices), o3d.core.Tensor(body.triangles))
+        # The body does not move relative to the sensor: which rays it stops, and where, is worked
+        # out once (the few hundredths of a degree a turn's firing varies are far below its detail).
+        rays = np.empty((len(self.dirs0), 6), dtype=np.float32)
+        rays[:, :3] = self.position
+        rays[:, 3:] = self.dirs0 @ self.rotation.T.astype(np.float32)
+        own = body_scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+        t_body = own["t_hit"].numpy()
+        stopped = np.isfinite(t_body)
+        self.leaving = np.flatnonzero(~stopped)          # the rays that reach the world
+        self.body_t = t_body[stopped]
+        self.body_dirs = self.dirs0[stopped]
+        self.body_ring = self.ring[stopped]
+        self.body_incidence = np.abs(np.einsum("ij,ij->i", own["primitive_normals"].numpy()[stopped],
+                                               rays[stopped, 3:]))
 
     @property
     def rays_per_sweep(self) -> int:
@@ -140,50 +154,35 @@ class SimulatedLidar:
             return self._empty()
         rng = self.rng
         spin = rotation(0.0, 0.0, rng.uniform(0.0, self.step))       # firing azimuths vary a little per turn
-        to_vehicle = self.rotation @ spin
-        to_world = vehicle_rotation @ to_vehicle
-        n = len(self.dirs0)
-        rays = np.empty((n, 6), dtype=np.float32)
+        to_world = (vehicle_rotation @ self.rotation @ spin).astype(np.float32)
+        dirs = self.dirs0[self.leaving]
+        rays = np.empty((len(dirs), 6), dtype=np.float32)
         rays[:, :3] = vehicle_rotation @ self.position + vehicle_position
-        rays[:, 3:] = self.dirs0 @ to_world.T.astype(np.float32)
+        rays[:, 3:] = dirs @ to_world.T
         hit = world_scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
         t = hit["t_hit"].numpy()
-        normal_source = np.zeros(n, dtype=np.int8)           # 0 world, 1 obstacle, 2 body
-        material = np.full(n, MATERIAL_IDS["asphalt"], dtype=np.uint8)
+        normal = hit["primitive_normals"].numpy()
+        material = np.full(len(t), MATERIAL_IDS["asphalt"], dtype=np.uint8)
         found = np.isfinite(t)
         material[found] = material_of(hit["geometry_ids"].numpy()[found], hit["primitive_ids"].numpy()[found])
-        normals = [hit["primitive_normals"].numpy()]
-
         if obstacles_scene is not None:
             near = obstacles_scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
             t_obs = near["t_hit"].numpy()
             closer = t_obs < t
             t = np.where(closer, t_obs, t)
-            normal_source[closer] = 1
+            normal = np.where(closer[:, None], near["primitive_normals"].numpy(), normal)
             material[closer] = MATERIAL_IDS["metal"]
-            normals.append(near["primitive_normals"].numpy())
-        else:
-            normals.append(normals[0])
 
-        rays[:, :3] = self.position                          # the body, in the vehicle frame
-        rays[:, 3:] = self.dirs0 @ to_vehicle.T.astype(np.float32)
-        own = self.body_scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
-        t_body = own["t_hit"].numpy()
-        closer = t_body < t
-        t = np.where(closer, t_body, t)
-        normal_source[closer] = 2
-        material[closer] = MATERIAL_IDS["body"]
-
-        # only the rays that hit something are worth the noise
-        idx = np.flatnonzero(np.isfinite(t))
-        t, material, source = t[idx], material[idx], normal_source[idx]
-        m = len(idx)
+        # the world's returns, then the body's (the same every sweep); only hits are worth the noise
+        world = np.flatnonzero(np.isfinite(t))
+        incidence = np.abs(np.einsum("ij,ij->i", normal[world], rays[world, 3:]))
+        t = np.concatenate([t[world], self.body_t])
+        material = np.concatenate([material[world], np.full(len(self.body_t), MATERIAL_IDS["body"], np.uint8)])
+        incidence = np.concatenate([incidence, self.body_incidence])
+        dirs = np.concatenate([dirs[world], self.body_dirs])
+        ring = np.concatenate([self.ring[self.leaving][world], self.body_ring])
+        m = len(t)
         reflectivity = REFLECTIVITY[material]
-        dirs = self.dirs0[idx]
-        normal = np.where((source == 0)[:, None], normals[0][idx], normals[1][idx])
-        body_normal = own["primitive_normals"].numpy()[idx] @ vehicle_rotation.T.astype(np.float32)
-        normal = np.where((source == 2)[:, None], body_normal, normal)
-        incidence = np.abs(np.einsum("ij,ij->i", normal, dirs @ to_world.T.astype(np.float32)))
         intensity = reflectivity * np.maximum(incidence, 0.05) * (
             1.0 + self.params.intensity_sigma * rng.standard_normal(m, dtype=np.float32))
         reach = self.sheet.max_range_m * np.sqrt(np.minimum(reflectivity / FULL_REACH_REFLECTIVITY, 1.0))
@@ -195,7 +194,7 @@ class SimulatedLidar:
                      y=np.concatenate([points[:, 1], ghosts[1]]).astype(np.float32),
                      z=np.concatenate([points[:, 2], ghosts[2]]).astype(np.float32),
                      intensity=np.concatenate([np.clip(intensity[keep], 0.0, 1.0), ghosts[3]]).astype(np.float32),
-                     ring=np.concatenate([self.ring[idx][keep], ghosts[4]]).astype(np.uint8))
+                     ring=np.concatenate([ring[keep], ghosts[4]]).astype(np.uint8))
 
     def _ghosts(self):
         p, rng = self.params, self.rng
