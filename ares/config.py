@@ -353,6 +353,8 @@ class CoreConfig(Params):
     route_file: str | None = param(None, "an open route (CSV of x,y[,z] metres) driven instead of the tour")
     scenario: str | None = param(None, "simulated obstacles and faults: a name in ares/config/scenarios/ or a YAML file")
     simulate: bool = param(True, "run the simulated shuttle (the `sim` process) with the stack")
+    lidars: bool = param(True, "run the LiDARs and LiDAR perception (off: the stack drives on GNSS and odometry "
+                               "alone, as the tests that are not about perception do, to save time)")
     origin_utm: UtmOrigin = param(doc="origin of the local frame", factory=UtmOrigin)
     bus: BusSettings = param(doc="the Zenoh bus", factory=BusSettings)
     heartbeat: HeartbeatSettings = param(doc="process heartbeats", factory=HeartbeatSettings)

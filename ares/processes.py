@@ -5,7 +5,7 @@ reads the classes' contracts and parameters to validate the configuration, and e
 imports its own class through `python -m ares.launch`); the class holds the process's contract: its
 inputs, outputs with their rates, services and parameters (`ares describe`). `safety_relevant`
 processes are the ones whose loss must bring the vehicle to a safe state; `sim_only` ones run
-only in simulation; `nice` lowers the CPU priority of those that must yield to the driving ones.
+only in simulation; `lidars` ones only with the LiDARs (the core setting `lidars`); `nice` lowers the CPU priority of those that must yield to the driving ones.
 The embedded Zenoh router is not listed: the supervisor hosts it in its own session.
 
 Adding a manager is one file (its node class) and one line here.
@@ -24,6 +24,7 @@ class Process:
     node: str                   # "module:Class" of its ares.node.Node subclass
     safety_relevant: bool
     sim_only: bool = False
+    lidars: bool = False        # runs only with the LiDARs (core `lidars`)
     nice: int = 0
 
     def node_class(self) -> type[Node]:
@@ -32,12 +33,12 @@ class Process:
 
 PROCESSES: list[Process] = [
     Process("sim", "ares.sim.node:Simulator", safety_relevant=True, sim_only=True),
-    Process("lidar_sim", "ares.sim.lidar_node:LidarSimulator", safety_relevant=True, sim_only=True),
+    Process("lidar_sim", "ares.sim.lidar_node:LidarSimulator", safety_relevant=True, sim_only=True, lidars=True),
     Process("gnss", "perception.gnss_node:GnssNode", safety_relevant=True),
     Process("localization", "perception.localization:LocalizationNode", safety_relevant=True),
     Process("odometry_manager", "managers.odometry:OdometryManager", safety_relevant=True),
     Process("path_manager", "managers.path:PathManager", safety_relevant=True),
-    Process("lidar_perception", "perception.lidar_node:LidarPerception", safety_relevant=True),
+    Process("lidar_perception", "perception.lidar_node:LidarPerception", safety_relevant=True, lidars=True),
     Process("dbw_bridge", "control.dbw_bridge:DbwBridge", safety_relevant=True),
     Process("controller", "control.pure_pursuit:PurePursuitNode", safety_relevant=True),
     # the black box: losing it never stops the vehicle (the recorder spools; see blackbox/recorder.py)
@@ -53,5 +54,5 @@ def by_name(name: str) -> Process:
     raise KeyError(f"unknown process {name!r}; known: {', '.join(p.name for p in PROCESSES)}")
 
 
-def for_run(simulate: bool) -> list[Process]:
-    return [p for p in PROCESSES if simulate or not p.sim_only]
+def for_run(simulate: bool, lidars: bool = True) -> list[Process]:
+    return [p for p in PROCESSES if (simulate or not p.sim_only) and (lidars or not p.lidars)]

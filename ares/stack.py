@@ -99,7 +99,7 @@ def run(args) -> int:
     run_dir = Path(args.run_dir) if getattr(args, "run_dir", None) else default_run_dir()
     if cfg["replay"]["record"] and not cfg["replay"]["dir"]:
         cfg["replay"]["dir"] = str((run_dir / "replay").resolve())
-    supervisor = Supervisor(cfg, processes.for_run(cfg["simulate"]), run_dir, clock)
+    supervisor = Supervisor(cfg, processes.for_run(cfg["simulate"], cfg["lidars"]), run_dir, clock)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     supervisor.start()
@@ -144,7 +144,7 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str) -> dict
         # on the vehicle the wall clock runs as it is: only a simulated shuttle can be hurried
         raise config.ConfigError(f"--speed {speed} needs the simulator (simulate: true)")
     if speed == "max":
-        running = processes.for_run(True)
+        running = processes.for_run(True, cfg["lidars"])
         cfg["lockstep"]["participants"] = contracts.fed_by(contracts.all_contracts(cfg, running), "sim")
     return cfg
 
@@ -229,7 +229,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     tracker = LapTracker(route)
     localization = LocalizationTracker()
     vehicle = config.core(cfg).vehicle_profile
-    perceiving = bool(vehicle.lidars) and any(p.name == "lidar_perception" for p in processes.for_run(cfg["simulate"]))
+    perceiving = bool(vehicle.lidars) and cfg["lidars"]
     perception = PerceptionTracker(route, front_bumper_x_m=(vehicle.length_m + vehicle.wheelbase_m) / 2)
     roads = bus.subscribe("perception/road", queue=4096) if perceiving else None
     grids = bus.subscribe("perception/grid", queue=256) if perceiving else None

@@ -49,7 +49,7 @@ from ares.messages import (Event, EventLevel, Heartbeat, ProcessState, ProcessSt
                            SupervisorState)
 from ares.node import NICE_ENV, PROCESS_ENV, setup_logging
 from ares.recording import INCARNATION_ENV
-from ares.processes import PROCESSES, Process
+from ares.processes import Process, for_run
 
 log = logging.getLogger("supervisor")
 
@@ -533,7 +533,7 @@ def main() -> None:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    supervisor = Supervisor(cfg, list(PROCESSES), default_run_dir(), Clock.from_env())
+    supervisor = Supervisor(cfg, for_run(cfg["simulate"], cfg["lidars"]), default_run_dir(), Clock.from_env())
     try:
         supervisor.start()
         supervisor.run(stop)

@@ -27,11 +27,12 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 
-LIGHT_LIDARS = REPO / "tests" / "light_lidars.yaml"    # end-to-end runs cast fewer LiDAR rays
+LIGHT_LIDARS = REPO / "tests" / "light_lidars.yaml"    # the perception run casts fewer LiDAR rays
+NO_LIDARS = REPO / "tests" / "no_lidars.yaml"          # the others run without the LiDARs
 
 
 def make_run_config(port: int, overrides: dict | None = None) -> dict:
-    base = config.deep_merge({"bus": {"router": f"tcp/127.0.0.1:{port}"}}, config.load_yaml(LIGHT_LIDARS))
+    base = config.deep_merge({"bus": {"router": f"tcp/127.0.0.1:{port}"}}, config.load_yaml(NO_LIDARS))
     return stack_config.build(overrides=config.deep_merge(base, overrides or {}))
 
 

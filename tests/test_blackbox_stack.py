@@ -33,7 +33,7 @@ import pytest
 from ares.bus import Bus
 from ares.clock import WallClock
 from blackbox.sqlite_store import SqliteStore
-from tests.conftest import LIGHT_LIDARS, REPO, free_port, make_run_config, stop_process
+from tests.conftest import NO_LIDARS, REPO, free_port, make_run_config, stop_process
 from tests.test_recorder import assert_every_second_once, wait_until
 
 pytestmark = pytest.mark.stack
@@ -64,7 +64,7 @@ def start_headless(*args: str, speed: str = str(SPEED)) -> subprocess.Popen:
     env = {**os.environ, "ARES_RUNS_DIR": os.environ.get("ARES_TEST_RUNS_DIR", "/tmp/ares-test-runs")}
     listen = f"tcp/127.0.0.1:{free_port()}"
     return subprocess.Popen([sys.executable, "-m", "ares.cli", "run", "--headless", "--listen", listen,
-                             "--speed", speed, "--config", str(LIGHT_LIDARS), *args], cwd=REPO, env=env, stdout=subprocess.PIPE,
+                             "--speed", speed, "--config", str(NO_LIDARS), *args], cwd=REPO, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
 
 
