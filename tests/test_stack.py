@@ -69,11 +69,11 @@ def test_perception_in_the_stack_sees_the_road_and_the_obstacles():
 
 def test_the_simulator_driven_clock_gives_the_real_time_result(tmp_path):
     route = tmp_path / "s_bend.csv"
-    # 60 m straight, a 90 degree bend of ~15 m radius, 40 m straight
+    # 30 m straight, a 90 degree bend of ~15 m radius, 24 m straight
     import math
-    points = [(x, 0.0) for x in range(0, 60, 2)]
-    points += [(60 + 15 * math.sin(a), 15 - 15 * math.cos(a)) for a in [i * math.pi / 40 for i in range(21)]]
-    points += [(75.0, 15 + y) for y in range(2, 42, 2)]
+    points = [(x, 0.0) for x in range(0, 30, 2)]
+    points += [(30 + 15 * math.sin(a), 15 - 15 * math.cos(a)) for a in [i * math.pi / 40 for i in range(21)]]
+    points += [(45.0, 15 + y) for y in range(2, 26, 2)]
     route.write_text("\n".join(f"{x:.3f},{y:.3f}" for x, y in points))
     real_time = headless("--route", str(route), "--speed", "1")
     fast = headless("--route", str(route), "--speed", "max")
