@@ -76,17 +76,11 @@ class LidarPipeline:
         self.mapper = OccupancyMapper(self.params.grid, self.origins)
         self.previous: RoadModel | None = None
 
-    def process(self, sweeps: list[SensorSweep]) -> FrameResult:
+    def road_frame(self, sweeps: list[SensorSweep], lap=None) -> tuple[LidarFrame, dict[str, int], dict[str, int]]:
+        """The sweeps in the vehicle frame, merged, self hits and ghosts filtered: the frame road
+        detection reads (also what `ares calibrate road` caches). Also the raw point counts per
+        sensor and the counts removed. lap(stage), if given, is called after each stage."""
         p = self.params
-        ms: dict[str, float] = {}
-        clock = time.perf_counter()
-
-        def lap(stage: str) -> None:
-            nonlocal clock
-            now = time.perf_counter()
-            ms[stage] = round((now - clock) * 1e3, 3)
-            clock = now
-
         parts, index, rings, azimuths = [], [], [], []
         raw = {s.name: len(s.points) for s in sweeps}
         for sweep in sweeps:
@@ -100,7 +94,8 @@ class LidarPipeline:
         sensor_index = np.concatenate(index) if index else np.zeros(0, np.int16)
         ring_id = np.concatenate(rings) if rings else np.zeros(0, np.int32)
         azimuth = np.concatenate(azimuths) if azimuths else np.zeros(0, np.float32)
-        lap("transform")
+        if lap:
+            lap("transform")
 
         keep = ~self_hit_mask(points, self.body, p.filters.self_hit.margin_m)
         removed = {"self_hits": int(len(keep) - keep.sum())}
@@ -110,8 +105,25 @@ class LidarPipeline:
                             ghost.radius_m, ghost.min_neighbours, np.maximum(self.min_range, ghost.min_range_m))
         keep[index[ghosts]] = False          # ghosts are judged once the self hits are gone (keep_mask)
         removed["ghosts"] = int(ghosts.sum())
-        points, sensor_index, ring_id, azimuth = points[keep], sensor_index[keep], ring_id[keep], azimuth[keep]
-        lap("filters")
+        frame = LidarFrame(points[keep], ring_id[keep], azimuth[keep], sensor_index[keep].astype(np.int64),
+                           self.origins)
+        if lap:
+            lap("filters")
+        return frame, raw, removed
+
+    def process(self, sweeps: list[SensorSweep]) -> FrameResult:
+        p = self.params
+        ms: dict[str, float] = {}
+        clock = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal clock
+            now = time.perf_counter()
+            ms[stage] = round((now - clock) * 1e3, 3)
+            clock = now
+
+        frame, raw, removed = self.road_frame(sweeps, lap)
+        points, sensor_index = frame.points, frame.sensor_index
 
         g = p.grid
         shifted = points - np.array([g.centre_x_m, g.centre_y_m, 0.0], dtype=np.float32)
@@ -121,11 +133,10 @@ class LidarPipeline:
         cells = self.mapper.cells(points, ground, sensor_index)
         lap("grid")
 
-        road = detect_road(LidarFrame(points, ring_id, azimuth, sensor_index.astype(np.int64), self.origins),
-                           p.road, self.previous)
-        self.previous = road.model if road.found else self.previous
+        road = detect_road(frame, p.road, self.previous)
+        self.previous = road.model if road.found else None     # lost: start again from the near field
         lap("road")
         ms["total"] = round(sum(ms.values()), 3)
         road_points = {name: int(road.road_points_per_sensor[k]) if k < len(road.road_points_per_sensor) else 0
                        for k, name in enumerate(self.names)}
-        return FrameResult(points, sensor_index, ground, cells, road, raw, road_points, removed, ms)
+        return FrameResult(points, sensor_index.astype(np.int16), ground, cells, road, raw, road_points, removed, ms)

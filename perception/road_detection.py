@@ -9,46 +9,62 @@ follows that centre line when the odometry cannot be trusted.
 
 First iteration, ring by ring ("a window operator over the rings"):
 
-  1. Region of interest: x_min <= x <= x_max, |y| <= half_width.
+  1. Region of interest: x_min <= x <= x_max, |y| <= half_width, and no farther across the
+     guide centre line than the widest road's edge (the previous frame's, when there is one) and
+     a margin: the walks of step 4 stop before.
   2. Reference point of the ring, inside the road: its point ahead of its sensor nearest the
-     guide centre line (the previous frame's centre; on a first frame, one fitted to the near
-     field, where y = 0 is still on the road even in a bend). Its azimuth is θs, and every
+     guide centre line, measured across it (the previous frame's centre; on a first frame, or
+     where the previous one led to no road, one grown from the near field, where y = 0 is still
+     road even in the tour's tightest bend: _bootstrap_guide). Its azimuth is θs, and every
      point's azimuth relative to it, Δθ from Algorithm 1, orders the ring outwards on both
-     sides, even where the ring crosses its sensor's ±π.
-  3. Each point is scored against its neighbours on the road side (towards θs):
-         ∇ij = |z − z'| / horizontal distance to the neighbour at least
-               gradient_span_m (and k points) away                           (slope, m/m)
-         σij = |z − median z of the k nearest neighbours|                    (step, m)
-         Δ̂ij = distance beyond the previous frame's boundary on that side   (m, + outwards)
-         Pr  = 1 / (1 + exp(β0 (β1 + ∇ + σ + d̂)))                         (eqs. 7-10)
-     A slope is what a grass verge shows, a step what a kerb, a wall or a drop shows; Δ̂
-     leans towards where the boundary was (no previous frame: d̂ = 0). ∇ is taken over a
-     span in metres, not in points: a ring's points lie 1 cm apart near the corner sensors and
-     7 cm apart far from the roof one, and over a few cm the noise would be the gradient. Cost:
-     a change of slope alone is found up to ~¾ span late (a kerb, a wall, a drop at once).
-  4. Walking outwards from θs, the boundary of a side is the last point before `run` points in
-     a row with Pr < 0.5 (one stray point is not an edge): at most one left and one right point
-     per ring. `run` must not exceed k: past a step, the windows soon lie wholly on the verge,
-     and a flat verge (the top of a kerb, a ravine's floor) scores as road again. The walk ends
-     at a gap in the ring (the ROI cuts rings, obstacles shadow them): a ring whose returns
-     stop (a ravine too deep to return anything) gives no boundary on that side.
+     sides, even where the ring crosses its sensor's ±π. A ring whose reference lies nearer its
+     sensor than that of a ring aimed lower has met a wall or an obstacle before the ground and
+     is left out; so are the points more than HEIGHT_CUT_M above or below the reference.
+  3. Each point is scored against its neighbours on the road side (towards θs), along the ring
+     (t: the azimuth step times the range, which the firing azimuths give better than the
+     ranges do): the road-side window holds the points from S = gradient_span_m to S +
+     W (window_m) behind the point, and the straight line fitted to their heights along t is
+     the road's trend there ("the relative height based on the medium deviation of the
+     previous data for the same ring, taking into account the displacement"):
+         ∇ij = (z − mean z of the window) / distance from the window's mean t    (slope, m/m,
+               signed: + rising away from the road)
+         σij = max(0, z − the window's line extended to the point)              (height, m)
+         Δ̂ij = distance beyond the previous frame's boundary on that side       (m, + outwards)
+         Pr  = 1 / (1 + exp(β0 (β1 + ∇ + σ + d̂)))                             (eqs. 7-10)
+     A step (a kerb, a wall) is a large σ at once, a drop a steep negative ∇, a change of slope
+     (grass) a σ growing by the change of slope per metre past it, up to about S; the crown's
+     fall and a flat open verge (−2.5 % to 0) stay below the threshold. Δ̂ leans towards where
+     the boundary was (no previous frame: d̂ = 0).
+  4. Walking outwards from θs, the first stop is the first of points in a row over run_m along
+     the ring (at least two) with Pr < 0.5: one stray point is not an edge. The walk ends at a
+     gap in the ring (the ROI cuts rings, obstacles shadow them); where the ring's returns end
+     there, or its next return lies DROP_M lower, though the ring below it still returns beyond
+     that azimuth, the ground fell away (a ravine too deep to return anything) and the last
+     point scored road is the boundary.
+  5. The stop is placed back where the road's line (the stop's window) and the verge's line (a
+     straight line through the points from there to a span beyond the stop) meet: of the points
+     between the window and the stop, the one after which the heights are best explained by a
+     line of their own (_hinge). A step gives the point before it, a change of slope the kink
+     itself rather than the point σ noticed up to a span later. At most one left and one right
+     point per ring.
 
 Second iteration: the boundary points of each side, from all rings up to fit_x_max_m, are
 fitted with y = c0 + c1·x + ... by least squares in two steps (the paper's "rough draft, then
 filter"): a rough draft robust to a stretch of rings that stopped short at something on the
 verge (see fit_boundary) → points whose residuals are far from the others' are dropped →
-refit. The centre line is the mean of the two sides; with one side only, that side moved by
-half the previous frame's width (confidence <= 0.5); with none, nothing is found. At x = 0,
-across the road: lateral offset = −centre(0)·cos(heading), + when the vehicle is left of the
-centre; heading = −atan(centre'(0)), + when the vehicle points left of the road.
+refit, a line unless a higher order (up to poly_order) lowers the residuals significantly (an F
+test). With both sides, they are refitted at once with one slope at x = 0 (fit_parallel). The
+centre line is the mean of the two sides; with one side only, that side moved by half the
+previous frame's width (confidence <= 0.5); with none, nothing is found. At x = 0, across the
+road: lateral offset = −centre(0)·cos(heading), + when the vehicle is left of the centre;
+heading = −atan(centre'(0)), + when the vehicle points left of the road.
 
 The β of eqs. 7-10 are, as in the paper ("calculated individually based on slopes, curves and
-smooth paths"), to be chosen from experiments: here from simulated runs over the verge types
-of the route — a grass shoulder with only a gentle change of slope, a rock wall, a ravine's
-drop, a 0.12 m kerb and an open area (which must give no boundary). The defaults below are a
-first guess: a flat road scores ≈ 1, and a slope ∇ = 0.2 alone or a step σ ≈ 0.1 m alone
-scores 0.5. On synthetic rings they find kerbs, walls and drops to within a ring's spacing with
-up to ~1 cm of height noise; at 2 cm they fail (tune gradient_span_m, β7 and β8 together).
+smooth paths"), chosen from experiments: simulated frames over every verge of the tour — a
+grass shoulder with only a gentle change of slope, a rock wall, a ravine's drop, a 0.12 m kerb
+and an open area (which must give no boundary), on straights and bends, the vehicle off the
+centre line and turned. docs/road_detection.md tells how (`ares calibrate road`), with the
+figures, and why each β has its value.
 """
 from __future__ import annotations
 
@@ -57,27 +73,39 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydantic import model_validator
-from scipy.ndimage import median_filter
 from scipy.special import expit
 
 from ares.config import Params, param
 
 poly = np.polynomial.polynomial          # coefficients lowest order first: y = c0 + c1 x + c2 x² ...
 GAP_M = 1.0                              # two points of a ring farther apart are not neighbours
+DROP_M = 0.3                             # a ring's next return this much lower: the ground falls away
+ROI_MARGIN_M = 0.5                       # a ring ending this close to the ROI's border was cut by it
+TURN_MARGIN = 0.05                       # ... or this close (rad) to a quarter turn from its reference
+LOWER_RING_MARGIN = 0.005                # rad: where a ring's returns stop, the ring below returns this far beyond
+HINGE_MIN_M = 0.02                       # a stop this far off the road's line is a kink or a step to place
+SLANT_M = 0.3                            # a ring's slant across the road is taken over this much of it
+MIN_SLANT = 0.3                          # ... and a span along it is at most 1 / this times the span across
+TIE_M2 = 1e-6                            # squared errors closer than this are equal (1 mm on one point)
+HEIGHT_CUT_M = 1.0                       # points this far above or below a ring's reference are not scanned
+BAND_MARGIN_M = 1.0                      # the walks see this far (+ a span and a run) beyond the last edges
 
 
 class ScoreWeights(Params):
     """β of eqs. 7-10; Pr = 1/(1 + exp(β0·(β1 + ∇ + σ + d̂))): the bracket < 0 means road."""
-    beta0: float = param(8.0, "eq. 7: sharpness of the sigmoid", gt=0)
-    beta1: float = param(-1.0, "eq. 7: bias; a flat point scores 1/(1 + exp(β0·β1))")
-    beta2: float = param(0.0, "eq. 8: constant of the gradient term")
-    beta3: float = param(4.0, "eq. 8: per unit of height gradient ∇ij (m/m)")
+    beta0: float = param(8.0, "eq. 7: sharpness of the sigmoid (moves no boundary: only the bracket's sign "
+                              "does)", gt=0)
+    beta1: float = param(-1.0, "eq. 7: bias; a flat point scores 1/(1 + exp(β0·β1)); −1 sets the scale of the "
+                               "other β")
+    beta2: float = param(0.0, "eq. 8: constant of the gradient term (adds to β1)")
+    beta3: float = param(8.0, "eq. 8: per unit of height gradient ∇ij (m/m, + rising away from the road)")
     beta4: float = param(5.0, "eq. 8: per ∇ij²")
-    beta5: float = param(0.0, "eq. 8: per ∇ij³")
-    beta6: float = param(0.0, "eq. 9: constant of the relative-height term")
-    beta7: float = param(5.0, "eq. 9: per metre of relative height σij", unit="1/m")
-    beta8: float = param(1.5, "eq. 9: per √σij (weighs small steps up)", unit="1/sqrt(m)")
-    beta9: float = param(0.0, "eq. 10: constant of the previous-boundary term (when there is one)")
+    beta5: float = param(0.0, "eq. 8: per ∇ij³ (odd: would score a wall or a drop as road at large |∇|)")
+    beta6: float = param(0.0, "eq. 9: constant of the relative-height term (adds to β1)")
+    beta7: float = param(15.0, "eq. 9: per metre of relative height σij (above the road's trend)", unit="1/m")
+    beta8: float = param(3.0, "eq. 9: per √σij (weighs small steps up)", unit="1/sqrt(m)")
+    beta9: float = param(0.1, "eq. 10: constant of the previous-boundary term (when there is one): a tracked "
+                              "frame stops a little sooner")
     beta10: float = param(0.05, "eq. 10: per metre beyond the previous frame's boundary; small, so that on "
                                 "its own it never makes flat ground in the ROI non-road (it tips borderline "
                                 "points, it does not invent a boundary where the verge has gone)", unit="1/m")
@@ -88,19 +116,24 @@ class RoadDetectionParams(Params):
     x_min_m: float = param(0.0, "region of interest: nearest x", unit="m")
     x_max_m: float = param(25.0, "region of interest: farthest x", unit="m", gt=0)
     half_width_m: float = param(12.0, "region of interest: largest |y|", unit="m", gt=0)
-    window: int = param(5, "k: σ is a point's height above the median of its k neighbours on the road side",
-                        ge=1)
-    gradient_span_m: float = param(0.3, "∇ is the slope towards the road-side neighbour at least this far (and k "
-                                        "points) away", unit="m", gt=0)
-    run: int = param(3, "m: points in a row scoring < 0.5 that end the road (<= k)", ge=1)
+    gradient_span_m: float = param(0.4, "S: a point is compared with the road-side window that ends this far "
+                                        "behind it along its ring", unit="m", gt=0)
+    window_m: float = param(0.6, "W: that window's length along the ring (its straight line is the road's "
+                                 "trend)", unit="m", gt=0)
+    run_m: float = param(0.15, "points in a row scoring < 0.5 over this length along the ring (at least two) "
+                               "end the road", unit="m", gt=0)
     reference_max_offset_m: float = param(1.0, "a ring is used only if it passes this close to the guide centre "
                                                "line ahead of its sensor", unit="m", gt=0)
-    bootstrap_range_m: float = param(10.0, "no previous centre line: the first guess comes from boundaries up to "
-                                           "this x, where y = 0 is still on the road", unit="m", gt=0)
+    bootstrap_range_m: float = param(7.0, "no previous centre line: the first guess comes from boundaries up to "
+                                           "this x, where y = 0 is still on the road, the next from twice as far",
+                                     unit="m", gt=0)
     weights: ScoreWeights = param(doc="β of eqs. 7-10", factory=ScoreWeights)
-    poly_order: int = param(2, "order of each boundary's polynomial y = f(x); x = 0 lies ~4 m behind the "
-                               "nearest boundary point, and a cubic extrapolates the points' cm of scatter "
+    poly_order: int = param(2, "highest order of each boundary's polynomial y = f(x); x = 0 lies ~4 m behind "
+                               "the nearest boundary point, and a cubic extrapolates the points' cm of scatter "
                                "into degrees of heading there", ge=1, le=4)
+    order_f: float = param(8.0, "a boundary's polynomial takes the next order only if that lowers the residual "
+                                "sum of squares by more than this F statistic (on straight roads the quadratic "
+                                "term would fit the points' scatter)", gt=0)
     fit_x_max_m: float = param(12.0, "boundary points up to this x are fitted: farther, a 30 m bend no longer "
                                      "looks like a parabola (its heading at x = 0 comes out ~2° off at 15 m)",
                                unit="m", gt=0)
@@ -122,8 +155,6 @@ class RoadDetectionParams(Params):
 
     @model_validator(mode="after")
     def _consistent(self):
-        if self.run > self.window:
-            raise ValueError("run must not exceed window: past a step the windows soon see a flat verge again")
         if self.min_points <= self.poly_order:
             raise ValueError("min_points must exceed poly_order")
         if self.x_max_m <= self.x_min_m or self.max_width_m <= self.min_width_m:
@@ -258,66 +289,153 @@ class _Scan:
     score: np.ndarray           # its Pr
 
 
+def _sums(prefix: np.ndarray, lo, hi):
+    """Sums over the index ranges lo..hi (inclusive) from a prefix-sum table with a leading 0."""
+    return prefix[..., hi + 1] - prefix[..., lo]
+
+
 def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.ndarray | None,
-          previous: RoadModel | None) -> _Scan:
-    xyz = frame.points[idx].T.copy()                # (3, n): contiguous rows
-    x, y = xyz[0], xyz[1]
-    ring, az = frame.ring_id[idx], frame.azimuth[idx]
+          previous: RoadModel | None, x_max: float) -> _Scan:
+    n_sensors = len(frame.sensor_origins)
+    empty = np.zeros((0, 2))
+    if len(idx) == 0:
+        return _Scan(empty, empty, np.zeros(n_sensors, dtype=np.int64), idx, np.ones(0))
+    # Only the points as far from the guide (across it: in a bend it runs steeply across the x
+    # axis) as the widest road's edge (or the previous frame's) and a margin beyond: the walks
+    # stop before them.
+    x, y = frame.points[idx, 0], frame.points[idx, 1]
+    if guide is None:
+        across = np.abs(y)
+    else:
+        across = np.abs(y - poly.polyval(x, guide)) / np.hypot(1.0, poly.polyval(x, poly.polyder(guide)))
+    band = 0.5 * p.max_width_m
+    if previous is not None and previous.width_m is not None:
+        band = min(band, 0.5 * previous.width_m)
+    band += BAND_MARGIN_M + p.gradient_span_m + p.run_m
+    inside_band = across <= band
+    idx, across = idx[inside_band], across[inside_band]
+    # Rings first (a radix sort for small integers): each ring is then one slice, numbered `sl`.
+    ring = frame.ring_id[idx]
+    order = np.argsort(ring.astype(np.int16 if ring.max(initial=0) < 2**15 else np.int64), kind="stable")
+    idx, ring, across = idx[order], ring[order], across[order]
+    if len(idx) == 0:
+        return _Scan(empty, empty, np.zeros(n_sensors, dtype=np.int64), idx, np.ones(0))
+    first = np.flatnonzero(np.r_[True, ring[1:] != ring[:-1]])
+    sl = np.repeat(np.arange(len(first)), np.diff(np.r_[first, len(idx)]))
+    x, y, z = frame.points[idx].T
+    az, sensor = frame.azimuth[idx], frame.sensor_index[idx]
 
     # Reference of each ring: its point ahead of its sensor nearest the guide centre line.
-    offset = np.abs(y - poly.polyval(x, guide)) if guide is not None else np.abs(y)
-    offset[x <= frame.sensor_origins[frame.sensor_index[idx], 0]] = np.inf
-    best = np.full(ring.max(initial=-1) + 1, np.inf)
-    np.minimum.at(best, ring, offset)
-    theta_s = np.full(best.shape, np.nan)
-    is_ref = offset == best[ring]
-    theta_s[ring[is_ref]] = az[is_ref]
+    offset = across.copy()
+    offset[x <= frame.sensor_origins[sensor, 0]] = np.inf
+    best = np.minimum.reduceat(offset, first)
+    theta_s = np.full(len(first), np.nan)
+    z_ref = np.zeros(len(first))
+    is_ref = offset == best[sl]
+    theta_s[sl[is_ref]] = az[is_ref]
+    z_ref[sl[is_ref]] = z[is_ref]
+    # A ring is one of the road's only if its reference lies farther from its sensor than those of
+    # all the rings of its sensor aimed lower there: a ray aimed higher that lands nearer has met
+    # something standing on or beside the road (a wall ahead in a bend, an obstacle) before the
+    # ground.
+    origin = frame.sensor_origins[sensor[is_ref]]
+    reach = np.full(len(first), -np.inf)
+    reach[sl[is_ref]] = np.hypot(x[is_ref] - origin[:, 0], y[is_ref] - origin[:, 1])
+    aim = np.full(len(first), np.inf)
+    aim[sl[is_ref]] = np.arctan2(z[is_ref] - origin[:, 2], reach[sl[is_ref]])
+    reach[best > p.reference_max_offset_m] = -np.inf
+    lowest_first = np.lexsort((aim, sensor[first]))
+    ring_below = np.full(len(first), -1)                 # the ring aimed next lower, of the same sensor
+    same = sensor[first][lowest_first[1:]] == sensor[first][lowest_first[:-1]]
+    ring_below[lowest_first[1:]] = np.where(same, lowest_first[:-1], -1)
+    by_sensor = reach[lowest_first] + 1e4 * sensor[first][lowest_first]   # the running maximum restarts per sensor
+    road_ring = np.zeros(len(first), dtype=bool)
+    road_ring[lowest_first] = np.isfinite(by_sensor) & (by_sensor > np.r_[-np.inf, np.maximum.accumulate(by_sensor)[:-1]])
     # Only the points within a quarter turn of the reference (|θs − θ| below π/2, or above 3π/2
     # across ±π), where Algorithm 1 is exact: farther across ±π it folds by π, and a point
     # behind the sensor would land among the points ahead. u: azimuth from the reference,
-    # + to the left (Algorithm 1 gives θs − θ).
-    ts = theta_s[ring]
+    # + to the left (Algorithm 1 gives θs − θ). And only those within HEIGHT_CUT_M of the
+    # reference's height: no road lies higher or lower across one ring, and the walks stop at the
+    # foot of a wall or the lip of a drop before them.
+    ts = theta_s[sl]
     turn = np.abs(ts - az)
-    keep = np.flatnonzero(((turn < np.pi / 2) | (turn > 1.5 * np.pi)) & (best[ring] <= p.reference_max_offset_m))
+    keep = np.flatnonzero(((turn < np.pi / 2) | (turn > 1.5 * np.pi)) & road_ring[sl]
+                          & (np.abs(z - z_ref[sl]) <= HEIGHT_CUT_M))
     u = -normalized_azimuth_subtraction(az[keep], ts[keep])
-    idx, ring, xyz = idx[keep], ring[keep], xyz[:, keep]
-
-    # Each ring from its right end to its left end, rings one after the other: rings first
-    # (a radix sort for small integers), then by u, which is then almost sorted already for
-    # points that arrive in scan order (a stable sort is a merge sort that exploits runs).
-    order = np.argsort(ring.astype(np.int16 if len(best) < 2**15 else np.int64), kind="stable")
-    order = order[np.argsort(ring[order] * 4.0 + u[order], kind="stable")]
-    idx, ring, u = idx[order], ring[order], u[order]
-    x, y, z = xyz[:, order]
-    n, k, m = len(idx), p.window, p.run
-    if n <= m:
-        empty = np.zeros((0, 2))
-        return _Scan(empty, empty, np.zeros(len(frame.sensor_origins), dtype=np.int64), idx, np.ones(n))
-    left, right = u > 0, u < 0
+    # Each ring from its right end to its left end: by u within the rings (already grouped, so
+    # the keys come in runs a stable merge sort takes as they are).
+    order = np.argsort(sl[keep] * 4.0 + u, kind="stable")
+    keep, u = keep[order], u[order]
+    ts = ts[keep]
+    idx, sl, sensor, across = idx[keep], sl[keep], sensor[keep], across[keep]
+    x, y, z = x[keep].astype(np.float64), y[keep].astype(np.float64), z[keep].astype(np.float64)
+    n = len(idx)
+    if n < 2:
+        return _Scan(empty, empty, np.zeros(n_sensors, dtype=np.int64), idx, np.ones(n))
     at = np.arange(n)
+    left, right = u > 0, u < 0
+    outward = np.where(left, 1, -1)
 
-    # Steps between neighbours of a ring. Across a gap (the ROI cuts rings, obstacles shadow
-    # them) two points are not neighbours: `piece` numbers the gapless pieces of the rings, and
-    # the ring's spacing is the mean step within them.
+    # t: distance along the ring, its horizontal range from the sensor times the azimuth step:
+    # the firing azimuths are exact, the ranges are not (a corner sensor's points lie 1 cm apart
+    # along its ring and scatter 3 cm across it). Across a gap (the ROI cuts rings, obstacles
+    # shadow them, a drop returns nothing) two points are not neighbours: `piece` numbers the
+    # gapless pieces of the rings.
+    origin = frame.sensor_origins[sensor]
+    rho = np.hypot(x - origin[:, 0], y - origin[:, 1])
+    new_ring = np.r_[True, sl[1:] != sl[:-1]]
+    old_sl = sl
+    sl = np.cumsum(new_ring) - 1                        # rings left, numbered again
+    dt = np.abs(np.diff(u, prepend=u[0])) * rho
+    dt[new_ring] = 0.0
     step = np.hypot(np.diff(x, prepend=x[0]), np.diff(y, prepend=y[0]))
-    new_piece = np.r_[True, ring[1:] != ring[:-1]] | (step > GAP_M)
+    new_piece = new_ring | (step > GAP_M) | (dt > GAP_M)
     piece = np.cumsum(new_piece)
-    spacing = np.bincount(ring, np.where(new_piece, 0, step), len(best)) / np.maximum(
-        np.bincount(ring[~new_piece], None, len(best)), 1)
+    T = np.cumsum(dt)
+    ring_start = np.flatnonzero(new_ring)
+    t = T - np.repeat(T[ring_start], np.diff(np.r_[ring_start, n]))      # from the ring's right end
+    rings = len(ring_start)
+    ring_end = np.r_[ring_start[1:] - 1, n - 1]
+    spacing = np.bincount(sl, np.where(new_piece, 0.0, dt), rings) / np.maximum(
+        np.bincount(sl, ~new_piece, rings), 1)
+    spacing = np.maximum(spacing, 1e-3)
+    # A verge is a profile across the road: where a ring crosses the edge at a slant (the corner
+    # sensors' rings near the vehicle run almost along it), a span across the road is a longer
+    # stretch of ring. `slant`: how fast the ring moves across the guide line per metre along it,
+    # over the last SLANT_M of ring (the ranges' scatter allows no shorter), at least MIN_SLANT.
+    k = np.maximum(1, np.ceil(SLANT_M / spacing)).astype(np.int64)[sl]
+    behind = np.clip(at - np.where(u > 0, k, -k), 0, n - 1)
+    same = sl[behind] == sl
+    slant = np.where(same, np.abs(across - across[behind]) / np.maximum(np.abs(t - t[behind]), 1e-6), 1.0)
+    slant = np.clip(slant, MIN_SLANT, 1.0)
+    reach_s = np.ceil(p.gradient_span_m / (spacing[sl] * slant)).astype(np.int64)
+    reach_w = np.maximum(2, np.ceil(p.window_m / (spacing[sl] * slant))).astype(np.int64)
+    m = np.maximum(2, np.ceil(p.run_m / spacing)).astype(np.int64)[sl]     # points in a run
 
-    # Road-side neighbours: before a left point, after a right point. σ: the median of the k
-    # nearest (scipy's median_filter centres a window of k on index c as c − k//2 .. c − k//2 +
-    # k − 1, so `mid` is that window's c). ∇: towards the neighbour at least gradient_span_m
-    # away (and k points): over a few centimetres, the sensor's noise would be the gradient.
-    reach = np.maximum(k, np.ceil(p.gradient_span_m / np.maximum(spacing, 1e-3))).astype(np.int64)[ring]
-    far = np.clip(np.where(left, at - reach, at + reach), 0, n - 1)
-    mid = np.clip(np.where(left, at - k + k // 2, at + 1 + k // 2), 0, n - 1)
-    valid = (piece[far] == piece) & (np.abs(far - at) == reach) & (u != 0)
-    gradient = np.abs(z - z[far]) / np.maximum(np.hypot(x - x[far], y - y[far]), 1e-3)
-    sigma = np.abs(z - median_filter(z, size=k, mode="nearest")[mid])
+    # The road-side window of each point: the points from gradient_span_m to gradient_span_m +
+    # window_m behind it (towards θs), and the straight line fitted to their heights along t:
+    # the road's trend there.
+    # It stays on the point's side of the reference: near the reference it is shorter, down to
+    # half its length; closer in, the point is taken as road.
+    reference = np.flatnonzero(u == 0)[sl]               # one per ring (θs is one of its azimuths)
+    near = at - outward * reach_s
+    far = near - outward * reach_w
+    far = np.where(left, np.maximum(far, reference), np.minimum(far, reference))
+    lo, hi = np.clip(np.minimum(near, far), 0, n - 1), np.clip(np.maximum(near, far), 0, n - 1)
+    valid = ((outward * (near - far) >= reach_w // 2) & (piece[lo] == piece) & (piece[hi] == piece) & (u != 0))
+    prefix = np.zeros((5, n + 1))
+    for row, values in enumerate((t, t * t, z, t * z, z * z)):
+        np.cumsum(values, out=prefix[row, 1:])
+    count = hi - lo + 1
+    st, stt, sz, stz = (prefix[row, hi + 1] - prefix[row, lo] for row in range(4))
+    mean_t, mean_z = st / count, sz / count
+    slope = (stz / count - mean_t * mean_z) / np.maximum(stt / count - mean_t ** 2, 1e-9)
+    distance = np.maximum(np.abs(t - mean_t), 1e-3)
+    gradient = (z - mean_z) / distance                          # ∇: + rising away from the road
+    sigma = np.maximum(z - mean_z - slope * (t - mean_t), 0.0)   # σ: height above the road's trend
     beyond = None
     if previous is not None and (previous.left is not None or previous.right is not None):
-        beyond = np.full(n, np.nan, dtype=np.float32)
+        beyond = np.full(n, np.nan)
         if previous.left is not None:
             beyond[left] = y[left] - poly.polyval(x[left], previous.left)
         if previous.right is not None:
@@ -325,27 +443,121 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     score = road_score(gradient, sigma, beyond, p.weights)
     score[~valid] = 1.0
 
-    # Stops: the first point of a run of m non-road points, outwards.
-    nonroad = np.r_[0, np.cumsum(score < 0.5)]
+    # Stops: the first point of a run of non-road points run_m long (m points), outwards, within a
+    # piece.
+    road = score >= 0.5
+    nonroad = np.r_[0, np.cumsum(~road)]
     start = np.clip(np.where(left, at, at - m + 1), 0, n - m)
     stop = (nonroad[start + m] - nonroad[start] == m) & (piece[start] == piece) & (piece[start + m - 1] == piece)
+    last_road = np.maximum.accumulate(np.where(road, at, -1))              # the nearest road point at or
+    next_road = np.minimum.accumulate(np.where(road, at, n)[::-1])[::-1]   # before / after each point
 
-    # The boundary is the last point before the first stop outwards, in the reference's piece
-    # (beyond a gap, nothing is known), and not the reference itself.
-    stops = np.flatnonzero(stop & left)
-    _, first = np.unique(ring[stops], return_index=True)
-    b_left = stops[first] - 1
-    stops = np.flatnonzero(stop & right)[::-1]
-    _, first = np.unique(ring[stops], return_index=True)
-    b_right = stops[first] + 1
-    reference_piece = np.zeros(len(best), dtype=piece.dtype)
-    reference_piece[ring[u == 0]] = piece[u == 0]
-    b_left = b_left[(u[b_left] > 0) & (piece[b_left] == reference_piece[ring[b_left]])]
-    b_right = b_right[(u[b_right] < 0) & (piece[b_right] == reference_piece[ring[b_right]])]
+    # Per ring and side, the first stop outwards in the reference's piece (beyond a gap nothing is
+    # known) ...
+    reference_piece = np.zeros(rings, dtype=piece.dtype)
+    reference_piece[sl[u == 0]] = piece[u == 0]
+    ring_theta = ts[ring_start]
+    renumbered = np.full(len(ring_below) + 1, -1)        # old ring numbers to new (−1: gone, or none)
+    renumbered[old_sl[ring_start]] = np.arange(rings)
+    lower = renumbered[ring_below[old_sl[ring_start]]]  # the ring below, of the same sensor (or −1)
+    piece_first = np.flatnonzero(new_piece)             # piece k starts at piece_first[k - 1]
+    piece_last = np.r_[piece_first[1:] - 1, n - 1]
+    boundaries = []
+    for side, sign in ((left, 1), (right, -1)):
+        stops = np.flatnonzero(stop & side & (piece == reference_piece[sl]))
+        stops = stops if sign > 0 else stops[::-1]
+        _, first_stop = np.unique(sl[stops], return_index=True)
+        stops = stops[first_stop]
+        found = np.zeros(rings, dtype=bool)
+        found[sl[stops]] = True
+        # ... or, without one, where the reference's piece ends in a drop: the ring's next return
+        # lies DROP_M lower, or it has none though the ROI and the quarter turn go on (a ravine too
+        # deep to return anything). Its boundary is its last point scored road (fewer than m of its
+        # last points can score lower: no run there).
+        ends = (piece_last if sign > 0 else piece_first)[reference_piece[~found & (reference_piece > 0)] - 1]
+        ends = ends[u[ends] * sign > 0]
+        nxt = ends + sign
+        in_ring = (nxt >= 0) & (nxt < n)
+        in_ring[in_ring] = sl[nxt[in_ring]] == sl[ends[in_ring]]
+        inside = ((x[ends] > p.x_min_m + ROI_MARGIN_M) & (x[ends] < x_max - ROI_MARGIN_M)
+                  & (np.abs(y[ends]) < p.half_width_m - ROI_MARGIN_M) & (np.abs(u[ends]) < np.pi / 2 - TURN_MARGIN)
+                  & (across[ends] < band - ROI_MARGIN_M))
+        # Where a ring's returns stop, the ring below it (same sensor, nearer ground) must still
+        # return beyond that azimuth: the ground fell away, not the view. Where the lowest rings
+        # all stop at one azimuth, the vehicle's own body blocks them (the roof sensor's, at
+        # about 60° to each side).
+        k = sl[ends]
+        j = lower[k]
+        extent = np.where(sign > 0, u[ring_end], u[ring_start])[np.maximum(j, 0)]
+        farther = sign * ieee_remainder(ring_theta[np.maximum(j, 0)] + extent - ring_theta[k] - u[ends],
+                                        2 * np.pi) > LOWER_RING_MARGIN
+        inside &= (j >= 0) & farther
+        nxt = np.clip(nxt, 0, n - 1)
+        drop = np.where(in_ring, z[nxt] < z[ends] - DROP_M, inside)
+        ends = ends[drop]
+        last = np.clip((last_road if sign > 0 else next_road)[ends], 0, n - 1)
+        last = last[(sl[last] == sl[ends]) & (u[last] * sign > 0) & (score[last] >= 0.5)]
+        b = _hinge(stops, sign, reach_s, t, z, prefix, mean_t, mean_z, slope, piece, piece_first, piece_last)
+        b = b[u[b] * sign > 0]
+        boundaries.append(np.r_[b, last].astype(np.int64))
+    b_left, b_right = boundaries
 
-    per_sensor = np.bincount(frame.sensor_index[idx[score >= 0.5]], minlength=len(frame.sensor_origins))
-    return _Scan(np.c_[x[b_left], y[b_left]].astype(float), np.c_[x[b_right], y[b_right]].astype(float),
-                 per_sensor, idx, score)
+    per_sensor = np.bincount(frame.sensor_index[idx[score >= 0.5]], minlength=n_sensors)
+    return _Scan(np.c_[x[b_left], y[b_left]], np.c_[x[b_right], y[b_right]], per_sensor, idx, score)
+
+
+def _hinge(stops, sign, reach_s, t, z, prefix, mean_t, mean_z, slope, piece, piece_first, piece_last):
+    """The last road point of each ring whose walk stopped at `stops` (first points of runs of m
+    non-road points; sign + outwards to the left): where the road's line (the trend of the
+    stop's road-side window) and the verge's line meet. Candidates c: the stop's predecessor and
+    the points back to its window. For each, the heights relative to the road's line, ρ, are
+    taken as 0 up to c (road) and as a straight line of their own beyond it, over the points up
+    to a span past the stop (the verge); the c of least squared error wins. A step (kerb, wall)
+    gives the point before it; a change of slope (grass) the kink, not the point ∇ and σ
+    noticed, which comes up to a span later."""
+    if len(stops) == 0:
+        return stops
+    reach = reach_s[stops]
+    k = np.arange(1, reach.max() + 1)
+    c = stops[:, None] - sign * k[None, :]                                  # candidates, (b, K)
+    window_end = stops - sign * reach                                       # the road's line reaches here
+    segment_end = np.where(sign > 0, np.minimum(stops + reach, piece_last[piece[stops] - 1]),
+                           np.maximum(stops - reach, piece_first[piece[stops] - 1]))
+    ok = (k[None, :] <= reach[:, None]) & (sign * (c - window_end[:, None]) >= 0)
+    c = np.where(ok, c, stops[:, None] - sign)
+    # ρ = z − a − b·t with the stop's line; sums of ρ, ρ², ρt, t, t² over index ranges from the
+    # prefix sums of t, t², z, tz, z²
+    a = (mean_z[stops] - slope[stops] * mean_t[stops])[:, None]
+    b = slope[stops][:, None]
+
+    def sums(lo, hi):
+        s_t, s_tt, s_z, s_tz, s_zz = _sums(prefix, lo, hi)
+        count = hi - lo + 1
+        s_r = s_z - a * count - b * s_t
+        s_rr = s_zz - 2 * a * s_z - 2 * b * s_tz + a * a * count + 2 * a * b * s_t + b * b * s_tt
+        s_rt = s_tz - a * s_t - b * s_tt
+        return count, s_r, s_rr, s_rt, s_t, s_tt
+
+    w = window_end[:, None]
+    e = segment_end[:, None]
+    # road part: window end (exclusive) .. c; verge part: after c .. segment end
+    road_lo, road_hi = (np.minimum(w + sign, c), np.maximum(w + sign, c))
+    _, _, road_rr, _, _, _ = sums(road_lo, road_hi)
+    road_rr = np.where(sign * (c - w) >= 1, road_rr, 0.0)
+    verge_lo, verge_hi = np.minimum(c + sign, e), np.maximum(c + sign, e)
+    n_v, s_r, s_rr, s_rt, s_t, s_tt = sums(verge_lo, verge_hi)
+    var_t = np.maximum(s_tt - s_t ** 2 / n_v, 1e-12)
+    verge_rr = s_rr - s_r ** 2 / n_v - (s_rt - s_r * s_t / n_v) ** 2 / var_t
+    error = np.where(ok & (n_v >= 2), road_rr + np.maximum(verge_rr, 0.0), np.inf)
+    # The least error; of equal ones (no kink: a stop eq. 10 made on flat ground) the candidate
+    # nearest the stop, which then stays where it was.
+    near_best = error <= error.min(axis=1, keepdims=True) + TIE_M2
+    best = np.argmax(near_best, axis=1)
+    chosen = c[np.arange(len(stops)), best]
+    # Only where the stop itself stands off the road's line (a stop eq. 10 made on flat ground
+    # has no kink to find).
+    off_line = np.abs(z[stops] - a[:, 0] - b[:, 0] * t[stops]) >= HINGE_MIN_M
+    return np.where(np.isfinite(error.min(axis=1)) & off_line, chosen, stops - sign)
 
 
 # ---- second iteration: the road model --------------------------------------------------------
@@ -373,14 +585,24 @@ def fit_boundary(x: np.ndarray, y: np.ndarray, p: RoadDetectionParams) -> Bounda
     V = np.vander(x, p.poly_order + 1, increasing=True)
     drafts = np.einsum("cij,cj->ci", np.linalg.pinv(np.einsum("cn,ni,nj->cij", keeps, V, V)),
                        np.einsum("cn,ni,n->ci", keeps, V, y))
-    rough = drafts[np.argmin(np.median(np.abs(y[:, None] - V @ drafts.T), axis=0))]
+    cap = (2 * p.outlier_floor_m) ** 2                 # a point far off costs the same however far
+    rough = drafts[np.argmin(np.minimum((y[:, None] - V @ drafts.T) ** 2, cap).sum(axis=0))]
     residual = y - V @ rough
     deviation = np.abs(residual - np.median(residual))
     inliers = deviation <= max(p.outlier_mad * 1.4826 * np.median(deviation), p.outlier_floor_m)
     if inliers.sum() < p.min_points or np.ptp(x[inliers]) < p.min_span_m:
         return None
-    coef = poly.polyfit(x[inliers], y[inliers], p.poly_order)
-    rms = float(np.sqrt(np.mean((y[inliers] - poly.polyval(x[inliers], coef)) ** 2)))
+    xi, yi = x[inliers], y[inliers]
+    coef = poly.polyfit(xi, yi, 1)
+    rss = float(np.sum((yi - poly.polyval(xi, coef)) ** 2))
+    for order in range(2, p.poly_order + 1):        # a higher order only where the points call for it
+        higher = poly.polyfit(xi, yi, order)
+        rss_higher = float(np.sum((yi - poly.polyval(xi, higher)) ** 2))
+        dof = len(xi) - order - 1
+        if dof <= 0 or (rss - rss_higher) * dof <= p.order_f * max(rss_higher, 1e-12):
+            break
+        coef, rss = higher, rss_higher
+    rms = float(np.sqrt(rss / len(xi)))
     return BoundaryFit(coef, rough, inliers, rms)
 
 
@@ -401,8 +623,40 @@ def road_confidence(left: BoundaryFit | None, right: BoundaryFit | None, width_m
     return support * math.exp(-math.sqrt(squares) / p.residual_scale_m) * max(0.0, 1 - outside / p.width_tolerance_m)
 
 
+def fit_parallel(left_xy: np.ndarray, left: BoundaryFit, right_xy: np.ndarray, right: BoundaryFit,
+                 p: RoadDetectionParams) -> tuple[BoundaryFit, BoundaryFit]:
+    """Both sides refitted at once with one slope at x = 0, each keeping its own offset and higher
+    terms: a road's two edges run parallel beside the vehicle (in a bend too: concentric arcs
+    have one tangent direction there), so a side with sharp edges steadies the heading of a
+    side with soft ones. Kept only if the residual sum of squares does not grow by more than
+    order_f (an F test, one parameter fewer) over the separate fits."""
+    xl, yl = left_xy[left.inliers].T
+    xr, yr = right_xy[right.inliers].T
+    nl, nr, ol, orr = len(xl), len(xr), len(left.coef) - 1, len(right.coef) - 1
+    design = np.zeros((nl + nr, 3 + (ol - 1) + (orr - 1)))
+    design[:nl, 0], design[nl:, 1], design[:, 2] = 1.0, 1.0, np.r_[xl, xr]
+    for k in range(2, ol + 1):
+        design[:nl, 3 + k - 2] = xl ** k
+    for k in range(2, orr + 1):
+        design[nl:, 3 + ol - 1 + k - 2] = xr ** k
+    solution = np.linalg.lstsq(design, np.r_[yl, yr], rcond=None)[0]
+    coef_l = np.r_[solution[0], solution[2], solution[3:3 + ol - 1]]
+    coef_r = np.r_[solution[1], solution[2], solution[3 + ol - 1:]]
+    rss_l = float(np.sum((yl - poly.polyval(xl, coef_l)) ** 2))
+    rss_r = float(np.sum((yr - poly.polyval(xr, coef_r)) ** 2))
+    separate = left.rms_m ** 2 * nl + right.rms_m ** 2 * nr
+    dof = nl + nr - (ol + 1) - (orr + 1)
+    if dof <= 0 or (rss_l + rss_r - separate) * dof > p.order_f * max(separate, 1e-12):
+        return left, right
+    return (BoundaryFit(coef_l, left.rough, left.inliers, math.sqrt(rss_l / nl)),
+            BoundaryFit(coef_r, right.rough, right.inliers, math.sqrt(rss_r / nr)))
+
+
 def _model(scan: _Scan, p: RoadDetectionParams, previous: RoadModel | None):
-    left, right = (fit_boundary(*b[b[:, 0] <= p.fit_x_max_m].T, p) for b in (scan.left, scan.right))
+    points = [b[b[:, 0] <= p.fit_x_max_m] for b in (scan.left, scan.right)]
+    left, right = (fit_boundary(*b.T, p) for b in points)
+    if left is not None and right is not None:
+        left, right = fit_parallel(points[0], left, points[1], right, p)
     width = previous.width_m if previous is not None else None
     if left is not None and right is not None:
         centre_slope = (_slope(left.coef) + _slope(right.coef)) / 2
@@ -414,18 +668,39 @@ def _model(scan: _Scan, p: RoadDetectionParams, previous: RoadModel | None):
 def detect_road(frame: LidarFrame, params: RoadDetectionParams | None = None,
                 previous: RoadModel | None = None) -> RoadResult:
     """The road in one frame; `previous` is the last frame's model (its centre line guides the
-    reference points and its boundaries give eq. 10's Δ̂)."""
+    reference points and its boundaries give eq. 10's Δ̂). Without one, or where it led to no
+    road, the guide is grown from the near field (see _bootstrap_guide)."""
     p = params or RoadDetectionParams()
     x, y = frame.points[:, 0], frame.points[:, 1]
     roi = np.flatnonzero((x >= p.x_min_m) & (x <= p.x_max_m) & (np.abs(y) <= p.half_width_m))
+    result = None
+    if previous is not None and previous.centre() is not None:
+        result = _detect(frame, roi, p, previous.centre(), previous)
+    if result is None or not result.found:
+        again = _detect(frame, roi, p, _bootstrap_guide(frame, roi, p, previous), previous)
+        if result is None or again.confidence > result.confidence:
+            result = again
+    return result
 
-    guide = previous.centre() if previous is not None else None
-    if guide is None:               # first frame: a centre line from the near field, where y = 0 is road
-        near = _scan(frame, roi[x[roi] <= p.bootstrap_range_m], p, None, None)
-        guide = _model(near, p, previous)[0].centre()
-    scan = _scan(frame, roi, p, guide, previous)
+
+def _bootstrap_guide(frame: LidarFrame, roi: np.ndarray, p: RoadDetectionParams,
+                     previous: RoadModel | None) -> np.ndarray | None:
+    """A centre line grown from the near field: the rings up to bootstrap_range_m, whose references
+    are taken nearest y = 0 (still on the road there even in the tour's tightest bend), give a
+    first centre line; with it as the guide, the rings up to twice as far give the next."""
+    x = frame.points[roi, 0]
+    guide = None
+    for reach, order in ((p.bootstrap_range_m, 1), (2 * p.bootstrap_range_m, p.poly_order)):
+        q = p.model_copy(update={"poly_order": order})     # a straight first guess: it is extrapolated far
+        centre = _model(_scan(frame, roi[x <= reach], q, guide, None, reach), q, previous)[0].centre()
+        guide = centre if centre is not None else guide
+    return guide
+
+
+def _detect(frame: LidarFrame, roi: np.ndarray, p: RoadDetectionParams, guide: np.ndarray | None,
+            previous: RoadModel | None) -> RoadResult:
+    scan = _scan(frame, roi, p, guide, previous, p.x_max_m)
     model, left, right = _model(scan, p, previous)
-
     centre = model.centre()
     width = model.width_m if model.width_m is not None else math.nan
     confidence = road_confidence(left, right, width, p) if centre is not None else 0.0

@@ -20,7 +20,8 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from perception.road_detection import (GAP_M, LidarFrame, RoadDetectionParams, RoadModel, ScoreWeights,
+from perception.road_detection import (BAND_MARGIN_M, GAP_M, HEIGHT_CUT_M, MIN_SLANT, SLANT_M, LidarFrame,
+                                       RoadDetectionParams, RoadModel, ScoreWeights,
                                        boundary_distance_term, detect_road, fit_boundary, gradient_term,
                                        normalized_azimuth_subtraction, relative_height_term, road_score)
 
@@ -199,47 +200,70 @@ def true_edge(x, pose, radius, side):
 
 # ---- the window features against a point-by-point reading ------------------------------------
 
-def brute_force_scores(frame: LidarFrame, p: RoadDetectionParams) -> np.ndarray:
-    """Steps 1-3 of the module's docstring for one point at a time: reference on y = 0, no
-    previous boundary."""
+def brute_force_scores(frame: LidarFrame, p: RoadDetectionParams, width_m: float = 6.0) -> np.ndarray:
+    """Steps 1-3 of the module's docstring for one point at a time: the previous model's centre
+    line on y = 0 and its width `width_m` (so the reference is the point nearest y = 0 and the
+    band reaches width_m / 2 + BAND_MARGIN_M + gradient_span_m + run_m), eq. 10 weighing nothing.
+    The span and the window are taken across the guide line: along the ring they are longer by
+    1 / slant."""
     scores = np.full(len(frame.points), np.nan)
     x, y, z = frame.points.astype(float).T
-    roi = (x >= p.x_min_m) & (x <= p.x_max_m) & (np.abs(y) <= p.half_width_m)
+    band = width_m / 2 + BAND_MARGIN_M + p.gradient_span_m + p.run_m
+    roi = (x >= p.x_min_m) & (x <= p.x_max_m) & (np.abs(y) <= p.half_width_m) & (np.abs(y) <= band)
     for ring in np.unique(frame.ring_id):
         members = np.flatnonzero(roi & (frame.ring_id == ring))
-        ahead = [i for i in members if x[i] > frame.sensor_origins[frame.sensor_index[i], 0]]
+        ox, oy, _ = frame.sensor_origins[frame.sensor_index[members[0]]]
+        ahead = [i for i in members if x[i] > ox]
         reference = min(ahead, key=lambda i: abs(y[i]))
         assert abs(y[reference]) <= p.reference_max_offset_m
         turn = {i: math.remainder(frame.azimuth[i] - frame.azimuth[reference], 2 * PI) for i in members}
-        ring_pts = sorted((i for i in members if abs(turn[i]) < PI / 2), key=turn.get)
-        steps = [math.hypot(x[a] - x[b], y[a] - y[b]) for a, b in zip(ring_pts, ring_pts[1:])]
-        spacing = statistics.mean(s for s in steps if s <= GAP_M)
-        reach = max(p.window, math.ceil(p.gradient_span_m / spacing))
+        ring_pts = sorted((i for i in members if abs(turn[i]) < PI / 2 and abs(z[i] - z[reference]) <= HEIGHT_CUT_M),
+                          key=turn.get)
+        # t: along the ring, the azimuth step times the horizontal range from the sensor
+        t, gap = [0.0], [True]
+        for a, b in zip(ring_pts, ring_pts[1:]):
+            dt = abs(turn[b] - turn[a]) * math.hypot(x[b] - ox, y[b] - oy)
+            t.append(t[-1] + dt)
+            gap.append(dt > GAP_M or math.hypot(x[b] - x[a], y[b] - y[a]) > GAP_M)
+        spacing = statistics.mean(t[k] - t[k - 1] for k in range(1, len(t)) if not gap[k])
+        behind = max(1, math.ceil(SLANT_M / spacing))
+        at_reference = ring_pts.index(reference)
         for at, i in enumerate(ring_pts):
             inward = -1 if turn[i] > 0 else 1
-            near = [at + inward * j for j in range(1, p.window + 1)]
-            far = at + inward * reach
-            if turn[i] == 0 or not (0 <= far < len(ring_pts) and 0 <= min(near) and max(near) < len(ring_pts)):
+            # the slant: metres across the guide line (y = 0) per metre along the ring, over `behind` points
+            j = min(max(at + inward * behind, 0), len(ring_pts) - 1)
+            slant = abs(abs(y[i]) - abs(y[ring_pts[j]])) / max(abs(t[at] - t[j]), 1e-6)
+            slant = min(max(slant, MIN_SLANT), 1.0)
+            reach_s = math.ceil(p.gradient_span_m / (spacing * slant))
+            reach_w = max(2, math.ceil(p.window_m / (spacing * slant)))
+            near = at + inward * reach_s
+            far = near + inward * reach_w
+            far = max(far, at_reference) if inward < 0 else min(far, at_reference)      # not across θs
+            span = range(min(far, at), max(far, at) + 1)
+            if (turn[i] == 0 or -inward * (near - far) < reach_w // 2 or min(span) < 0 or max(span) >= len(ring_pts)
+                    or any(gap[k] for k in span if k != min(span))):
                 scores[i] = 1.0
                 continue
-            j = ring_pts[far]
-            gradient = abs(z[i] - z[j]) / math.hypot(x[i] - x[j], y[i] - y[j])
-            sigma = abs(z[i] - statistics.median_high(z[ring_pts[n]] for n in near))     # k even: the upper one
+            window = [ring_pts[k] for k in range(min(near, far), max(near, far) + 1)]
+            tw, zw = np.array([t[ring_pts.index(k)] for k in window]), z[window]
+            slope, intercept = np.polyfit(tw, zw, 1)
+            gradient = (z[i] - zw.mean()) / abs(t[at] - tw.mean())          # + rising away from the road
+            sigma = max(z[i] - (intercept + slope * t[at]), 0.0)             # above the road's trend
             scores[i] = road_score(gradient, sigma, None, p.weights)
     return scores
 
 
-@pytest.mark.parametrize("window", [4, 5])
-def test_window_features_match_a_point_by_point_reading(window):
+@pytest.mark.parametrize("span, window", [(0.4, 0.4), (0.6, 0.3)])
+def test_window_features_match_a_point_by_point_reading(span, window):
     rng = np.random.default_rng(7)
-    sensor = Sensor((1.0, 0.0, 2.0), 30.0, (-12.0, -16.0, -21.0), 1.5, 40.0)
+    sensor = Sensor((1.0, 0.0, 2.0), 30.0, (-12.0, -16.0, -21.0), 0.5, 40.0)
     frame = scan(left="kerb", right="wall", sensors=(sensor,))
     noisy = frame.points + np.c_[np.zeros((len(frame.points), 2)), rng.normal(0, 0.02, len(frame.points))]
     shuffle = rng.permutation(len(frame.points))           # the order of the points does not matter
     frame = dataclasses.replace(frame, points=noisy.astype(np.float32)[shuffle], ring_id=frame.ring_id[shuffle],
                                 azimuth=frame.azimuth[shuffle], sensor_index=frame.sensor_index[shuffle])
     # the reference on y = 0 as in the brute force, through a previous model whose eq. 10 weighs nothing
-    p = RoadDetectionParams(window=window, gradient_span_m=0.4, weights=ScoreWeights(beta9=0.0, beta10=0.0))
+    p = RoadDetectionParams(gradient_span_m=span, window_m=window, weights=ScoreWeights(beta9=0.0, beta10=0.0))
     got = detect_road(frame, p, previous=RoadModel(np.array([3.0]), np.array([-3.0]), 6.0)).scores
     expected = brute_force_scores(frame, p)
     assert np.array_equal(np.isnan(got), np.isnan(expected))
@@ -264,17 +288,18 @@ def test_a_straight_road_between_steps(verge_kind):
     assert result.width_m == pytest.approx(6.0, abs=0.05)
 
 
-def test_a_gentle_change_of_slope_is_found_late_by_part_of_the_gradient_span():
-    """From −2.5 % to +25 %: ∇, taken over gradient_span_m, rises past its threshold only once
-    most of that span lies on the verge."""
+def test_a_gentle_change_of_slope_is_found_at_the_kink():
+    """From −2.5 % to +25 %: ∇ and σ notice it only some way up the slope (σ grows with the
+    distance past the kink); the stop is then placed back where the road's line and the verge's
+    line meet (_hinge), within a ring's spacing of the edge, whatever the span and window."""
     frame = scan(left="grass", right="grass")
-    short = RoadDetectionParams(window=2, run=2, gradient_span_m=0.1)     # noise-free: short windows will do
-    for p, late in ((RoadDetectionParams(), 0.25), (short, 0.10)):
+    for p in (RoadDetectionParams(), RoadDetectionParams(gradient_span_m=0.3, window_m=0.3)):
         result = detect_road(frame, p)
         for points, side in ((result.left_points, 1), (result.right_points, -1)):
             errors = edge_errors(points, side=side)
-            assert len(points) >= 30 and errors.min() >= 0.0 and errors.max() <= late
-        assert result.found and result.confidence > 0.9
+            assert len(points) >= 30 and errors.max() <= 0.02
+            assert errors.min() >= -0.10 and np.sum(errors < -0.06) <= 1      # a ring at a slant: a little early
+        assert result.found and result.confidence > 0.8
 
 
 @pytest.mark.parametrize("radius", [30.0, -30.0])
@@ -384,13 +409,16 @@ def test_road_points_per_sensor():
 
 def test_the_previous_boundary_pulls_the_new_one_in_proportion_to_beta10():
     """Eq. 10: with a previous left boundary at y = 2 (the edge is at 3), a point Δ̂ metres
-    beyond it adds β10·Δ̂ to the bracket: with β1 = −1 the flat road stops scoring as road at
-    Δ̂ = 1/β10. The default β10 leaves the kerb in charge; β10 = 2 stops at y ≈ 2.5."""
+    beyond it adds β10·Δ̂ to the bracket. On the flat road ∇ is the crown's fall, −2.5 % (less
+    along a ring that crosses the road at a slant), and with eq. 9 weighing nothing the road stops
+    at Δ̂ = (−β1 + 0.025·β3 − 0.025²·β4 − β9) / β10 at most. The default β10 leaves the kerb in
+    charge; β10 = 2 stops just short of y ≈ 2.55."""
     frame, wrong = scan(), RoadModel(np.array([2.0]), np.array([-3.0]), 5.0)
     assert edge_errors(detect_road(frame, previous=wrong).left_points).min() >= -0.06
-    pulled = RoadDetectionParams(weights=ScoreWeights(beta10=2.0))
-    y = detect_road(frame, pulled, previous=wrong).left_points[:, 1]
-    assert len(y) >= 30 and 2.3 < y.min() and y.max() < 2.5      # the crown's own slope adds a little too
+    w = ScoreWeights(beta1=-1.0, beta3=4.0, beta4=5.0, beta7=0.0, beta8=0.0, beta9=0.0, beta10=2.0)
+    stop = 2.0 + (1.0 + 0.025 * w.beta3 - 0.025 ** 2 * w.beta4) / w.beta10
+    y = detect_road(frame, RoadDetectionParams(weights=w), previous=wrong).left_points[:, 1]
+    assert len(y) >= 30 and stop - 0.1 < y.min() and y.max() < stop
 
 
 def test_road_model_centre():
@@ -402,8 +430,8 @@ def test_road_model_centre():
 
 
 def test_parameters_are_checked():
-    with pytest.raises(ValueError, match="run must not exceed window"):
-        RoadDetectionParams(window=3, run=4)
+    with pytest.raises(ValueError):
+        RoadDetectionParams(window_m=0.0)
     with pytest.raises(ValueError, match="min_points"):
         RoadDetectionParams(poly_order=3, min_points=3)
     with pytest.raises(ValueError):

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .args import CliError, Command, non_negative_int, positive_float
+from .args import CliError, Command, non_negative_int, positive_float, positive_int
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
@@ -43,11 +43,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         "calibrate", help="re-run the experiments that chose parameters",
         description="odometry: the odometry score's a, b, c (docs/odometry_score.md). lidars: the LiDARs' "
                     "extrinsics, found against each other in a simulated warehouse from a wrong first guess and "
-                    "compared with the profile's (ARES §3.4.1; ares/harness/lidar_calibration.py).")
-    calibrate.add_argument("what", choices=["odometry", "lidars"])
+                    "compared with the profile's (ARES §3.4.1; ares/harness/lidar_calibration.py). road: road "
+                    "detection's β (eqs. 7-10) and knobs, searched on simulated frames over every verge of the tour "
+                    "(docs/road_detection.md; ares/harness/road_betas.py).")
+    calibrate.add_argument("what", choices=["odometry", "lidars", "road"])
     calibrate.add_argument("--laps", type=positive_float, default=1.0, metavar="N", help="odometry: laps to drive")
     calibrate.add_argument("--seed", type=non_negative_int, default=None, metavar="S",
-                           help="odometry: the closed loop's; lidars: the scans' noise and the first guess (default 0)")
+                           help="odometry: the closed loop's; lidars: the scans' noise and the first guess; road: the "
+                                "frames' poses and the LiDARs' noise (default 0)")
+    calibrate.add_argument("--samples", type=positive_int, default=4, metavar="N",
+                           help="road: sequences of frames per stretch of the tour (default 4)")
     calibrate.add_argument("--vehicle", default="ares_shuttle", metavar="NAME",
                            help="lidars: a profile in ares/config/vehicles/ or a YAML file (default: ares_shuttle)")
     calibrate.add_argument("--offset-m", type=positive_float, default=0.10, metavar="M",
@@ -55,8 +60,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     calibrate.add_argument("--offset-deg", type=positive_float, default=3.0, metavar="DEG",
                            help="lidars: how much the first guess is turned (default: 3)")
     calibrate.add_argument("--write", metavar="PATH",
-                           help="lidars: write the profile with the calibrated extrinsics here (.yaml)")
-    calibrate.add_argument("--json", action="store_true", help="lidars: print one JSON object instead of the table")
+                           help="lidars: write the profile with the calibrated extrinsics here (.yaml); road: a "
+                                "configuration file with the chosen values (.yaml, for --config)")
+    calibrate.add_argument("--json", action="store_true",
+                           help="lidars, road: print one JSON object instead of the table")
     return {"describe": cmd_describe, "config": cmd_config, "replay": cmd_replay, "calibrate": cmd_calibrate}
 
 
@@ -163,6 +170,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.what == "lidars":
         return _calibrate_lidars(args)
+    if args.what == "road":
+        return _calibrate_road(args)
     from ares.harness.odometry_score import calibrate
     calibrate(args.laps, args.seed)
     return 0
@@ -188,4 +197,23 @@ def _calibrate_lidars(args: argparse.Namespace) -> int:
     print(json.dumps(report) if args.json else lidar_calibration.table(report))
     if args.write and not args.json:
         print(f"written: {report['written']}")
+    return 0
+
+
+def _calibrate_road(args: argparse.Namespace) -> int:
+    from ares.harness import road_betas
+    if args.write and not args.write.endswith((".yaml", ".yml")):
+        print(f"ares calibrate: --write {args.write}: a configuration file must be .yaml", file=sys.stderr)
+        return 2
+    report, chosen = road_betas.calibrate(args.samples, args.seed or 0, verbose=not args.json)
+    if args.write:
+        try:
+            with open(args.write, "w") as out:
+                out.write(road_betas.overrides_yaml(chosen))
+        except OSError as exc:
+            raise CliError(f"cannot write {args.write}: {exc.strerror}") from None
+        report["written"] = args.write
+    print(json.dumps(report, default=float) if args.json else road_betas.table(report))
+    if args.write and not args.json:
+        print(f"written: {args.write}")
     return 0
