@@ -56,6 +56,7 @@ class PerceptionTracker:
     road_cells: int = 0
     road_cells_occupied: int = 0
     stage_ms: list[float] = field(default_factory=list)
+    stage_cpu_ms: list[float] = field(default_factory=list)
     blocked_points: dict[str, list[int]] = field(default_factory=dict)
     waiting: list = field(default_factory=list)      # messages whose truth has not arrived yet
 
@@ -186,6 +187,8 @@ class PerceptionTracker:
     def add_status(self, status: LidarStatus) -> None:
         if "total" in status.stage_ms:
             self.stage_ms.append(status.stage_ms["total"])
+        if "cpu" in status.stage_ms:
+            self.stage_cpu_ms.append(status.stage_ms["cpu"])
         world = self.worlds.get(round(status.t, 3))
         for name in (world.blocked_lidars if world else []):
             if name in status.sensors:
@@ -202,6 +205,7 @@ class PerceptionTracker:
             "grid_obstacle_frames": self.recall_total,
             "grid_false_occupied_road": round(self.road_cells_occupied / self.road_cells, 5) if self.road_cells else None,
             "perception_ms_p50": _pct(self.stage_ms, 50), "perception_ms_p95": _pct(self.stage_ms, 95),
+            "perception_cpu_ms_p50": _pct(self.stage_cpu_ms, 50),
             **({"blocked_lidar_points_max": {k: int(max(v)) for k, v in self.blocked_points.items()}}
                if self.blocked_points else {}),
         }

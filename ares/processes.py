@@ -33,7 +33,9 @@ class Process:
 
 PROCESSES: list[Process] = [
     Process("sim", "ares.sim.node:Simulator", safety_relevant=True, sim_only=True),
-    Process("lidar_sim", "ares.sim.lidar_node:LidarSimulator", safety_relevant=True, sim_only=True, lidars=True),
+    # the simulated LiDARs stand for hardware, whose work is not the vehicle computer's: they yield
+    Process("lidar_sim", "ares.sim.lidar_node:LidarSimulator", safety_relevant=True, sim_only=True, lidars=True,
+            nice=5),
     Process("gnss", "perception.gnss_node:GnssNode", safety_relevant=True),
     Process("localization", "perception.localization:LocalizationNode", safety_relevant=True),
     Process("odometry_manager", "managers.odometry:OdometryManager", safety_relevant=True),

@@ -10,7 +10,7 @@ follows that centre line when the odometry cannot be trusted.
 First iteration, ring by ring ("a window operator over the rings"):
 
   1. Region of interest: x_min <= x <= x_max, |y| <= half_width, and no farther across the
-     guide centre line than the widest road's edge (the previous frame's, when there is one) and
+     guide centre line than the widest road's edge (the previous frame's, when it saw both) and
      a margin: the walks of step 4 stop before.
   2. Reference point of the ring, inside the road: its point ahead of its sensor nearest the
      guide centre line, measured across it (the previous frame's centre; on a first frame, or
@@ -55,7 +55,10 @@ verge (see fit_boundary) → points whose residuals are far from the others' are
 refit, a line unless a higher order (up to poly_order) lowers the residuals significantly (an F
 test). With both sides, they are refitted at once with one slope at x = 0 (fit_parallel). The
 centre line is the mean of the two sides; with one side only, that side moved by half the
-previous frame's width (confidence <= 0.5); with none, nothing is found. At x = 0, across the
+previous frame's width (confidence <= 0.5); with none, nothing is found. The vehicle is on the
+road: a model whose left boundary passes right of it at x = 0, or whose right one passes left of
+it, was drawn on the verge and is no road (a guide that drifted off the road would otherwise keep
+the next frames there). At x = 0, across the
 road: lateral offset = −centre(0)·cos(heading), + when the vehicle is left of the centre;
 heading = −atan(centre'(0)), + when the vehicle points left of the road.
 
@@ -307,10 +310,11 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     if guide is None:
         across = np.abs(y)
     else:
-        across = np.abs(y - poly.polyval(x, guide)) / np.hypot(1.0, poly.polyval(x, poly.polyder(guide)))
+        g = guide.astype(np.float32)                 # in the points' float32: mm do not matter here
+        across = np.abs(y - poly.polyval(x, g)) / np.hypot(np.float32(1.0), poly.polyval(x, poly.polyder(g)))
     band = 0.5 * p.max_width_m
-    if previous is not None and previous.width_m is not None:
-        band = min(band, 0.5 * previous.width_m)
+    if previous is not None and previous.left is not None and previous.right is not None:
+        band = min(band, 0.5 * previous.width_m)      # a width only one side saw may be stale
     band += BAND_MARGIN_M + p.gradient_span_m + p.run_m
     inside_band = across <= band
     idx, across = idx[inside_band], across[inside_band]
@@ -704,6 +708,9 @@ def _detect(frame: LidarFrame, roi: np.ndarray, p: RoadDetectionParams, guide: n
     centre = model.centre()
     width = model.width_m if model.width_m is not None else math.nan
     confidence = road_confidence(left, right, width, p) if centre is not None else 0.0
+    # The vehicle drives on the road: boundaries that leave it outside one were drawn on the verge.
+    if (model.left is not None and model.left[0] <= 0.0) or (model.right is not None and model.right[0] >= 0.0):
+        confidence = 0.0
     heading = offset = math.nan
     if centre is not None:
         # Across the road, not along y: perpendicular to the centre line at x = 0.

@@ -421,6 +421,25 @@ def test_the_previous_boundary_pulls_the_new_one_in_proportion_to_beta10():
     assert len(y) >= 30 and stop - 0.1 < y.min() and y.max() < stop
 
 
+def test_a_width_only_one_side_saw_does_not_narrow_the_search():
+    """After a narrow lane (3.2 m) seen on one side only, the road widens to 6 m: the stale width
+    would keep the walks within 1.6 m + a margin of the guide and the far edge unseen for good;
+    a one-sided previous model searches the whole band, so both sides are found again."""
+    stale = RoadModel(np.array([3.0]), None, 3.2)
+    result = detect_road(scan(), previous=stale)
+    assert result.found and result.model.left is not None and result.model.right is not None
+    assert result.width_m == pytest.approx(2 * HALF_WIDTH, abs=0.1)
+
+
+def test_boundaries_that_leave_the_vehicle_off_the_road_are_not_a_road():
+    """The vehicle is on the road: a guide 4.5 m to the left puts the references on the verge,
+    and whatever the walks find there is rejected; the near field then finds the road."""
+    off = RoadModel(np.array([7.5]), np.array([1.5]), 6.0)
+    result = detect_road(scan(), previous=off)
+    assert result.found and result.model.left[0] > 0 > result.model.right[0]
+    assert abs(result.lateral_offset_m) < 0.1
+
+
 def test_road_model_centre():
     left, right = np.array([3.0, 0.1]), np.array([-3.0, 0.1])
     assert RoadModel(left, right, None).centre() == pytest.approx([0.0, 0.1])

@@ -18,6 +18,7 @@ from ares.route import load_route
 from ares.stack import engage_automatic
 from ares.supervisor import Supervisor
 from tests.conftest import LIGHT_LIDARS, NO_LIDARS, REPO, make_run_config, free_port
+from tests.test_blackbox_stack import assert_300_s_recorded
 
 pytestmark = pytest.mark.stack
 
@@ -36,8 +37,9 @@ def headless(*args: str, timeout_s: float = 600, lidars: Path = NO_LIDARS) -> di
     return json.loads(lines[-1])
 
 
-def test_a_full_lap_of_the_tour_as_fast_as_the_processes_keep_up():
-    result = headless("--laps", "1", "--speed", "max")
+def test_a_full_lap_of_the_tour_as_fast_as_the_processes_keep_up(tmp_path):
+    store = tmp_path / "blackbox.sqlite"
+    result = headless("--laps", "1", "--speed", "max", "--store", str(store))
     assert result["ok"] and result["laps"] == 1 and result["clock"] == "driven"
     assert result["distance_m"] == pytest.approx(result["route_length_m"], rel=0.02)
     assert result["xte_rmse_m"] <= 0.35          # the DBW paper's real vehicle: 0.347 m
@@ -51,6 +53,8 @@ def test_a_full_lap_of_the_tour_as_fast_as_the_processes_keep_up():
     assert result["score_max_deadzone"] <= 0.3
     assert result["loc_samples_rtk"] > 1000 and result["loc_samples_deadzone"] > 100
     assert "road_detect_rate" not in result                  # the LiDARs were left out (tests/no_lidars.yaml)
+    # the black box: ~500 s of vehicle time, a record for every second (tests/test_blackbox_stack.py)
+    assert_300_s_recorded(store, result)
 
 
 def test_perception_in_the_stack_sees_the_road_and_the_obstacles():
@@ -59,10 +63,11 @@ def test_perception_in_the_stack_sees_the_road_and_the_obstacles():
     result = headless("--seconds", "130", "--speed", "max", "--scenario", "obstacles_along_tour",
                       lidars=LIGHT_LIDARS)
     assert result["xte_max_m"] <= 0.85 and result["loc_rmse_rtk_m"] <= 0.05
-    # at this light resolution over these 500 m: detect 0.94, edge p50 0.045 m, centre p50 0.04 m,
-    # recall 0.985, false occupied 0.004; the edge p95 (1.5 m: a few frames far off) misses the
-    # issue's 0.40 m and is not asserted (the closing note of issue 9 says so)
-    assert result["road_frames"] > 800 and result["road_detect_rate"] >= 0.85
+    # at this light resolution over these ~350 m: detect 0.94, edge p50 0.047 m, centre p50 0.04 m,
+    # recall 0.99, false occupied 0.004. The edge p95 is not asserted here: the scenario's obstacles
+    # stand on the road's edge every 40 m and hide it (1.3 m with them; the full-resolution lap
+    # without them gives 0.35 m, README)
+    assert result["road_frames"] > 800 and result["road_detect_rate"] >= 0.90
     assert result["road_edge_err_p50_m"] <= 0.15 and result["road_edge_err_p95_m"] is not None
     assert result["road_centre_err_p50_m"] <= 0.10
     assert result["grid_obstacle_frames"] > 100 and result["grid_obstacle_recall"] >= 0.95

@@ -110,7 +110,7 @@ class _Threads:
     def __init__(self, scene, n: int, spent: list[float]):
         self.scene, self.n, self.spent = scene, n, spent
 
-    def cast_rays(self, rays):
+    def cast_rays(self, rays, nthreads: int = 0):       # the sensor's own count is overridden by n
         started = time.perf_counter()
         hit = self.scene.cast_rays(rays, nthreads=self.n)
         self.spent[0] += (time.perf_counter() - started) * 1e3

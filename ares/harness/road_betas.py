@@ -247,7 +247,8 @@ class Outcome:
 
 
 def detect(frames: list[Frame], params: RoadDetectionParams) -> list[Outcome]:
-    """detect_road on every sequence in order, each frame's model the next one's `previous`."""
+    """detect_road on every sequence in order, each frame's model the next one's `previous` (none
+    after a frame that found no road), as LidarPipeline does."""
     out, previous = [], None
     for f in frames:
         if f.index == 0:
@@ -255,7 +256,7 @@ def detect(frames: list[Frame], params: RoadDetectionParams) -> list[Outcome]:
         start = time.perf_counter()
         r = detect_road(f.lidar, params, previous)
         ms = (time.perf_counter() - start) * 1e3
-        previous = r.model if r.found else previous
+        previous = r.model if r.found else None
         m = r.model
         out.append(Outcome(r.found, m.left if r.found else None, m.right if r.found else None,
                            m.centre() if r.found else None, ms))
