@@ -1,0 +1,158 @@
+"""Which controller reaches the wheels (ARES paper §3.6, §4: the control manager).
+
+Every controller computes all the time; this decides whose candidate is forwarded, in a fixed
+order of trust:
+
+  1. ODOMETRY (the MPC, or pure pursuit if so configured) where the path manager forces it: at
+     intersections and road openings there is no road to follow, whatever the odometry score;
+  2. ODOMETRY while the odometry score deserves it;
+  3. RRC (road reactive control) when the score does not, but road detection is confident;
+  4. STOP: nothing deserves trust, a controlled stop is asked for.
+
+A mode is *acceptable* while its candidate is fresh (and, for the MPC, not asking for a hand-over)
+and its trust holds. Trust has hysteresis: a mode is entered at `enter` and kept down to `exit`,
+so a score hovering at one threshold does not toggle. The mode in charge keeps charge for at least
+`min_dwell_s`, unless it stops being acceptable: a better mode waits out the dwell, a failing one
+is left at once (a stale candidate is never forwarded). ODOMETRY forced by the path manager
+counts as a failing RRC: the road's model ends at the crossing.
+
+The forwarded curvature changes no faster than the steering can follow (`max_kappa_rate`, from
+the steering motor's rate): a switch between candidates that disagree is a ramp, not a jump
+(bumpless). In STOP the speed ramps down at `stop_decel_mps2` and the curvature is held.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+
+class Mode(str, Enum):
+    ODOMETRY = "odometry"
+    RRC = "rrc"
+    STOP = "stop"
+
+
+@dataclass(frozen=True)
+class SelectionParams:
+    score_enter: float              # odometry score to hand control to odometry
+    score_exit: float               # ... and below which odometry loses it
+    road_enter: float               # road-detection confidence to hand control to the RRC
+    road_exit: float
+    min_dwell_s: float              # least time in charge before a better mode may take over
+    max_kappa_rate: float           # 1/m per s: the steering's speed, as curvature
+    stop_decel_mps2: float          # a controlled stop's deceleration
+
+    def __post_init__(self):
+        if not (0 <= self.score_exit <= self.score_enter and 0 <= self.road_exit <= self.road_enter):
+            raise ValueError("each exit threshold must lie at or below its enter threshold")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    v: float
+    kappa: float
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """One cycle's view; None where the input is missing or stale."""
+    odometry_score: float | None
+    road_confidence: float | None
+    force_odometry: bool
+    odometry: Candidate | None      # the odometry controller's candidate (None: stale, or it hands over)
+    rrc: Candidate | None
+
+
+@dataclass(frozen=True)
+class Decision:
+    mode: Mode
+    v: float
+    kappa: float
+    switched: bool
+    reason: str
+
+
+class ControlSelector:
+    def __init__(self, params: SelectionParams, start: Mode = Mode.STOP):
+        self.p = params
+        self.mode = start
+        self.since: float | None = None             # when the mode in charge took it
+        self.v = 0.0
+        self.kappa = 0.0
+        self.last_t: float | None = None
+
+    # ---- trust ----------------------------------------------------------------------------------
+    def _odometry_trusted(self, inputs: Inputs, holding: bool) -> bool:
+        score = inputs.odometry_score
+        return score is not None and score >= (self.p.score_exit if holding else self.p.score_enter)
+
+    def _road_trusted(self, inputs: Inputs, holding: bool) -> bool:
+        conf = inputs.road_confidence
+        return conf is not None and conf >= (self.p.road_exit if holding else self.p.road_enter)
+
+    def acceptable(self, mode: Mode, inputs: Inputs, holding: bool) -> tuple[bool, str]:
+        """Whether `mode` may drive (holding: it is in charge now, so the exit thresholds apply)."""
+        if mode is Mode.ODOMETRY:
+            if inputs.odometry is None:
+                return False, "the odometry controller has no fresh candidate"
+            if inputs.force_odometry:
+                return True, "the path manager forces odometry control (intersection or road opening)"
+            if self._odometry_trusted(inputs, holding):
+                return True, f"odometry score {inputs.odometry_score:.2f}"
+            return False, ("no odometry score" if inputs.odometry_score is None
+                           else f"odometry score {inputs.odometry_score:.2f} too low")
+        if mode is Mode.RRC:
+            if inputs.force_odometry and inputs.odometry is not None:
+                return False, "the path manager forces odometry control"
+            if inputs.rrc is None:
+                return False, "the RRC has no fresh candidate"
+            if self._road_trusted(inputs, holding):
+                return True, f"road confidence {inputs.road_confidence:.2f}"
+            return False, ("no road detection" if inputs.road_confidence is None
+                           else f"road confidence {inputs.road_confidence:.2f} too low")
+        return True, "in a controlled stop"
+
+    def wanted(self, inputs: Inputs) -> tuple[Mode, str]:
+        """The most trusted acceptable mode, in the fixed order."""
+        reasons = []
+        for mode in (Mode.ODOMETRY, Mode.RRC):
+            ok, why = self.acceptable(mode, inputs, holding=mode is self.mode)
+            if ok:
+                return mode, why
+            reasons.append(why)
+        return Mode.STOP, "nothing deserves trust: " + "; ".join(reasons)
+
+    # ---- each cycle -----------------------------------------------------------------------------
+    def step(self, t: float, inputs: Inputs) -> Decision:
+        first = self.last_t is None
+        dt = 0.0 if first else max(0.0, t - self.last_t)
+        self.last_t = t
+        if self.since is None:
+            self.since = t
+        want, reason = self.wanted(inputs)
+        switched = False
+        if want is not self.mode:
+            current_ok, current_why = self.acceptable(self.mode, inputs, holding=True)
+            if not current_ok or t - self.since >= self.p.min_dwell_s:
+                reason = reason if current_ok else f"{current_why}; {reason}"
+                self.mode, self.since, switched = want, t, True
+            else:
+                reason = f"{current_why}; {want.value} is wanted once {self.p.min_dwell_s:g} s in charge have passed"
+        target = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc}.get(self.mode)
+        if target is None:                              # STOP: slow down, hold the curvature
+            self.v = max(0.0, self.v - self.p.stop_decel_mps2 * dt)
+            kappa_target = self.kappa
+        else:
+            self.v, kappa_target = target.v, target.kappa
+        self.kappa = kappa_target if first else self.kappa + _clip(kappa_target - self.kappa, self.p.max_kappa_rate * dt)
+        return Decision(self.mode, self.v, self.kappa, switched, reason)
+
+
+def _clip(value: float, limit: float) -> float:
+    return max(-limit, min(limit, value))
+
+
+def kappa_rate_for(max_wheel_rate_rad_s: float, wheelbase_m: float) -> float:
+    """The curvature rate the steering can follow near straight ahead: κ = tan(δ)/L, dκ/dδ ≈ 1/L."""
+    return max_wheel_rate_rad_s / wheelbase_m if wheelbase_m > 0 else math.inf

@@ -1,0 +1,113 @@
+"""The control manager's choice of controller (managers/control_selection.py): every mode × every
+combination of inputs against the rule written out plainly, then hypothesis properties over
+random sequences (no stale candidate forwarded, the dwell respected unless the mode in charge
+fails, the curvature within the steering's rate, a controlled stop that only slows)."""
+from __future__ import annotations
+
+import itertools
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from managers.control_selection import Candidate, ControlSelector, Inputs, Mode, SelectionParams
+
+P = SelectionParams(score_enter=0.6, score_exit=0.4, road_enter=0.6, road_exit=0.4, min_dwell_s=1.0,
+                    max_kappa_rate=0.2, stop_decel_mps2=1.0)
+ODO, RRC = Candidate(3.0, 0.01), Candidate(2.0, -0.02)
+LEVELS = (None, 0.2, 0.5, 0.9)          # missing, below exit, between exit and enter, above enter
+
+
+def rule(current: Mode, i: Inputs, dwelt: bool) -> Mode:
+    """The module docstring's order of trust, as plainly as it reads."""
+    def ok(mode: Mode) -> bool:
+        holding = mode is current
+        if mode is Mode.ODOMETRY:
+            return i.odometry is not None and (i.force_odometry or (
+                i.odometry_score is not None and i.odometry_score >= (P.score_exit if holding else P.score_enter)))
+        if mode is Mode.RRC:
+            return (i.rrc is not None and not (i.force_odometry and i.odometry is not None)
+                    and i.road_confidence is not None
+                    and i.road_confidence >= (P.road_exit if holding else P.road_enter))
+        return True
+    want = next((m for m in (Mode.ODOMETRY, Mode.RRC) if ok(m)), Mode.STOP)
+    return want if want is not current and (not ok(current) or dwelt) else current
+
+
+CASES = list(itertools.product(Mode, LEVELS, LEVELS, (False, True), (None, ODO), (None, RRC), (False, True)))
+
+
+@pytest.mark.parametrize("current,score,road,force,odo,rrc,dwelt", CASES)
+def test_every_mode_and_input(current, score, road, force, odo, rrc, dwelt):
+    selector = ControlSelector(P, start=current)
+    selector.since, selector.last_t = 0.0, 0.0
+    inputs = Inputs(score, road, force, odo, rrc)
+    decision = selector.step(1.5 if dwelt else 0.5, inputs)
+    assert decision.mode is rule(current, inputs, dwelt)
+    assert decision.switched == (decision.mode is not current) and decision.reason
+    # never a stale candidate; forced odometry always wins when its candidate is there
+    assert {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(decision.mode, "stop") is not None
+    if force and odo is not None and (current is not Mode.STOP or dwelt):
+        assert decision.mode is Mode.ODOMETRY         # (a stop, once begun, lasts its dwell)
+    if decision.mode is Mode.STOP and current is not Mode.STOP:
+        assert rule(Mode.STOP, inputs, True) is Mode.STOP     # left for STOP only when nothing else would do
+
+
+def test_hysteresis_keeps_odometry_down_to_its_exit_threshold():
+    selector = ControlSelector(P, start=Mode.STOP)
+    t = 0.0
+    selector.step(t, Inputs(None, None, False, None, None))      # at start-up: stopped
+    for t, score, expected in ((1.1, 0.5, Mode.RRC),          # between the thresholds: not trusted yet
+                               (1.5, 0.65, Mode.RRC),         # trusted, but the RRC's dwell has not passed
+                               (2.2, 0.65, Mode.ODOMETRY),
+                               (3.5, 0.45, Mode.ODOMETRY),    # held down to the exit threshold
+                               (4.8, 0.39, Mode.RRC)):
+        assert selector.step(t, Inputs(score, 0.9, False, ODO, RRC)).mode is expected, (score, t)
+
+
+def test_a_switch_ramps_the_curvature_at_the_steering_rate():
+    selector = ControlSelector(P, start=Mode.ODOMETRY)
+    selector.step(0.0, Inputs(0.9, 0.9, False, Candidate(3.0, 0.0), Candidate(3.0, 0.1)))
+    d = selector.step(0.1, Inputs(0.1, 0.9, False, Candidate(3.0, 0.0), Candidate(3.0, 0.1)))
+    assert d.mode is Mode.RRC and d.switched and d.kappa == pytest.approx(0.02)     # 0.2 /m/s × 0.1 s
+    assert "odometry score 0.10 too low" in d.reason
+
+
+def test_a_controlled_stop_slows_and_holds_the_curvature():
+    selector = ControlSelector(P, start=Mode.ODOMETRY)
+    selector.step(0.0, Inputs(0.9, None, False, Candidate(3.0, 0.05), None))
+    d = selector.step(0.5, Inputs(None, None, False, None, None))
+    assert d.mode is Mode.STOP and d.v == pytest.approx(2.5) and d.kappa == pytest.approx(0.05)
+    assert "nothing deserves trust" in d.reason
+    assert selector.step(5.0, Inputs(None, None, False, None, None)).v == 0.0
+
+
+def test_thresholds_are_checked():
+    with pytest.raises(ValueError):
+        SelectionParams(0.4, 0.6, 0.6, 0.4, 1.0, 0.2, 1.0)
+
+
+maybe_level = st.one_of(st.none(), st.floats(0.0, 1.0))
+maybe_candidate = st.one_of(st.none(), st.builds(Candidate, st.floats(0.0, 5.0), st.floats(-0.3, 0.3)))
+cycle = st.tuples(st.floats(0.01, 0.6), maybe_level, maybe_level, st.booleans(), maybe_candidate, maybe_candidate)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(list(Mode)), st.lists(cycle, min_size=1, max_size=60))
+def test_properties_over_random_sequences(start, cycles):
+    selector = ControlSelector(P, start=start)
+    t, last_switch, kappa, v, mode = 0.0, 0.0, None, None, start
+    for dt, score, road, force, odo, rrc in cycles:
+        t += dt
+        inputs = Inputs(score, road, force, odo, rrc)
+        held_ok, _ = selector.acceptable(mode, inputs, holding=True)
+        d = selector.step(t, inputs)
+        assert {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(d.mode, "stop") is not None
+        if d.switched:
+            assert held_ok is False or t - last_switch >= P.min_dwell_s - 1e-9   # early only when it had to
+            last_switch = t
+        if kappa is not None:
+            assert abs(d.kappa - kappa) <= P.max_kappa_rate * dt + 1e-9
+        if d.mode is Mode.STOP and mode is Mode.STOP and v is not None:
+            assert d.v <= v + 1e-9
+        kappa, v, mode = d.kappa, d.v, d.mode
