@@ -1,0 +1,92 @@
+"""Road Reactive Control (ARES paper §3.6.2, eqs. 14-15): keep to the middle of the road the
+LiDARs see, with no trust in the odometry.
+
+    cmd(t) = Kp e(t) + (1/τi) ∫ e dt + τd de/dt + b          (14)
+    e(t)   = (lb(t) + rb(t)) / 2 − lb(t)                     (15)
+
+e is the vehicle's distance from the road's centre line (lb, rb: the left and right boundaries
+across the road at the vehicle), which road detection publishes as the lateral offset (+ when
+the vehicle is left of the centre). The command is a curvature. Its terms are written per metre
+travelled rather than per second, so that one set of gains behaves alike at walking pace and at
+the cap speed (the lateral error grows with distance, d²e/ds² ≈ −κ for small angles):
+
+    κ = −(kp·e + ki·∫e ds + kd·de/ds) + b
+    de/ds = sin(heading relative to the road)   (road detection's heading: no differencing of
+                                                 frames, which would amplify their scatter)
+    b     = the centre line's own curvature ahead (the road's bend, fed forward)
+
+kp = λ², kd = 2ζλ put the lateral error's response at a spatial frequency λ with damping ζ
+(critically damped at ζ = 1). The integral, bounded, takes out a steady offset such as a road's
+cross-fall pulling the vehicle aside. The speed is the RRC's own cap (the road is seen only so far
+ahead), lowered in proportion as the detection's confidence falls towards min_confidence.
+Without a fresh, confident detection there is no candidate.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ares.config import Params, param
+
+
+class RrcParams(Params):
+    """Road Reactive Control (ARES §3.6.2)."""
+    kp: float = param(0.0625, "per metre of offset from the centre (λ², λ = 0.25 /m: a lateral error settles "
+                              "in ~20 m)", unit="1/m^2", ge=0)
+    ki: float = param(0.002, "per metre·metre of offset travelled", unit="1/m^3", ge=0)
+    kd: float = param(0.45, "per unit of de/ds = sin(heading to the road) (2ζλ, ζ = 0.9)", unit="1/m", ge=0)
+    integral_limit_m2: float = param(5.0, "bound on ∫e ds (anti-windup)", unit="m^2", gt=0)
+    curvature_lookahead_m: float = param(4.0, "the road's curvature fed forward is the centre line's at this "
+                                              "distance ahead", unit="m", ge=0)
+    max_speed_mps: float = param(2.5, "the RRC's own speed cap", unit="m/s", gt=0)
+    min_confidence: float = param(0.3, "below this the detection is not followed", ge=0, le=1)
+    max_kappa: float = param(0.25, "largest curvature commanded", unit="1/m", gt=0)
+
+
+@dataclass(frozen=True)
+class RoadView:
+    """What road detection says of one frame (perception/road), in the vehicle frame."""
+    lateral_offset_m: float         # + when the vehicle is left of the centre line
+    heading_rad: float              # + when the vehicle points left of the road
+    centre: list[float]             # centre line y = c0 + c1 x + c2 x² ..., lowest order first
+    confidence: float
+
+
+@dataclass(frozen=True)
+class RrcCommand:
+    v: float
+    kappa: float
+    error_m: float                  # eq. 15
+    feedforward: float              # b
+
+
+class RoadReactiveControl:
+    def __init__(self, params: RrcParams | None = None):
+        self.p = params or RrcParams()
+        self.integral = 0.0         # ∫ e ds, m²
+
+    def reset(self) -> None:
+        self.integral = 0.0
+
+    def step(self, road: RoadView | None, travelled_m: float) -> RrcCommand | None:
+        """One cycle: `travelled_m` since the last one. None: nothing to follow."""
+        p = self.p
+        if road is None or road.confidence < p.min_confidence or not all(
+                math.isfinite(v) for v in (road.lateral_offset_m, road.heading_rad)):
+            self.reset()
+            return None
+        e = road.lateral_offset_m
+        self.integral = max(-p.integral_limit_m2, min(p.integral_limit_m2, self.integral + e * max(travelled_m, 0.0)))
+        b = _curvature(road.centre, p.curvature_lookahead_m)
+        kappa = -(p.kp * e + p.ki * self.integral + p.kd * math.sin(road.heading_rad)) + b
+        kappa = max(-p.max_kappa, min(p.max_kappa, kappa))
+        # full speed from halfway between min_confidence and 1, down to 0 at min_confidence
+        share = min(1.0, (road.confidence - p.min_confidence) / max(1.0 - p.min_confidence, 1e-9) * 2.0)
+        return RrcCommand(p.max_speed_mps * max(share, 0.0), kappa, e, b)
+
+
+def _curvature(coefficients: list[float], x: float) -> float:
+    """Signed curvature of y = f(x) at x: f'' / (1 + f'²)^1.5 (+ bending left)."""
+    d1 = sum(i * c * x ** (i - 1) for i, c in enumerate(coefficients) if i >= 1)
+    d2 = sum(i * (i - 1) * c * x ** (i - 2) for i, c in enumerate(coefficients) if i >= 2)
+    return d2 / (1.0 + d1 * d1) ** 1.5
