@@ -190,7 +190,7 @@ class Mpc:
         along = np.r_[0.0, np.cumsum(np.hypot(np.diff(px), np.diff(py)))]
         speed = np.minimum(np.asarray(path_speed, float), self.max_speed)
         reached = np.cumsum(np.full(n, max(start[3], 0.5) * dt))
-        v_ref = np.interp(reached + along[np.argmin(np.abs(px))], along, speed)
+        v_ref = np.interp(reached + along[np.argmin(np.hypot(px, py))], along, speed)
 
         opti = self._opti
         opti.set_value(self._x0, [0.0, 0.0, 0.0, start[3]])
