@@ -225,6 +225,42 @@ class PathMatch(Msg):
     ahead_s: list[float]
 
 
+
+# ---- speed manager ------------------------------------------------------------------------
+
+SectionKind = Literal["cruise", "deceleration", "curve", "acceleration"]
+
+
+class SpeedSection(BaseModel):
+    """One single-speed section of the route's speed profile (ARES Figure 17)."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    index: int = Field(ge=0)    # numbered from 0 along s
+    s_start: float              # m
+    s_end: float                # m: the next section's s_start
+    speed: float = Field(ge=0.0)    # m/s: never above the profile over the section
+    kind: SectionKind
+
+
+class SpeedSections(Msg):
+    """The whole route's sections: they cover [0, length] contiguously."""
+    route: str
+    length_m: float
+    closed: bool
+    sections: list[SpeedSection]
+
+
+class SpeedLimits(Msg):
+    """The speed limit where the vehicle is, and the one coming next."""
+    s: float                    # the path match's s, m
+    section: int                # the section the vehicle is in
+    kind: SectionKind
+    limit_mps: float = Field(ge=0.0)
+    next_section: int | None    # None past the last section of an open route
+    next_limit_mps: float | None
+    distance_to_next_m: float | None  # from s to the next section's start
+
+
 # ---- control ------------------------------------------------------------------------------
 
 class Setpoint(Msg):

@@ -40,6 +40,7 @@ PROCESSES: list[Process] = [
     Process("localization", "perception.localization:LocalizationNode", safety_relevant=True),
     Process("odometry_manager", "managers.odometry:OdometryManager", safety_relevant=True),
     Process("path_manager", "managers.path:PathManager", safety_relevant=True),
+    Process("speed_manager", "managers.speed:SpeedManager", safety_relevant=True),
     Process("lidar_perception", "perception.lidar_node:LidarPerception", safety_relevant=True, lidars=True),
     Process("dbw_bridge", "control.dbw_bridge:DbwBridge", safety_relevant=True),
     Process("controller", "control.pure_pursuit:PurePursuitNode", safety_relevant=True),

@@ -63,11 +63,13 @@ TOPIC_TABLE: list[Topic] = [
     Topic("sensors/imu", m.Imu, "IMU: attitude, rates, specific force, magnetometer yaw"),
     Topic("sensors/can", m.CanFrame, "CAN: wheel speed, steering-wheel angle, pedals"),
     Topic("vehicle/panel", m.PanelEvent, "a driver action: Auto/Manual button, pedals, steering wheel", reliable=True),
-    # localization, odometry, path
+    # localization, odometry, path, speed
     Topic("gnss/fix", m.GnssFix, "a validated GNSS fix in UTM and the local frame"),
     Topic("localization/pose", m.Pose, "the fused pose (UKF) with its covariance"),
     Topic("odometry/score", m.OdometryScore, "how far the pose deserves trust (ARES eq. 6)", score="odometry"),
     Topic("path/match", m.PathMatch, "where the vehicle is on its route, and the path ahead"),
+    Topic("speed/limits", m.SpeedLimits, "the speed limit where the vehicle is and the next section's (ARES §3.6.3)"),
+    Topic("speed/sections", m.SpeedSections, "the route's single-speed sections (ARES Figure 17), repeated slowly"),
     # control and the drive-by-wire bridge
     Topic("control/setpoint", m.Setpoint, "(v, kappa): the only command the drive-by-wire bridge accepts"),
     Topic("control/status", m.ControllerStatus, "the active controller and its errors"),

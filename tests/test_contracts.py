@@ -64,8 +64,8 @@ def test_problems_in_a_graph_are_named():
 
 def test_the_simulator_waits_for_every_process_it_feeds(cfg):
     fed = contracts.fed_by(contracts.all_contracts(cfg), "sim")
-    assert fed == ["lidar_sim", "gnss", "localization", "odometry_manager", "path_manager", "lidar_perception",
-                   "dbw_bridge", "controller", "blackbox"]
+    assert fed == ["lidar_sim", "gnss", "localization", "odometry_manager", "path_manager", "speed_manager",
+                   "lidar_perception", "dbw_bridge", "controller", "blackbox"]
 
 
 def test_declaring_a_topic_that_is_not_in_the_table_fails_when_the_class_is_defined():

@@ -25,6 +25,8 @@
                                    build a route file from a CSV of x,y[,z] or an NMEA log
     ares route record FILE [--seconds S]
                                    write the NMEA sentences of the running stack's receiver to FILE
+    ares route profile ROUTE [--vehicle NAME] [--out FILE.png|svg]
+                                   draw a route's speed profile and its single-speed sections
     ares bench path [--json]       KD-tree build, path match and UKF step times (in-process)
     ares bench perception [--json] [--frames N] [--repeats N]
                                    LiDAR pipeline stage times, the simulated LiDARs' ray casting (in-process)

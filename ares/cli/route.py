@@ -1,10 +1,13 @@
-"""`ares route import` (a route file from a recorded drive) and `ares route record` (an NMEA
-log from the running stack's receiver)."""
+"""`ares route import` (a route file from a recorded drive), `ares route record` (an NMEA
+log from the running stack's receiver) and `ares route profile` (the speed manager's profile
+and sections of a route, drawn as the ARES paper's Figure 17)."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
+from pathlib import Path
 
 from .args import CliError, Command, add_connection_args, connect, positive_float
 
@@ -36,6 +39,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     rec.add_argument("file", metavar="FILE", help="NMEA log to write")
     rec.add_argument("--seconds", type=positive_float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
     add_connection_args(rec)
+    prof = route_sub.add_parser("profile", help="draw a route's speed profile and its single-speed sections",
+                                description="The speed manager's profile of a route (ARES §3.6.3, Figure 17): "
+                                            "the top speed on straights, sqrt(a_lat R) in turns, slowing before "
+                                            "them, grade considered, reduced to numbered single-speed sections. "
+                                            "Draws the profile over s and the path coloured by speed (the "
+                                            "speed_profile section of the run configuration); prints one JSON "
+                                            "line.")
+    prof.add_argument("route_name", metavar="ROUTE", help="a built-in tour's name, a tour YAML or a route CSV")
+    prof.add_argument("--vehicle", metavar="NAME", help="vehicle profile: a name in ares/config/vehicles/ or a "
+                                                        "YAML file (default: the run configuration's)")
+    prof.add_argument("--out", metavar="FILE", help="picture to write, .png or .svg (default: ROUTE's name + "
+                                                    ".profile.png, here)")
     return {"route": cmd_route}
 
 
@@ -44,7 +59,10 @@ def cmd_route(args: argparse.Namespace) -> int:
         return _route_import(args)
     if args.route == "record":
         return _route_record(args)
-    raise CliError("which action? try `ares route import FILE -o ROUTE` or `ares route record FILE`")
+    if args.route == "profile":
+        return _route_profile(args)
+    raise CliError("which action? try `ares route import FILE -o ROUTE`, `ares route record FILE` or "
+                   "`ares route profile ROUTE`")
 
 
 
@@ -64,6 +82,34 @@ def _route_import(args: argparse.Namespace) -> int:
     print(f"imported {result.summary()}")
     return 0
 
+
+
+def _route_profile(args: argparse.Namespace) -> int:
+    from ares import config
+    from ares.route import Route, RouteError
+    from ares.speed_figure import write_profile_figure
+    from managers.speed import SpeedTable
+    from managers.speed_profile import SpeedProfileParams
+    out = Path(args.out) if args.out else Path(f"{Path(args.route_name).stem}.profile.png")
+    if out.suffix.lower() not in (".png", ".svg"):
+        raise CliError(f"{out}: the picture is a .png or an .svg")
+    try:
+        cfg = config.current()
+        params = config.section(cfg, "speed_profile", SpeedProfileParams)
+        vehicle = config.load_vehicle(args.vehicle) if args.vehicle else config.core(cfg).vehicle_profile
+        route = Route.from_csv(args.route_name) if args.route_name.lower().endswith(".csv") \
+            else Route.from_tour(args.route_name)
+    except (config.ConfigError, RouteError, OSError, ValueError) as exc:
+        raise CliError(str(exc)) from None
+    table = SpeedTable(route, params, vehicle)
+    sections = table.sections
+    picture = write_profile_figure(out, route, table.profile, sections,
+                                   f"speed profile of {route.name} ({vehicle.name}): {len(sections)} sections")
+    print(json.dumps({"route": route.name, "length_m": round(route.length, 2), "sections": len(sections),
+                      "max_speed_mps": round(max(sec.speed for sec in sections), 3),
+                      "min_speed_mps": round(min(sec.speed for sec in sections), 3),
+                      "picture": str(picture)}))
+    return 0
 
 
 def _route_record(args: argparse.Namespace) -> int:
