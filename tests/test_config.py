@@ -115,8 +115,8 @@ def test_errors_inside_lists_still_say_what_is_allowed(tmp_path):
 def test_an_unknown_vehicle_or_tour_lists_the_known_ones():
     with pytest.raises(ConfigError, match="unknown vehicle 'ligier'; known: ares_shuttle, techs4agecar"):
         config.load_vehicle("ligier")
-    with pytest.raises(ConfigError, match="unknown tour 'campus'; known: default"):
-        config.load_tour("campus")
+    with pytest.raises(ConfigError, match="unknown tour 'nowhere'; known: campus, default"):
+        config.load_tour("nowhere")
 
 
 def test_sections_are_read_only():

@@ -313,7 +313,7 @@ def test_limits_from_the_shipped_shuttle_profile():
 def test_limits_from_the_shipped_techs4agecar_profile():
     core = DbwCore.from_profile(config.load_vehicle("techs4agecar"), TIMEOUT)
     assert core.limits.max_curvature == pytest.approx(MAX_KAPPA)
-    assert core.limits.max_speed_mps == 6.9
+    assert core.limits.max_speed_mps == 6.94        # 25 km/h
 
 
 def test_core_from_profile_takes_the_watchdog_timeout():

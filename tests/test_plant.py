@@ -20,7 +20,8 @@ from ares.harness.step_response import PID_PERIOD_S, measure_step, step_response
 from ares.route import SAMPLE_SPACING_M, Route
 from ares.sim.actuators import GRAVITY, TractionActuator
 from ares.sim.params import SimParams
-from ares.sim.vehicle import PHYSICS_DT, VehiclePlant, start_pose
+from ares.sim.vehicle import (BLEND_HIGH_MPS, BLEND_LOW_MPS, PHYSICS_DT, LateralParams, VehiclePlant, lateral_step,
+                               start_pose)
 from control.pid import PID
 
 VEHICLES = ["techs4agecar", "ares_shuttle"]
@@ -315,6 +316,98 @@ def test_bicycle_turns_on_a_circle_of_radius_wheelbase_over_tan_delta(vehicle):
     assert radius == pytest.approx(profile.wheelbase_m / math.tan(delta), rel=1e-3)
     assert D / -2 + 0 == pytest.approx(100.0, abs=0.5)       # centre to the left of the start
     assert E / -2 > 0
+
+
+# ---- lateral dynamics: the dynamic bicycle and its blend into the kinematic one ----------
+
+def _steady_yaw_rate(p: LateralParams, v: float, delta: float) -> float:
+    """Hand-computed steady cornering of the linear bicycle: r = v δ / (L (1 + K v^2)),
+    K = m / L^2 (l_r / C_f - l_f / C_r)."""
+    wheelbase = p.l_f + p.l_r
+    k = p.mass / wheelbase ** 2 * (p.l_r / p.c_f - p.l_f / p.c_r)
+    return v * delta / (wheelbase * (1 + k * v * v))
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+@pytest.mark.parametrize("v", [3.5, 5.0, 6.9, 12.0])
+def test_dynamic_bicycle_settles_on_the_understeer_gradient_yaw_rate(vehicle, v):
+    profile = config.load_vehicle(vehicle)
+    p = LateralParams.of(profile, profile.empty_mass_kg + 2 * profile.passenger_mass_kg)
+    assert p.l_r / p.c_f > p.l_f / p.c_r          # the profiles understeer (K > 0) ...
+    delta, v_y, r = 0.04, 0.0, 0.0
+    for _ in range(1000):
+        v_y, r = lateral_step(p, v_y, r, v, delta, PHYSICS_DT)
+    assert r == pytest.approx(_steady_yaw_rate(p, v, delta), rel=1e-4)
+    assert r < v * math.tan(delta) / (p.l_f + p.l_r)  # ... so they turn less than the kinematic bicycle
+    # The rear tyres' slip angle makes the lateral force that holds the car on its circle.
+    alpha_r = -(v_y - p.l_r * r) / v
+    alpha_f = delta - (v_y + p.l_f * r) / v
+    assert p.c_f * alpha_f + p.c_r * alpha_r == pytest.approx(p.mass * v * r, rel=1e-4)
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+def test_plant_corners_steadily_at_speed_on_the_dynamic_yaw_rate(vehicle):
+    profile = config.load_vehicle(vehicle)
+    plant = VehiclePlant(straight_route(2000.0), profile, SMOOTH_ROAD, s0=100.0)
+    alpha = 100.0                               # steering-wheel degrees, throttle held
+    for _ in range(1500):
+        st = plant.step_manual(0.45, 0.0, alpha, PHYSICS_DT)
+    assert st.v > BLEND_HIGH_MPS + 1.0 and abs(st.accel) < 1e-3
+    p = LateralParams.of(profile, plant.traction.mass_kg)
+    delta = math.radians(alpha) / profile.steering_ratio
+    assert st.yaw_rate == pytest.approx(_steady_yaw_rate(p, st.v, delta), rel=1e-3)
+    assert st.lateral_velocity != pytest.approx(p.l_r * st.yaw_rate, rel=0.05)   # the rear axle slips
+    assert st.lateral_accel == pytest.approx(st.v * st.yaw_rate, rel=1e-3)
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+def test_the_blend_into_the_kinematic_bicycle_is_continuous(vehicle):
+    profile = config.load_vehicle(vehicle)
+    p = LateralParams.of(profile, profile.empty_mass_kg)
+    delta, v_y, r = 0.1, 0.0, 0.0
+    # Below the blend: exactly the kinematic bicycle (rear axle without slip).
+    v_y, r = lateral_step(p, v_y, r, 1.0, delta, PHYSICS_DT)
+    assert r == pytest.approx(1.0 * math.tan(delta) / profile.wheelbase_m) and v_y == pytest.approx(p.l_r * r)
+    # Speed ramping at 1 m/s^2 through the blend, steering held: no state jumps from one step
+    # to the next, only the change the acceleration and the tyres' lag make.
+    speeds = np.arange(BLEND_LOW_MPS - 0.5, BLEND_HIGH_MPS + 0.5, 1.0 * PHYSICS_DT)
+    rs, v_ys = [], []
+    for v in speeds:
+        v_y, r = lateral_step(p, v_y, r, v, delta, PHYSICS_DT)
+        rs.append(r)
+        v_ys.append(v_y)
+    step_r = np.abs(np.diff(rs))
+    kinematic_step = PHYSICS_DT * math.tan(delta) / profile.wheelbase_m      # dr at 1 m/s^2, kinematic
+    assert step_r.max() < 3 * kinematic_step
+    assert np.abs(np.diff(v_ys)).max() < 3 * p.l_r * kinematic_step
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+def test_plant_accelerating_through_the_blend_has_no_jump(vehicle):
+    profile = config.load_vehicle(vehicle)
+    plant = VehiclePlant(straight_route(2000.0), profile, SMOOTH_ROAD, s0=100.0)
+    rs, v_ys, vs = [], [], []
+    for _ in range(1500):
+        st = plant.step_manual(0.45, 0.0, 100.0, PHYSICS_DT)
+        rs.append(st.yaw_rate)
+        v_ys.append(st.lateral_velocity)
+        vs.append(st.v)
+    assert min(vs) < BLEND_LOW_MPS and max(vs) > BLEND_HIGH_MPS
+    assert np.abs(np.diff(rs)).max() < 1e-3 and np.abs(np.diff(v_ys)).max() < 1e-3
+
+
+@pytest.mark.parametrize("vehicle", VEHICLES)
+def test_at_standstill_a_turned_steering_wheel_moves_nothing(vehicle):
+    profile = config.load_vehicle(vehicle)
+    p = LateralParams.of(profile, profile.empty_mass_kg)
+    assert lateral_step(p, 0.0, 0.0, 0.0, 0.3, PHYSICS_DT) == (0.0, 0.0)
+    plant = VehiclePlant(straight_route(), profile, SMOOTH_ROAD, s0=100.0)
+    x0, y0, yaw0 = plant.state.x, plant.state.y, plant.state.yaw
+    for _ in range(300):
+        st = plant.step_manual(0.0, 1.0, 400.0, PHYSICS_DT)          # brake held, wheel turned
+    assert st.steering_wheel_deg > 300 and st.v == 0.0
+    assert (st.x, st.y, st.yaw) == pytest.approx((x0, y0, yaw0), abs=1e-12)
+    assert st.yaw_rate == 0.0 and st.lateral_velocity == 0.0 and st.lateral_accel == 0.0
 
 
 def test_route_progress_follows_the_pass_being_driven_through_the_crossing():

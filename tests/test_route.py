@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from ares import config
 from ares.config import ConfigError, CoreConfig
-from ares.route import Route, RouteError, load_route
+from ares.route import SAMPLE_SPACING_M, Route, RouteError, load_route
 from tests.path_match_reference import reference_project
 from tests.random_routes import pose_along, routes
 
@@ -28,6 +28,22 @@ def test_builtin_tour_meets_the_brief(tour):
     assert sum(z.kind == "rtk_loss" for z in tour.zones) >= 2
     assert any(z.kind == "intersection" for z in tour.zones)
     assert tour.width.min() < 3.5                     # a narrow stretch
+
+
+def test_campus_route_is_the_dbw_papers_test_loop():
+    """About 800 m of campus road with two roundabouts, back to the start (DBW paper §5.2)."""
+    campus = Route.from_tour("campus")
+    assert campus.closed and campus.length == pytest.approx(800, abs=25)
+    assert np.abs(campus.grade).max() < 1e-9
+    # A roundabout: round an island, turning left on radii <= 15 m through some 180 degrees
+    # without a break (the rest of the way round is the entry and exit deflections).
+    left = np.flatnonzero(campus.curvature >= 1 / 15.5)
+    arcs = np.split(left, np.flatnonzero(np.diff(campus.s[left]) > 2.0) + 1)
+    turned = [math.degrees(campus.curvature[a[0]:a[-1] + 1].sum() * SAMPLE_SPACING_M) for a in arcs]
+    assert sum(t > 170 for t in turned) == 2, turned
+    assert sum(z.kind == "intersection" for z in campus.zones) == 4      # their mouths
+    profile = config.load_vehicle("techs4agecar")
+    assert profile.max_speed_mps * 3.6 == pytest.approx(25, abs=0.1)   # the paper's 25 km/h
 
 
 def test_tour_is_closed_and_evenly_sampled(tour):
@@ -109,7 +125,7 @@ def test_a_tour_file_missing_a_key_is_refused_naming_it(tmp_path):
 
 
 def test_an_unknown_tour_names_the_known_ones():
-    with pytest.raises(ConfigError, match="unknown tour 'nowhere'; known: default"):
+    with pytest.raises(ConfigError, match="unknown tour 'nowhere'; known: campus, default"):
         load_route(CoreConfig(tour="nowhere"))
 
 

@@ -1,8 +1,10 @@
 """The simulated vehicle: VehiclePlant and the VehicleState it advances.
 
-VehiclePlant puts the raw actuators (ares/sim/actuators.py) on a kinematic bicycle (rear-axle
-reference point, as the ARES odometry of §3.1 and the bridge's Ackermann conversions assume)
-driving on a Route: the road height and grade come from the route's elevation profile at the
+VehiclePlant puts the raw actuators (ares/sim/actuators.py) on a bicycle driving on a Route: a
+dynamic bicycle with linear tyres (`lateral_step`), which blends into the kinematic bicycle at
+walking speed, where the dynamic equations become singular. The position is that of the
+rear-axle centre, as the ARES odometry of §3.1 and the bridge's Ackermann conversions assume.
+On the route, the road height and grade come from the route's elevation profile at the
 vehicle's arc length s, and the roughness of its surface shakes the body (ares/sim/road.py).
 
 Frames and signs (right-handed, REP-103 / ISO 8855): local x east, y north, z up; yaw from the
@@ -26,6 +28,67 @@ from ares.sim.params import SimParams
 from ares.sim.road import grade_at, roughness_for
 
 PHYSICS_DT = 0.01       # 100 Hz physics
+# Below BLEND_LOW_MPS the plant is the kinematic bicycle, above BLEND_HIGH_MPS the dynamic one;
+# in between their lateral states are mixed with a smoothstep, so nothing jumps.
+BLEND_LOW_MPS = 1.5
+BLEND_HIGH_MPS = 3.0
+
+
+@dataclass(frozen=True)
+class LateralParams:
+    """The dynamic bicycle's figures: CG to front / rear axle, cornering stiffnesses, mass, I_z."""
+    l_f: float
+    l_r: float
+    c_f: float
+    c_r: float
+    mass: float
+    i_z: float
+
+    @classmethod
+    def of(cls, profile: VehicleProfile, mass_kg: float) -> "LateralParams":
+        """The profile's figures at a laden mass (the inertia grows with the mass)."""
+        l_f = profile.k_cg * profile.wheelbase_m
+        return cls(l_f, profile.wheelbase_m - l_f, profile.cornering_stiffness_front_n_per_rad,
+                   profile.cornering_stiffness_rear_n_per_rad, mass_kg,
+                   profile.yaw_inertia_kgm2 * mass_kg / profile.empty_mass_kg)
+
+    def understeer_gradient(self) -> float:
+        """K (s^2/m^2) of the steady-state yaw rate r = v δ / (L (1 + K v^2))."""
+        wheelbase = self.l_f + self.l_r
+        return self.mass / wheelbase ** 2 * (self.l_r / self.c_f - self.l_f / self.c_r)
+
+
+def lateral_step(p: LateralParams, v_y: float, r: float, v: float, delta: float, dt: float) -> tuple[float, float]:
+    """One step of the lateral states (v_y at the CG, yaw rate r) at speed v and wheel angle δ.
+
+    Dynamic bicycle, linear tyres (small angles, constant v):
+        α_f = δ - (v_y + l_f r) / v        α_r = -(v_y - l_r r) / v
+        F_f = C_f α_f                      F_r = C_r α_r
+        m (dv_y/dt + v r) = F_f + F_r      I_z dr/dt = l_f F_f - l_r F_r
+    Kinematic bicycle (no slip at the rear axle): r = v tan δ / L, v_y = l_r r.
+    The dynamic system is stiff at low speed (time constants ~ m v / C), so it is integrated with
+    implicit Euler (stable at any step, and its steady state is exact); below BLEND_LOW_MPS it
+    hands over to the kinematic states, with a smoothstep weight up to BLEND_HIGH_MPS.
+    """
+    r_kin = v * math.tan(delta) / (p.l_f + p.l_r)
+    v_y_kin = p.l_r * r_kin
+    # Rolling backwards (v < 0) stays kinematic: the linear tyre model is for driving forwards.
+    w = min(max((v - BLEND_LOW_MPS) / (BLEND_HIGH_MPS - BLEND_LOW_MPS), 0.0), 1.0)
+    w = w * w * (3.0 - 2.0 * w)
+    if w == 0.0:
+        return v_y_kin, r_kin
+    # d[v_y, r]/dt = A [v_y, r] + B δ; implicit Euler: (I - dt A) x' = x + dt B δ.
+    a11 = -(p.c_f + p.c_r) / (p.mass * v)
+    a12 = -(p.c_f * p.l_f - p.c_r * p.l_r) / (p.mass * v) - v
+    a21 = -(p.c_f * p.l_f - p.c_r * p.l_r) / (p.i_z * v)
+    a22 = -(p.c_f * p.l_f ** 2 + p.c_r * p.l_r ** 2) / (p.i_z * v)
+    b1, b2 = p.c_f / p.mass, p.c_f * p.l_f / p.i_z
+    m11, m12, m21, m22 = 1.0 - dt * a11, -dt * a12, -dt * a21, 1.0 - dt * a22
+    rhs1, rhs2 = v_y + dt * b1 * delta, r + dt * b2 * delta
+    det = m11 * m22 - m12 * m21
+    v_y_dyn = (rhs1 * m22 - m12 * rhs2) / det
+    r_dyn = (m11 * rhs2 - m21 * rhs1) / det
+    return w * v_y_dyn + (1.0 - w) * v_y_kin, w * r_dyn + (1.0 - w) * r_kin
 
 
 def loaded_profile(profile: VehicleProfile | str) -> VehicleProfile:
@@ -44,9 +107,10 @@ class VehicleState:
     roll: float = 0.0
     v: float = 0.0                  # longitudinal speed of the rear-axle centre (m/s)
     yaw_rate: float = 0.0           # rad/s
+    lateral_velocity: float = 0.0   # v_y of the centre of gravity, body frame (m/s, + to the left)
     pitch_rate: float = 0.0         # rad/s
     accel: float = 0.0              # longitudinal acceleration dv/dt (m/s^2)
-    lateral_accel: float = 0.0      # v · yaw_rate (m/s^2, positive to the left)
+    lateral_accel: float = 0.0      # dv_y/dt + v · yaw_rate at the CG (m/s^2, positive to the left)
     vertical_accel: float = 0.0     # body bounce over the road (m/s^2), without gravity
     grade: float = 0.0              # slope of the road along the heading, dz/dx (positive uphill)
     steering_wheel_deg: float = 0.0
@@ -71,7 +135,7 @@ def start_pose(route: Route, s: float = 0.0) -> tuple[float, float, float, float
 
 
 class VehiclePlant:
-    """The whole vehicle: actuators + kinematic bicycle on the route's 3-D road.
+    """The whole vehicle: actuators + dynamic bicycle on the route's 3-D road.
 
     `step()` is one physics step in automatic mode (efforts from the bridge's PIDs);
     `step_manual()` is one step with a human driving (pedals and steering wheel).
@@ -116,7 +180,7 @@ class VehiclePlant:
         self.roughness.settle(st.s)
         st.z = z + self.roughness.z_body
         st.pitch = -math.atan(st.grade) + self.roughness.pitch_jitter(st.s)
-        st.v = st.yaw_rate = st.pitch_rate = st.accel = st.lateral_accel = st.vertical_accel = 0.0
+        st.v = st.yaw_rate = st.lateral_velocity = st.pitch_rate = st.accel = st.lateral_accel = st.vertical_accel = 0.0
         st.steering_wheel_deg = st.wheel_angle_rad = st.wheel_speed_rad_s = 0.0
         return st
 
@@ -157,25 +221,30 @@ class VehiclePlant:
         return self._advance(dt)
 
     def _advance(self, dt: float) -> VehicleState:
-        """Kinematic bicycle about the rear axle, then the road under the new position."""
+        """Bicycle (lateral_step) about the rear axle, then the road under the new position."""
         st = self.state
         v_prev = st.v
         v = self.traction.v
         delta = math.radians(st.steering_wheel_deg) / self.steering_ratio
         v_mid = 0.5 * (v_prev + v)
         v_h = v_mid * math.cos(math.atan(st.grade))   # s and x, y are horizontal distances
-        yaw_rate = v_h * math.tan(delta) / self.wheelbase_m
-        # Exact arc for constant speed and steering over the step (a circle of radius
-        # wheelbase / tan δ), so long runs do not drift from the bicycle's true circle.
+        lateral = LateralParams.of(self.profile, self.traction.mass_kg)
+        v_y_prev = st.lateral_velocity
+        v_y, yaw_rate = lateral_step(lateral, v_y_prev, st.yaw_rate, v_h, delta, dt)
+        # The rear axle slides sideways at v_y - l_r r (zero for the kinematic bicycle): it moves
+        # at the slip angle β off the heading. Exact arc for constant speed, slip and yaw rate
+        # over the step, so long runs do not drift from the bicycle's true circle.
+        v_y_rear = v_y - lateral.l_r * yaw_rate
+        speed = math.hypot(v_h, v_y_rear)
+        beta = math.atan2(v_y_rear, v_h) if speed > 1e-9 else 0.0
+        new_yaw = st.yaw + yaw_rate * dt
         if abs(yaw_rate) > 1e-9:
-            radius = v_h / yaw_rate
-            new_yaw = st.yaw + yaw_rate * dt
-            st.x += radius * (math.sin(new_yaw) - math.sin(st.yaw))
-            st.y -= radius * (math.cos(new_yaw) - math.cos(st.yaw))
+            radius = speed / yaw_rate
+            st.x += radius * (math.sin(new_yaw + beta) - math.sin(st.yaw + beta))
+            st.y -= radius * (math.cos(new_yaw + beta) - math.cos(st.yaw + beta))
         else:
-            new_yaw = st.yaw
-            st.x += v_h * math.cos(st.yaw) * dt
-            st.y += v_h * math.sin(st.yaw) * dt
+            st.x += speed * math.cos(st.yaw + beta) * dt
+            st.y += speed * math.sin(st.yaw + beta) * dt
         st.yaw = wrap_angle(new_yaw)
         st.odometer += abs(v_mid) * dt
         st.t += dt
@@ -198,7 +267,8 @@ class VehiclePlant:
         st.v = v
         st.accel = self.traction.accel
         st.yaw_rate = yaw_rate
-        st.lateral_accel = v * yaw_rate
+        st.lateral_velocity = v_y
+        st.lateral_accel = (v_y - v_y_prev) / dt + v_h * yaw_rate
         st.wheel_angle_rad = delta
         st.wheel_speed_rad_s = v / (math.cos(delta) * self.wheel_radius_m)
         return st
