@@ -222,12 +222,15 @@ class VehicleProfile(Params):
     seats: int = param(doc="passenger seats", ge=0)
     # Lateral dynamics of the simulator's dynamic bicycle (ares/sim/vehicle.py). The centre of
     # gravity along the wheelbase is k_cg above; the figures are for the empty vehicle.
-    yaw_inertia_kgm2: float = param(doc="yaw moment of inertia I_z, empty (scaled with the load's mass)",
-                                    unit="kg m^2", gt=0)
-    cornering_stiffness_front_n_per_rad: float = param(doc="front axle cornering stiffness C_f (both tyres): "
-                                                       "lateral force per rad of slip", unit="N/rad", gt=0)
-    cornering_stiffness_rear_n_per_rad: float = param(doc="rear axle cornering stiffness C_r (both tyres)",
-                                                      unit="N/rad", gt=0)
+    # Without them (a profile, or a recorded run, from before they existed) the simulator drives the
+    # kinematic bicycle.
+    yaw_inertia_kgm2: float | None = param(None, "yaw moment of inertia I_z, empty (scaled with the load's mass)",
+                                           unit="kg m^2", gt=0)
+    cornering_stiffness_front_n_per_rad: float | None = param(None, "front axle cornering stiffness C_f (both "
+                                                              "tyres): lateral force per rad of slip", unit="N/rad",
+                                                              gt=0)
+    cornering_stiffness_rear_n_per_rad: float | None = param(None, "rear axle cornering stiffness C_r (both tyres)",
+                                                             unit="N/rad", gt=0)
     actuators: ActuatorParams
     dbw_pid: DbwPidParams
     ground_clearance_m: float = param(0.25, "underside of the body above the road", unit="m", ge=0)

@@ -65,7 +65,12 @@ def overrides_from_args(args) -> dict:
     if getattr(args, "passengers", None) is not None:
         over["sim"]["passengers"] = args.passengers
     if getattr(args, "route", None):
-        over["route_file"] = str(Path(args.route).resolve())
+        # a built-in tour by name (`--route campus`) or a tour's YAML; anything else is a route CSV
+        builtin = (config.CONFIG_DIR / "tours" / f"{args.route}.yaml").exists() and not Path(args.route).exists()
+        if builtin or Path(args.route).suffix in (".yaml", ".yml"):
+            over["tour"] = args.route if builtin else str(Path(args.route).resolve())
+        else:
+            over["route_file"] = str(Path(args.route).resolve())
     if getattr(args, "scenario", None):
         over["scenario"] = args.scenario
     if getattr(args, "listen", None):

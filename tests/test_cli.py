@@ -215,3 +215,17 @@ def test_no_router_is_a_clear_error(command):
     assert result.returncode == 1
     assert f"no Zenoh router reachable at {endpoint}" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_run_route_takes_a_built_in_tour_a_tour_file_or_a_route_csv(tmp_path):
+    import argparse
+
+    from ares.stack import overrides_from_args
+    tour = tmp_path / "mine.yaml"
+    tour.write_text("name: mine\n")
+    csv = tmp_path / "drive.csv"
+    csv.write_text("0,0\n10,0\n")
+    picked = {r: {k: v for k, v in overrides_from_args(argparse.Namespace(route=r)).items() if k in ("tour", "route_file")}
+              for r in ("campus", str(tour), str(csv))}
+    assert picked == {"campus": {"tour": "campus"}, str(tour): {"tour": str(tour.resolve())},
+                      str(csv): {"route_file": str(csv.resolve())}}

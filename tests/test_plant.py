@@ -527,3 +527,15 @@ def test_grade_is_felt_along_the_heading():
     st = plant.step(0.0, 0.0)
     assert st.grade == pytest.approx(-0.14)
     assert st.pitch == pytest.approx(math.atan(0.14))
+
+
+def test_a_profile_without_tyre_figures_drives_the_kinematic_bicycle():
+    """A profile (or a recorded run) from before the tyre figures: the kinematic bicycle at any speed."""
+    from ares.config import load_vehicle
+    from ares.sim.vehicle import LateralParams, lateral_step
+    bare = load_vehicle("ares_shuttle", {"yaw_inertia_kgm2": None, "cornering_stiffness_front_n_per_rad": None,
+                                         "cornering_stiffness_rear_n_per_rad": None})
+    p = LateralParams.of(bare, bare.empty_mass_kg)
+    assert not p.dynamic
+    v_y, r = lateral_step(p, 0.0, 0.0, 8.0, 0.1, 0.01)
+    assert r == pytest.approx(8.0 * math.tan(0.1) / bare.wheelbase_m) and v_y == pytest.approx(p.l_r * r)

@@ -25,7 +25,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     run.add_argument("--config", action="append", default=[], metavar="FILE",
                      help="a YAML file of configuration overrides (repeatable; later files win); "
                           "`ares config show` prints every key")
-    run.add_argument("--route", metavar="FILE", help="an open route (CSV of x,y[,z] metres) instead of the built-in tour")
+    run.add_argument("--route", metavar="NAME|FILE", help="a built-in tour (ares/config/tours/: default, campus), a tour's "
+                                                      "YAML, or an open route (CSV of x,y[,z] metres)")
     run.add_argument("--scenario", metavar="NAME|FILE",
                      help="simulated obstacles and faults: a built-in scenario (ares/config/scenarios/) or a YAML file")
     run.add_argument("--vehicle", metavar="NAME", help="vehicle profile (config/vehicles/NAME.yaml)")

@@ -39,18 +39,22 @@ class LateralParams:
     """The dynamic bicycle's figures: CG to front / rear axle, cornering stiffnesses, mass, I_z."""
     l_f: float
     l_r: float
-    c_f: float
-    c_r: float
+    c_f: float | None           # None (no tyre figures in the profile): the kinematic bicycle at every speed
+    c_r: float | None
     mass: float
-    i_z: float
+    i_z: float | None
 
     @classmethod
     def of(cls, profile: VehicleProfile, mass_kg: float) -> "LateralParams":
         """The profile's figures at a laden mass (the inertia grows with the mass)."""
         l_f = profile.k_cg * profile.wheelbase_m
+        i_z = None if profile.yaw_inertia_kgm2 is None else profile.yaw_inertia_kgm2 * mass_kg / profile.empty_mass_kg
         return cls(l_f, profile.wheelbase_m - l_f, profile.cornering_stiffness_front_n_per_rad,
-                   profile.cornering_stiffness_rear_n_per_rad, mass_kg,
-                   profile.yaw_inertia_kgm2 * mass_kg / profile.empty_mass_kg)
+                   profile.cornering_stiffness_rear_n_per_rad, mass_kg, i_z)
+
+    @property
+    def dynamic(self) -> bool:
+        return self.c_f is not None and self.c_r is not None and self.i_z is not None
 
     def understeer_gradient(self) -> float:
         """K (s^2/m^2) of the steady-state yaw rate r = v δ / (L (1 + K v^2))."""
@@ -75,7 +79,7 @@ def lateral_step(p: LateralParams, v_y: float, r: float, v: float, delta: float,
     # Rolling backwards (v < 0) stays kinematic: the linear tyre model is for driving forwards.
     w = min(max((v - BLEND_LOW_MPS) / (BLEND_HIGH_MPS - BLEND_LOW_MPS), 0.0), 1.0)
     w = w * w * (3.0 - 2.0 * w)
-    if w == 0.0:
+    if w == 0.0 or not p.dynamic:
         return v_y_kin, r_kin
     # d[v_y, r]/dt = A [v_y, r] + B δ; implicit Euler: (I - dt A) x' = x + dt B δ.
     a11 = -(p.c_f + p.c_r) / (p.mass * v)
@@ -154,6 +158,7 @@ class VehiclePlant:
         self.traction = TractionActuator(profile.actuators.traction, profile.empty_mass_kg, profile.passenger_mass_kg,
                                          sim.passengers if passengers is None else passengers)
         self.driver = sim.driver
+        self._lateral: LateralParams | None = None          # made again when the laden mass changes
         self.rng = np.random.default_rng(sim.seed if seed is None else seed)
         self.roughness = roughness_for(route, sim if seed is None else sim.model_copy(update={"seed": seed}),
                                        self.wheelbase_m)
@@ -228,7 +233,9 @@ class VehiclePlant:
         delta = math.radians(st.steering_wheel_deg) / self.steering_ratio
         v_mid = 0.5 * (v_prev + v)
         v_h = v_mid * math.cos(math.atan(st.grade))   # s and x, y are horizontal distances
-        lateral = LateralParams.of(self.profile, self.traction.mass_kg)
+        lateral = self._lateral
+        if lateral is None or lateral.mass != self.traction.mass_kg:      # passengers on or off
+            lateral = self._lateral = LateralParams.of(self.profile, self.traction.mass_kg)
         v_y_prev = st.lateral_velocity
         v_y, yaw_rate = lateral_step(lateral, v_y_prev, st.yaw_rate, v_h, delta, dt)
         # The rear axle slides sideways at v_y - l_r r (zero for the kinematic bicycle): it moves
