@@ -399,12 +399,17 @@ def load_yaml(path: str | Path) -> dict:
     return data
 
 
+def packaged_file(kind: str, name: str) -> Path:
+    """Where a packaged file of config/<kind>/ by that name is (it may not exist)."""
+    return CONFIG_DIR / kind / f"{name}.yaml"
+
+
 def named_file(kind: str, name: str) -> Path:
     """A packaged file of config/<kind>/ by name, or a YAML file given by path."""
     candidate = Path(name)
     if candidate.suffix in (".yaml", ".yml") and candidate.exists():
         return candidate
-    path = CONFIG_DIR / kind / f"{name}.yaml"
+    path = packaged_file(kind, name)
     if not path.exists():
         known = sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml"))
         raise ConfigError(f"unknown {kind[:-1]} {name!r}; known: {', '.join(known)} (or a path to a .yaml file)")

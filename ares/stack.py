@@ -66,7 +66,7 @@ def overrides_from_args(args) -> dict:
         over["sim"]["passengers"] = args.passengers
     if getattr(args, "route", None):
         # a built-in tour by name (`--route campus`) or a tour's YAML; anything else is a route CSV
-        builtin = (config.CONFIG_DIR / "tours" / f"{args.route}.yaml").exists() and not Path(args.route).exists()
+        builtin = config.packaged_file("tours", args.route).exists() and not Path(args.route).exists()
         if builtin or Path(args.route).suffix in (".yaml", ".yml"):
             over["tour"] = args.route if builtin else str(Path(args.route).resolve())
         else:

@@ -98,22 +98,11 @@ class MpcCommand:
 
 def predict(x, y, yaw, v, delta, accel, dt: float, wheelbase: float, steps: int = 1):
     """Eq. 11's motion (the kinematic model), `steps` steps of dt; numpy or CasADi values."""
+    trig = ca if isinstance(yaw, ca.MX) else math
     for _ in range(steps):
-        x, y, yaw, v = (x + v * _cos(yaw) * dt, y + v * _sin(yaw) * dt,
-                        yaw + v * _tan(delta) / wheelbase * dt, v + accel * dt)
+        x, y, yaw, v = (x + v * trig.cos(yaw) * dt, y + v * trig.sin(yaw) * dt,
+                        yaw + v * trig.tan(delta) / wheelbase * dt, v + accel * dt)
     return x, y, yaw, v
-
-
-def _cos(a):
-    return ca.cos(a) if isinstance(a, ca.MX) else math.cos(a)
-
-
-def _sin(a):
-    return ca.sin(a) if isinstance(a, ca.MX) else math.sin(a)
-
-
-def _tan(a):
-    return ca.tan(a) if isinstance(a, ca.MX) else math.tan(a)
 
 
 class Mpc:

@@ -22,7 +22,6 @@ the steering motor's rate): a switch between candidates that disagree is a ramp,
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from enum import Enum
 
@@ -152,7 +151,3 @@ class ControlSelector:
 def _clip(value: float, limit: float) -> float:
     return max(-limit, min(limit, value))
 
-
-def kappa_rate_for(max_wheel_rate_rad_s: float, wheelbase_m: float) -> float:
-    """The curvature rate the steering can follow near straight ahead: κ = tan(δ)/L, dκ/dδ ≈ 1/L."""
-    return max_wheel_rate_rad_s / wheelbase_m if wheelbase_m > 0 else math.inf
