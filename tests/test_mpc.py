@@ -12,6 +12,9 @@ from control.mpc import Mpc, MpcParams, VehicleState, predict
 
 VEHICLE = load_vehicle("ares_shuttle")
 PLANT_DT = 0.01
+# the solver's time budget is a benchmark's business: here a slow, busy machine must not turn a
+# late solve into a failed one
+UNTIMED = {"max_solve_ms": 10_000.0}
 
 
 def arc_path(radius: float, straight_m: float = 15.0, turn_deg: float = 90.0, after_m: float = 40.0,
@@ -68,7 +71,7 @@ def closed_loop(mpc: Mpc, path, offset_m: float, speed: float = 3.0, seconds: fl
 
 
 def test_an_offset_on_a_straight_is_taken_out():
-    errors, commands = closed_loop(Mpc(VEHICLE), arc_path(math.inf), offset_m=0.5)
+    errors, commands = closed_loop(Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(math.inf), offset_m=0.5)
     assert commands[0].delta < 0                        # left of the path: steer right
     assert commands[0].cte == pytest.approx(-0.5, abs=0.05)
     assert errors[-300:].max() < 0.03                   # settled within 9 s
@@ -77,7 +80,7 @@ def test_an_offset_on_a_straight_is_taken_out():
 
 @pytest.mark.parametrize("radius", [12.0, 20.0, 40.0])
 def test_arcs_are_followed_closely(radius):
-    errors, commands = closed_loop(Mpc(VEHICLE), arc_path(radius), offset_m=0.0, speed=min(3.0, math.sqrt(0.5 * radius)))
+    errors, commands = closed_loop(Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(radius), offset_m=0.0, speed=min(3.0, math.sqrt(0.5 * radius)))
     # measured: RMSE 1.0-2.1 cm, max 1.6-3.9 cm
     assert errors.max() < 0.08 and np.sqrt(np.mean(errors ** 2)) < 0.04, (errors.max(), np.sqrt(np.mean(errors ** 2)))
     steady = [c.delta for c in commands[-20:]]
@@ -88,13 +91,13 @@ def test_the_dead_time_compensation_pays():
     """The same bend with the steering's dead time: solved from the state the dead time ahead,
     the MPC tracks better than solved from the state now (measured: RMSE 0.095 against 0.19 m)."""
     path = arc_path(15.0)
-    with_it, _ = closed_loop(Mpc(VEHICLE, MpcParams(compensate_dead_time=True)), path, 0.3)
-    without, _ = closed_loop(Mpc(VEHICLE, MpcParams(compensate_dead_time=False)), path, 0.3)
+    with_it, _ = closed_loop(Mpc(VEHICLE, MpcParams(compensate_dead_time=True, **UNTIMED)), path, 0.3)
+    without, _ = closed_loop(Mpc(VEHICLE, MpcParams(compensate_dead_time=False, **UNTIMED)), path, 0.3)
     assert np.sqrt(np.mean(with_it ** 2)) <= 0.75 * np.sqrt(np.mean(without ** 2))
 
 
 def test_inputs_stay_within_eq_12_and_the_steering_rate():
-    mpc = Mpc(VEHICLE)
+    mpc = Mpc(VEHICLE, MpcParams(**UNTIMED))
     _, commands = closed_loop(mpc, arc_path(12.0, straight_m=3.0), offset_m=2.0, speed=2.5, seconds=6.0, v0=0.0)
     step = math.radians(VEHICLE.actuators.steering.max_rate_deg_s) / VEHICLE.steering_ratio * mpc.params.step_s
     deltas = np.array([c.delta for c in commands])
@@ -105,19 +108,19 @@ def test_inputs_stay_within_eq_12_and_the_steering_rate():
 
 
 def test_speed_follows_the_limit():
-    errors, commands = closed_loop(Mpc(VEHICLE), arc_path(math.inf), offset_m=0.0, speed=2.0, seconds=10.0, v0=0.0)
+    errors, commands = closed_loop(Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(math.inf), offset_m=0.0, speed=2.0, seconds=10.0, v0=0.0)
     assert commands[-1].v == pytest.approx(2.0, abs=0.1)
 
 
 def test_a_failed_solve_reuses_the_previous_solution_then_hands_over():
-    mpc = Mpc(VEHICLE, MpcParams(max_reused=2))
+    mpc = Mpc(VEHICLE, MpcParams(max_reused=2, **UNTIMED))
     px, py = arc_path(20.0)
     state = VehicleState(0.0, 0.2, 0.0, 3.0)
     good = mpc.solve(state, px[:120], py[:120], np.full(120, 3.0))
     assert good.ok and not good.handover and len(good.predicted_x) == mpc.params.horizon_steps + 1
     nowhere = mpc.solve(state, px[:2], py[:2], np.full(2, 3.0))        # no path to fit: a failure
     assert not nowhere.ok and not nowhere.handover and nowhere.reused == 1
-    assert nowhere.delta == pytest.approx(good_second_input(good, mpc))
+    assert nowhere.delta == pytest.approx(second_input_of_previous(mpc))
     assert not mpc.solve(state, px[:2], py[:2], np.full(2, 3.0)).handover
     third = mpc.solve(state, px[:2], py[:2], np.full(2, 3.0))
     assert third.handover and third.accel < 0                        # stop asking, slow down
@@ -126,14 +129,14 @@ def test_a_failed_solve_reuses_the_previous_solution_then_hands_over():
     assert again.ok and again.reused == 0
 
 
-def good_second_input(first, mpc):
+def second_input_of_previous(mpc):
     """The previous solution's second step (its first, shifted by one)."""
     _, U, _ = mpc._previous
     return float(U[0, 1])
 
 
 def test_the_predicted_trajectory_is_in_the_callers_frame():
-    mpc = Mpc(VEHICLE, MpcParams(compensate_dead_time=False))
+    mpc = Mpc(VEHICLE, MpcParams(compensate_dead_time=False, **UNTIMED))
     # the same straight path, the vehicle at (100, 50) heading 90°: the prediction runs up y
     s = np.arange(0.0, 40.0, 0.25)
     cmd = mpc.solve(VehicleState(100.0, 50.0, math.pi / 2, 3.0), np.full_like(s, 100.0), 50.0 + s, np.full(len(s), 3.0))
