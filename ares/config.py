@@ -286,6 +286,8 @@ class TourDescription(Params):
     """A closed tour: a polygon whose corners are rounded with arcs, profiles along it."""
     name: str
     default_width_m: float = param(6.0, unit="m", gt=0)
+    speed_limit_mps: float | None = param(None, "the road's speed limit: the speed profile's top speed on straights "
+                                                "(null: the vehicle's maximum)", unit="m/s", gt=0)
     default_verge: VergeKind = param("kerb", "the verge where `verges` says nothing")
     verges: list[TourVerge] = param(factory=list, doc="verges stretch by stretch; intersections and road "
                                                       "openings are open whatever they say")

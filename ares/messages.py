@@ -270,13 +270,39 @@ class Setpoint(Msg):
     source: str
 
 
-class ControllerStatus(Msg):
+class ControlCandidate(Msg):
+    """One controller's proposal (ARES §3.6: every controller computes all the time); the control
+    manager decides whose reaches the drive-by-wire bridge."""
+    controller: str             # mpc, rrc, pure_pursuit
+    v: float
+    kappa: float
+    fresh: bool = True          # False: the MPC reused its previous solution (a late or failed solve)
+    handover: bool = False      # the controller asks the control manager for its fallback
+    solve_ms: float | None = None
+    cross_track_m: float | None = None      # the error the controller sees (its own input), + vehicle left
+    heading_error_rad: float | None = None
+    note: str = ""              # why (a solver status, "creeping: heading uncertain", ...)
+
+
+class PredictedTrajectory(Msg):
+    """Where a controller expects the vehicle to go (the MPC's horizon), in the local frame."""
     controller: str
-    s: float
-    xte: float
-    heading_error: float
-    lookahead_m: float
+    x: list[float]
+    y: list[float]
+    step_s: float
+
+
+class ControllerStatus(Msg):
+    """The control manager's choice: who drives, why, and the errors along the route."""
+    controller: str             # the candidate forwarded: mpc, rrc, pure_pursuit, or stop
+    mode: str                   # odometry, rrc, stop (managers/control_selection.py)
+    reason: str
+    s: float | None             # the path match (None while it is stale)
+    xte: float | None
+    heading_error: float | None
     target_speed: float
+    odometry_score: float | None = None
+    road_confidence: float | None = None
     finished: bool = False      # an open route's end has been reached
 
 

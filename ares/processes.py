@@ -43,7 +43,11 @@ PROCESSES: list[Process] = [
     Process("speed_manager", "managers.speed:SpeedManager", safety_relevant=True),
     Process("lidar_perception", "perception.lidar_node:LidarPerception", safety_relevant=True, lidars=True),
     Process("dbw_bridge", "control.dbw_bridge:DbwBridge", safety_relevant=True),
-    Process("controller", "control.pure_pursuit:PurePursuitNode", safety_relevant=True),
+    # every controller computes all the time; the control manager forwards one candidate to the bridge
+    Process("mpc", "control.mpc_node:MpcNode", safety_relevant=True),
+    Process("rrc", "control.rrc_node:RrcNode", safety_relevant=True, lidars=True),
+    Process("pure_pursuit", "control.pure_pursuit:PurePursuitNode", safety_relevant=True),
+    Process("control_manager", "managers.control:ControlManager", safety_relevant=True),
     # the black box: losing it never stops the vehicle (the recorder spools; see blackbox/recorder.py)
     Process("blackbox", "blackbox.recorder:Recorder", safety_relevant=False, nice=5),
     Process("api", "blackbox.api_server:ApiServer", safety_relevant=False, nice=5),

@@ -79,6 +79,7 @@ class Route:
     origin: UtmOrigin | None = None     # where on Earth the frame is, when the route file says
     verges: list[Verge] = field(default_factory=list)
     default_verge: str = "kerb"
+    speed_limit_mps: float | None = None     # the road's limit (a tour's speed_limit_mps)
 
     def __post_init__(self) -> None:
         if len(self.x) < 2:
@@ -348,7 +349,7 @@ def tour_from_description(desc: TourDescription) -> Route:
     zones += [Zone("narrow", n.s_start, n.s_end) for n in desc.narrow]
     verges = [Verge(v.s_start, v.s_end, v.left, v.right) for v in desc.verges]
     return Route(name=desc.name, x=xy[:, 0], y=xy[:, 1], z=z, closed=True, width=width, pois=pois, zones=zones,
-                 verges=verges, default_verge=desc.default_verge)
+                 verges=verges, default_verge=desc.default_verge, speed_limit_mps=desc.speed_limit_mps)
 
 
 def _filleted_loop(corners: np.ndarray, radii: list[float], spacing: float) -> np.ndarray:

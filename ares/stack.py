@@ -33,6 +33,7 @@ import numpy as np
 from ares import config, contracts, processes, run_config
 from ares.bus import Bus, ServiceError
 from ares.clock import Clock, DrivenClock, ScaledClock, WallClock
+from ares.control_eval import ControlTracker
 from ares.messages import DriveMode, DriverCommand
 from ares.metrics import LapTracker, LocalizationTracker
 from ares.perception_eval import PerceptionTracker
@@ -42,7 +43,7 @@ from ares.supervisor import Supervisor
 from blackbox.api_server import api_url
 from blackbox.recorder import open_configured_store, store_uri
 from blackbox.store import StoreSettings
-from managers.speed_profile import SpeedProfileParams
+from managers.speed_profile import SpeedProfileParams, cruise_speed
 
 log = logging.getLogger("ares.run")
 
@@ -73,6 +74,8 @@ def overrides_from_args(args) -> dict:
             over["route_file"] = str(Path(args.route).resolve())
     if getattr(args, "scenario", None):
         over["scenario"] = args.scenario
+    if getattr(args, "controller", None):
+        over["control_manager"] = {"pinned": None if args.controller == "auto" else args.controller}
     if getattr(args, "listen", None):
         over["bus"]["router"] = args.listen
     if getattr(args, "router", None):
@@ -135,6 +138,8 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str) -> dict
     """The run configuration, validated; the route file's origin, if it has one; the store made
     absolute; the lockstep's participants."""
     cfg = run_config.build(files, overrides)
+    if not config.core(cfg).vehicle_profile.lidars:
+        cfg["lidars"] = False           # a vehicle without LiDARs runs no LiDAR process (and no RRC)
     if cfg["route_file"]:
         origin = read_origin(cfg["route_file"])
         if origin is not None:      # a recorded route brings its frame: the configured origin is for the others
@@ -187,13 +192,13 @@ def _wait_for(condition, timeout_s: float, what: str, stop: threading.Event) -> 
 
 
 def wait_until_ready_to_drive(bus: Bus, stop: threading.Event) -> None:
-    """Until the controller steers from a fresh pose and path match (control/status is published
-    only then). Process start-up takes wall seconds, which at --speed X are X times as many
+    """Until the control manager forwards a controller's candidate (not a stop): localization, the
+    path manager and a controller are up and trusted. Process start-up takes wall seconds, which at --speed X are X times as many
     vehicle seconds: a run engaged before this would count them in its lap time."""
     status = bus.subscribe("control/status")
     try:
-        _wait_for(lambda: status.alive(READY_MAX_AGE_S), STARTUP_TIMEOUT_S,
-                  "the controller (localization, path manager and controller up and publishing)", stop)
+        _wait_for(lambda: status.alive(READY_MAX_AGE_S) and status.latest.controller != "stop", STARTUP_TIMEOUT_S,
+                  "a controller in charge (localization, path manager, a controller and the control manager up)", stop)
     finally:
         bus.unsubscribe(status)
 
@@ -242,8 +247,12 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     lidar_status = bus.subscribe("perception/lidar_status", queue=1024) if perceiving else None
     poses = bus.subscribe("localization/pose", queue=4096)
     scores = bus.subscribe("odometry/score", queue=4096)
+    statuses = bus.subscribe("control/status", queue=4096)
+    mpc_candidates = bus.subscribe("control/candidate/mpc", queue=4096)
+    events = bus.subscribe("events", queue=4096)
+    control = ControlTracker()
     target_m = laps * route.length if route.closed else route.length
-    cruise = config.section(cfg, "speed_profile", SpeedProfileParams).cruise_speed_mps
+    cruise = cruise_speed(config.section(cfg, "speed_profile", SpeedProfileParams), vehicle, route)
     time_limit_s = 3.0 * target_m / (0.5 * cruise) + 60.0     # stack seconds
     if seconds is not None:
         time_limit_s = seconds + 60.0
@@ -257,6 +266,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             tracker.update(msg.x, msg.y, msg.odometer_m)
             localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
             perception.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.s)
+            control.add_truth(msg.t, tracker.xte[-1], msg.v, msg.yaw_rate, msg.accel)
         if perceiving:
             for _, world in worlds.drain():
                 perception.add_world(world)
@@ -271,6 +281,13 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)
         for _, score in scores.drain():
             localization.add_score(score.t, score.score)
+        for _, st in statuses.drain():
+            control.add_status(st.t, st.controller)
+        for _, cand in mpc_candidates.drain():
+            control.add_mpc(cand.solve_ms, cand.fresh)
+        for _, event in events.drain():
+            if event.kind == "controller_switch":
+                control.add_switch(event.data)
         now = clock.now()
         if car_state.latest is not None and car_state.latest.mode != DriveMode.AUTOMATIC:
             left_automatic += 1
@@ -305,7 +322,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     result = {"ok": True, "laps": laps if route.closed else 0, "route": route.name,
               "route_length_m": round(route.length, 2), "lap_time_s": round(lap_time / max(laps, 1), 2),
               "total_time_s": round(lap_time, 2), **tracker.summary(), **localization.summary(),
-              **(perception.summary() if perceiving else {}),
+              **control.summary(), **(perception.summary() if perceiving else {}),
               "speed_factor": round(lap_time / max(wall_s, 1e-9), 2), "clock": clock.mode,
               "wall_time_s": round(wall_s, 1),
               "vehicle": cfg["vehicle"], "run_dir": str(run_dir),
@@ -314,6 +331,9 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
                             np.array(tracker.progress), np.array(tracker.xte),
                             f"{route.name}: {result['distance_m']:.0f} m in {lap_time:.0f} s, {cfg['vehicle']}")
     result["plot"] = str(picture)
+    # for `ares compare`: the error along the route and who drove, at the simulator's rate
+    np.savez_compressed(run_dir / "trace.npz", progress=np.array(tracker.progress), xte=np.array(tracker.xte),
+                        controller=np.array([c or "none" for c in control.in_charge()]))
     return result
 
 

@@ -71,8 +71,13 @@ TOPIC_TABLE: list[Topic] = [
     Topic("speed/limits", m.SpeedLimits, "the speed limit where the vehicle is and the next section's (ARES §3.6.3)"),
     Topic("speed/sections", m.SpeedSections, "the route's single-speed sections (ARES Figure 17), repeated slowly"),
     # control and the drive-by-wire bridge
-    Topic("control/setpoint", m.Setpoint, "(v, kappa): the only command the drive-by-wire bridge accepts"),
-    Topic("control/status", m.ControllerStatus, "the active controller and its errors"),
+    Topic("control/candidate/mpc", m.ControlCandidate, "the MPC's (v, kappa) (ARES §3.6.1)"),
+    Topic("control/candidate/rrc", m.ControlCandidate, "road reactive control's (v, kappa) (ARES §3.6.2)"),
+    Topic("control/candidate/pure_pursuit", m.ControlCandidate, "pure pursuit's (v, kappa) (DBW paper)"),
+    Topic("control/mpc/trajectory", m.PredictedTrajectory, "the MPC's predicted trajectory over its horizon"),
+    Topic("control/setpoint", m.Setpoint, "(v, kappa): the only command the drive-by-wire bridge accepts; the "
+                                          "control manager's"),
+    Topic("control/status", m.ControllerStatus, "the controller in charge, why, and the errors along the route"),
     Topic("dbw/actuators", m.ActuatorCommand, "efforts to the steering motor and traction/brake"),
     Topic("dbw/reference", m.DbwReference, "the inner loops' references"),
     Topic("dbw/measure", m.DbwMeasure, "the inner loops' measurements"),

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 from ares.config import Params, VehicleProfile, param
-from ares.messages import ControllerStatus, Setpoint
+from ares.messages import ControlCandidate
 from ares.node import Input, Node, Output
 
 
@@ -109,13 +109,14 @@ class PurePursuit:
 
 
 class PurePursuitNode(Node):
-    """Pure pursuit on the path manager's path ahead, at the speed limits it carries."""
-    name = "controller"
+    """Pure pursuit on the path manager's path ahead, at the speed limits it carries: a candidate
+    for the control manager (with odometry_controller: pure_pursuit, the one it trusts)."""
+    name = "pure_pursuit"
     Params = ControllerParams
     pose = Input("localization/pose", max_age="input_timeout_s", doc="x, y, yaw, v of the rear axle")
     path = Input("path/match", max_age="input_timeout_s", doc="the match and the poses ahead with speed limits")
-    setpoints = Output("control/setpoint", rate="rate_hz", doc="(v, kappa); silent without fresh inputs")
-    status = Output("control/status", rate="rate_hz", doc="only while steering from fresh inputs")
+    candidate = Output("control/candidate/pure_pursuit", rate="rate_hz", doc="(v, kappa); silent without fresh "
+                                                                               "inputs")
 
     def setup(self) -> None:
         self.pursuit = PurePursuit(self.params, self.vehicle)
@@ -123,12 +124,13 @@ class PurePursuitNode(Node):
     def step(self, now: float) -> None:
         pose, match = self.pose.fresh(now), self.path.fresh(now)
         if pose is None or match is None:
-            return  # stay silent, so the bridge's watchdog stops the vehicle
+            return  # stay silent: the control manager must not forward a command from stale data
+        heading_sigma = math.sqrt(max(pose.var_yaw, 0.0))
         cmd = self.pursuit.command(pose.x, pose.y, pose.yaw, pose.v, match.ahead_x, match.ahead_y,
-                                   match.ahead_speed, match.distance_to_end_m,
-                                   heading_sigma=math.sqrt(max(pose.var_yaw, 0.0)),
+                                   match.ahead_speed, match.distance_to_end_m, heading_sigma=heading_sigma,
                                    ahead_curvature=match.ahead_curvature)
-        self.setpoints.put(Setpoint(t=now, v=cmd.v, kappa=cmd.kappa, source=self.name))
-        self.status.put(ControllerStatus(t=now, controller="pure_pursuit", s=match.s, xte=match.xte,
-                                         heading_error=match.heading_error, lookahead_m=cmd.lookahead_m,
-                                         target_speed=cmd.v, finished=cmd.finished))
+        note = "creeping: heading uncertain" if heading_sigma > self.pursuit.max_heading_sigma else \
+            f"lookahead {cmd.lookahead_m:.2f} m"
+        self.candidate.put(ControlCandidate(t=now, controller="pure_pursuit", v=cmd.v, kappa=cmd.kappa,
+                                            cross_track_m=match.xte, heading_error_rad=match.heading_error,
+                                            note=note))

@@ -19,6 +19,12 @@ counts as a failing RRC: the road's model ends at the crossing.
 The forwarded curvature changes no faster than the steering can follow (`max_kappa_rate`, from
 the steering motor's rate): a switch between candidates that disagree is a ramp, not a jump
 (bumpless). In STOP the speed ramps down at `stop_decel_mps2` and the curvature is held.
+
+`pinned` (for comparisons, `ares run --controller`) takes the order of trust away: the pinned
+mode drives whenever its candidate is fresh, whatever the score or the road, and STOP otherwise.
+
+Each decision carries a short `cause` beside its sentence (score_low, road_ok, forced, ...): the
+lap figures count switches by cause, the sentence is for people.
 """
 from __future__ import annotations
 
@@ -41,6 +47,7 @@ class SelectionParams:
     min_dwell_s: float              # least time in charge before a better mode may take over
     max_kappa_rate: float           # 1/m per s: the steering's speed, as curvature
     stop_decel_mps2: float          # a controlled stop's deceleration
+    pinned: "Mode | None" = None    # only this mode drives (comparisons); STOP when its candidate is missing
 
     def __post_init__(self):
         if not (0 <= self.score_exit <= self.score_enter and 0 <= self.road_exit <= self.road_enter):
@@ -70,6 +77,8 @@ class Decision:
     kappa: float
     switched: bool
     reason: str
+    cause: str                      # short code of the reason (a switch's: why the mode in charge failed, or
+                                    # why a better one took over)
 
 
 class ControlSelector:
@@ -90,37 +99,47 @@ class ControlSelector:
         conf = inputs.road_confidence
         return conf is not None and conf >= (self.p.road_exit if holding else self.p.road_enter)
 
-    def acceptable(self, mode: Mode, inputs: Inputs, holding: bool) -> tuple[bool, str]:
-        """Whether `mode` may drive (holding: it is in charge now, so the exit thresholds apply)."""
+    def acceptable(self, mode: Mode, inputs: Inputs, holding: bool) -> tuple[bool, str, str]:
+        """Whether `mode` may drive (holding: it is in charge now, so the exit thresholds apply), the
+        cause's short code and the sentence."""
+        candidate = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc}.get(mode)
+        if self.p.pinned is not None and mode is not Mode.STOP:
+            if mode is not self.p.pinned:
+                return False, "pinned", f"pinned to {self.p.pinned.value}"
+            if candidate is None:
+                return False, "no_candidate", f"the pinned {mode.value} controller has no fresh candidate"
+            return True, "pinned", f"pinned to {mode.value}"
         if mode is Mode.ODOMETRY:
-            if inputs.odometry is None:
-                return False, "the odometry controller has no fresh candidate"
+            if candidate is None:
+                return False, "no_candidate", "the odometry controller has no fresh candidate"
             if inputs.force_odometry:
-                return True, "the path manager forces odometry control (intersection or road opening)"
+                return True, "forced", "the path manager forces odometry control (intersection or road opening)"
             if self._odometry_trusted(inputs, holding):
-                return True, f"odometry score {inputs.odometry_score:.2f}"
-            return False, ("no odometry score" if inputs.odometry_score is None
-                           else f"odometry score {inputs.odometry_score:.2f} too low")
+                return True, "score_ok", f"odometry score {inputs.odometry_score:.2f}"
+            if inputs.odometry_score is None:
+                return False, "no_score", "no odometry score"
+            return False, "score_low", f"odometry score {inputs.odometry_score:.2f} too low"
         if mode is Mode.RRC:
             if inputs.force_odometry and inputs.odometry is not None:
-                return False, "the path manager forces odometry control"
-            if inputs.rrc is None:
-                return False, "the RRC has no fresh candidate"
+                return False, "forced", "the path manager forces odometry control"
+            if candidate is None:
+                return False, "no_candidate", "the RRC has no fresh candidate"
             if self._road_trusted(inputs, holding):
-                return True, f"road confidence {inputs.road_confidence:.2f}"
-            return False, ("no road detection" if inputs.road_confidence is None
-                           else f"road confidence {inputs.road_confidence:.2f} too low")
-        return True, "in a controlled stop"
+                return True, "road_ok", f"road confidence {inputs.road_confidence:.2f}"
+            if inputs.road_confidence is None:
+                return False, "no_road", "no road detection"
+            return False, "road_low", f"road confidence {inputs.road_confidence:.2f} too low"
+        return True, "stop", "in a controlled stop"
 
-    def wanted(self, inputs: Inputs) -> tuple[Mode, str]:
-        """The most trusted acceptable mode, in the fixed order."""
+    def wanted(self, inputs: Inputs) -> tuple[Mode, str, str]:
+        """The most trusted acceptable mode, in the fixed order, with its cause and sentence."""
         reasons = []
         for mode in (Mode.ODOMETRY, Mode.RRC):
-            ok, why = self.acceptable(mode, inputs, holding=mode is self.mode)
+            ok, cause, why = self.acceptable(mode, inputs, holding=mode is self.mode)
             if ok:
-                return mode, why
+                return mode, cause, why
             reasons.append(why)
-        return Mode.STOP, "nothing deserves trust: " + "; ".join(reasons)
+        return Mode.STOP, "nothing_trusted", "nothing deserves trust: " + "; ".join(reasons)
 
     # ---- each cycle -----------------------------------------------------------------------------
     def step(self, t: float, inputs: Inputs) -> Decision:
@@ -129,14 +148,16 @@ class ControlSelector:
         self.last_t = t
         if self.since is None:
             self.since = t
-        want, reason = self.wanted(inputs)
+        want, cause, reason = self.wanted(inputs)
         switched = False
         if want is not self.mode:
-            current_ok, current_why = self.acceptable(self.mode, inputs, holding=True)
+            current_ok, current_cause, current_why = self.acceptable(self.mode, inputs, holding=True)
             if not current_ok or t - self.since >= self.p.min_dwell_s:
-                reason = reason if current_ok else f"{current_why}; {reason}"
+                if not current_ok:
+                    reason, cause = f"{current_why}; {reason}", current_cause    # why it was left
                 self.mode, self.since, switched = want, t, True
             else:
+                cause = current_cause
                 reason = f"{current_why}; {want.value} is wanted once {self.p.min_dwell_s:g} s in charge have passed"
         target = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc}.get(self.mode)
         if target is None:                              # STOP: slow down, hold the curvature
@@ -145,7 +166,7 @@ class ControlSelector:
         else:
             self.v, kappa_target = target.v, target.kappa
         self.kappa = kappa_target if first else self.kappa + _clip(kappa_target - self.kappa, self.p.max_kappa_rate * dt)
-        return Decision(self.mode, self.v, self.kappa, switched, reason)
+        return Decision(self.mode, self.v, self.kappa, switched, reason, cause)
 
 
 def _clip(value: float, limit: float) -> float:

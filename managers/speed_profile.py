@@ -35,7 +35,9 @@ from ares.route import Route
 
 class SpeedProfileParams(Params):
     """The `speed_profile` section: read by the path manager and the speed manager."""
-    cruise_speed_mps: float = param(3.5, "top speed on straights (capped by the vehicle's maximum)", unit="m/s", gt=0)
+    cruise_speed_mps: float | None = param(None, "a cap on the top speed on straights, below the road's speed limit "
+                                                 "(the tour's speed_limit_mps) and the vehicle's maximum (null: none)",
+                                           unit="m/s", gt=0)
     lateral_accel_mps2: float = param(0.35, "curve speed sqrt(a * R): keeps pure pursuit's corner cutting small",
                                       unit="m/s^2", gt=0)
     decel_mps2: float = param(0.5, "comfortable braking before curves and the end of an open route",
@@ -102,13 +104,17 @@ def _curve_limit(route: Route, cruise: float, lateral_accel: float, narrow_speed
 
 def speed_limits(route: Route, params: SpeedProfileParams, vehicle: VehicleProfile,
                  grade: bool = False) -> np.ndarray:
-    """The profile with the configured parameters, the cruise speed capped by the vehicle's maximum."""
-    return speed_profile(route, cruise_speed(params, vehicle), params.lateral_accel_mps2,
+    """The profile with the configured parameters, the cruise speed capped by the road's limit and the
+    vehicle's maximum."""
+    return speed_profile(route, cruise_speed(params, vehicle, route), params.lateral_accel_mps2,
                          params.decel_mps2, params.accel_mps2, params.narrow_speed_mps, grade=grade)
 
 
-def cruise_speed(params: SpeedProfileParams, vehicle: VehicleProfile) -> float:
-    return min(params.cruise_speed_mps, vehicle.max_speed_mps)
+def cruise_speed(params: SpeedProfileParams, vehicle: VehicleProfile, route: Route) -> float:
+    """The top speed on straights: the lowest of the road's limit, the configured cap and the
+    vehicle's maximum (a speed limit is per road, a top speed per vehicle)."""
+    caps = (route.speed_limit_mps, params.cruise_speed_mps, vehicle.max_speed_mps)
+    return min(c for c in caps if c is not None)
 
 
 # ---- single-speed sections (ARES Figure 17) ----------------------------------------------------
@@ -158,5 +164,5 @@ def sections(route: Route, profile: np.ndarray, cruise: float, lateral_accel: fl
 def speed_sections(route: Route, params: SpeedProfileParams, vehicle: VehicleProfile,
                    profile: np.ndarray) -> list[Section]:
     """`sections` with the configured parameters."""
-    return sections(route, profile, cruise_speed(params, vehicle), params.lateral_accel_mps2,
+    return sections(route, profile, cruise_speed(params, vehicle, route), params.lateral_accel_mps2,
                     params.narrow_speed_mps, params.section_step_mps)

@@ -451,8 +451,10 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     # piece.
     road = score >= 0.5
     nonroad = np.r_[0, np.cumsum(~road)]
-    start = np.clip(np.where(left, at, at - m + 1), 0, n - m)
-    stop = (nonroad[start + m] - nonroad[start] == m) & (piece[start] == piece) & (piece[start + m - 1] == piece)
+    # (fewer points than a run, m > n: the window is cut at the end and cannot hold m non-road points)
+    start = np.clip(np.where(left, at, at - m + 1), 0, np.maximum(n - m, 0))
+    end = np.minimum(start + m, n)
+    stop = (nonroad[end] - nonroad[start] == m) & (piece[start] == piece) & (piece[end - 1] == piece)
     last_road = np.maximum.accumulate(np.where(road, at, -1))              # the nearest road point at or
     next_road = np.minimum.accumulate(np.where(road, at, n)[::-1])[::-1]   # before / after each point
 

@@ -127,13 +127,13 @@ def test_sections_are_read_only():
 
 
 def test_ares_run_with_a_misspelt_key_exits_2_before_any_process_starts(tmp_path):
-    bad = write(tmp_path, "run.yaml", {"controller": {"lookahead_gian_s": 1.0}})
+    bad = write(tmp_path, "run.yaml", {"pure_pursuit": {"lookahead_gian_s": 1.0}})
     run_dir = tmp_path / "run"
     result = subprocess.run([sys.executable, "-m", "ares.cli", "run", "--headless", "--config", str(bad),
                              "--run-dir", str(run_dir), "--listen", f"tcp/127.0.0.1:{free_port()}"],
                             cwd=REPO, capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
     assert result.returncode == 2
-    assert str(bad) in result.stderr and "controller.lookahead_gian_s: unknown key" in result.stderr
+    assert str(bad) in result.stderr and "pure_pursuit.lookahead_gian_s: unknown key" in result.stderr
     assert "lookahead_gain_s" in result.stderr
     assert not run_dir.exists(), "nothing was started, nothing was written"
 

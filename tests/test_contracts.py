@@ -48,7 +48,7 @@ def test_the_topic_graph_is_whole(cfg):
     graph = contracts.graph(contracts.all_contracts(cfg))
     assert contracts.problems(graph) == []
     # the command the bridge obeys has exactly one source
-    assert graph["control/setpoint"]["publishers"] == ["controller"]
+    assert graph["control/setpoint"]["publishers"] == ["control_manager"]
     assert graph["dbw/actuators"]["subscribers"] == ["sim"]
     assert "supervisor" in graph["supervisor/state"]["publishers"]
 
@@ -65,7 +65,7 @@ def test_problems_in_a_graph_are_named():
 def test_the_simulator_waits_for_every_process_it_feeds(cfg):
     fed = contracts.fed_by(contracts.all_contracts(cfg), "sim")
     assert fed == ["lidar_sim", "gnss", "localization", "odometry_manager", "path_manager", "speed_manager",
-                   "lidar_perception", "dbw_bridge", "controller", "blackbox"]
+                   "lidar_perception", "dbw_bridge", "mpc", "rrc", "pure_pursuit", "control_manager", "blackbox"]
 
 
 def test_declaring_a_topic_that_is_not_in_the_table_fails_when_the_class_is_defined():

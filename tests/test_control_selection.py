@@ -100,7 +100,7 @@ def test_properties_over_random_sequences(start, cycles):
     for dt, score, road, force, odo, rrc in cycles:
         t += dt
         inputs = Inputs(score, road, force, odo, rrc)
-        held_ok, _ = selector.acceptable(mode, inputs, holding=True)
+        held_ok, _, _ = selector.acceptable(mode, inputs, holding=True)
         d = selector.step(t, inputs)
         assert {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(d.mode, "stop") is not None
         if d.switched:
@@ -111,3 +111,31 @@ def test_properties_over_random_sequences(start, cycles):
         if d.mode is Mode.STOP and mode is Mode.STOP and v is not None:
             assert d.v <= v + 1e-9
         kappa, v, mode = d.kappa, d.v, d.mode
+
+
+PINNED = [SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, pinned=mode) for mode in (Mode.ODOMETRY, Mode.RRC)]
+
+
+@pytest.mark.parametrize("params", PINNED, ids=lambda p: p.pinned.value)
+@pytest.mark.parametrize("current,score,road,force,odo,rrc,dwelt", CASES)
+def test_a_pinned_mode_drives_whenever_its_candidate_is_there(params, current, score, road, force, odo, rrc, dwelt):
+    selector = ControlSelector(params, start=current)
+    selector.since, selector.last_t = 0.0, 0.0
+    decision = selector.step(1.5 if dwelt else 0.5, Inputs(score, road, force, odo, rrc))
+    available = {Mode.ODOMETRY: odo, Mode.RRC: rrc}[params.pinned] is not None
+    if available and (current is not Mode.STOP or dwelt):
+        assert decision.mode is params.pinned and decision.cause == "pinned"
+    elif not available:
+        assert decision.mode is Mode.STOP
+    assert decision.mode in (params.pinned, Mode.STOP) or decision.mode is current
+
+
+def test_switch_causes_are_short_codes():
+    selector = ControlSelector(P, start=Mode.ODOMETRY)
+    selector.step(0.0, Inputs(0.9, 0.9, False, ODO, RRC))
+    d = selector.step(2.0, Inputs(0.1, 0.9, False, ODO, RRC))
+    assert (d.mode, d.switched, d.cause) == (Mode.RRC, True, "score_low")
+    d = selector.step(4.0, Inputs(0.9, 0.9, True, ODO, RRC))
+    assert (d.mode, d.switched, d.cause) == (Mode.ODOMETRY, True, "forced")
+    d = selector.step(4.1, Inputs(0.9, 0.9, False, None, None))
+    assert (d.mode, d.switched, d.cause) == (Mode.STOP, True, "no_candidate")

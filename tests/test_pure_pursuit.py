@@ -9,10 +9,11 @@ from ares import config
 from ares.clock import ManualClock
 from ares.membus import MemoryNetwork
 from ares.messages import Pose
+from ares.config import load_vehicle
 from ares.route import Route
 from control.pure_pursuit import ControllerParams, PurePursuit, PurePursuitNode, goal_point
 from managers.path import PathIndex, PathManager, PathManagerParams
-from managers.speed_profile import SpeedProfileParams, speed_limits, speed_profile
+from managers.speed_profile import SpeedProfileParams, cruise_speed, speed_limits, speed_profile
 
 PARAMS = PathManagerParams()
 CONTROLLER = ControllerParams()
@@ -40,8 +41,10 @@ def pursue(pp, index, x, y, yaw, v, hint=None):
 
 def test_speed_profile_respects_curves_braking_and_vehicle_limits(tour):
     p = SPEED
-    v = speed_profile(tour, p.cruise_speed_mps, p.lateral_accel_mps2, p.decel_mps2, p.accel_mps2, p.narrow_speed_mps)
-    assert v.max() <= p.cruise_speed_mps + 1e-9
+    cruise = cruise_speed(p, VEHICLE, tour)
+    assert cruise == tour.speed_limit_mps == 3.5        # the tour's limit, under the vehicle's 4 m/s
+    v = speed_profile(tour, cruise, p.lateral_accel_mps2, p.decel_mps2, p.accel_mps2, p.narrow_speed_mps)
+    assert v.max() <= cruise + 1e-9
     lateral = v ** 2 * np.abs(tour.curvature)
     assert lateral.max() <= p.lateral_accel_mps2 * 1.05
     ds = np.diff(tour.s)
@@ -49,13 +52,15 @@ def test_speed_profile_respects_curves_braking_and_vehicle_limits(tour):
     assert dv2.min() >= -p.decel_mps2 - 1e-6 and dv2.max() <= p.accel_mps2 + 1e-6
     narrow = (tour.s >= 60) & (tour.s <= 200)
     assert v[narrow].max() <= p.narrow_speed_mps + 1e-9
-    assert np.array_equal(speed_limits(tour, p, VEHICLE), v)   # cruise under the vehicle's max
+    assert np.array_equal(speed_limits(tour, p, VEHICLE), v)
 
 
-def test_speed_limits_cap_the_cruise_speed_at_the_vehicles_maximum(tour):
-    fast = SPEED.model_copy(update={"cruise_speed_mps": 10.0})
-    v = speed_limits(tour, fast, VEHICLE)
-    assert v.max() == pytest.approx(VEHICLE.max_speed_mps)
+def test_the_top_speed_is_the_lowest_of_road_limit_configured_cap_and_vehicle_maximum(tour):
+    assert speed_limits(tour, SPEED.model_copy(update={"cruise_speed_mps": 2.0}), VEHICLE).max() == pytest.approx(2.0)
+    campus = Route.from_tour("campus")
+    assert campus.speed_limit_mps == pytest.approx(6.94)
+    assert speed_limits(campus, SPEED, VEHICLE).max() == pytest.approx(VEHICLE.max_speed_mps)    # 4 m/s
+    assert speed_limits(campus, SPEED, load_vehicle("techs4agecar")).max() == pytest.approx(6.94)   # 25 km/h
 
 
 def test_open_route_profile_stops_at_the_end(tmp_path):
@@ -160,12 +165,11 @@ class PathAndController:
         self.clock = ManualClock()
         self.network = MemoryNetwork()
         self.path = PathManager(cfg, clock=self.clock, bus=self.network.bus("path_manager", self.clock))
-        self.controller = PurePursuitNode(cfg, clock=self.clock, bus=self.network.bus("controller", self.clock))
+        self.controller = PurePursuitNode(cfg, clock=self.clock, bus=self.network.bus("pure_pursuit", self.clock))
         self.path.setup()
         self.controller.setup()
         self.bus = self.network.bus("test", self.clock)
-        self.setpoints = self.bus.subscribe("control/setpoint", queue=1000)
-        self.status = self.bus.subscribe("control/status")
+        self.setpoints = self.bus.subscribe("control/candidate/pure_pursuit", queue=1000)
 
     def step(self, t, pose: Pose | None = None):
         self.clock.set(t)
@@ -179,8 +183,8 @@ class PathAndController:
 
 
 def test_controller_follows_the_path_manager_and_stops_without_fresh_input(run_config, tour):
-    """A pose gives a setpoint; no fresh pose (so no fresh path match either) gives no setpoint
-    at all, and the bridge's watchdog stops the vehicle."""
+    """A pose gives a candidate; no fresh pose (so no fresh path match either) gives no candidate
+    at all, which the control manager never forwards."""
     nodes = PathAndController(run_config)
     x, y, _, yaw = tour.point_at(400.0)
     ox, oy = x - math.sin(yaw) * 0.5, y + math.cos(yaw) * 0.5    # half a metre left of the path
@@ -189,11 +193,8 @@ def test_controller_follows_the_path_manager_and_stops_without_fresh_input(run_c
         nodes.step(t, pose_at(ox, oy, yaw, t))
     got = nodes.new_setpoints()
     assert len(got) == len(times)                              # one setpoint a period
-    assert all(sp.kappa < 0 and sp.v > 0 and sp.source == "controller" for sp in got)
-    status = nodes.status.latest
-    assert status.s == pytest.approx(400.0, abs=0.1) and status.xte == pytest.approx(0.5, abs=0.01)
-    assert status.controller == "pure_pursuit" and not status.finished
-    assert got[-1].v == pytest.approx(status.target_speed)
+    assert all(sp.kappa < 0 and sp.v > 0 and sp.controller == "pure_pursuit" for sp in got)
+    assert got[-1].cross_track_m == pytest.approx(0.5, abs=0.01) and got[-1].fresh and not got[-1].handover
     # the same command the geometry gives without the bus
     _, alone = pursue(PurePursuit(CONTROLLER, VEHICLE), PathIndex.from_params(tour, PARAMS, speed_limits(
         tour, SPEED, VEHICLE)), ox, oy, yaw, 2.0, hint=400.0)
@@ -214,4 +215,4 @@ def test_controller_is_silent_without_a_path_match(run_config, tour):
     for k in range(5):          # 80 m beside the road: the path manager finds nothing to match
         t = round(k * nodes.PERIOD, 9)
         nodes.step(t, pose_at(far_x - math.sin(yaw) * 80.0, far_y + math.cos(yaw) * 80.0, yaw, t))
-    assert nodes.new_setpoints() == [] and nodes.status.latest is None
+    assert nodes.new_setpoints() == []

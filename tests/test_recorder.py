@@ -69,8 +69,9 @@ def message(kind: str, t: float):
     if kind == "score":
         return "odometry/score", OdometryScore(t=t, score=0.93, covariance=1e-5, pose_age_s=0.02)
     if kind == "control":
-        return "control/status", ControllerStatus(t=t, controller="pure_pursuit", s=10.0, xte=0.02,
-                                                  heading_error=0.0, lookahead_m=3.0, target_speed=2.0)
+        return "control/status", ControllerStatus(t=t, controller="pure_pursuit", mode="odometry",
+                                                  reason="odometry score 0.93", s=10.0, xte=0.02,
+                                                  heading_error=0.0, target_speed=2.0)
     if kind == "supervisor":
         return "supervisor/state", SupervisorState(t=t, processes=[
             ProcessStatus(name="gnss", state=ProcessState.RUNNING, restarts=2),

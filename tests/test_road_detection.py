@@ -455,3 +455,16 @@ def test_parameters_are_checked():
         RoadDetectionParams(poly_order=3, min_points=3)
     with pytest.raises(ValueError):
         RoadDetectionParams(x_min_m=30.0)
+
+
+def test_a_frame_of_a_few_points_gives_no_road_and_no_error():
+    """A sensor nearly covered, or the first sweep after a restart: a handful of points, fewer
+    than one run of the stop rule, with a model from the frame before (the bootstrap path)."""
+    full = scan()
+    previous = detect_road(full).model
+    near = np.flatnonzero(np.hypot(full.points[:, 0], full.points[:, 1]) < 8.0)[:3]
+    few = LidarFrame(full.points[near], full.ring_id[near], full.azimuth[near], full.sensor_index[near],
+                     full.sensor_origins)
+    for prior in (None, previous):
+        result = detect_road(few, previous=prior)
+        assert not result.found and result.confidence == 0.0

@@ -2,7 +2,9 @@
 
     ares run [--headless] [--manual] [--laps N] [--speed X|max] [--config FILE] [--route FILE]
              [--vehicle NAME] [--passengers N] [--vehicle-id ID] [--router ENDPOINT] [--run-dir DIR]
-             [--store URI] [--seconds S]
+             [--store URI] [--seconds S] [--controller auto|mpc|rrc|pure_pursuit] [--scenario NAME|FILE]
+    ares compare [--controllers mpc,pure_pursuit] [--route R] [--vehicle V] [--scenario S] [--laps N|--seconds S]
+                                   the same headless run with each controller, figures side by side, and a picture
     ares node NAME                 run one process of the stack in the foreground
     ares describe [NODE] [--json|--markdown]
                                    each process's inputs, outputs, services, parameters; the topic graph
@@ -51,10 +53,10 @@ import logging
 import os
 import sys
 
-from . import bench, blackbox, bus_tools, inspect, perception, route, run
+from . import bench, blackbox, bus_tools, compare, inspect, perception, route, run
 from .args import CliError, Command
 
-COMMAND_GROUPS = (run, inspect, bus_tools, bench, route, blackbox, perception)   # as `ares --help` lists them
+COMMAND_GROUPS = (run, compare, inspect, bus_tools, bench, route, blackbox, perception)   # as `ares --help` lists them
 
 
 def build_parser() -> argparse.ArgumentParser:

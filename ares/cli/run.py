@@ -29,6 +29,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
                                                       "YAML, or an open route (CSV of x,y[,z] metres)")
     run.add_argument("--scenario", metavar="NAME|FILE",
                      help="simulated obstacles and faults: a built-in scenario (ares/config/scenarios/) or a YAML file")
+    run.add_argument("--controller", choices=["auto", "mpc", "rrc", "pure_pursuit"],
+                     help="pin one controller for comparisons (default auto: the control manager chooses)")
     run.add_argument("--vehicle", metavar="NAME", help="vehicle profile (config/vehicles/NAME.yaml)")
     run.add_argument("--passengers", type=non_negative_int, metavar="N", help="passengers on board")
     run.add_argument("--vehicle-id", type=vehicle_id, metavar="ID", help="vehicle id in the bus keys")

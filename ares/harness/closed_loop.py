@@ -3,8 +3,9 @@
     VehiclePlant (100 Hz physics) -> SensorSuite (CAN, IMU, GNSS at their sim.* rates)
       -> GNSS sentences -> fix (perception.gnss, as the gnss node does; see `gnss_source`)
       -> Localizer (perception.localization: the same UKF pipeline as the localization node)
-      -> PathTracker (managers.path) + PurePursuit (control.pure_pursuit), at controller.rate_hz,
-         driving from the ESTIMATED pose (the truth only with use_truth_pose=True)
+      -> PathTracker (managers.path) + PurePursuit (control.pure_pursuit) or the MPC (control.mpc,
+         `controller="mpc"`), at its rate_hz, driving from the ESTIMATED pose (the truth only with
+         use_truth_pose=True)
       -> the drive-by-wire bridge's own loop (control.dbw_bridge.BridgeLoop: mode machine,
          watchdog, command gate, the two inner PIDs and the standstill brake) at dbw_bridge.rate_hz,
          switched to Automatic at the start as the button and set_automatic_mode would
@@ -44,6 +45,9 @@ from ares.sim.sensors import GnssSensor, SensorSuite
 from ares.sim.vehicle import VehiclePlant, VehicleState
 from control.dbw_bridge import BridgeLoop, DbwBridgeParams
 from control.dbw_logic import Event
+from control.mpc import Mpc, MpcParams
+from control.mpc import VehicleState as MpcState
+from control.mpc_node import MpcNodeParams
 from control.pure_pursuit import ControllerParams, PurePursuit
 from managers.odometry import OdometryParams, OdometryScorer, pose_covariance
 from managers.path import PathManagerParams, PathTracker
@@ -93,17 +97,30 @@ def gnss_source(projector: GnssProjector, sensor: GnssSensor, path: str = "nmea"
 class _Navigator:
     """Pose -> (v, kappa) with the same classes the path manager and controller nodes use."""
 
-    def __init__(self, cfg: dict, route: Route):
+    def __init__(self, cfg: dict, route: Route, controller: str = "pure_pursuit"):
         profile = config.core(cfg).vehicle_profile
         limits = speed_limits(route, config.section(cfg, "speed_profile", SpeedProfileParams), profile)
         self.tracker = PathTracker(route, config.section(cfg, "path_manager", PathManagerParams), limits)
-        self.pursuit = PurePursuit(config.section(cfg, "controller", ControllerParams), profile)
+        self.pursuit = PurePursuit(config.section(cfg, "pure_pursuit", ControllerParams), profile)
+        self.mpc_params = config.section(cfg, "mpc", MpcNodeParams)
+        self.mpc = Mpc(profile, MpcParams(**{k: getattr(self.mpc_params, k) for k in MpcParams.model_fields})) \
+            if controller == "mpc" else None
+        self.rate_hz = self.mpc_params.rate_hz if self.mpc else config.section(cfg, "pure_pursuit",
+                                                                                ControllerParams).rate_hz
+        self.solve_ms: list[float] = []
+        self._accel = 0.0
 
     def command(self, t: float, x: float, y: float, yaw: float, v: float,
-                var_yaw: float = 0.0) -> tuple[float, float] | None:
+                var_yaw: float = 0.0, delta: float = 0.0) -> tuple[float, float] | None:
         _, match = self.tracker.update(t, x, y, yaw, var_yaw)
         if match is None:
             return None
+        if self.mpc is not None and math.sqrt(max(var_yaw, 0.0)) <= self.mpc_params.max_heading_sigma_rad:
+            cmd = self.mpc.solve(MpcState(x, y, yaw, v, delta, self._accel), match.ahead_x, match.ahead_y,
+                                 match.ahead_speed)
+            self._accel = cmd.accel
+            self.solve_ms.append(cmd.solve_ms)
+            return cmd.v, cmd.kappa
         cmd = self.pursuit.command(x, y, yaw, v, match.ahead_x, match.ahead_y, match.ahead_speed,
                                    match.distance_to_end_m, heading_sigma=math.sqrt(max(var_yaw, 0.0)),
                                    ahead_curvature=match.ahead_curvature)
@@ -155,7 +172,8 @@ def summarize(r: dict) -> dict:
 def run(route: Route | None = None, seconds: float | None = None, laps: float | None = None,
         cfg: dict | None = None, cruise_speed_mps: float | None = None, seed: int | None = None,
         record: bool = True, record_hz: float = 20.0, use_truth_pose: bool = False,
-        gnss_path: str = "nmea", s0: float = 0.0, overrides: dict | None = None) -> dict:
+        gnss_path: str = "nmea", s0: float = 0.0, overrides: dict | None = None,
+        controller: str = "pure_pursuit") -> dict:
     """Drive `route` (default: the configured tour) for `seconds` of vehicle time or `laps`
     laps (default one lap), and return the recorded arrays and the summary.
 
@@ -186,7 +204,7 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
     sensors = SensorSuite(route, sim, frame, profile.wheel_radius_m)
     fix_of = gnss_source(GnssProjector(frame, config.section(cfg, "gnss", GnssParams)), sensors.gnss, gnss_path)
     localizer = Localizer(config.section(cfg, "localization", LocalizationParams), profile)
-    navigator = _Navigator(cfg, route)
+    navigator = _Navigator(cfg, route, controller)
     scorer = OdometryScorer.from_params(config.section(cfg, "odometry_manager", OdometryParams))
     board = BridgeLoop(profile, bridge_params)
     # the safety driver's button, then the software's request: Manual -> Ready -> Automatic
@@ -195,7 +213,7 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
 
     dt = 1.0 / sim.physics_hz
     periods = {"can": 1.0 / sim.can_hz, "imu": 1.0 / sim.imu_hz, "gnss": 1.0 / sim.gnss_hz,
-               "control": 1.0 / config.section(cfg, "controller", ControllerParams).rate_hz,
+               "control": 1.0 / navigator.rate_hz,
                "dbw": 1.0 / bridge_params.rate_hz, "record": 1.0 / record_hz}
     next_due = {k: 0.0 for k in periods}
     st = plant.state
@@ -232,10 +250,11 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
 
         if due("control"):
             if use_truth_pose:
-                cmd = navigator.command(t, st.x, st.y, st.yaw, st.v)
+                cmd = navigator.command(t, st.x, st.y, st.yaw, st.v, delta=st.wheel_angle_rad)
             else:
                 pose = localizer.pose(t)
-                cmd = None if pose is None else navigator.command(t, pose.x, pose.y, pose.yaw, pose.v, pose.var_yaw)
+                cmd = None if pose is None else navigator.command(t, pose.x, pose.y, pose.yaw, pose.v, pose.var_yaw,
+                                                                  delta=st.wheel_angle_rad)
             if cmd is not None:
                 setpoints.append((t, *cmd))
 
@@ -274,18 +293,29 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
     out["counts"] = dict(localizer.counts)
     out["summary"] = summarize(out) if rows else {}
     out["summary"]["wall_s"] = round(out["wall_s"], 1)
+    if navigator.solve_ms:
+        out["summary"]["mpc_solve_p50_ms"] = round(float(np.median(navigator.solve_ms)), 3)
     return out
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="Closed loop in one process: plant, sensors, UKF, pure pursuit, DBW PIDs.")
+    parser = argparse.ArgumentParser(description="Closed loop in one process: plant, sensors, UKF, pure pursuit or the MPC, DBW PIDs.")
     parser.add_argument("--laps", type=float, default=None)
     parser.add_argument("--seconds", type=float, default=None)
     parser.add_argument("--seed", type=int, default=None)
     parser.add_argument("--truth", action="store_true", help="drive from the true pose (baseline)")
     parser.add_argument("--gnss", choices=("nmea", "direct"), default="nmea")
+    parser.add_argument("--controller", choices=("pure_pursuit", "mpc"), default="pure_pursuit")
+    parser.add_argument("--route", help="a built-in tour or a tour's YAML (default: the configured tour)")
+    parser.add_argument("--vehicle", help="vehicle profile")
     args = parser.parse_args(argv)
-    result = run(seconds=args.seconds, laps=args.laps, seed=args.seed, use_truth_pose=args.truth, gnss_path=args.gnss)
+    over: dict = {}
+    if args.route:
+        over["tour"] = args.route
+    if args.vehicle:
+        over["vehicle"] = args.vehicle
+    result = run(seconds=args.seconds, laps=args.laps, seed=args.seed, use_truth_pose=args.truth, gnss_path=args.gnss,
+                 controller=args.controller, overrides=over)
     print(json.dumps({**result["summary"], "counts": result["counts"]}))
 
 

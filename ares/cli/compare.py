@@ -1,0 +1,109 @@
+"""`ares compare`: the same headless run with each controller in turn, figures side by side.
+
+    ares compare [--controllers mpc,pure_pursuit] [--route R] [--vehicle V] [--scenario S]
+                 [--laps N | --seconds S] [--config FILE] [--out PNG] [--json]
+
+Each run is `ares run --headless --speed max --controller C ...` in its own process, one after
+the other (the machine's two cores are the stack's); `auto` lets the control manager choose. The
+table shows the figures that tell controllers apart; the picture, the cross-track error of each
+along the route with the stretches where road reactive control drove shaded.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .args import CliError, Command, positive_float, positive_int
+
+CONTROLLER_CHOICES = ("auto", "mpc", "rrc", "pure_pursuit")
+FIGURES = ("distance_m", "lap_time_s", "xte_rmse_m", "xte_max_m", "xte_max_at_m", "xte_rmse_rrc_m", "xte_max_rrc_m",
+           "lat_accel_max_mps2", "jerk_rms_mps3", "switches", "controller_time_share", "mpc_solve_p50_ms",
+           "mpc_deadline_misses", "loc_max_deadzone_m")
+
+
+def controllers(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n not in CONTROLLER_CHOICES]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(f"controllers are a comma-separated list of {', '.join(CONTROLLER_CHOICES)}; "
+                                         f"got {text!r}")
+    return names
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
+    p = subparsers.add_parser("compare", help="headless runs with each controller in turn, figures side by side",
+                              description="The same headless run (--speed max) with each controller pinned in turn "
+                                          "(auto: the control manager chooses); prints the figures side by side "
+                                          "and draws the cross-track error along the route.")
+    p.add_argument("--controllers", type=controllers, default=["mpc", "pure_pursuit"], metavar="LIST",
+                   help="comma-separated, of auto, mpc, rrc, pure_pursuit (default mpc,pure_pursuit)")
+    p.add_argument("--route", metavar="NAME|FILE", help="as ares run --route")
+    p.add_argument("--vehicle", metavar="NAME", help="as ares run --vehicle")
+    p.add_argument("--scenario", metavar="NAME|FILE", help="as ares run --scenario")
+    p.add_argument("--laps", type=positive_int, metavar="N", help="laps per run (default 1)")
+    p.add_argument("--seconds", type=positive_float, metavar="S", help="vehicle seconds per run instead of laps")
+    p.add_argument("--config", action="append", default=[], metavar="FILE", help="as ares run --config")
+    p.add_argument("--out", metavar="PNG", help="the picture (default: compare-<time>.png in the runs folder)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    return {"compare": cmd_compare}
+
+
+def run_one(controller: str, args: argparse.Namespace, run_dir: Path) -> dict:
+    cmd = [sys.executable, "-m", "ares.cli", "run", "--headless", "--speed", "max", "--controller", controller,
+           "--run-dir", str(run_dir)]
+    for flag in ("route", "vehicle", "scenario", "laps", "seconds"):
+        value = getattr(args, flag)
+        if value is not None:
+            cmd += [f"--{flag}", str(value)]
+    for path in args.config:
+        cmd += ["--config", path]
+    print(f"[compare] {controller}: {' '.join(cmd[3:])}", file=sys.stderr, flush=True)
+    done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
+    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
+    if done.returncode != 0 or not lines:
+        raise CliError(f"the run with {controller} failed (exit {done.returncode}); its logs are in {run_dir}")
+    return json.loads(lines[-1])
+
+
+def table(results: dict[str, dict]) -> str:
+    names = list(results)
+    rows = [["figure", *names]]
+    for key in FIGURES:
+        values = [results[n].get(key) for n in names]
+        if all(v is None for v in values):
+            continue
+        rows.append([key, *(_cell(v) for v in values)])
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(cell.ljust(w) for cell, w in zip(row, widths)) for row in rows)
+
+
+def _cell(value) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, dict):
+        return " ".join(f"{k} {v:.2f}" for k, v in value.items()) or "-"
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from ares.compare_figure import write_comparison_png
+    from ares.stack import default_run_dir
+    base = default_run_dir()
+    results: dict[str, dict] = {}
+    for controller in args.controllers:
+        results[controller] = run_one(controller, args, base / f"compare-{controller}")
+    out = Path(args.out) if args.out else base / f"compare-{time.strftime('%Y%m%d-%H%M%S')}.png"
+    traces = {name: Path(r["run_dir"]) / "trace.npz" for name, r in results.items()}
+    picture = write_comparison_png(out, traces, title=f"{results[args.controllers[0]]['route']}, "
+                                                      f"{results[args.controllers[0]]['vehicle']}")
+    print(table(results))
+    print(f"picture: {picture}")
+    if args.json:
+        print(json.dumps({"runs": results, "plot": str(picture)}))
+    return 0

@@ -1,0 +1,73 @@
+"""The MPC as a process: the fused pose and the path manager's path ahead in, a candidate out.
+
+Each cycle solves control/mpc.py's problem from the pose (the wheel angle from the drive-by-wire
+bridge's report) along the path ahead with its speed limits, and publishes the first input as
+the MPC's candidate with the predicted trajectory beside it. A late or failed solve is answered
+with the previous solution shifted (`fresh: false`) and, after `max_reused` of them, with a
+hand-over request: the control manager then forwards its fallback.
+
+At start-up the heading is the magnetometer's guess until the vehicle has moved a few metres
+(see control/pure_pursuit.py): an MPC steering from it would turn a phantom heading error into a
+real one. While the heading's sigma is above max_heading_sigma_rad the candidate follows the
+path's own curvature at no more than creep_speed_mps, as pure pursuit does.
+
+Without a fresh pose and path there is no candidate: the control manager must never forward a
+command computed from stale data.
+"""
+from __future__ import annotations
+
+import math
+
+from ares.config import param
+from ares.messages import ControlCandidate, PredictedTrajectory
+from ares.node import Input, Node, Output
+from control.mpc import Mpc, MpcParams, VehicleState
+
+
+class MpcNodeParams(MpcParams):
+    input_timeout_s: float = param(1.0, "an older pose or path match: no candidate", unit="s", gt=0)
+    max_heading_sigma_rad: float = param(0.05, "above this (start-up: the magnetometer's guess) follow the path's "
+                                               "curvature ...", unit="rad", gt=0)
+    creep_speed_mps: float = param(1.0, "... no faster than this, until yaw from poses has fixed the heading",
+                                   unit="m/s", gt=0)
+
+
+class MpcNode(Node):
+    """Model predictive control (ARES eqs. 11-13) on the path ahead: a candidate for the control manager."""
+    name = "mpc"
+    Params = MpcNodeParams
+    pose = Input("localization/pose", max_age="input_timeout_s", doc="x, y, yaw, v of the rear axle")
+    path = Input("path/match", max_age="input_timeout_s", doc="the poses ahead with their speed limits")
+    car = Input("dbw/car_state", max_age="input_timeout_s", doc="the steering wheel's angle: where the wheels are")
+    candidate = Output("control/candidate/mpc", rate="rate_hz", doc="(v, kappa); silent without fresh inputs")
+    trajectory = Output("control/mpc/trajectory", rate="rate_hz", doc="the horizon's predicted poses")
+
+    def setup(self) -> None:
+        self.mpc = Mpc(self.vehicle, MpcParams(**{k: getattr(self.params, k) for k in MpcParams.model_fields}))
+        self.max_kappa = math.tan(self.vehicle.max_wheel_angle_rad) / self.vehicle.wheelbase_m
+        self._accel = 0.0
+
+    def step(self, now: float) -> None:
+        pose, match, car = self.pose.fresh(now), self.path.fresh(now), self.car.fresh(now)
+        if pose is None or match is None or not match.ahead_x:
+            return
+        if math.sqrt(max(pose.var_yaw, 0.0)) > self.params.max_heading_sigma_rad:
+            kappa = max(-self.max_kappa, min(self.max_kappa, match.ahead_curvature[0] if match.ahead_curvature
+                                             else 0.0))
+            self.candidate.put(ControlCandidate(t=now, controller="mpc", v=min(match.ahead_speed[0],
+                                                                                 self.params.creep_speed_mps),
+                                                kappa=kappa, cross_track_m=match.xte,
+                                                heading_error_rad=match.heading_error,
+                                                note="creeping: heading uncertain"))
+            return
+        delta = math.radians(car.steering_wheel_deg) / self.vehicle.steering_ratio if car is not None else 0.0
+        state = VehicleState(pose.x, pose.y, pose.yaw, pose.v, delta, self._accel)
+        cmd = self.mpc.solve(state, match.ahead_x, match.ahead_y, match.ahead_speed)
+        self._accel = cmd.accel
+        self.candidate.put(ControlCandidate(
+            t=now, controller="mpc", v=cmd.v, kappa=cmd.kappa, fresh=cmd.ok, handover=cmd.handover,
+            solve_ms=round(cmd.solve_ms, 3), cross_track_m=-cmd.cte if math.isfinite(cmd.cte) else match.xte,
+            heading_error_rad=cmd.epsi if math.isfinite(cmd.epsi) else match.heading_error, note=cmd.status))
+        if len(cmd.predicted_x):
+            self.trajectory.put(PredictedTrajectory(t=now, controller="mpc", x=cmd.predicted_x.tolist(),
+                                                    y=cmd.predicted_y.tolist(), step_s=self.params.step_s))

@@ -1,0 +1,53 @@
+"""Road Reactive Control as a process: road detection in, a candidate out (ARES §3.6.2).
+
+The RRC trusts nothing but the LiDARs: the road's centre line and the vehicle's offset and
+heading from perception/road, and the distance travelled (for its terms per metre) from the
+drive-by-wire bridge's measured speed, never from the fused pose. Without a fresh, confident
+detection there is no candidate, and the integral starts again from zero.
+"""
+from __future__ import annotations
+
+from ares.config import param
+from ares.messages import ControlCandidate, RoadDetection
+from ares.node import Input, Node, Output
+from control.rrc import RoadReactiveControl, RoadView, RrcParams
+
+
+class RrcNodeParams(RrcParams):
+    rate_hz: float = param(20.0, "loop and candidate rate", unit="Hz", gt=0)
+    road_timeout_s: float = param(0.35, "an older road detection is not followed (LiDARs sweep at 10 Hz)",
+                                  unit="s", gt=0)
+    speed_timeout_s: float = param(0.5, "an older speed measurement counts as standstill", unit="s", gt=0)
+
+
+def road_view(road: RoadDetection | None) -> RoadView | None:
+    if road is None or not road.found or road.centre is None or road.lateral_offset_m is None \
+            or road.heading_rad is None:
+        return None
+    return RoadView(road.lateral_offset_m, road.heading_rad, list(road.centre.coefficients), road.confidence)
+
+
+class RrcNode(Node):
+    """Road Reactive Control (ARES eqs. 14-15): a candidate that keeps to the middle of the road seen."""
+    name = "rrc"
+    Params = RrcNodeParams
+    road = Input("perception/road", max_age="road_timeout_s", doc="centre line, offset and heading, confidence")
+    car = Input("dbw/car_state", max_age="speed_timeout_s", doc="the measured speed: distance travelled")
+    candidate = Output("control/candidate/rrc", rate="rate_hz", doc="(v, kappa); silent without a confident road")
+
+    def setup(self) -> None:
+        self.rrc = RoadReactiveControl(RrcParams(**{k: getattr(self.params, k) for k in RrcParams.model_fields}))
+        self._last: float | None = None
+
+    def step(self, now: float) -> None:
+        car = self.car.fresh(now)
+        dt = 0.0 if self._last is None else max(now - self._last, 0.0)
+        self._last = now
+        travelled = abs(car.speed_mps) * dt if car is not None else 0.0
+        road = self.road.fresh(now)
+        cmd = self.rrc.step(road_view(road), travelled)
+        if cmd is None:
+            return
+        self.candidate.put(ControlCandidate(t=now, controller="rrc", v=cmd.v, kappa=cmd.kappa,
+                                            cross_track_m=cmd.error_m, heading_error_rad=road.heading_rad,
+                                            note=f"road confidence {road.confidence:.2f}"))

@@ -1,0 +1,173 @@
+"""The control manager as a node (managers/control.py) on the in-memory bus with a manual clock:
+what reaches control/setpoint, the switches as events with their causes, the stand-in for a
+failing MPC, the speed manager's limit, a pinned controller; and the RRC node's candidate from
+road detection (control/rrc_node.py)."""
+from __future__ import annotations
+
+import pytest
+
+from ares import config
+from ares.clock import ManualClock
+from ares.membus import MemoryNetwork
+from ares.messages import (CarState, ControlCandidate, DriveMode, OdometryScore, PathMatch, RoadBoundary,
+                           RoadDetection, SpeedLimits)
+from control.rrc_node import RrcNode
+from managers.control import ControlManager
+
+PERIOD = 0.05
+
+
+def match(t: float, force: bool = False, to_end: float | None = None) -> PathMatch:
+    return PathMatch(t=t, index=10, s=5.0, lap=0, xte=0.02, heading_error=0.01, zones=["intersection"] if force else [],
+                     force_odometry=force, distance_to_end_m=to_end, ahead_x=[0.0, 1.0], ahead_y=[0.0, 0.0],
+                     ahead_yaw=[0.0, 0.0], ahead_curvature=[0.0, 0.0], ahead_speed=[3.0, 3.0], ahead_s=[5.0, 6.0])
+
+
+def road(t: float, confidence: float = 0.9, offset: float = 0.1) -> RoadDetection:
+    centre = RoadBoundary(coefficients=[-offset, 0.0, 0.0], x_min=0.0, x_max=15.0, points=30)
+    return RoadDetection(t=t, found=confidence > 0, centre=centre, left=None, right=None, lateral_offset_m=offset,
+                         heading_rad=0.0, width_m=6.0, confidence=confidence)
+
+
+class Harness:
+    def __init__(self, cfg: dict, **params):
+        cfg = config.deep_merge(cfg, {"control_manager": params}) if params else cfg
+        self.clock = ManualClock()
+        self.network = MemoryNetwork()
+        self.node = ControlManager(cfg, clock=self.clock, bus=self.network.bus("control_manager", self.clock))
+        self.node.setup()
+        self.bus = self.network.bus("test", self.clock)
+        self.setpoints = self.bus.subscribe("control/setpoint", queue=1000)
+        self.status = self.bus.subscribe("control/status", queue=1000)
+        self.events = self.bus.subscribe("events", queue=1000)
+        self.t = 0.0
+
+    def step(self, *, score: float | None = 1.0, confidence: float | None = None, force: bool = False,
+             mpc: tuple | None = (3.0, 0.01), rrc: tuple | None = None, pure_pursuit: tuple | None = (3.0, 0.02),
+             handover: bool = False, limit: float | None = None, to_end: float | None = None):
+        t = self.t = round(self.t + PERIOD, 9)
+        self.clock.set(t)
+        pub = self.bus.publish
+        if score is not None:
+            pub("odometry/score", OdometryScore(t=t, score=score, covariance=1e-4, pose_age_s=0.02))
+        if confidence is not None:
+            pub("perception/road", road(t, confidence))
+        pub("path/match", match(t, force, to_end))
+        for name, cand in (("mpc", mpc), ("rrc", rrc), ("pure_pursuit", pure_pursuit)):
+            if cand is not None:
+                pub(f"control/candidate/{name}", ControlCandidate(t=t, controller=name, v=cand[0], kappa=cand[1],
+                                                                  handover=handover and name == "mpc"))
+        if limit is not None:
+            pub("speed/limits", SpeedLimits(t=t, s=5.0, section=0, kind="cruise", limit_mps=limit, next_section=1,
+                                            next_limit_mps=limit, distance_to_next_m=10.0))
+        self.node.step_once(t)
+        return self.setpoints.latest, self.status.latest
+
+    def run(self, seconds: float, **inputs):
+        for _ in range(round(seconds / PERIOD)):
+            out = self.step(**inputs)
+        return out
+
+    def switches(self) -> list[dict]:
+        return [e.data for _, e in self.events.drain() if e.kind == "controller_switch"]
+
+
+def test_the_mpc_drives_while_the_score_is_high_and_the_rrc_takes_over_when_it_falls(run_config):
+    h = Harness(run_config)
+    setpoint, status = h.run(1.5, confidence=0.9, rrc=(2.0, -0.01))
+    assert status.controller == "mpc" and setpoint.source == "mpc" and setpoint.v == 3.0
+    assert [(s["from"], s["to"], s["cause"]) for s in h.switches()] == [("stop", "mpc", "score_ok")]
+    setpoint, status = h.run(0.5, score=0.2, confidence=0.9, rrc=(2.0, -0.01))
+    assert status.controller == "rrc" and status.mode == "rrc" and status.reason == "road confidence 0.90"
+    assert setpoint.v == 2.0 and setpoint.source == "rrc"
+    assert [(s["from"], s["to"], s["cause"]) for s in h.switches()] == [("mpc", "rrc", "score_low")]
+
+
+def test_a_stale_candidate_is_never_forwarded(run_config):
+    h = Harness(run_config)
+    h.run(1.5)
+    # the MPC and pure pursuit go quiet: within candidate_max_age_s the last one still counts ...
+    max_age = h.node.params.candidate_max_age_s
+    for _ in range(round(max_age / PERIOD) + 2):
+        setpoint, status = h.step(mpc=None, pure_pursuit=None)
+    # ... then nothing deserves trust: a controlled stop, slowing at stop_decel_mps2
+    assert status.controller == "stop" and setpoint.source == "stop" and setpoint.v < 3.0
+    v = setpoint.v
+    setpoint, _ = h.step(mpc=None, pure_pursuit=None)
+    assert setpoint.v == pytest.approx(max(v - h.node.params.stop_decel_mps2 * PERIOD, 0.0))
+
+
+def test_pure_pursuit_stands_in_for_an_mpc_that_hands_over(run_config):
+    h = Harness(run_config)
+    h.run(1.5)
+    h.switches()
+    setpoint, status = h.step(handover=True)
+    assert status.controller == "pure_pursuit" and status.mode == "odometry"
+    assert [(s["from"], s["to"], s["cause"]) for s in h.switches()] == [("mpc", "pure_pursuit", "stand_in")]
+    _, status = h.step()
+    assert status.controller == "mpc"
+
+
+def test_the_speed_limit_caps_the_forwarded_speed_and_the_route_end_stops(run_config):
+    h = Harness(run_config)
+    setpoint, _ = h.run(1.5, limit=2.5)
+    assert setpoint.v == 2.5
+    setpoint, status = h.step(to_end=0.2)
+    assert setpoint.v == 0.0 and status.finished
+
+
+def test_a_forced_zone_keeps_odometry_control_whatever_the_score(run_config):
+    h = Harness(run_config)
+    h.run(1.5, confidence=0.9, rrc=(2.0, 0.0))
+    _, status = h.run(2.0, score=0.1, confidence=0.9, rrc=(2.0, 0.0), force=True)
+    assert status.controller == "mpc" and "forces odometry" in status.reason
+
+
+@pytest.mark.parametrize("pinned,expected", [("mpc", "mpc"), ("pure_pursuit", "pure_pursuit"), ("rrc", "rrc")])
+def test_a_pinned_controller_drives_alone_whatever_the_trust(run_config, pinned, expected):
+    h = Harness(run_config, pinned=pinned)
+    _, status = h.run(2.0, score=0.1, confidence=0.1, rrc=(2.0, 0.0))
+    assert status.controller == expected
+    # without its candidate: a stop, never another controller (a comparison shows one alone)
+    _, status = h.run(1.0, score=1.0, confidence=0.9, **{expected: None}, handover=pinned == "mpc")
+    assert status.controller == "stop"
+
+
+def test_the_curvature_ramps_at_the_steering_rate_across_a_switch(run_config):
+    h = Harness(run_config)
+    h.run(1.5, mpc=(3.0, 0.0), confidence=0.9, rrc=(2.0, 0.1))
+    before, _ = h.step(mpc=(3.0, 0.0), confidence=0.9, rrc=(2.0, 0.1))
+    after, status = h.step(score=0.1, mpc=(3.0, 0.0), confidence=0.9, rrc=(2.0, 0.1))
+    assert status.controller == "rrc"
+    rate = h.node.selector.p.max_kappa_rate
+    assert after.kappa - before.kappa == pytest.approx(rate * PERIOD)
+
+
+class RrcHarness:
+    def __init__(self, cfg: dict):
+        self.clock = ManualClock()
+        self.network = MemoryNetwork()
+        self.node = RrcNode(cfg, clock=self.clock, bus=self.network.bus("rrc", self.clock))
+        self.node.setup()
+        self.bus = self.network.bus("test", self.clock)
+        self.candidates = self.bus.subscribe("control/candidate/rrc", queue=1000)
+
+    def step(self, t: float, detection: RoadDetection | None, speed: float = 2.0):
+        self.clock.set(t)
+        if detection is not None:
+            self.bus.publish("perception/road", detection)
+        self.bus.publish("dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
+                                                   setpoint_age_s=0.05, v_command=speed, kappa_command=0.0,
+                                                   speed_mps=speed, steering_wheel_deg=0.0))
+        self.node.step_once(t)
+        return [c for _, c in self.candidates.drain()]
+
+
+def test_the_rrc_node_steers_back_to_the_centre_and_is_silent_without_a_confident_road(run_config):
+    h = RrcHarness(run_config)
+    got = h.step(0.05, road(0.05, 0.9, offset=0.5))           # half a metre left of the centre: steer right
+    assert len(got) == 1 and got[0].kappa < 0 and got[0].v > 0 and got[0].controller == "rrc"
+    assert h.step(0.10, road(0.10, 0.1)) == []                 # not confident
+    assert h.step(0.15, road(0.15, 0.9, offset=-0.5))[0].kappa > 0      # right of the centre: steer left
+    stale = 0.15 + h.node.params.road_timeout_s + 0.05
+    assert h.step(stale, None) == []                           # the detection has gone stale: silence
