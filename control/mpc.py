@@ -1,35 +1,48 @@
 """Model predictive control on the kinematic model (ARES paper §3.6.1, eqs. 11-13), with CasADi.
 
-The path ahead (the path manager's poses) is taken into the vehicle's frame and fitted with a
-cubic y = f(x). Over N steps of dt the model of eq. 11 predicts the vehicle from its state
-(x, y, ψ, v) under the inputs (δ, a):
+Over N steps of dt the model of eq. 11 predicts the vehicle from its state (x, y, ψ, v) under
+the inputs (δ, a), in the frame of the vehicle where the command will start to act:
 
     x'   = x + v cos(ψ) dt            y'  = y + v sin(ψ) dt
     ψ'   = ψ + v tan(δ) / L dt        v'  = v + a dt
-    cte  = f(x) − y                   eψ  = ψ − atan(f'(x))
 
 (the paper's v/L_f·δ is the small-angle form of v·tan(δ)/L for a reference point on the rear
-axle, which is ours; cte and eψ are written as functions of the state rather than as two more
-states: the same thing, two fewer equality constraints). The inputs are bounded as in eq. 12,
-with the vehicle profile's figures: |δ| <= the largest wheel angle, a within its acceleration and
-deceleration, and δ changes no faster than the steering motor turns (a bumpless hand-over needs
-it: the first step may move δ only as far as the actuator can from where the wheels are). The
-cost is eq. 13 with every reference 0 but the speed's, which is the path's speed limit at the
-distance each step is predicted to reach:
+axle, which is ours). The errors of eq. 13 are measured against the path manager's path ahead:
+each predicted step t has a reference pose (x_r, y_r, ψ_r) on the path, at the arc length where
+the last solution predicted the vehicle to be at that step, and
+
+    cte_t = −sin(ψ_r)(x_t − x_r) + cos(ψ_r)(y_t − y_r)      (across the path: + vehicle left)
+    eψ_t  = ψ_t − ψ_r
+
+The paper (after its source) fits a cubic y = f(x) to the path in the vehicle's frame instead;
+that cannot follow a roundabout's S-bends at speed (a cubic over 15 m of entry, ring and exit),
+whereas reference poses follow any path, and for a straight or an arc they give the same errors.
+The inputs are bounded as in eq. 12 with the vehicle profile's figures: |δ| <= the largest wheel
+angle, a within its acceleration and deceleration, v >= 0, and δ changes no faster than the
+steering motor turns (the first step from where the wheels are headed: a bumpless hand-over). The
+cost is eq. 13, with the speed reference the path's speed limit at each step:
 
     J = Σ_{t=1..N} w_cte cte_t² + w_eψ eψ_t² + w_v (v_t − v_ref,t)²
         + Σ_{t=0..N−1} w_δ δ_t² + w_a a_t²
         + Σ_{t=1..N−1} w_rate_δ (δ_t − δ_{t−1})² + w_rate_a (a_t − a_{t−1})²
+
+The solver: a real-time iteration. J is a sum of squares of residuals r(U) of the inputs U (the
+states follow from eq. 11, single shooting), so each Gauss-Newton step is the quadratic
+programme min ½ ΔUᵀ JᵀJ ΔU + (Jᵀr)ᵀ ΔU under the (linear) constraints of eq. 12, which DAQP
+solves in tens of microseconds. CasADi builds r, J and JᵀJ once, as compiled expression graphs.
+Each cycle starts from the previous solution shifted by one step (warm start) and takes
+`sqp_iterations` steps (the first solve, from a straight run, `first_iterations`): at 10 Hz the
+optimum moves little between cycles, so one or two steps keep up with it.
 
 Dead time: a command reaches the wheels after the actuators' transport delays (the steering
 motor's, the traction controller's). The problem is therefore solved from the state predicted
 that far ahead with the commands already sent, so that its first input is the one that will be
 acting then.
 
-Each solve starts from the previous solution shifted by one step (warm start). A solve that
-fails, or that runs over max_solve_ms, is answered with the previous solution shifted instead,
-while it lasts; after max_reused such answers in a row the controller asks for a hand-over
-(`handover`): the control manager then forwards its fallback.
+A solve that fails (the QP solver's status, a non-finite answer, too little path ahead) or that
+runs over max_solve_ms is answered with the previous solution shifted instead, while it lasts;
+after max_reused such answers in a row the controller asks for a hand-over (`handover`): the
+control manager then forwards its fallback.
 """
 from __future__ import annotations
 
@@ -55,12 +68,14 @@ class MpcParams(Params):
     w_v: float = param(1.0, "eq. 13: weight of the speed error", unit="s^2/m^2", ge=0)
     w_delta: float = param(1.0, "eq. 13: weight of the wheel angle", unit="1/rad^2", ge=0)
     w_accel: float = param(1.0, "eq. 13: weight of the acceleration", unit="s^4/m^2", ge=0)
-    w_delta_rate: float = param(100.0, "eq. 13: weight of the change of wheel angle between steps",
-                                unit="1/rad^2", ge=0)
+    w_delta_rate: float = param(1000.0, "eq. 13: weight of the change of wheel angle between steps (1000 rather "
+                                         "than 100: the stack's own latency, 0.1-0.2 s from pose to wheels, makes "
+                                         "100 oscillate; docs/mpc.md)", unit="1/rad^2", ge=0)
     w_accel_rate: float = param(10.0, "eq. 13: weight of the change of acceleration between steps",
                                 unit="s^4/m^2", ge=0)
-    path_min_reach_m: float = param(6.0, "the path is fitted at least this far ahead (the horizon's reach at "
-                                          "walking pace is a few metres: too short to fit a cubic)", unit="m", gt=0)
+    sqp_iterations: int = param(1, "Gauss-Newton steps per solve, from the shifted previous solution (1: the "
+                                   "real-time iteration)", ge=1, le=50)
+    first_iterations: int = param(8, "... and for a solve without a previous solution", ge=1, le=50)
     compensate_dead_time: bool = param(True, "solve from the state the actuators' dead time ahead")
     max_solve_ms: float = param(60.0, "a solve taking longer counts as failed (its answer would be late)",
                                 unit="ms", gt=0)
@@ -98,7 +113,7 @@ class MpcCommand:
 
 def predict(x, y, yaw, v, delta, accel, dt: float, wheelbase: float, steps: int = 1):
     """Eq. 11's motion (the kinematic model), `steps` steps of dt; numpy or CasADi values."""
-    trig = ca if isinstance(yaw, ca.MX) else math
+    trig = ca if any(isinstance(value, (ca.SX, ca.MX)) for value in (yaw, delta)) else math
     for _ in range(steps):
         x, y, yaw, v = (x + v * trig.cos(yaw) * dt, y + v * trig.sin(yaw) * dt,
                         yaw + v * trig.tan(delta) / wheelbase * dt, v + accel * dt)
@@ -115,125 +130,128 @@ class Mpc:
         self.max_accel, self.max_decel = vehicle.max_accel_mps2, vehicle.max_decel_mps2
         self.max_speed = vehicle.max_speed_mps
         steering = vehicle.actuators.steering
-        self.max_delta_step = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio * p.step_s
+        wheel_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio    # rad/s
+        self.max_delta_step = wheel_rate * p.step_s
+        # between two solves the wheels turn only a cycle's worth: a first step asking for more would
+        # be cut short by the actuator (and by the control manager's ramp), and the next solve would
+        # start from wheels that are not where it believes
+        self.max_first_step = wheel_rate * min(p.step_s, 1.0 / p.rate_hz)
         self.steer_dead_s = steering.dead_time_s
         self.traction_dead_s = vehicle.actuators.traction.dead_time_s
         self.failures = 0                       # failed solves since start (counted for the status)
         self.reused = 0                         # ... in a row
         self._previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None   # (X, U, start) of the last good solve
         self._sent_delta: float | None = None   # the wheel angle last commanded
+        self._limit_here = math.inf             # the path's speed limit where the vehicle is (last solve)
         self._build()
 
     # ---- the problem (once) -------------------------------------------------------------------
     def _build(self) -> None:
+        """r(U; P), JᵀJ, Jᵀr and the rollout as CasADi functions; the constant constraint matrix;
+        the QP solver. U = [δ_0..δ_{N−1}, a_0..a_{N−1}]; P = [v0, x_r(N), y_r(N), ψ_r(N), v_ref(N)]."""
         p, n, dt, wb = self.params, self.params.horizon_steps, self.params.step_s, self.wheelbase
-        opti = ca.Opti()
-        X = opti.variable(4, n + 1)             # x, y, ψ, v
-        U = opti.variable(2, n)                 # δ, a
-        x0 = opti.parameter(4)
-        delta_now = opti.parameter()
-        coef = opti.parameter(4)                # the path y = f(x), cubic, lowest order first
-        v_ref = opti.parameter(n)
-        opti.subject_to(X[:, 0] == x0)
-        cost = 0
+        U = ca.SX.sym("U", 2 * n)
+        P = ca.SX.sym("P", 1 + 4 * n)
+        delta, accel = U[:n], U[n:]
+        xr, yr, psir, vref = P[1:1 + n], P[1 + n:1 + 2 * n], P[1 + 2 * n:1 + 3 * n], P[1 + 3 * n:]
+        x, y, yaw, v = ca.SX(0), ca.SX(0), ca.SX(0), P[0]
+        states, residuals = [ca.vertcat(x, y, yaw, v)], []
         for t in range(n):
-            nxt = predict(X[0, t], X[1, t], X[2, t], X[3, t], U[0, t], U[1, t], dt, wb)
-            opti.subject_to(X[:, t + 1] == ca.vertcat(*nxt))
-            xs, ys, yaw, v = X[0, t + 1], X[1, t + 1], X[2, t + 1], X[3, t + 1]
-            f = coef[0] + xs * (coef[1] + xs * (coef[2] + xs * coef[3]))
-            slope = coef[1] + xs * (2 * coef[2] + xs * 3 * coef[3])
-            cte, epsi = f - ys, yaw - ca.atan(slope)
-            cost += p.w_cte * cte ** 2 + p.w_epsi * epsi ** 2 + p.w_v * (v - v_ref[t]) ** 2
-            cost += p.w_delta * U[0, t] ** 2 + p.w_accel * U[1, t] ** 2
-            if t > 0:
-                cost += p.w_delta_rate * (U[0, t] - U[0, t - 1]) ** 2 + p.w_accel_rate * (U[1, t] - U[1, t - 1]) ** 2
-        opti.minimize(cost)
-        opti.subject_to(opti.bounded(-self.max_delta, U[0, :], self.max_delta))          # eq. 12
-        opti.subject_to(opti.bounded(-self.max_decel, U[1, :], self.max_accel))
-        opti.subject_to(opti.bounded(-self.max_delta_step, U[0, 0] - delta_now, self.max_delta_step))
+            x, y, yaw, v = predict(x, y, yaw, v, delta[t], accel[t], dt, wb)
+            states.append(ca.vertcat(x, y, yaw, v))
+            cte = -ca.sin(psir[t]) * (x - xr[t]) + ca.cos(psir[t]) * (y - yr[t])
+            residuals += [math.sqrt(p.w_cte) * cte, math.sqrt(p.w_epsi) * (yaw - psir[t]),
+                          math.sqrt(p.w_v) * (v - vref[t])]
+        residuals += [math.sqrt(p.w_delta) * delta, math.sqrt(p.w_accel) * accel,
+                      math.sqrt(p.w_delta_rate) * ca.diff(delta), math.sqrt(p.w_accel_rate) * ca.diff(accel)]
+        r = ca.vertcat(*residuals)
+        J = ca.jacobian(r, U)
+        self._gauss_newton = ca.Function("gauss_newton", [U, P], [J.T @ J, J.T @ r, 0.5 * ca.sumsqr(r)])
+        self._rollout = ca.Function("rollout", [U, P], [ca.horzcat(*states)])
+        # linear constraints A·U: the steering rate (δ_0 − δ_now, δ_t − δ_{t−1}), then v_{t+1} = v0 + dt Σ a >= 0
+        A = np.zeros((2 * n, 2 * n))
+        A[0, 0] = 1.0
         for t in range(1, n):
-            opti.subject_to(opti.bounded(-self.max_delta_step, U[0, t] - U[0, t - 1], self.max_delta_step))
-        opti.subject_to(X[3, :] >= 0)
-        opti.solver("ipopt", {"print_time": False, "error_on_fail": False},
-                    {"print_level": 0, "sb": "yes", "max_cpu_time": p.max_solve_ms / 1e3, "max_iter": 200,
-                     "warm_start_init_point": "yes"})
-        self._opti, self._X, self._U = opti, X, U
-        self._x0, self._delta_now, self._coef, self._v_ref = x0, delta_now, coef, v_ref
+            A[t, t], A[t, t - 1] = 1.0, -1.0
+        A[n:, n:] = dt * np.tril(np.ones((n, n)))
+        self._lbu = np.r_[np.full(n, -self.max_delta), np.full(n, -self.max_decel)]
+        self._ubu = np.r_[np.full(n, self.max_delta), np.full(n, self.max_accel)]
+        qp = ca.conic("mpc_qp", "daqp", {"h": ca.Sparsity.dense(2 * n, 2 * n), "a": ca.Sparsity.dense(2 * n, 2 * n)},
+                      {"error_on_fail": False})
+        # one Gauss-Newton step as one compiled call (the QP data, the QP, the step, the new rollout):
+        # from Python, each call costs more than the arithmetic in it
+        U0, P0 = ca.MX.sym("U", 2 * n), ca.MX.sym("P", 1 + 4 * n)
+        lba, uba = ca.MX.sym("lba", 2 * n), ca.MX.sym("uba", 2 * n)
+        H, g, _ = self._gauss_newton(U0, P0)
+        Adm = ca.DM(A)
+        step = qp(h=H, g=g, a=Adm, lbx=ca.DM(self._lbu) - U0, ubx=ca.DM(self._ubu) - U0,
+                  lba=lba - ca.mtimes(Adm, U0), uba=uba - ca.mtimes(Adm, U0))["x"]
+        U1 = ca.fmin(ca.fmax(U0 + step, ca.DM(self._lbu)), ca.DM(self._ubu))
+        self._step = ca.Function("gauss_newton_step", [U0, P0, lba, uba], [U1, self._rollout(U1, P0)])
 
     # ---- each cycle ---------------------------------------------------------------------------
-    def solve(self, state: VehicleState, path_x, path_y, path_speed) -> MpcCommand:
+    def solve(self, state: VehicleState, path_x, path_y, path_speed, latency_s: float = 0.0) -> MpcCommand:
         """One cycle: the path ahead (poses in the state's frame, from near the vehicle onwards, and
-        the speed limit at each) → the command to send now."""
-        p, n, dt = self.params, self.params.horizon_steps, self.params.step_s
+        the speed limit at each) → the command to send now. `latency_s`: how much later than the
+        state's time the command reaches the actuators (the state's age, the processes between)."""
+        p, n = self.params, self.params.horizon_steps
         started = time.perf_counter()
-        start = self._after_dead_time(state)
+        start = self._after_dead_time(state, max(latency_s, 0.0))
         # the path in the frame of the (predicted) vehicle: x ahead, y left
         c, s = math.cos(start[2]), math.sin(start[2])
         dx, dy = np.asarray(path_x, float) - start[0], np.asarray(path_y, float) - start[1]
         px, py = c * dx + s * dy, -s * dx + c * dy
-        reach = max(p.path_min_reach_m, 1.5 * max(start[3], 1.0) * n * dt)
-        use = (px >= -2.0) & (px <= reach)
-        if use.sum() < 4 or np.ptp(px[use]) < 1.0:
+        if len(px) < 2 or float(np.hypot(px[-1] - px[0], py[-1] - py[0])) < 1.0:
             return self._fallback(state, started, "too little path ahead")
-        coef = poly.polyfit(px[use], py[use], 3)
-        along = np.r_[0.0, np.cumsum(np.hypot(np.diff(px), np.diff(py)))]
-        speed = np.minimum(np.asarray(path_speed, float), self.max_speed)
-        reached = np.cumsum(np.full(n, max(start[3], 0.5) * dt))
-        v_ref = np.interp(reached + along[np.argmin(np.hypot(px, py))], along, speed)
-
-        opti = self._opti
-        opti.set_value(self._x0, [0.0, 0.0, 0.0, start[3]])
+        path = _Polyline(px, py, np.minimum(np.asarray(path_speed, float), self.max_speed))
+        first = self._previous is None
+        U = self._initial_guess(start[3], state.delta)
         # the first step may move δ from where the wheels are headed (the last command) at the motor's rate
         now = state.delta if self._sent_delta is None else self._sent_delta
-        opti.set_value(self._delta_now, float(np.clip(now, -self.max_delta, self.max_delta)))
-        opti.set_value(self._coef, coef)
-        opti.set_value(self._v_ref, v_ref)
-        X0, U0 = self._initial_guess(start[3], state.delta)
-        opti.set_initial(self._X, X0)
-        opti.set_initial(self._U, U0)
-        solution = opti.solve_limited()
-        stats = opti.stats()
+        now = float(np.clip(now, -self.max_delta, self.max_delta))
+        lba = np.r_[now - self.max_first_step, np.full(n - 1, -self.max_delta_step), np.full(n, -start[3])]
+        uba = np.r_[now + self.max_first_step, np.full(n - 1, self.max_delta_step), np.full(n, np.inf)]
+        no_path = np.zeros(4 * n)
+        X = np.asarray(self._rollout(U, np.r_[start[3], no_path]))
+        for _ in range(p.first_iterations if first else p.sqp_iterations):
+            U_dm, X_dm = self._step(U, np.r_[start[3], path.references(X[0, 1:], X[1, 1:])], lba, uba)
+            U, X = np.asarray(U_dm).ravel(), np.asarray(X_dm)
+            if not (np.all(np.isfinite(U)) and np.all(np.isfinite(X))):
+                return self._fallback(state, started, "the QP gave no finite step")
+        status = "solved"
         solve_ms = (time.perf_counter() - started) * 1e3
-        ok = bool(stats.get("success", False)) and solve_ms <= p.max_solve_ms
-        if not ok:
-            return self._fallback(state, started, stats.get("return_status", "failed"))
-        X, U = np.asarray(solution.value(self._X)), np.asarray(solution.value(self._U))
-        self._previous, self.reused = (X, U, start), 0
-        return self._command(state, X, U, coef, True, solve_ms, stats.get("return_status", ""), start)
+        if solve_ms > p.max_solve_ms:
+            return self._fallback(state, started, f"late: {solve_ms:.1f} ms")
+        self._previous, self.reused = (X, U.reshape(2, n), start), 0
+        cte, epsi = path.errors_at_origin()
+        self._limit_here = path.speed_at_vehicle()
+        return self._command(state, X, U.reshape(2, n), (cte, epsi), True, solve_ms, status, start)
 
-    def _after_dead_time(self, state: VehicleState) -> np.ndarray:
+    def _after_dead_time(self, state: VehicleState, latency_s: float) -> np.ndarray:
         """(x, y, ψ, v) when a command sent now starts to act: the last commands run meanwhile."""
         if not self.params.compensate_dead_time:
             return np.array([state.x, state.y, state.yaw, state.v])
-        steps = 10
+        steps = 4
+        ahead = self.steer_dead_s + latency_s
         x, y, yaw, v = state.x, state.y, state.yaw, state.v
         # the wheels are on their way to the last command sent (it was sent a cycle ago, at least a
         # dead time ago at 10 Hz): they turn at the motor's rate towards it
-        delta, rate = state.delta, self.max_delta_step / self.params.step_s * self.steer_dead_s / steps
+        delta, rate = state.delta, self.max_delta_step / self.params.step_s * ahead / steps
         target = state.delta if self._sent_delta is None else self._sent_delta
         for _ in range(steps):
             delta += float(np.clip(target - delta, -rate, rate))
-            x, y, yaw, _ = predict(x, y, yaw, v, delta, 0.0, self.steer_dead_s / steps, self.wheelbase)
-        v = max(0.0, v + state.accel * self.traction_dead_s)
+            x, y, yaw, _ = predict(x, y, yaw, v, delta, 0.0, ahead / steps, self.wheelbase)
+        v = max(0.0, v + state.accel * (self.traction_dead_s + latency_s))
         return np.array([x, y, yaw, v])
 
-    def _initial_guess(self, v0: float, delta0: float) -> tuple[np.ndarray, np.ndarray]:
-        """The previous solution shifted by one step (warm start), or a straight run at v0."""
-        n, dt = self.params.horizon_steps, self.params.step_s
+    def _initial_guess(self, v0: float, delta0: float) -> np.ndarray:
+        """The previous solution's inputs shifted by one step (warm start), or holding the wheels
+        where they are at v0."""
+        n = self.params.horizon_steps
         if self._previous is not None:
             _, U, _ = self._previous
-            U = np.c_[U[:, 1:], U[:, -1:]]
-            # the previous prediction, re-expressed from the new start: re-simulate its inputs
-            xs = [np.array([0.0, 0.0, 0.0, v0])]
-            for t in range(n):
-                xs.append(np.array(predict(*xs[-1], U[0, t], U[1, t], dt, self.wheelbase)))
-            return np.array(xs).T, U
-        X = np.zeros((4, n + 1))
-        X[0] = v0 * dt * np.arange(n + 1)
-        X[3] = v0
-        U = np.zeros((2, n))
-        U[0] = delta0
-        return X, U
+            return np.r_[U[0, 1:], U[0, -1], U[1, 1:], U[1, -1]]
+        return np.r_[np.full(n, float(np.clip(delta0, -self.max_delta, self.max_delta))), np.zeros(n)]
 
     def _fallback(self, state: VehicleState, started: float, why: str) -> MpcCommand:
         self.failures += 1
@@ -248,16 +266,60 @@ class Mpc:
         shifted_X = np.c_[X[:, k:], np.repeat(X[:, -1:], k, axis=1)]
         return self._command(state, shifted_X, shifted_U, None, False, solve_ms, why, start)
 
-    def _command(self, state, X, U, coef, ok, solve_ms, status, start) -> MpcCommand:
+    def _command(self, state, X, U, errors, ok, solve_ms, status, start) -> MpcCommand:
         delta, accel = float(U[0, 0]), float(U[1, 0])
-        v = float(np.clip(X[3, 1], 0.0, self.max_speed))
+        # a speed limit is a limit: the plan's speed one step ahead, never above the path's limit here
+        v = float(np.clip(X[3, 1], 0.0, min(self.max_speed, self._limit_here)))
         # the prediction in the state's frame (it was solved in the predicted start's frame)
         c, s = math.cos(start[2]), math.sin(start[2])
         px, py = start[0] + c * X[0] - s * X[1], start[1] + s * X[0] + c * X[1]
-        cte = epsi = math.nan
-        if coef is not None:
-            cte = float(coef[0])                # f(0) − 0: + when the path lies left, vehicle right of it
-            epsi = -math.atan(float(coef[1]))
+        cte, epsi = errors if errors is not None else (math.nan, math.nan)
         self._sent_delta = delta
         return MpcCommand(ok, False, delta, accel, v, math.tan(delta) / self.wheelbase, np.asarray(px),
                           np.asarray(py), cte, epsi, solve_ms, status, self.reused)
+
+
+class _Polyline:
+    """The path ahead in the solve's frame: arc length, headings (unwrapped), speed limits."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray, speed: np.ndarray):
+        keep = np.r_[True, np.hypot(np.diff(x), np.diff(y)) > 1e-6]     # repeated poses carry no heading
+        self.x, self.y, self.speed = x[keep], y[keep], speed[keep]
+        self.dx, self.dy = np.diff(self.x), np.diff(self.y)
+        self.seg = np.hypot(self.dx, self.dy)
+        self.s = np.r_[0.0, np.cumsum(self.seg)]
+        self.yaw = np.unwrap(np.arctan2(self.dy, self.dx))     # per segment
+        # the heading in the solve's frame lies near 0 where the vehicle is: unwrap around it
+        k, self.s_vehicle = self._project(np.zeros(1), np.zeros(1))
+        self.k_vehicle = int(k[0])
+        self.yaw -= 2 * math.pi * round(float(self.yaw[self.k_vehicle]) / (2 * math.pi))
+
+    def _project(self, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each point, the nearest segment and the arc length of the nearest point on it."""
+        ex, ey = xs[:, None] - self.x[None, :-1], ys[:, None] - self.y[None, :-1]
+        t = np.clip((ex * self.dx + ey * self.dy) / np.maximum(self.seg * self.seg, 1e-12), 0.0, 1.0)
+        k = np.argmin(np.hypot(ex - t * self.dx, ey - t * self.dy), axis=1)
+        rows = np.arange(len(xs))
+        return k, self.s[k] + t[rows, k] * self.seg[k]
+
+    def references(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        """[x_r, y_r, ψ_r, v_ref] for predicted positions: the path at the arc length each projects
+        to, never going back (beyond the path's end: extended along its last heading)."""
+        _, s_at = self._project(np.asarray(xs), np.asarray(ys))
+        s_at = np.maximum.accumulate(np.maximum(s_at, self.s_vehicle[0]))
+        k = np.clip(np.searchsorted(self.s, s_at, side="right") - 1, 0, len(self.yaw) - 1)
+        beyond = s_at - self.s[k]
+        yaw = self.yaw[k]
+        return np.concatenate([self.x[k] + beyond * np.cos(yaw), self.y[k] + beyond * np.sin(yaw), yaw,
+                               np.interp(s_at, self.s, self.speed)])
+
+    def speed_at_vehicle(self) -> float:
+        return float(np.interp(self.s_vehicle[0], self.s, self.speed))
+
+    def errors_at_origin(self) -> tuple[float, float]:
+        """(cte, eψ) of the vehicle at the origin heading 0: cte + when the vehicle is right of the path."""
+        yaw = float(self.yaw[self.k_vehicle])
+        s = float(self.s_vehicle[0])
+        rx, ry = float(np.interp(s, self.s, self.x)), float(np.interp(s, self.s, self.y))
+        left = math.sin(yaw) * rx - math.cos(yaw) * ry
+        return -left, -yaw

@@ -30,6 +30,9 @@ class MpcNodeParams(MpcParams):
                                                "curvature ...", unit="rad", gt=0)
     creep_speed_mps: float = param(1.0, "... no faster than this, until yaw from poses has fixed the heading",
                                    unit="m/s", gt=0)
+    pipeline_latency_s: float = param(0.1, "from this process's step to the wheels' actuators, beyond the pose's "
+                                           "age: the control manager's step (20 Hz) and the bridge's (10 Hz); the MPC "
+                                           "solves from the state predicted that far ahead", unit="s", ge=0)
 
 
 class MpcNode(Node):
@@ -62,7 +65,8 @@ class MpcNode(Node):
             return
         delta = math.radians(car.steering_wheel_deg) / self.vehicle.steering_ratio if car is not None else 0.0
         state = VehicleState(pose.x, pose.y, pose.yaw, pose.v, delta, self._accel)
-        cmd = self.mpc.solve(state, match.ahead_x, match.ahead_y, match.ahead_speed)
+        cmd = self.mpc.solve(state, match.ahead_x, match.ahead_y, match.ahead_speed,
+                             latency_s=max(now - pose.t, 0.0) + self.params.pipeline_latency_s)
         self._accel = cmd.accel
         self.candidate.put(ControlCandidate(
             t=now, controller="mpc", v=cmd.v, kappa=cmd.kappa, fresh=cmd.ok, handover=cmd.handover,

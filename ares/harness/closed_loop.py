@@ -108,6 +108,7 @@ class _Navigator:
         self.rate_hz = self.mpc_params.rate_hz if self.mpc else config.section(cfg, "pure_pursuit",
                                                                                 ControllerParams).rate_hz
         self.solve_ms: list[float] = []
+        self.latency_s = 0.0        # the command reaches the bridge at once here (the stack: mpc.pipeline_latency_s)
         self._accel = 0.0
 
     def command(self, t: float, x: float, y: float, yaw: float, v: float,
@@ -117,7 +118,7 @@ class _Navigator:
             return None
         if self.mpc is not None and math.sqrt(max(var_yaw, 0.0)) <= self.mpc_params.max_heading_sigma_rad:
             cmd = self.mpc.solve(MpcState(x, y, yaw, v, delta, self._accel), match.ahead_x, match.ahead_y,
-                                 match.ahead_speed)
+                                 match.ahead_speed, latency_s=self.latency_s)
             self._accel = cmd.accel
             self.solve_ms.append(cmd.solve_ms)
             return cmd.v, cmd.kappa
