@@ -1,4 +1,4 @@
-"""`ares bench bus|path|blackbox|supervisor|perception`: the benchmarks."""
+"""`ares bench bus|path|blackbox|supervisor|perception|mpc`: the benchmarks."""
 from __future__ import annotations
 
 import argparse
@@ -40,6 +40,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
                             help="places along the tour, evenly spaced (default 8)")
     perception.add_argument("--repeats", type=positive_int, default=3, metavar="N",
                             help="timed runs of the pipeline and the ground removal per place (default 3)")
+    mpc = bench_sub.add_parser("mpc", help="the MPC's solve times in closed loop round the tour (in-process)",
+                               description="The MPC drives a kinematic bicycle (the steering's dead time and rate) "
+                                           "round the built-in tour at its speed profile; each solve is timed.")
+    mpc.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    mpc.add_argument("--solves", type=positive_int, default=2000, metavar="N", help="solves (default 2000)")
+    mpc.add_argument("--vehicle", default="ares_shuttle", metavar="NAME", help="vehicle profile (default ares_shuttle)")
     blackbox = bench_sub.add_parser(
         "blackbox", help="black box: ingest rate, one-hour query with 7 days stored, latest-state API over HTTPS",
         description="Ingests records in batches into a fresh embedded store, times one-hour queries with "
@@ -71,6 +77,9 @@ def _run(args: argparse.Namespace, progress):
     if args.bench == "perception":
         from ares.bench.perception import format_perception_result, run_perception_bench
         return run_perception_bench(args.frames, args.repeats, progress=progress), format_perception_result
+    if args.bench == "mpc":
+        from ares.bench.mpc import run_mpc_bench
+        return run_mpc_bench(args.solves, args.vehicle, progress=progress), _key_per_line
     if args.bench == "path":
         from ares.bench.path import format_path_result, run_path_bench
         return run_path_bench(progress=progress), format_path_result
@@ -82,9 +91,9 @@ def _run(args: argparse.Namespace, progress):
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    if args.bench not in ("bus", "path", "blackbox", "supervisor", "perception"):
+    if args.bench not in ("bus", "path", "blackbox", "supervisor", "perception", "mpc"):
         raise CliError("which benchmark? try `ares bench bus`, `ares bench path`, `ares bench supervisor`, "
-                       "`ares bench perception` or `ares bench blackbox`")
+                       "`ares bench perception`, `ares bench mpc` or `ares bench blackbox`")
     progress = lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     result, for_people = _run(args, progress)
     if args.json:
