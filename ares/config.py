@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, Literal, Mapping
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 CONFIG_DIR = Path(__file__).parent / "config"
 RUN_CONFIG_ENV = "ARES_RUN_CONFIG"
@@ -335,11 +335,51 @@ class ScenarioAlongTour(Params):
     skip_narrower_than_m: float = param(5.0, "no obstacle where the road is narrower", unit="m", gt=0)
 
 
+FAULT_FIELDS: dict[str, tuple[set[str], set[str]]] = {     # kind -> (fields it needs, fields it may have)
+    "block_lidar": ({"sensor", "at_t_s"}, {"duration_s"}),
+    "gnss_outage": (set(), {"at_t_s", "duration_s", "s_start_m", "s_end_m"}),
+    "gnss_no_corrections": (set(), {"at_t_s", "duration_s", "s_start_m", "s_end_m"}),
+    "wheel_speed_scale": ({"scale"}, {"at_t_s", "duration_s"}),
+    "gyro_bias": ({"bias_deg_s"}, {"at_t_s", "duration_s"}),
+}
+
+
 class ScenarioFault(Params):
-    kind: Literal["block_lidar"] = param(doc="block_lidar: an opaque cover over a LiDAR")
-    sensor: Literal["roof", "front_left", "front_right"]
-    at_t_s: float = param(doc="stack time it begins", unit="s", ge=0)
+    """A fault, from `at_t_s` (stack time) for `duration_s`, or over a stretch of the route
+    (`s_start_m`..`s_end_m`, every lap); without either, for the whole run."""
+    kind: Literal["block_lidar", "gnss_outage", "gnss_no_corrections", "wheel_speed_scale", "gyro_bias"] = param(
+        doc="block_lidar: an opaque cover over a LiDAR; gnss_outage: no fix at all; gnss_no_corrections: no RTK "
+            "corrections (a float fix, as in a tour's rtk_loss zone); wheel_speed_scale: the CAN wheel speed reads "
+            "(1 + scale) x the truth; gyro_bias: the IMU's yaw rate reads bias_deg_s too much")
+    sensor: Literal["roof", "front_left", "front_right"] | None = param(None, "block_lidar: which LiDAR")
+    at_t_s: float | None = param(None, "stack time it begins", unit="s", ge=0)
     duration_s: float | None = param(None, "how long it lasts (for ever if not given)", unit="s", gt=0)
+    s_start_m: float | None = param(None, "GNSS faults: the stretch of the route where it holds ...", unit="m", ge=0)
+    s_end_m: float | None = param(None, "... and where it ends", unit="m", ge=0)
+    scale: float | None = param(None, "wheel_speed_scale: 0.02 reads 2 % fast", gt=-0.5, lt=0.5)
+    bias_deg_s: float | None = param(None, "gyro_bias: added to the yaw rate", unit="deg/s")
+
+    @model_validator(mode="after")
+    def _fields_of_its_kind(self):
+        needs, may = FAULT_FIELDS[self.kind]
+        given = {name for name in ("sensor", "at_t_s", "duration_s", "s_start_m", "s_end_m", "scale", "bias_deg_s")
+                 if getattr(self, name) is not None}
+        if needs - given:
+            raise ValueError(f"a {self.kind} fault needs {', '.join(sorted(needs - given))}")
+        if given - needs - may:
+            raise ValueError(f"a {self.kind} fault has no {', '.join(sorted(given - needs - may))}")
+        if (self.s_start_m is None) != (self.s_end_m is None):
+            raise ValueError("a stretch needs both s_start_m and s_end_m")
+        if self.s_start_m is not None and (self.at_t_s is not None or self.s_end_m <= self.s_start_m):
+            raise ValueError("a fault holds over a stretch (s_start_m < s_end_m) or from a time, not both")
+        return self
+
+    def active(self, t: float, s: float | None = None) -> bool:
+        """Whether it holds at stack time t with the vehicle at s along the route."""
+        if self.s_start_m is not None:
+            return s is not None and self.s_start_m <= s <= self.s_end_m
+        begins = self.at_t_s or 0.0
+        return t >= begins and (self.duration_s is None or t < begins + self.duration_s)
 
 
 class Scenario(Params):

@@ -35,7 +35,7 @@ from typing import Callable
 import numpy as np
 
 from ares import config, run_config
-from ares.config import CoreConfig
+from ares.config import CoreConfig, load_scenario
 from ares.geodesy import LocalFrame
 from ares.geometry import wrap_angle
 from ares.messages import CanFrame, GnssFix, Imu
@@ -202,7 +202,8 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
 
     frame = LocalFrame(core.origin_utm)
     plant = VehiclePlant(route, profile, sim, s0=s0)
-    sensors = SensorSuite(route, sim, frame, profile.wheel_radius_m)
+    faults = load_scenario(core.scenario).faults if core.scenario else ()      # the scenario's sensor errors
+    sensors = SensorSuite(route, sim, frame, profile.wheel_radius_m, faults=faults)
     fix_of = gnss_source(GnssProjector(frame, config.section(cfg, "gnss", GnssParams)), sensors.gnss, gnss_path)
     localizer = Localizer(config.section(cfg, "localization", LocalizationParams), profile)
     navigator = _Navigator(cfg, route, controller)
@@ -242,7 +243,7 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
             localizer.push("can", last_can)
         if due("imu"):
             localizer.push("imu", Imu(t=t, **sensors.imu.measure(st)))
-        if due("gnss"):
+        if due("gnss") and sensors.gnss.fix_available(st.s, t):
             fix = fix_of(st)
             if fix is not None:
                 localizer.push("gnss", fix)
@@ -278,7 +279,7 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
                 cov = pose_covariance(pose)
                 est = (pose.x, pose.y, pose.yaw, pose.var_yaw, cov, scorer(cov))
             rows.append((t, st.x, st.y, st.yaw, st.v, st.s, progress, st.odometer, xte,
-                         sensors.gnss.rtk_available(st.s), pose is not None) + est)
+                         sensors.gnss.rtk_available(st.s, t), pose is not None) + est)
 
         plant.step(steer_effort, drive_effort, dt)
         progress += route.step_between(last_s, st.s)

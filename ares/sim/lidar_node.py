@@ -70,10 +70,10 @@ class LidarSimulator(Node):
         if self.scenario is None:
             return
         for i, fault in enumerate(self.scenario.faults):
-            if fault.sensor not in self.sensors:
+            if fault.kind != "block_lidar" or fault.sensor not in self.sensors:
                 continue
             ends = None if fault.duration_s is None else fault.at_t_s + fault.duration_s
-            active = now >= fault.at_t_s and (ends is None or now < ends)
+            active = fault.active(now)
             if active and i not in self.faults_done:
                 self.faults_done.add(i)
                 self._set_blocked(fault.sensor, True, f"scenario {self.scenario.name}")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ares.config import load_scenario
 from ares.geodesy import LocalFrame
 from ares.lockstep import LockstepMaster
 from ares.messages import (Ack, ActuatorCommand, CanFrame, DriverCommand, EventLevel, GnssSentences, Imu,
@@ -61,7 +62,9 @@ class Simulator(Node):
         sim = self.params
         self.route = load_route(self.core)
         self.plant = VehiclePlant(self.route, self.vehicle, sim, s0=sim.start_s_m)
-        self.sensors = SensorSuite(self.route, sim, LocalFrame(self.core.origin_utm), self.vehicle.wheel_radius_m)
+        scenario = load_scenario(self.core.scenario) if self.core.scenario else None
+        self.sensors = SensorSuite(self.route, sim, LocalFrame(self.core.origin_utm), self.vehicle.wheel_radius_m,
+                                   faults=scenario.faults if scenario else ())
         self.dt = 1.0 / sim.physics_hz
         self.periods = {"gnss": 1.0 / sim.gnss_hz, "imu": 1.0 / sim.imu_hz,
                         "can": 1.0 / sim.can_hz, "truth": 1.0 / sim.truth_hz}
@@ -154,13 +157,13 @@ class Simulator(Node):
             self.can.put(CanFrame(t=t, **self.sensors.can.measure(st)))
         if self._due("imu"):
             self.imu.put(Imu(t=t, **self.sensors.imu.measure(st)))
-        if self._due("gnss"):
+        if self._due("gnss") and self.sensors.gnss.fix_available(st.s, t):     # an outage: the receiver is silent
             self.gnss.put(GnssSentences(t=t, **self.sensors.gnss.measure(st)))
         if self._due("truth"):
             self.truth.put(VehicleTruth(
                 t=t, x=st.x, y=st.y, z=st.z, yaw=st.yaw, pitch=st.pitch, v=st.v, yaw_rate=st.yaw_rate,
                 accel=st.accel, steering_wheel_deg=st.steering_wheel_deg, wheel_angle_rad=st.wheel_angle_rad,
-                s=st.s, odometer_m=st.odometer, lap=self._laps(), rtk_available=self.sensors.gnss.rtk_available(st.s),
+                s=st.s, odometer_m=st.odometer, lap=self._laps(), rtk_available=self.sensors.gnss.rtk_available(st.s, t),
                 passengers=self.plant.passengers))
 
 

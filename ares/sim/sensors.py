@@ -28,9 +28,12 @@ consecutive GNSS positions instead).
 from __future__ import annotations
 
 import math
+from typing import Sequence
+
 import numpy as np
 
 from ares import nmea
+from ares.config import ScenarioFault
 from ares.geodesy import LocalFrame
 from ares.geometry import wrap_angle
 from ares.route import Route
@@ -67,6 +70,8 @@ def _nmea_angle(value_deg: float, degree_digits: int) -> tuple[str, bool]:
 
 class GnssSensor:
     """A dual-frequency RTK receiver at the vehicle's reference point (rear-axle centre)."""
+    faults: Sequence[ScenarioFault] = ()     # the scenario's sensor errors (SensorSuite sets them)
+
 
     def __init__(self, route: Route, params: SimGnssParams, frame: LocalFrame,
                  rng: np.random.Generator | None = None, noise: bool = True):
@@ -100,8 +105,17 @@ class GnssSensor:
     def latlon_to_local(self, lat: float, lon: float) -> tuple[float, float]:
         return self.frame.from_latlon_forced(lat, lon)
 
-    def rtk_available(self, s: float) -> bool:
-        return not self.route.in_zone(s, "rtk_loss")
+    def rtk_available(self, s: float, t: float | None = None) -> bool:
+        """Corrections reach the receiver: outside the tour's rtk_loss zones and the scenario's
+        gnss_no_corrections (or gnss_outage) faults."""
+        if self.route.in_zone(s, "rtk_loss"):
+            return False
+        return not any(f.kind in ("gnss_no_corrections", "gnss_outage") and f.active(t if t is not None else 0.0, s)
+                       for f in self.faults)
+
+    def fix_available(self, s: float, t: float) -> bool:
+        """The receiver has a fix at all (not inside a scenario's gnss_outage)."""
+        return not any(f.kind == "gnss_outage" and f.active(t, s) for f in self.faults)
 
     def _advance_bias(self, t: float) -> None:
         if self._t_last is not None and self.noise:
@@ -113,7 +127,7 @@ class GnssSensor:
     def error(self, state: VehicleState) -> tuple[np.ndarray, bool]:
         """Position error (east, north, up) in metres for this fix, and whether RTK is fixed."""
         self._advance_bias(state.t)
-        rtk = self.rtk_available(state.s)
+        rtk = self.rtk_available(state.s, state.t)
         if not self.noise:
             return np.zeros(3), rtk
         if rtk:
@@ -148,6 +162,8 @@ class GnssSensor:
 
 class ImuSensor:
     """An IMU with a magnetometer yaw: attitude, angular rates and specific force."""
+    faults: Sequence[ScenarioFault] = ()     # the scenario's sensor errors (SensorSuite sets them)
+
 
     def __init__(self, params: SimImuParams, rng: np.random.Generator | None = None, noise: bool = True):
         self.noise = noise
@@ -162,6 +178,10 @@ class ImuSensor:
         if not self.noise:
             return 0.0 if size is None else np.zeros(size)
         return sigma * self.rng.standard_normal(size)
+
+    def bias_rad_s(self, t: float) -> float:
+        """The scenario's gyro_bias faults active at t."""
+        return sum(math.radians(f.bias_deg_s) for f in self.faults if f.kind == "gyro_bias" and f.active(t))
 
     def measure(self, state: VehicleState) -> dict:
         pitch, roll = state.pitch, state.roll
@@ -180,7 +200,7 @@ class ImuSensor:
             "pitch": float(pitch + self._n(self.attitude_sigma)),
             "gyro_x": float(gyro[0]),                # roll rate: the model has no roll
             "gyro_y": float(state.pitch_rate + gyro[1]),
-            "gyro_z": float(state.yaw_rate + gyro[2]),
+            "gyro_z": float(state.yaw_rate + gyro[2] + self.bias_rad_s(state.t)),
             "accel_x": float(accel_x + acc[0]),
             "accel_y": float(accel_y + acc[1]),
             "accel_z": float(accel_z + acc[2]),
@@ -191,6 +211,8 @@ class ImuSensor:
 
 class CanSensor:
     """What the vehicle's CAN bus reports: encoder wheel speed, steering angle, pedals."""
+    faults: Sequence[ScenarioFault] = ()     # the scenario's sensor errors (SensorSuite sets them)
+
 
     def __init__(self, params: SimCanParams, wheel_radius_m: float,
                  rng: np.random.Generator | None = None, noise: bool = True):
@@ -201,7 +223,8 @@ class CanSensor:
         self.steer_sigma = params.steer_sigma_deg
 
     def measure(self, state: VehicleState) -> dict:
-        omega = state.wheel_speed_rad_s
+        omega = state.wheel_speed_rad_s * (1.0 + sum(f.scale for f in self.faults
+                                                      if f.kind == "wheel_speed_scale" and f.active(state.t)))
         # An encoder that sees no pulses reads exactly zero: noise only while the wheels turn.
         if self.noise and omega != 0.0:
             omega += (self.speed_sigma / self.wheel_radius_m) * self.rng.standard_normal()
@@ -223,9 +246,12 @@ class SensorSuite:
     """The three sensors of one vehicle, each with its own random stream from one seed."""
 
     def __init__(self, route: Route, sim: SimParams, frame: LocalFrame, wheel_radius_m: float,
-                 seed: int | None = None, noise: bool = True):
+                 seed: int | None = None, noise: bool = True, faults: Sequence[ScenarioFault] = ()):
         base = sim.seed if seed is None else int(seed)
         gnss_rng, imu_rng, can_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(base).spawn(3))
         self.gnss = GnssSensor(route, sim.gnss, frame, gnss_rng, noise)
         self.imu = ImuSensor(sim.imu, imu_rng, noise)
         self.can = CanSensor(sim.can, wheel_radius_m, can_rng, noise)
+        # a scenario's sensor errors (ares.config.ScenarioFault): each sensor reads the kinds it has
+        for sensor in (self.gnss, self.imu, self.can):
+            sensor.faults = list(faults)
