@@ -39,6 +39,9 @@ OBSTACLE_MARGIN_M = 0.5
 def _pct(values, q) -> float | None:
     return round(float(np.percentile(values, q)), 4) if len(values) else None
 
+CONFIDENCE_RIGHT_M = 0.3      # a detection whose centre line is this close to the truth at the vehicle is right
+CONFIDENCE_WRONG_M = 0.5      # ... this far off, wrong
+
 
 @dataclass
 class PerceptionTracker:
@@ -51,6 +54,8 @@ class PerceptionTracker:
     frames_both_found: int = 0
     edge_err: list[float] = field(default_factory=list)
     centre_err: list[float] = field(default_factory=list)
+    confidence_right: list[float] = field(default_factory=list)     # the centre line within 0.3 m at the vehicle
+    confidence_wrong: list[float] = field(default_factory=list)     # ... more than 0.5 m off (or a wrong find)
     recall_seen: int = 0
     recall_total: int = 0
     road_cells: int = 0
@@ -130,6 +135,13 @@ class PerceptionTracker:
                 edge = self._edges(s_hit)[side]
                 if edge is not None:
                     self.edge_err.append(abs(xte - edge))
+        if msg.found and msg.centre is not None and all(left is not None and right is not None for left, right in ahead):
+            wx, wy = self._to_local(pose, 0.0, msg.centre.y_at(0.0))
+            off = abs(self.route.project(wx, wy, s_hint=s)[1])
+            if off < CONFIDENCE_RIGHT_M:
+                self.confidence_right.append(msg.confidence)
+            elif off > CONFIDENCE_WRONG_M:
+                self.confidence_wrong.append(msg.confidence)
         if msg.centre is not None and all(left is not None and right is not None for left, right in ahead):
             for xv in xs:
                 wx, wy = self._to_local(pose, xv, msg.centre.y_at(xv))
@@ -201,6 +213,12 @@ class PerceptionTracker:
             "road_frames": self.frames_with_edges,
             "road_edge_err_p50_m": _pct(self.edge_err, 50), "road_edge_err_p95_m": _pct(self.edge_err, 95),
             "road_centre_err_p50_m": _pct(self.centre_err, 50),
+            # what the control manager's road thresholds are chosen from (docs/control_manager.md)
+            "road_confidence_right_p05": _pct(self.confidence_right, 5),
+            "road_confidence_right_p50": _pct(self.confidence_right, 50),
+            "road_confidence_wrong_p50": _pct(self.confidence_wrong, 50),
+            "road_confidence_wrong_p95": _pct(self.confidence_wrong, 95),
+            "road_confidence_frames": [len(self.confidence_right), len(self.confidence_wrong)],
             "grid_obstacle_recall": round(self.recall_seen / self.recall_total, 4) if self.recall_total else None,
             "grid_obstacle_frames": self.recall_total,
             "grid_false_occupied_road": round(self.road_cells_occupied / self.road_cells, 5) if self.road_cells else None,

@@ -39,7 +39,10 @@ class RrcParams(Params):
     curvature_lookahead_m: float = param(4.0, "the road's curvature fed forward is the centre line's at this "
                                               "distance ahead", unit="m", ge=0)
     max_speed_mps: float = param(2.5, "the RRC's own speed cap", unit="m/s", gt=0)
-    min_confidence: float = param(0.3, "below this the detection is not followed", ge=0, le=1)
+    min_confidence: float = param(0.03, "below this the detection is not followed (docs/control_manager.md: grass "
+                                        "verges give right detections at 0.1-0.3)", ge=0, le=1)
+    full_speed_confidence: float = param(0.25, "from this confidence the RRC drives at its cap; below, slower in "
+                                               "proportion down to 0 at min_confidence", ge=0, le=1)
     max_kappa: float = param(0.25, "largest curvature commanded", unit="1/m", gt=0)
 
 
@@ -80,8 +83,7 @@ class RoadReactiveControl:
         b = _curvature(road.centre, p.curvature_lookahead_m)
         kappa = -(p.kp * e + p.ki * self.integral + p.kd * math.sin(road.heading_rad)) + b
         kappa = max(-p.max_kappa, min(p.max_kappa, kappa))
-        # full speed from halfway between min_confidence and 1, down to 0 at min_confidence
-        share = min(1.0, (road.confidence - p.min_confidence) / max(1.0 - p.min_confidence, 1e-9) * 2.0)
+        share = min(1.0, (road.confidence - p.min_confidence) / max(p.full_speed_confidence - p.min_confidence, 1e-9))
         return RrcCommand(p.max_speed_mps * max(share, 0.0), kappa, e, b)
 
 

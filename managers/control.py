@@ -48,8 +48,8 @@ class ControlManagerParams(Params):
                                    unit="s", gt=0)
     score_enter: float = param(0.8, "odometry score from which the odometry controller is trusted", ge=0, le=1)
     score_exit: float = param(0.5, "... and below which it loses the trust", ge=0, le=1)
-    road_enter: float = param(0.6, "road detection confidence from which the RRC is trusted", ge=0, le=1)
-    road_exit: float = param(0.4, "... and below which it loses the trust", ge=0, le=1)
+    road_enter: float = param(0.15, "road detection confidence from which the RRC is trusted", ge=0, le=1)
+    road_exit: float = param(0.04, "... and below which it loses the trust", ge=0, le=1)
     min_dwell_s: float = param(1.0, "least time a controller stays in charge before a better one may take over",
                                unit="s", ge=0)
     steering_rate_share: float = param(1.0, "the curvature ramps at this share of the steering motor's rate",

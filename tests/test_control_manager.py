@@ -167,7 +167,7 @@ def test_the_rrc_node_steers_back_to_the_centre_and_is_silent_without_a_confiden
     h = RrcHarness(run_config)
     got = h.step(0.05, road(0.05, 0.9, offset=0.5))           # half a metre left of the centre: steer right
     assert len(got) == 1 and got[0].kappa < 0 and got[0].v > 0 and got[0].controller == "rrc"
-    assert h.step(0.10, road(0.10, 0.1)) == []                 # not confident
+    assert h.step(0.10, road(0.10, 0.01)) == []                # not confident
     assert h.step(0.15, road(0.15, 0.9, offset=-0.5))[0].kappa > 0      # right of the centre: steer left
     stale = 0.15 + h.node.params.road_timeout_s + 0.05
     assert h.step(stale, None) == []                           # the detection has gone stale: silence

@@ -69,7 +69,7 @@ def test_no_confident_detection_no_candidate_and_the_integral_starts_again():
     view, _ = view_of(0.0, 0.5, 0.0, math.inf)
     assert rrc.step(view, 1.0) is not None and rrc.integral == pytest.approx(0.5)
     assert rrc.step(None, 1.0) is None and rrc.integral == 0.0
-    low, _ = view_of(0.0, 0.5, 0.0, math.inf, confidence=0.2)
+    low, _ = view_of(0.0, 0.5, 0.0, math.inf, confidence=RrcParams().min_confidence * 0.9)
     assert rrc.step(low, 1.0) is None
     nan = RoadView(math.nan, 0.0, [0.0], 0.9)
     assert rrc.step(nan, 1.0) is None
@@ -79,7 +79,7 @@ def test_speed_falls_with_confidence_and_commands_stay_bounded():
     p = RrcParams()
     rrc = RoadReactiveControl(p)
     full, _ = view_of(0.0, 0.0, 0.0, math.inf, confidence=1.0)
-    half, _ = view_of(0.0, 0.0, 0.0, math.inf, confidence=p.min_confidence + (1 - p.min_confidence) / 4)
+    half, _ = view_of(0.0, 0.0, 0.0, math.inf, confidence=(p.min_confidence + p.full_speed_confidence) / 2)
     assert rrc.step(full, 0.1).v == p.max_speed_mps
     assert rrc.step(half, 0.1).v == pytest.approx(p.max_speed_mps / 2)
     far = RoadView(50.0, 1.0, [0.0], 1.0)
