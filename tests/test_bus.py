@@ -290,11 +290,17 @@ def test_a_flooded_service_refuses_at_once_and_forgets_abandoned_requests(buses)
     from ares.bus import SERVICE_INBOX_CAPACITY
     hung, client = buses("hung"), buses("cli")
     hung.serve("supervisor/status", lambda req: SupervisorState(processes=[]))
-    wait_until(lambda: list(client.session.get(client.key("srv/supervisor/status"), timeout=0.2)) or True)
     inbox = hung._services[0][1]
-    while inbox._queue:      # the probe above queued requests; start from an empty inbox
-        inbox._queue.popleft()
     key = client.key("srv/supervisor/status")
+
+    def a_probe_reaches_the_inbox() -> bool:
+        # on a loaded machine the queryable's declaration takes a while to reach the client
+        client.session.get(key, payload=b"{}", timeout=0.5)
+        time.sleep(0.05)
+        return len(inbox._queue) > 0
+    wait_until(a_probe_reaches_the_inbox, what="the service to be reachable")
+    while inbox._queue:      # the probes queued requests; start from an empty inbox
+        inbox._queue.popleft()
     pending = [client.session.get(key, payload=b"{}", timeout=3.0) for _ in range(SERVICE_INBOX_CAPACITY + 6)]
     wait_until(lambda: inbox.refused >= 6, what="the overflow to be refused")
     busy = []

@@ -95,7 +95,7 @@ def test_the_simulator_driven_clock_gives_the_real_time_result(tmp_path):
     assert abs(fast["xte_max_m"] - real_time["xte_max_m"]) < 0.08
 
 
-def test_a_hung_controller_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):
+def test_a_hung_control_manager_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):
     cfg = make_run_config(free_port(), {"blackbox_store": {"uri": str(tmp_path / "bb.sqlite")},
                                         "api": {"port": free_port()}})
     clock = ScaledClock(2.0)
@@ -117,7 +117,7 @@ def test_a_hung_controller_stops_the_vehicle_and_the_supervisor_brings_it_back(t
         assert truth.latest.v >= 2.0, "the shuttle never got going"
 
         speed_before = truth.latest.v
-        os.kill(sup.children["controller"].pid, signal.SIGSTOP)   # hung: token and heartbeat go quiet
+        os.kill(sup.children["control_manager"].pid, signal.SIGSTOP)   # hung: token and heartbeat go quiet
         killed = time.monotonic()
         while not car.latest.watchdog_tripped and time.monotonic() - killed < 5:
             time.sleep(0.02)
@@ -129,7 +129,7 @@ def test_a_hung_controller_stops_the_vehicle_and_the_supervisor_brings_it_back(t
         while (car.latest.watchdog_tripped or truth.latest.v < 1.0) and time.monotonic() - killed < 30:
             slowest = min(slowest, truth.latest.v)
             time.sleep(0.02)
-        assert sup.children["controller"].restarts == 1
+        assert sup.children["control_manager"].restarts == 1
         assert slowest < 0.5, "the shuttle did not stop while the controller was hung"
         assert not car.latest.watchdog_tripped and truth.latest.v >= 1.0
         route = load_route(config.core(cfg))
