@@ -51,6 +51,7 @@ STARTUP_TIMEOUT_S = 60.0        # wall seconds for every process to come up and 
 ENGAGE_TIMEOUT_S = 10.0
 READY_MAX_AGE_S = 0.5        # stack seconds: the controller's status is this fresh when it is ready
 CLOCK_STALL_S = 30.0         # wall seconds without the clock moving: the run has stalled
+STANDSTILL_S = 60.0          # stack seconds without progress along the route: the shuttle is stuck
 
 
 class RunFailed(RuntimeError):
@@ -259,6 +260,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     left_automatic = 0
     last_progress = 0.0
     clock_moved = (clock.now(), time.monotonic())      # a clock that stops moving is a stalled run
+    moved = (0.0, clock.now())                         # (travelled m, when): a shuttle that stops moving is stuck
     while True:
         if stop.is_set():
             raise RunFailed("interrupted")
@@ -308,6 +310,13 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
         elif time.monotonic() - clock_moved[1] > CLOCK_STALL_S:
             raise RunFailed(f"the stack clock has not moved for {CLOCK_STALL_S:g} s (the simulator or a process it "
                             "waits for is stuck)")
+        if tracker.travelled_m > moved[0] + 0.5:
+            moved = (tracker.travelled_m, now)
+        elif now - moved[1] > STANDSTILL_S:
+            why = status.latest
+            raise RunFailed(f"the shuttle has not moved for {STANDSTILL_S:g} s, at {tracker.travelled_m:.0f} of "
+                            f"{target_m:.0f} m" + (f": the control manager forwards {why.controller} ({why.reason})"
+                                                   if why is not None else ""))
         if now - t_start > time_limit_s:
             raise RunFailed(f"did not finish within {time_limit_s:.0f} s of vehicle time "
                             f"({tracker.travelled_m:.0f} of {target_m:.0f} m)")

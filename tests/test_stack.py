@@ -39,8 +39,11 @@ def headless(*args: str, timeout_s: float = 600, lidars: Path = NO_LIDARS) -> di
 
 def test_a_full_lap_of_the_tour_as_fast_as_the_processes_keep_up(tmp_path):
     store = tmp_path / "blackbox.sqlite"
-    result = headless("--laps", "1", "--speed", "max", "--store", str(store))
+    # without LiDARs there is no road reactive control: in the RTK-loss zones the control manager
+    # would (rightly) stop, so the MPC is pinned and drives them on the UKF's dead reckoning
+    result = headless("--laps", "1", "--speed", "max", "--store", str(store), "--controller", "mpc")
     assert result["ok"] and result["laps"] == 1 and result["clock"] == "driven"
+    assert result["controller_time_share"]["mpc"] >= 0.99 and result["mpc_solves"] > 4000
     assert result["distance_m"] == pytest.approx(result["route_length_m"], rel=0.02)
     assert result["xte_rmse_m"] <= 0.35          # the DBW paper's real vehicle: 0.347 m
     assert result["xte_max_m"] <= 0.85           # ... and 0.863 m
@@ -76,7 +79,7 @@ def test_perception_in_the_stack_sees_the_road_and_the_obstacles():
     assert result["perception_ms_p50"] > 0
 
 
-def test_the_simulator_driven_clock_gives_the_real_time_result(tmp_path):
+def test_the_simulator_driven_clock_gives_the_wall_clock_result(tmp_path):
     route = tmp_path / "s_bend.csv"
     # 30 m straight, a 90 degree bend of ~15 m radius, 24 m straight
     import math
@@ -84,15 +87,15 @@ def test_the_simulator_driven_clock_gives_the_real_time_result(tmp_path):
     points += [(30 + 15 * math.sin(a), 15 - 15 * math.cos(a)) for a in [i * math.pi / 40 for i in range(21)]]
     points += [(45.0, 15 + y) for y in range(2, 26, 2)]
     route.write_text("\n".join(f"{x:.3f},{y:.3f}" for x, y in points))
-    real_time = headless("--route", str(route), "--speed", "1")
+    scaled = headless("--route", str(route), "--speed", "2")    # the wall clock, hurried: timers as at real time
     fast = headless("--route", str(route), "--speed", "max")
-    assert (real_time["clock"], fast["clock"]) == ("scaled", "driven")
+    assert (scaled["clock"], fast["clock"]) == ("scaled", "driven")
     # the margins are for a shared, noisy machine, where real time is what varies (the clock
     # starts when the stack is ready to drive, so process start-up is not in the lap)
-    assert fast["lap_time_s"] == pytest.approx(real_time["lap_time_s"], rel=0.05)
-    assert fast["distance_m"] == pytest.approx(real_time["distance_m"], rel=0.02)
-    assert abs(fast["xte_rmse_m"] - real_time["xte_rmse_m"]) < 0.03
-    assert abs(fast["xte_max_m"] - real_time["xte_max_m"]) < 0.08
+    assert fast["lap_time_s"] == pytest.approx(scaled["lap_time_s"], rel=0.05)
+    assert fast["distance_m"] == pytest.approx(scaled["distance_m"], rel=0.02)
+    assert abs(fast["xte_rmse_m"] - scaled["xte_rmse_m"]) < 0.03
+    assert abs(fast["xte_max_m"] - scaled["xte_max_m"]) < 0.08
 
 
 def test_a_hung_control_manager_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):
