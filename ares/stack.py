@@ -276,8 +276,8 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
                 perception.add_road(road)
             for _, grid in grids.drain():
                 perception.add_grid(grid)
-            for _, status in lidar_status.drain():
-                perception.add_status(status)
+            for _, sensors in lidar_status.drain():
+                perception.add_status(sensors)
             perception.retry()
         for _, pose in poses.drain():
             localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)

@@ -190,13 +190,15 @@ class Mpc:
         self._step = ca.Function("gauss_newton_step", [U0, P0, lba, uba], [U1, self._rollout(U1, P0)])
 
     # ---- each cycle ---------------------------------------------------------------------------
-    def solve(self, state: VehicleState, path_x, path_y, path_speed, latency_s: float = 0.0) -> MpcCommand:
+    def solve(self, state: VehicleState, path_x, path_y, path_speed, latency_s: float = 0.0,
+              delta_age_s: float = 0.0) -> MpcCommand:
         """One cycle: the path ahead (poses in the state's frame, from near the vehicle onwards, and
         the speed limit at each) → the command to send now. `latency_s`: how much later than the
-        state's time the command reaches the actuators (the state's age, the processes between)."""
+        state's time the command reaches the actuators (the state's age, the processes between);
+        `delta_age_s`: how much older than the state the measured wheel angle is."""
         p, n = self.params, self.params.horizon_steps
         started = time.perf_counter()
-        start = self._after_dead_time(state, max(latency_s, 0.0))
+        start, delta_start = self._after_dead_time(state, max(latency_s, 0.0), max(delta_age_s, 0.0))
         # the path in the frame of the (predicted) vehicle: x ahead, y left
         c, s = math.cos(start[2]), math.sin(start[2])
         dx, dy = np.asarray(path_x, float) - start[0], np.asarray(path_y, float) - start[1]
@@ -206,9 +208,10 @@ class Mpc:
         path = _Polyline(px, py, np.minimum(np.asarray(path_speed, float), self.max_speed))
         first = self._previous is None
         U = self._initial_guess(start[3], state.delta)
-        # the first step may move δ from where the wheels are headed (the last command) at the motor's rate
-        now = state.delta if self._sent_delta is None else self._sent_delta
-        now = float(np.clip(now, -self.max_delta, self.max_delta))
+        # the first step may move δ from where the wheels will be when it acts, at the motor's rate: at
+        # 25 km/h the wheels lag the commands by a few tenths of a second when they turn at full rate,
+        # and a plan that starts from the last command instead believes them further round than they are
+        now = float(np.clip(delta_start, -self.max_delta, self.max_delta))
         lba = np.r_[now - self.max_first_step, np.full(n - 1, -self.max_delta_step), np.full(n, -start[3])]
         uba = np.r_[now + self.max_first_step, np.full(n - 1, self.max_delta_step), np.full(n, np.inf)]
         no_path = np.zeros(4 * n)
@@ -227,22 +230,24 @@ class Mpc:
         self._limit_here = path.speed_at_vehicle()
         return self._command(state, X, U.reshape(2, n), (cte, epsi), True, solve_ms, status, start)
 
-    def _after_dead_time(self, state: VehicleState, latency_s: float) -> np.ndarray:
-        """(x, y, ψ, v) when a command sent now starts to act: the last commands run meanwhile."""
+    def _after_dead_time(self, state: VehicleState, latency_s: float, delta_age_s: float = 0.0) -> tuple[np.ndarray, float]:
+        """(x, y, ψ, v) and δ when a command sent now starts to act: the last commands run meanwhile."""
         if not self.params.compensate_dead_time:
-            return np.array([state.x, state.y, state.yaw, state.v])
+            return np.array([state.x, state.y, state.yaw, state.v]), state.delta
         steps = 4
         ahead = self.steer_dead_s + latency_s
+        wheel_rate = self.max_delta_step / self.params.step_s
         x, y, yaw, v = state.x, state.y, state.yaw, state.v
         # the wheels are on their way to the last command sent (it was sent a cycle ago, at least a
-        # dead time ago at 10 Hz): they turn at the motor's rate towards it
-        delta, rate = state.delta, self.max_delta_step / self.params.step_s * ahead / steps
+        # dead time ago at 10 Hz): they turn at the motor's rate towards it, since they were measured
         target = state.delta if self._sent_delta is None else self._sent_delta
+        delta = state.delta + float(np.clip(target - state.delta, -wheel_rate * delta_age_s, wheel_rate * delta_age_s))
+        rate = wheel_rate * ahead / steps
         for _ in range(steps):
             delta += float(np.clip(target - delta, -rate, rate))
             x, y, yaw, _ = predict(x, y, yaw, v, delta, 0.0, ahead / steps, self.wheelbase)
         v = max(0.0, v + state.accel * (self.traction_dead_s + latency_s))
-        return np.array([x, y, yaw, v])
+        return np.array([x, y, yaw, v]), delta
 
     def _initial_guess(self, v0: float, delta0: float) -> np.ndarray:
         """The previous solution's inputs shifted by one step (warm start), or holding the wheels

@@ -66,7 +66,8 @@ class MpcNode(Node):
         delta = math.radians(car.steering_wheel_deg) / self.vehicle.steering_ratio if car is not None else 0.0
         state = VehicleState(pose.x, pose.y, pose.yaw, pose.v, delta, self._accel)
         cmd = self.mpc.solve(state, match.ahead_x, match.ahead_y, match.ahead_speed,
-                             latency_s=max(now - pose.t, 0.0) + self.params.pipeline_latency_s)
+                             latency_s=max(now - pose.t, 0.0) + self.params.pipeline_latency_s,
+                             delta_age_s=max(pose.t - car.t, 0.0) if car is not None else 0.0)
         self._accel = cmd.accel
         self.candidate.put(ControlCandidate(
             t=now, controller="mpc", v=cmd.v, kappa=cmd.kappa, fresh=cmd.ok, handover=cmd.handover,

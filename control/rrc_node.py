@@ -33,7 +33,8 @@ class RrcNode(Node):
     Params = RrcNodeParams
     road = Input("perception/road", max_age="road_timeout_s", doc="centre line, offset and heading, confidence")
     car = Input("dbw/car_state", max_age="speed_timeout_s", doc="the measured speed: distance travelled")
-    candidate = Output("control/candidate/rrc", rate="rate_hz", doc="(v, kappa); silent without a confident road")
+    # no declared rate: silent wherever the road is not seen (not news for the supervisor)
+    candidate = Output("control/candidate/rrc", doc="(v, kappa) at rate_hz while the road is seen; silent without it")
 
     def setup(self) -> None:
         self.rrc = RoadReactiveControl(RrcParams(**{k: getattr(self.params, k) for k in RrcParams.model_fields}))

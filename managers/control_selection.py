@@ -16,9 +16,12 @@ so a score hovering at one threshold does not toggle. The mode in charge keeps c
 is left at once (a stale candidate is never forwarded). ODOMETRY forced by the path manager
 counts as a failing RRC: the road's model ends at the crossing.
 
-The forwarded curvature changes no faster than the steering can follow (`max_kappa_rate`, from
-the steering motor's rate): a switch between candidates that disagree is a ramp, not a jump
-(bumpless). In STOP the speed ramps down at `stop_decel_mps2` and the curvature is held.
+A switch between candidates that disagree is a ramp, not a jump (bumpless transfer): from the
+curvature forwarded so far to the new candidate's, no faster than the steering can follow
+(`max_kappa_rate`, from the steering motor's rate). Once caught up, the candidate passes through
+unchanged: the controller in charge already commands no faster than the steering turns (the
+MPC's model has the rate), and a ramp on top would only delay it (at 25 km/h, by enough to make
+the MPC weave). In STOP the speed ramps down at `stop_decel_mps2` and the curvature is held.
 
 `pinned` (for comparisons, `ares run --controller`) takes the order of trust away: the pinned
 mode drives whenever its candidate is fresh, whatever the score or the road, and STOP otherwise.
@@ -88,6 +91,7 @@ class ControlSelector:
         self.since: float | None = None             # when the mode in charge took it
         self.v = 0.0
         self.kappa = 0.0
+        self.catching_up = False                    # after a switch, until the curvature has caught up
         self.last_t: float | None = None
 
     # ---- trust ----------------------------------------------------------------------------------
@@ -165,7 +169,14 @@ class ControlSelector:
             kappa_target = self.kappa
         else:
             self.v, kappa_target = target.v, target.kappa
-        self.kappa = kappa_target if first else self.kappa + _clip(kappa_target - self.kappa, self.p.max_kappa_rate * dt)
+        if switched:
+            self.catching_up = True
+        if first or not self.catching_up:
+            self.kappa = kappa_target
+        elif abs(kappa_target - self.kappa) <= self.p.max_kappa_rate * dt:
+            self.kappa, self.catching_up = kappa_target, False
+        else:
+            self.kappa += _clip(kappa_target - self.kappa, self.p.max_kappa_rate * dt)
         return Decision(self.mode, self.v, self.kappa, switched, reason, cause)
 
 

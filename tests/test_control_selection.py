@@ -71,6 +71,11 @@ def test_a_switch_ramps_the_curvature_at_the_steering_rate():
     d = selector.step(0.1, Inputs(0.1, 0.9, False, Candidate(3.0, 0.0), Candidate(3.0, 0.1)))
     assert d.mode is Mode.RRC and d.switched and d.kappa == pytest.approx(0.02)     # 0.2 /m/s × 0.1 s
     assert "odometry score 0.10 too low" in d.reason
+    for t in (0.2, 0.3, 0.4, 0.5):                  # 0.02 a step ...
+        d = selector.step(t, Inputs(0.1, 0.9, False, Candidate(3.0, 0.0), Candidate(3.0, 0.1)))
+    assert d.kappa == pytest.approx(0.1)            # ... caught up at 0.5 s
+    d = selector.step(0.6, Inputs(0.1, 0.9, False, Candidate(3.0, 0.0), Candidate(3.0, 0.16)))
+    assert d.kappa == 0.16                          # then the RRC's own command, not delayed
 
 
 def test_a_controlled_stop_slows_and_holds_the_curvature():
@@ -101,13 +106,17 @@ def test_properties_over_random_sequences(start, cycles):
         t += dt
         inputs = Inputs(score, road, force, odo, rrc)
         held_ok, _, _ = selector.acceptable(mode, inputs, holding=True)
+        ramping = selector.catching_up
         d = selector.step(t, inputs)
         assert {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(d.mode, "stop") is not None
         if d.switched:
             assert held_ok is False or t - last_switch >= P.min_dwell_s - 1e-9   # early only when it had to
             last_switch = t
-        if kappa is not None:
-            assert abs(d.kappa - kappa) <= P.max_kappa_rate * dt + 1e-9
+        target = {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(d.mode)
+        if kappa is not None and (d.switched or ramping or target is None):
+            assert abs(d.kappa - kappa) <= P.max_kappa_rate * dt + 1e-9      # a switch, a stop: bumpless
+        elif kappa is not None:
+            assert d.kappa == target.kappa          # in charge and caught up: passed through, never delayed
         if d.mode is Mode.STOP and mode is Mode.STOP and v is not None:
             assert d.v <= v + 1e-9
         kappa, v, mode = d.kappa, d.v, d.mode

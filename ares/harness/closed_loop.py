@@ -108,17 +108,17 @@ class _Navigator:
         self.rate_hz = self.mpc_params.rate_hz if self.mpc else config.section(cfg, "pure_pursuit",
                                                                                 ControllerParams).rate_hz
         self.solve_ms: list[float] = []
-        self.latency_s = 0.0        # the command reaches the bridge at once here (the stack: mpc.pipeline_latency_s)
+        self.latency_s = self.mpc_params.pipeline_latency_s     # as the node: the command's way to the wheels
         self._accel = 0.0
 
     def command(self, t: float, x: float, y: float, yaw: float, v: float,
-                var_yaw: float = 0.0, delta: float = 0.0) -> tuple[float, float] | None:
+                var_yaw: float = 0.0, delta: float = 0.0, delta_age_s: float = 0.0) -> tuple[float, float] | None:
         _, match = self.tracker.update(t, x, y, yaw, var_yaw)
         if match is None:
             return None
         if self.mpc is not None and math.sqrt(max(var_yaw, 0.0)) <= self.mpc_params.max_heading_sigma_rad:
             cmd = self.mpc.solve(MpcState(x, y, yaw, v, delta, self._accel), match.ahead_x, match.ahead_y,
-                                 match.ahead_speed, latency_s=self.latency_s)
+                                 match.ahead_speed, latency_s=self.latency_s, delta_age_s=delta_age_s)
             self._accel = cmd.accel
             self.solve_ms.append(cmd.solve_ms)
             return cmd.v, cmd.kappa
@@ -174,12 +174,15 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
         cfg: dict | None = None, cruise_speed_mps: float | None = None, seed: int | None = None,
         record: bool = True, record_hz: float = 20.0, use_truth_pose: bool = False,
         gnss_path: str = "nmea", s0: float = 0.0, overrides: dict | None = None,
-        controller: str = "pure_pursuit") -> dict:
+        controller: str = "pure_pursuit", setpoint_delay_s: float | None = None) -> dict:
     """Drive `route` (default: the configured tour) for `seconds` of vehicle time or `laps`
     laps (default one lap), and return the recorded arrays and the summary.
 
     `cruise_speed_mps` overrides speed_profile.cruise_speed_mps; `overrides` is merged over the
     configuration (e.g. {"sim": {"imu": {"yaw_offset_rad": 0.3}}}); `seed` replaces sim.seed.
+    `setpoint_delay_s`: how long a setpoint takes to reach the bridge (default: as in the stack,
+    one period of the control manager, which forwards it; the bridge then takes it at its next
+    period, a whole period later when the controller and the bridge step together).
     """
     extra: dict = dict(overrides or {})
     if cruise_speed_mps is not None:
@@ -209,6 +212,8 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
     navigator = _Navigator(cfg, route, controller)
     scorer = OdometryScorer.from_params(config.section(cfg, "odometry_manager", OdometryParams))
     board = BridgeLoop(profile, bridge_params)
+    if setpoint_delay_s is None:
+        setpoint_delay_s = 1.0 / float(cfg["control_manager"]["rate_hz"])
     # the safety driver's button, then the software's request: Manual -> Ready -> Automatic
     board.handle(Event.button(plant.state.t))
     board.handle(Event.set_automatic(plant.state.t))
@@ -228,7 +233,7 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
 
     rows: list[tuple] = []
     last_can: CanFrame | None = None
-    setpoints: list[tuple[float, float, float]] = []     # (t, v, kappa) reaching the bridge before its period
+    setpoints: list[tuple[float, float, float]] = []     # (t, v, kappa) on their way to the bridge
     steer_effort = drive_effort = 0.0
     progress = 0.0
     last_s = st.s
@@ -251,20 +256,24 @@ def run(route: Route | None = None, seconds: float | None = None, laps: float | 
         localizer.process_until(t - localizer.hold_back_s)
 
         if due("control"):
+            # the wheels where the last CAN frame put them, as the controller nodes see them
+            delta, delta_age = (st.wheel_angle_rad, 0.0) if last_can is None else \
+                (math.radians(last_can.steering_wheel_deg) / profile.steering_ratio, t - last_can.t)
             if use_truth_pose:
-                cmd = navigator.command(t, st.x, st.y, st.yaw, st.v, delta=st.wheel_angle_rad)
+                cmd = navigator.command(t, st.x, st.y, st.yaw, st.v, delta=delta, delta_age_s=delta_age)
             else:
                 pose = localizer.pose(t)
                 cmd = None if pose is None else navigator.command(t, pose.x, pose.y, pose.yaw, pose.v, pose.var_yaw,
-                                                                  delta=st.wheel_angle_rad)
+                                                                  delta=delta, delta_age_s=delta_age)
             if cmd is not None:
                 setpoints.append((t, *cmd))
 
         if due("dbw"):
             # as the bridge node's period: the setpoints that arrived, time passes, the inner loops
-            for t_set, v_cmd, kappa_cmd in setpoints:
+            arrived = [sp for sp in setpoints if sp[0] + setpoint_delay_s <= t + 1e-9]
+            for t_set, v_cmd, kappa_cmd in arrived:
                 board.handle(Event.setpoint(v_cmd, kappa_cmd, t_set))
-            setpoints.clear()
+            del setpoints[:len(arrived)]
             board.handle(Event.tick(t))
             out = board.efforts(t, last_can)
             steer_effort, drive_effort = out.steer_effort, out.drive_effort
@@ -310,14 +319,25 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--controller", choices=("pure_pursuit", "mpc"), default="pure_pursuit")
     parser.add_argument("--route", help="a built-in tour or a tour's YAML (default: the configured tour)")
     parser.add_argument("--vehicle", help="vehicle profile")
+    parser.add_argument("--setpoint-delay", type=float, default=None,
+                        help="seconds from a setpoint to the bridge (default: the control manager's period)")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="a configuration override, e.g. mpc.w_cte=100 (repeatable)")
     args = parser.parse_args(argv)
     over: dict = {}
     if args.route:
         over["tour"] = args.route
     if args.vehicle:
         over["vehicle"] = args.vehicle
+    for item in args.set:
+        key, _, value = item.partition("=")
+        *path, leaf = key.split(".")
+        node = over
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = json.loads(value) if value[:1] in "-0123456789[{tfn" else value
     result = run(seconds=args.seconds, laps=args.laps, seed=args.seed, use_truth_pose=args.truth, gnss_path=args.gnss,
-                 controller=args.controller, overrides=over)
+                 controller=args.controller, overrides=over, setpoint_delay_s=args.setpoint_delay)
     print(json.dumps({**result["summary"], "counts": result["counts"]}))
 
 
