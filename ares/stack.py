@@ -55,7 +55,7 @@ STANDSTILL_S = 60.0          # stack seconds without progress along the route: t
 
 
 class RunFailed(RuntimeError):
-    pass
+    figures: dict | None = None         # a headless run's figures up to the failure
 
 
 def overrides_from_args(args) -> dict:
@@ -121,7 +121,7 @@ def run(args) -> int:
     except RunFailed as exc:
         print(f"ares run: {exc} (logs in {run_dir / 'logs'})", file=sys.stderr)
         if headless:
-            print(json.dumps({"ok": False, "error": str(exc), "run_dir": str(run_dir)}))
+            print(json.dumps({"ok": False, "error": str(exc), "run_dir": str(run_dir), **(exc.figures or {})}))
         return 1
     finally:
         stop.set()
@@ -261,69 +261,74 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     last_progress = 0.0
     clock_moved = (clock.now(), time.monotonic())      # a clock that stops moving is a stalled run
     moved = (0.0, clock.now())                         # (travelled m, when): a shuttle that stops moving is stuck
-    while True:
-        if stop.is_set():
-            raise RunFailed("interrupted")
-        for _, msg in truth.drain():
-            tracker.update(msg.x, msg.y, msg.odometer_m)
-            localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
-            perception.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.s)
-            control.add_truth(msg.t, tracker.xte[-1], msg.v, msg.yaw_rate, msg.accel)
-        if perceiving:
-            for _, world in worlds.drain():
-                perception.add_world(world)
-            for _, road in roads.drain():
-                perception.add_road(road)
-            for _, grid in grids.drain():
-                perception.add_grid(grid)
-            for _, sensors in lidar_status.drain():
-                perception.add_status(sensors)
-            perception.retry()
-        for _, pose in poses.drain():
-            localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)
-        for _, score in scores.drain():
-            localization.add_score(score.t, score.score)
-        for _, st in statuses.drain():
-            control.add_status(st.t, st.controller)
-        for _, cand in mpc_candidates.drain():
-            control.add_mpc(cand.solve_ms, cand.fresh)
-        for _, event in events.drain():
-            if event.kind == "controller_switch":
-                control.add_switch(event.data)
-        now = clock.now()
-        if car_state.latest is not None and car_state.latest.mode != DriveMode.AUTOMATIC:
-            left_automatic += 1
-            if left_automatic > 20:
-                raise RunFailed(f"the vehicle left Automatic mode ({car_state.latest.mode.value}: "
-                                f"{car_state.latest.reason})")
-        else:
-            left_automatic = 0
-        if seconds is not None and now - t_start >= seconds:
-            break
-        if route.closed and seconds is None and tracker.travelled_m >= target_m:
-            break
-        if not route.closed and status.latest is not None and status.latest.finished \
-                and truth.latest is not None and abs(truth.latest.v) < 0.05:
-            break
-        if now != clock_moved[0]:
-            clock_moved = (now, time.monotonic())
-        elif time.monotonic() - clock_moved[1] > CLOCK_STALL_S:
-            raise RunFailed(f"the stack clock has not moved for {CLOCK_STALL_S:g} s (the simulator or a process it "
-                            "waits for is stuck)")
-        if tracker.travelled_m > moved[0] + 0.5:
-            moved = (tracker.travelled_m, now)
-        elif now - moved[1] > STANDSTILL_S:
-            why = status.latest
-            raise RunFailed(f"the shuttle has not moved for {STANDSTILL_S:g} s, at {tracker.travelled_m:.0f} of "
-                            f"{target_m:.0f} m" + (f": the control manager forwards {why.controller} ({why.reason})"
-                                                   if why is not None else ""))
-        if now - t_start > time_limit_s:
-            raise RunFailed(f"did not finish within {time_limit_s:.0f} s of vehicle time "
-                            f"({tracker.travelled_m:.0f} of {target_m:.0f} m)")
-        if now - last_progress >= 30.0:
-            last_progress = now
-            print(f"[{now - t_start:6.0f} s] {tracker.travelled_m:6.0f} / {target_m:.0f} m", file=sys.stderr)
-        time.sleep(0.05)
+    try:
+        while True:
+            if stop.is_set():
+                raise RunFailed("interrupted")
+            for _, msg in truth.drain():
+                tracker.update(msg.x, msg.y, msg.odometer_m)
+                localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
+                perception.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.s)
+                control.add_truth(msg.t, tracker.xte[-1], msg.v, msg.yaw_rate, msg.accel)
+            if perceiving:
+                for _, world in worlds.drain():
+                    perception.add_world(world)
+                for _, road in roads.drain():
+                    perception.add_road(road)
+                for _, grid in grids.drain():
+                    perception.add_grid(grid)
+                for _, sensors in lidar_status.drain():
+                    perception.add_status(sensors)
+                perception.retry()
+            for _, pose in poses.drain():
+                localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)
+            for _, score in scores.drain():
+                localization.add_score(score.t, score.score)
+            for _, st in statuses.drain():
+                control.add_status(st.t, st.controller)
+            for _, cand in mpc_candidates.drain():
+                control.add_mpc(cand.solve_ms, cand.fresh)
+            for _, event in events.drain():
+                if event.kind == "controller_switch":
+                    control.add_switch(event.data)
+            now = clock.now()
+            if car_state.latest is not None and car_state.latest.mode != DriveMode.AUTOMATIC:
+                left_automatic += 1
+                if left_automatic > 20:
+                    raise RunFailed(f"the vehicle left Automatic mode ({car_state.latest.mode.value}: "
+                                    f"{car_state.latest.reason})")
+            else:
+                left_automatic = 0
+            if seconds is not None and now - t_start >= seconds:
+                break
+            if route.closed and seconds is None and tracker.travelled_m >= target_m:
+                break
+            if not route.closed and status.latest is not None and status.latest.finished \
+                    and truth.latest is not None and abs(truth.latest.v) < 0.05:
+                break
+            if now != clock_moved[0]:
+                clock_moved = (now, time.monotonic())
+            elif time.monotonic() - clock_moved[1] > CLOCK_STALL_S:
+                raise RunFailed(f"the stack clock has not moved for {CLOCK_STALL_S:g} s (the simulator or a process it "
+                                "waits for is stuck)")
+            if tracker.travelled_m > moved[0] + 0.5:
+                moved = (tracker.travelled_m, now)
+            elif now - moved[1] > STANDSTILL_S:
+                why = status.latest
+                raise RunFailed(f"the shuttle has not moved for {STANDSTILL_S:g} s, at {tracker.travelled_m:.0f} of "
+                                f"{target_m:.0f} m" + (f": the control manager forwards {why.controller} ({why.reason})"
+                                                       if why is not None else ""))
+            if now - t_start > time_limit_s:
+                raise RunFailed(f"did not finish within {time_limit_s:.0f} s of vehicle time "
+                                f"({tracker.travelled_m:.0f} of {target_m:.0f} m)")
+            if now - last_progress >= 30.0:
+                last_progress = now
+                print(f"[{now - t_start:6.0f} s] {tracker.travelled_m:6.0f} / {target_m:.0f} m", file=sys.stderr)
+            time.sleep(0.05)
+    except RunFailed as exc:     # what was driven until then, for `ares compare` and the reader
+        exc.figures = {"route": route.name, "vehicle": cfg["vehicle"], **tracker.summary(), **control.summary()}
+        _save_trace(run_dir, tracker, control)
+        raise
     lap_time = clock.now() - t_start
     wall_s = time.monotonic() - wall_start
     if seconds is not None and route.closed:
@@ -340,10 +345,14 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
                             np.array(tracker.progress), np.array(tracker.xte),
                             f"{route.name}: {result['distance_m']:.0f} m in {lap_time:.0f} s, {cfg['vehicle']}")
     result["plot"] = str(picture)
-    # for `ares compare`: the error along the route and who drove, at the simulator's rate
+    _save_trace(run_dir, tracker, control)
+    return result
+
+
+def _save_trace(run_dir: Path, tracker: LapTracker, control: ControlTracker) -> None:
+    """For `ares compare`: the error along the route and who drove, at the simulator's rate."""
     np.savez_compressed(run_dir / "trace.npz", progress=np.array(tracker.progress), xte=np.array(tracker.xte),
                         controller=np.array([c or "none" for c in control.in_charge()]))
-    return result
 
 
 def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path) -> int:

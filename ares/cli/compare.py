@@ -64,14 +64,19 @@ def run_one(controller: str, args: argparse.Namespace, run_dir: Path) -> dict:
     print(f"[compare] {controller}: {' '.join(cmd[3:])}", file=sys.stderr, flush=True)
     done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
-    if done.returncode != 0 or not lines:
-        raise CliError(f"the run with {controller} failed (exit {done.returncode}); its logs are in {run_dir}")
-    return json.loads(lines[-1])
+    if not lines:
+        raise CliError(f"the run with {controller} ended without a result (exit {done.returncode}); its logs are in "
+                       f"{run_dir}")
+    result = json.loads(lines[-1])
+    if not result.get("ok"):        # a controller that could not finish is a result too: its figures until then
+        print(f"[compare] {controller} did not finish: {result.get('error')}", file=sys.stderr, flush=True)
+    return result
 
 
 def table(results: dict[str, dict]) -> str:
     names = list(results)
-    rows = [["figure", *names]]
+    rows = [["figure", *names],
+            ["finished", *("yes" if results[n].get("ok") else "no: " + _short(results[n].get("error", "")) for n in names)]]
     for key in FIGURES:
         values = [results[n].get(key) for n in names]
         if all(v is None for v in values):
@@ -79,6 +84,10 @@ def table(results: dict[str, dict]) -> str:
         rows.append([key, *(_cell(v) for v in values)])
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return "\n".join("  ".join(cell.ljust(w) for cell, w in zip(row, widths)) for row in rows)
+
+
+def _short(error: str, width: int = 40) -> str:
+    return error if len(error) <= width else error[:width - 1] + "…"
 
 
 def _cell(value) -> str:
@@ -99,11 +108,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
     for controller in args.controllers:
         results[controller] = run_one(controller, args, base / f"compare-{controller}")
     out = Path(args.out) if args.out else base / f"compare-{time.strftime('%Y%m%d-%H%M%S')}.png"
-    traces = {name: Path(r["run_dir"]) / "trace.npz" for name, r in results.items()}
-    picture = write_comparison_png(out, traces, title=f"{results[args.controllers[0]]['route']}, "
-                                                      f"{results[args.controllers[0]]['vehicle']}")
+    traces = {name: Path(r["run_dir"]) / "trace.npz" for name, r in results.items()
+              if (Path(r["run_dir"]) / "trace.npz").exists()}
+    first = next(iter(results.values()))
+    picture = write_comparison_png(out, traces, title=f"{first.get('route', '')}, {first.get('vehicle', '')}") \
+        if traces else None
+    for name, r in results.items():
+        if not r.get("ok"):
+            print(f"{name} did not finish: {r.get('error')}")
     print(table(results))
     print(f"picture: {picture}")
     if args.json:
-        print(json.dumps({"runs": results, "plot": str(picture)}))
-    return 0
+        print(json.dumps({"runs": results, "plot": None if picture is None else str(picture)}))
+    return 0 if all(r.get("ok") for r in results.values()) else 1
