@@ -231,7 +231,6 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     seconds = getattr(args, "seconds", None)   # drive this long (vehicle time) instead of laps
     truth = bus.subscribe("sim/truth", queue=4096)
     car_state = bus.subscribe("dbw/car_state")
-    status = bus.subscribe("control/status")
     _wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
     engage_automatic(bus, car_state, stop)
     t_start = clock.now()
@@ -303,7 +302,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
                 break
             if route.closed and seconds is None and tracker.travelled_m >= target_m:
                 break
-            if not route.closed and status.latest is not None and status.latest.finished \
+            if not route.closed and statuses.latest is not None and statuses.latest.finished \
                     and truth.latest is not None and abs(truth.latest.v) < 0.05:
                 break
             if now != clock_moved[0]:
@@ -314,7 +313,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             if tracker.travelled_m > moved[0] + 0.5:
                 moved = (tracker.travelled_m, now)
             elif now - moved[1] > STANDSTILL_S:
-                why = status.latest
+                why = statuses.latest
                 raise RunFailed(f"the shuttle has not moved for {STANDSTILL_S:g} s, at {tracker.travelled_m:.0f} of "
                                 f"{target_m:.0f} m" + (f": the control manager forwards {why.controller} ({why.reason})"
                                                        if why is not None else ""))

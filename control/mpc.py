@@ -130,10 +130,10 @@ class Mpc:
         self.max_accel, self.max_decel = vehicle.max_accel_mps2, vehicle.max_decel_mps2
         self.max_speed = vehicle.max_speed_mps
         steering = vehicle.actuators.steering
-        wheel_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio    # rad/s
+        self.wheel_rate = wheel_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio    # rad/s
         self.max_delta_step = wheel_rate * p.step_s
         # between two solves the wheels turn only a cycle's worth: a first step asking for more would
-        # be cut short by the actuator (and by the control manager's ramp), and the next solve would
+        # be cut short by the actuator, and the next solve would
         # start from wheels that are not where it believes
         self.max_first_step = wheel_rate * min(p.step_s, 1.0 / p.rate_hz)
         self.steer_dead_s = steering.dead_time_s
@@ -236,15 +236,16 @@ class Mpc:
             return np.array([state.x, state.y, state.yaw, state.v]), state.delta
         steps = 4
         ahead = self.steer_dead_s + latency_s
-        wheel_rate = self.max_delta_step / self.params.step_s
         x, y, yaw, v = state.x, state.y, state.yaw, state.v
         # the wheels are on their way to the last command sent (it was sent a cycle ago, at least a
         # dead time ago at 10 Hz): they turn at the motor's rate towards it, since they were measured
         target = state.delta if self._sent_delta is None else self._sent_delta
-        delta = state.delta + float(np.clip(target - state.delta, -wheel_rate * delta_age_s, wheel_rate * delta_age_s))
-        rate = wheel_rate * ahead / steps
+
+        def turned(delta: float, seconds: float) -> float:
+            return delta + float(np.clip(target - delta, -self.wheel_rate * seconds, self.wheel_rate * seconds))
+        delta = turned(state.delta, delta_age_s)
         for _ in range(steps):
-            delta += float(np.clip(target - delta, -rate, rate))
+            delta = turned(delta, ahead / steps)
             x, y, yaw, _ = predict(x, y, yaw, v, delta, 0.0, ahead / steps, self.wheelbase)
         v = max(0.0, v + state.accel * (self.traction_dead_s + latency_s))
         return np.array([x, y, yaw, v]), delta

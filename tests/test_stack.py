@@ -153,17 +153,17 @@ def test_a_receivers_log_from_the_south_across_a_zone_boundary_is_driven_end_to_
     from tests.receiver_logs import MARINE_LOGGER, log_bytes, write_log
     from tests.test_receiver_logs import PLACES, short_road
 
-    for rx, place in ((MARINE_LOGGER, "across 150 E, south"),):
-        lat, lon, alt, heading = PLACES[place]
-        log = tmp_path / f"{rx.talker}_{lat:.0f}.nmea"
-        log.write_bytes(log_bytes(write_log(short_road(heading), lat, lon, alt, rx), rx))
-        route_file = tmp_path / f"{log.stem}.csv"
-        imported = subprocess.run([sys.executable, "-m", "ares.cli", "route", "import", str(log),
-                                   "-o", str(route_file)], cwd=REPO, capture_output=True, text=True)
-        assert imported.returncode == 0, imported.stderr
-        result = headless("--route", str(route_file), "--speed", "max")
-        route = Route.from_csv(route_file)
-        assert result["ok"] and result["distance_m"] == pytest.approx(route.length, rel=0.02), (place, result)
-        assert result["xte_rmse_m"] <= 0.35 and result["xte_max_m"] <= 0.85, (place, result)
-        assert result["loc_rmse_rtk_m"] <= 0.05 and result["yaw_rmse_deg"] <= 1.0, (place, result)
-        assert result["score_min_rtk"] >= 0.9, (place, result)
+    rx, place = MARINE_LOGGER, "across 150 E, south"
+    lat, lon, alt, heading = PLACES[place]
+    log = tmp_path / f"{rx.talker}_{lat:.0f}.nmea"
+    log.write_bytes(log_bytes(write_log(short_road(heading), lat, lon, alt, rx), rx))
+    route_file = tmp_path / f"{log.stem}.csv"
+    imported = subprocess.run([sys.executable, "-m", "ares.cli", "route", "import", str(log),
+                               "-o", str(route_file)], cwd=REPO, capture_output=True, text=True)
+    assert imported.returncode == 0, imported.stderr
+    result = headless("--route", str(route_file), "--speed", "max")
+    route = Route.from_csv(route_file)
+    assert result["ok"] and result["distance_m"] == pytest.approx(route.length, rel=0.02), (place, result)
+    assert result["xte_rmse_m"] <= 0.35 and result["xte_max_m"] <= 0.85, (place, result)
+    assert result["loc_rmse_rtk_m"] <= 0.05 and result["yaw_rmse_deg"] <= 1.0, (place, result)
+    assert result["score_min_rtk"] >= 0.9, (place, result)

@@ -113,9 +113,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     first = next(iter(results.values()))
     picture = write_comparison_png(out, traces, title=f"{first.get('route', '')}, {first.get('vehicle', '')}") \
         if traces else None
-    for name, r in results.items():
-        if not r.get("ok"):
-            print(f"{name} did not finish: {r.get('error')}")
     print(table(results))
     print(f"picture: {picture}")
     if args.json:

@@ -33,6 +33,7 @@ import time
 from typing import Callable
 
 import numpy as np
+import yaml
 
 from ares import config, run_config
 from ares.config import CoreConfig, load_scenario
@@ -335,7 +336,7 @@ def main(argv: list[str] | None = None) -> None:
         node = over
         for part in path:
             node = node.setdefault(part, {})
-        node[leaf] = json.loads(value) if value[:1] in "-0123456789[{tfn" else value
+        node[leaf] = yaml.safe_load(value)        # typed as in a config file
     result = run(seconds=args.seconds, laps=args.laps, seed=args.seed, use_truth_pose=args.truth, gnss_path=args.gnss,
                  controller=args.controller, overrides=over, setpoint_delay_s=args.setpoint_delay)
     print(json.dumps({**result["summary"], "counts": result["counts"]}))
