@@ -270,6 +270,36 @@ class Setpoint(Msg):
     source: str
 
 
+class MovementCommand(Msg):
+    """The one command the drive-by-wire bridge accepts: the movement manager's (ARES §3.7)."""
+    v: float = Field(ge=0.0)
+    kappa: float
+    emergency: bool = False     # brake fully and hold: a latched level-1 stop
+    source: str                 # the controller whose command it carries, or "stop"
+
+
+class MovementStatus(Msg):
+    """The movement gate's state: what limits the shuttle now, and why."""
+    level: int | None           # the awareness level seen (0 nominal, 1 critical, 2 low; None: missing)
+    latched: bool               # an emergency stop waits for a re-arm
+    latch_cause: str = ""
+    stopping: bool              # a controlled stop (level 2, or an input missing)
+    limit_mps: float | None     # the lowest active limit (None: none)
+    limited_by: str             # the manager it comes from, "stop", "emergency" or ""
+    limits: dict[str, float | None] = Field(default_factory=dict)    # each limiting manager's (None: missing)
+    v: float
+    kappa: float
+    reason: str
+
+
+class AwarenessState(Msg):
+    """Self-awareness (ARES §3.7): the level and everything that holds it there."""
+    level: int = Field(ge=0, le=2)    # 0 nominal, 1 critical (emergency stop), 2 low (stop, resume when cleared)
+    causes: list[str] = Field(default_factory=list)     # "lidar roof: 0.0 Hz (blocked?)", "process mpc: dead", ...
+    sensors: dict[str, str] = Field(default_factory=dict)      # sensor -> ok, or what is wrong
+    processes: dict[str, str] = Field(default_factory=dict)    # whitelisted process -> ok, or what is wrong
+
+
 class ControlCandidate(Msg):
     """One controller's proposal (ARES §3.6: every controller computes all the time); the control
     manager decides whose reaches the drive-by-wire bridge."""
@@ -426,6 +456,16 @@ class DriverCommand(Msg):
     action: Literal["BUTTON", "THROTTLE", "BRAKE", "STEER", "RELEASE"]
     value: float = 0.0          # pedal position 0..1, or steering-wheel angle (deg) for STEER
     duration_s: float = Field(default=1.0, ge=0.0, le=600.0)
+
+
+class RearmRequest(Msg):
+    """A person re-arms after an emergency stop (the REST API checks the operator's credentials)."""
+    operator: str = Field(min_length=1, max_length=64)
+
+
+class RearmReply(Msg):
+    accepted: bool
+    reason: str
 
 
 class Ack(Msg):

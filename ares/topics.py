@@ -75,8 +75,12 @@ TOPIC_TABLE: list[Topic] = [
     Topic("control/candidate/rrc", m.ControlCandidate, "road reactive control's (v, kappa) (ARES §3.6.2)"),
     Topic("control/candidate/pure_pursuit", m.ControlCandidate, "pure pursuit's (v, kappa) (DBW paper)"),
     Topic("control/mpc/trajectory", m.PredictedTrajectory, "the MPC's predicted trajectory over its horizon"),
-    Topic("control/setpoint", m.Setpoint, "(v, kappa): the only command the drive-by-wire bridge accepts; the "
-                                          "control manager's"),
+    Topic("control/setpoint", m.Setpoint, "(v, kappa): the control manager's choice, to the movement manager"),
+    Topic("movement/command", m.MovementCommand, "(v, kappa, emergency): the only command the drive-by-wire bridge "
+                                                 "accepts; the movement manager's, the only one that may ask for an "
+                                                 "emergency stop"),
+    Topic("movement/status", m.MovementStatus, "what limits the shuttle now and why; a latched emergency stop"),
+    Topic("awareness/state", m.AwarenessState, "self-awareness level (0, 1 critical, 2 low) and its causes"),
     Topic("control/status", m.ControllerStatus, "the controller in charge, why, and the errors along the route"),
     Topic("dbw/actuators", m.ActuatorCommand, "efforts to the steering motor and traction/brake"),
     Topic("dbw/reference", m.DbwReference, "the inner loops' references"),
@@ -96,6 +100,8 @@ SERVICE_TABLE: list[Service] = [
     Service("sim/driver", m.DriverCommand, m.Ack, "a driver action on the simulated vehicle"),
     Service("sim/lidar_fault", m.LidarFault, m.Ack, "cover or uncover a simulated LiDAR (fault injection)"),
     Service("supervisor/status", m.Empty, m.SupervisorState, "every process's state"),
+    Service("movement/rearm", m.RearmRequest, m.RearmReply, "clear a latched emergency stop (refused while level 1 "
+                                                             "lasts); the REST API's operators only"),
 ]
 
 TOPICS: dict[str, Topic] = {t.name: t for t in TOPIC_TABLE}

@@ -55,7 +55,7 @@ from typing import Callable, Mapping, Sequence
 from ares import topics
 from ares.config import Params, param
 from ares.geodesy import LocalFrame
-from ares.messages import (CarState, ControllerStatus, Event, EventLevel, Pose, Position, ProcessHealth,
+from ares.messages import (AwarenessState, CarState, ControllerStatus, Event, EventLevel, Pose, Position, ProcessHealth,
                            SensorHealth, StoredEvent, SupervisorState, VehicleRecord)
 from ares.node import Input, InputGroup, Node
 from blackbox.spool import Item, Spool, split
@@ -142,6 +142,7 @@ class Snapshot:
     car: CarState | None = None
     controller: ControllerStatus | None = None
     supervisor: SupervisorState | None = None
+    awareness: AwarenessState | None = None
     scores: dict[str, float] = field(default_factory=dict)
     sensor_rates: dict[str, float] = field(default_factory=dict)
 
@@ -160,7 +161,7 @@ def build_record(vehicle_id: str, time: datetime, k: int, snap: Snapshot, frame:
                  for name, rate in snap.sensor_rates.items()},
         processes={p.name: ProcessHealth(state=p.state, restarts=p.restarts)
                    for p in (snap.supervisor.processes if snap.supervisor is not None else [])},
-        awareness_level=None,       # self-awareness manager: not yet in the stack
+        awareness_level=snap.awareness.level if snap.awareness is not None else None,
         mission_state=None,         # mission manager: not yet in the stack
         events=events)
 
@@ -396,6 +397,7 @@ class Recorder(Node):
     car = Input("dbw/car_state", max_age="max_age_s", doc="speed, steering, drive mode")
     controller = Input("control/status", max_age="max_age_s", doc="the active controller")
     supervisor = Input("supervisor/state", max_age="max_age_s", doc="process health")
+    awareness = Input("awareness/state", max_age="max_age_s", doc="the self-awareness level")
     scores = InputGroup(topics.score_topics(), max_age="max_age_s", doc="every manager's score")
     sensors = InputGroup(SENSOR_TOPICS, doc="message rates -> sensor health")
     events = Input("events", queue="event_queue", doc="recorded as they arrive")
@@ -448,7 +450,7 @@ class Recorder(Node):
         window = self.params.sensor_window_s
         return Snapshot(
             pose=self.pose.fresh(now), car=self.car.fresh(now), controller=self.controller.fresh(now),
-            supervisor=self.supervisor.fresh(now),
+            supervisor=self.supervisor.fresh(now), awareness=self.awareness.fresh(now),
             scores={name: float(msg.score) for name, sub in self.scores.items() if (msg := sub.fresh(now)) is not None},
             sensor_rates={name: sub.rate_hz(window, now) for name, sub in self.sensors.items()})
 

@@ -56,6 +56,7 @@ class BridgeLoop:
         self.wheel_speed_pid = PID.from_gains(profile.dbw_pid.throttle)
         self.dt = 1.0 / params.rate_hz
         self._was_engaged = False
+        self.emergency = False          # the movement manager's latched emergency stop: brake fully
 
     def handle(self, event: Event) -> Outcome:
         return self.core.handle(event)
@@ -90,6 +91,8 @@ class BridgeLoop:
             if cmd.v == 0.0 and can.speed_mps < self.params.standstill_speed_mps:
                 # a PI loop alone creeps around zero on a slope; the board holds the brake
                 drive_effort = min(drive_effort, -self.params.standstill_brake_effort)
+            if self.emergency:
+                drive_effort = -1.0
         self._was_engaged = cmd.engaged and can is not None
         return BridgeOutput(cmd, reference, steer_effort, drive_effort)
 
@@ -98,7 +101,8 @@ class DbwBridge(Node):
     """Manual / Ready / Automatic modes, the setpoint watchdog, the command gate, the inner loops."""
     name = "dbw_bridge"
     Params = DbwBridgeParams
-    setpoints = Input("control/setpoint", queue=64, doc="(v, kappa) from navigation")
+    setpoints = Input("movement/command", queue=64, doc="(v, kappa, emergency) from the movement manager: the only "
+                                                        "source of commands")
     panel = Input("vehicle/panel", queue=64, doc="button, pedals, steering wheel")
     can = Input("sensors/can", max_age="can_timeout_s",
                 doc="measured steering-wheel angle and wheel speed, pedal positions")
@@ -142,6 +146,7 @@ class DbwBridge(Node):
         for _, sp in self.setpoints.drain():
             # as old as its stamp says: a setpoint that arrives late must not keep the watchdog quiet
             self._handle(Event.setpoint(sp.v, sp.kappa, sp.t))
+            self.board.emergency = sp.emergency
         self._handle(Event.tick(now))
         out = self.board.efforts(now, can)
         cmd = out.command

@@ -47,8 +47,10 @@ def test_docs_nodes_md_is_what_ares_describe_prints(cfg):
 def test_the_topic_graph_is_whole(cfg):
     graph = contracts.graph(contracts.all_contracts(cfg))
     assert contracts.problems(graph) == []
-    # the command the bridge obeys has exactly one source
-    assert graph["control/setpoint"]["publishers"] == ["control_manager"]
+    # the command the bridge obeys has exactly one source, and the bridge reads no other
+    assert graph["movement/command"]["publishers"] == ["movement_manager"]
+    assert graph["movement/command"]["subscribers"] == ["dbw_bridge"]
+    assert graph["control/setpoint"]["subscribers"] == ["movement_manager"]
     assert graph["dbw/actuators"]["subscribers"] == ["sim"]
     assert "supervisor" in graph["supervisor/state"]["publishers"]
 
@@ -65,7 +67,8 @@ def test_problems_in_a_graph_are_named():
 def test_the_simulator_waits_for_every_process_it_feeds(cfg):
     fed = contracts.fed_by(contracts.all_contracts(cfg), "sim")
     assert fed == ["lidar_sim", "gnss", "localization", "odometry_manager", "path_manager", "speed_manager",
-                   "lidar_perception", "dbw_bridge", "mpc", "rrc", "pure_pursuit", "control_manager", "blackbox"]
+                   "lidar_perception", "dbw_bridge", "mpc", "rrc", "pure_pursuit", "control_manager",
+                   "awareness_manager", "movement_manager", "blackbox"]
 
 
 def test_declaring_a_topic_that_is_not_in_the_table_fails_when_the_class_is_defined():
@@ -109,7 +112,7 @@ def test_ares_describe_json_lists_every_process():
     assert by_name["dbw_bridge"]["services"][0]["name"] == "set_automatic_mode"
     assert any(p["name"] == "path_manager.radius_m" and p["value"] == 5.0 and p["unit"] == "m"
                for p in by_name["path_manager"]["parameters"])
-    assert described["topics"]["control/setpoint"]["subscribers"] == ["dbw_bridge"]
+    assert described["topics"]["movement/command"]["subscribers"] == ["dbw_bridge"]
 
 
 def _readme_template() -> str:

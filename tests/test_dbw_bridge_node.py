@@ -11,7 +11,7 @@ import pytest
 from ares import topics
 from ares.clock import ManualClock
 from ares.membus import MemoryNetwork
-from ares.messages import CanFrame, DriveMode, EventLevel, PanelEvent, PanelInput, Setpoint
+from ares.messages import CanFrame, DriveMode, EventLevel, PanelEvent, MovementCommand, PanelInput
 from ares.node import ContractError
 from control import dbw_bridge
 from control.dbw_bridge import DbwBridge
@@ -56,9 +56,10 @@ class BridgeOnTheBus:
     def press(self, what: PanelInput) -> None:
         self.bus.publish("vehicle/panel", PanelEvent(t=self.clock.now(), input=what))
 
-    def setpoint(self, v: float, kappa: float, stamp: float | None = None) -> None:
+    def setpoint(self, v: float, kappa: float, stamp: float | None = None, emergency: bool = False) -> None:
         t = self.clock.now() if stamp is None else stamp
-        self.bus.publish("control/setpoint", Setpoint(t=t, v=v, kappa=kappa, source="test"))
+        self.bus.publish("movement/command", MovementCommand(t=t, v=v, kappa=kappa, emergency=emergency,
+                                                             source="test"))
 
     def set_automatic_mode(self):
         return self.bus.call("set_automatic_mode")
@@ -102,7 +103,7 @@ def test_the_contract_is_the_documented_one():
     # out; the software half of the Manual -> Ready -> Automatic switch as a service
     assert "navigation setpoints in, actuator efforts out" in dbw_bridge.__doc__
     assert {i.topic: i.attr for i in DbwBridge.inputs()} == {
-        "control/setpoint": "setpoints", "vehicle/panel": "panel", "sensors/can": "can"}
+        "movement/command": "setpoints", "vehicle/panel": "panel", "sensors/can": "can"}
     assert {o.topic: o.attr for o in DbwBridge.outputs()} == {
         "dbw/actuators": "actuators", "dbw/reference": "reference", "dbw/measure": "measure",
         "dbw/car_state": "car_state"}
@@ -117,14 +118,14 @@ def test_the_contract_refuses_anything_undeclared(bridge):
     assert declared.topic == "dbw/car_state"
     # the command topic has one publisher, the movement manager: never the bridge itself
     with pytest.raises(ContractError, match="does not declare"):
-        bridge.node.bus.publish("control/setpoint", Setpoint(t=0.0, v=1.0, kappa=0.0, source="dbw_bridge"))
+        bridge.node.bus.publish("movement/command", MovementCommand(t=0.0, v=1.0, kappa=0.0, source="dbw_bridge"))
     with pytest.raises(ContractError, match="does not declare"):
         bridge.node.bus.publisher("path/match")
     with pytest.raises(ContractError, match="outside its contract"):
         bridge.node.bus.subscribe("localization/pose")
     with pytest.raises(ContractError, match="outside its contract"):
         bridge.node.bus.serve("set_automatic_mode", lambda request: None)
-    assert bridge.network.published[bridge.bus.key("control/setpoint")] == 0
+    assert bridge.network.published[bridge.bus.key("movement/command")] == 0
 
 
 def test_everything_the_bridge_publishes_is_declared(bridge):
@@ -132,7 +133,7 @@ def test_everything_the_bridge_publishes_is_declared(bridge):
     t = bridge.arm(0.1)
     bridge.press(PanelInput.BRAKE_PEDAL)
     bridge.step(t)
-    fed = {bridge.bus.key(topic) for topic in ("sensors/can", "vehicle/panel", "control/setpoint")}
+    fed = {bridge.bus.key(topic) for topic in ("sensors/can", "vehicle/panel", "movement/command")}
     declared = {bridge.bus.key(o.topic) for o in DbwBridge.outputs()} | {bridge.bus.key("events")}
     assert set(bridge.network.published) - fed == declared
 
@@ -296,6 +297,17 @@ def test_one_second_without_setpoints_stops_and_centres_the_steering_then_it_rec
     assert [(e.kind, e.level) for e in recovered] == [("watchdog", EventLevel.INFO)]
 
 
+def test_the_movement_managers_emergency_stop_brakes_fully_and_holds_the_wheel(bridge):
+    t = bridge.arm(0.0)
+    bridge.setpoint(0.0, 0.05, stamp=t, emergency=True)
+    car, actuators = bridge.step(t)
+    assert actuators.engaged and actuators.drive_effort == -1.0
+    assert car.mode == DriveMode.AUTOMATIC and (car.v_command, car.kappa_command) == (0.0, 0.05)
+    bridge.setpoint(1.0, 0.0, stamp=round(t + PERIOD, 9))      # re-armed: the gate's commands drive again
+    _, actuators = bridge.step(round(t + PERIOD, 9))
+    assert actuators.drive_effort > -1.0
+
+
 def test_a_setpoint_older_than_the_timeout_when_it_arrives_is_not_driven(bridge):
     t = bridge.arm(0.0)
     for now in ticks(t, t + 1.0):           # navigation goes quiet: the watchdog stops the car
@@ -348,8 +360,8 @@ def test_re_engaging_starts_the_inner_loops_afresh(bridge):
 
 def test_corrupt_setpoints_are_rejected_and_the_bridge_keeps_running(bridge):
     t = bridge.arm(0.0)
-    key = bridge.bus.key("control/setpoint")
-    encoding = "application/json;Setpoint"
+    key = bridge.bus.key("movement/command")
+    encoding = "application/json;MovementCommand"
     for payload in (b"garbage", b'{"t": 0, "v": "fast", "kappa": 0, "source": "x"}',
                     b'{"t": 0, "v": 1e999, "kappa": 0, "source": "x"}'):
         bridge.network.put(key, encoding, payload)

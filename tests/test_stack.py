@@ -98,7 +98,10 @@ def test_the_simulator_driven_clock_gives_the_wall_clock_result(tmp_path):
     assert abs(fast["xte_max_m"] - scaled["xte_max_m"]) < 0.08
 
 
-def test_a_hung_control_manager_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):
+def test_a_hung_movement_manager_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):
+    """The movement manager is the bridge's only source of commands: hung, the bridge's watchdog
+    stops the shuttle (a hung control manager is the movement gate's missing input: a controlled
+    stop, tests/test_movement_gate.py)."""
     cfg = make_run_config(free_port(), {"blackbox_store": {"uri": str(tmp_path / "bb.sqlite")},
                                         "api": {"port": free_port()}})
     clock = ScaledClock(2.0)
@@ -120,20 +123,20 @@ def test_a_hung_control_manager_stops_the_vehicle_and_the_supervisor_brings_it_b
         assert truth.latest.v >= 2.0, "the shuttle never got going"
 
         speed_before = truth.latest.v
-        os.kill(sup.children["control_manager"].pid, signal.SIGSTOP)   # hung: token and heartbeat go quiet
+        os.kill(sup.children["movement_manager"].pid, signal.SIGSTOP)   # hung: token and heartbeat go quiet
         killed = time.monotonic()
         while not car.latest.watchdog_tripped and time.monotonic() - killed < 5:
             time.sleep(0.02)
-        assert car.latest.watchdog_tripped, "the bridge did not notice the silent controller"
+        assert car.latest.watchdog_tripped, "the bridge did not notice the silent movement manager"
         assert car.latest.v_command == 0.0 and car.latest.kappa_command == 0.0
         assert car.latest.mode == DriveMode.AUTOMATIC
         slowest = speed_before
-        # the supervisor restarts the controller; setpoints return and the shuttle drives on
+        # the supervisor restarts the movement manager; commands return and the shuttle drives on
         while (car.latest.watchdog_tripped or truth.latest.v < 1.0) and time.monotonic() - killed < 30:
             slowest = min(slowest, truth.latest.v)
             time.sleep(0.02)
-        assert sup.children["control_manager"].restarts == 1
-        assert slowest < 0.5, "the shuttle did not stop while the controller was hung"
+        assert sup.children["movement_manager"].restarts == 1
+        assert slowest < 0.5, "the shuttle did not stop while the movement manager was hung"
         assert not car.latest.watchdog_tripped and truth.latest.v >= 1.0
         route = load_route(config.core(cfg))
         assert abs(route.project(truth.latest.x, truth.latest.y, truth.latest.s)[1]) < 0.5

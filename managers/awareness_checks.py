@@ -1,0 +1,170 @@
+"""Self-awareness checks (ARES §3.7), without a bus: each sensor's and each process's health and
+the level they add up to.
+
+| what                  | healthy                                              | else      |
+|-----------------------|------------------------------------------------------|-----------|
+| each LiDAR            | >= lidar_min_hz and >= lidar_min_road_points          | level 1   |
+| LiDAR status itself   | arriving                                             | level 2   |
+| IMU                   | >= imu_min_hz, and its readings not all identical    | level 2   |
+| GNSS                  | >= gnss_min_hz, position variance <= gnss_max_var_m2 | level 2   |
+| GNSS corrections      | lost for at most corrections_max_loss_s (5 min)      | level 2   |
+| whitelisted processes | running (the supervisor judges hangs by heartbeat)   | level 2   |
+
+A blocked LiDAR is level 1 because the shuttle is then blind on that side, whatever its
+localization; the others are level 2: the shuttle stops under control and goes on by itself once
+they clear. The level is the most severe of the causes (1 before 2).
+"""
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field
+
+from ares.config import Params, param
+from ares.messages import GnssFix, Imu, LidarStatus, ProcessState, SupervisorState
+
+NOMINAL, CRITICAL, LOW = 0, 1, 2
+
+
+class AwarenessParams(Params):
+    rate_hz: float = param(2.0, "checks per second (ARES §3.7: every 0.5 s)", unit="Hz", gt=0)
+    window_s: float = param(2.0, "rates are counted over this window of message stamps", unit="s", gt=0)
+    lidar_min_hz: float = param(8.0, "each LiDAR's sweeps per second at least (they turn at 10 Hz)", unit="Hz", gt=0)
+    lidar_min_road_points: int = param(200, "road points a LiDAR's sweep must hold (a covered sensor sees none)", ge=0)
+    lidar_status_timeout_s: float = param(1.0, "no LiDAR status this long: the LiDARs' health is unknown", unit="s",
+                                          gt=0)
+    imu_min_hz: float = param(30.0, "IMU messages per second at least", unit="Hz", gt=0)
+    imu_frozen_s: float = param(0.5, "an IMU repeating exactly the same reading this long is frozen", unit="s", gt=0)
+    gnss_min_hz: float = param(4.0, "GNSS fixes per second at least", unit="Hz", gt=0)
+    gnss_max_var_m2: float = param(1.0, "a fix's position variance (x + y) at most (without corrections ~0.5 m²)",
+                                   unit="m^2", gt=0)
+    corrections_max_loss_s: float = param(300.0, "RTK corrections lost longer than this: level 2 (ARES §3.7: 5 min)",
+                                          unit="s", gt=0)
+    supervisor_timeout_s: float = param(1.5, "no process table from the supervisor this long: processes unknown",
+                                        unit="s", gt=0)
+
+
+@dataclass
+class Assessment:
+    level: int = NOMINAL
+    causes: list[str] = field(default_factory=list)
+    sensors: dict[str, str] = field(default_factory=dict)
+    processes: dict[str, str] = field(default_factory=dict)
+
+    def add(self, level: int, cause: str) -> None:
+        self.causes.append(cause)
+        if self.level == NOMINAL or level < self.level:     # 1 is more severe than 2
+            self.level = level
+
+
+class RateWatch:
+    """Message stamps over a window: a rate that does not depend on when it is asked."""
+
+    def __init__(self, window_s: float):
+        self.window_s = window_s
+        self.stamps: collections.deque[float] = collections.deque()
+
+    def add(self, t: float) -> None:
+        self.stamps.append(t)
+
+    def rate_hz(self, now: float) -> float:
+        while self.stamps and self.stamps[0] <= now - self.window_s:
+            self.stamps.popleft()
+        return len(self.stamps) / self.window_s
+
+
+class AwarenessChecks:
+    """Fed every sensor message as it arrives; `assess(now)` gives the level and its causes."""
+
+    def __init__(self, params: AwarenessParams, lidars: list[str], started_at: float = 0.0):
+        self.p = params
+        self.lidars = lidars
+        self.imu_rate, self.gnss_rate = RateWatch(params.window_s), RateWatch(params.window_s)
+        self._imu_last: tuple | None = None
+        self._imu_same_since: float | None = None
+        self._gnss_var: float | None = None
+        self._rtk_last_seen = started_at
+        self._started_at = started_at
+
+    def on_imu(self, imu: Imu) -> None:
+        self.imu_rate.add(imu.t)
+        reading = (imu.gyro_x, imu.gyro_y, imu.gyro_z, imu.accel_x, imu.accel_y, imu.accel_z, imu.yaw)
+        if reading != self._imu_last:
+            self._imu_last, self._imu_same_since = reading, imu.t
+        elif self._imu_same_since is None:
+            self._imu_same_since = imu.t
+
+    def on_gnss(self, fix: GnssFix) -> None:
+        self.gnss_rate.add(fix.t)
+        self._gnss_var = fix.var_x + fix.var_y
+        if fix.rtk:
+            self._rtk_last_seen = fix.t
+
+    def assess(self, now: float, lidar: LidarStatus | None, supervisor: SupervisorState | None,
+               whitelist: set[str] | None = None) -> Assessment:
+        p, out = self.p, Assessment()
+        warm = now - self._started_at >= p.window_s        # rates need a full window
+        self._lidars(now, lidar, out)
+        imu_hz = self.imu_rate.rate_hz(now)
+        frozen = self._imu_same_since is not None and now - self._imu_same_since >= p.imu_frozen_s
+        if warm and imu_hz < p.imu_min_hz:
+            out.sensors["imu"] = f"{imu_hz:.0f} Hz < {p.imu_min_hz:.0f}"
+        elif frozen:
+            out.sensors["imu"] = f"frozen: the same reading for {now - self._imu_same_since:.1f} s"
+        else:
+            out.sensors["imu"] = "ok"
+        gnss_hz = self.gnss_rate.rate_hz(now)
+        lost_for = now - self._rtk_last_seen
+        if warm and gnss_hz < p.gnss_min_hz:
+            out.sensors["gnss"] = f"{gnss_hz:.1f} Hz < {p.gnss_min_hz:.0f}"
+        elif self._gnss_var is not None and self._gnss_var > p.gnss_max_var_m2:
+            out.sensors["gnss"] = f"variance {self._gnss_var:.2f} m² > {p.gnss_max_var_m2:.2f}"
+        elif lost_for > p.corrections_max_loss_s:
+            out.sensors["gnss"] = f"RTK corrections lost for {lost_for:.0f} s > {p.corrections_max_loss_s:.0f}"
+        else:
+            out.sensors["gnss"] = "ok"
+        for name in ("imu", "gnss"):
+            if out.sensors[name] != "ok":
+                out.add(LOW, f"{name}: {out.sensors[name]}")
+        self._processes(now, supervisor, whitelist, out)
+        return out
+
+    def _lidars(self, now: float, status: LidarStatus | None, out: Assessment) -> None:
+        p = self.p
+        if not self.lidars:
+            return
+        if status is None or now - status.t > p.lidar_status_timeout_s:
+            for name in self.lidars:
+                out.sensors[f"lidar {name}"] = "unknown: no LiDAR status"
+            out.add(LOW, "lidars: no status from perception")
+            return
+        for name in self.lidars:
+            health = status.sensors.get(name)
+            if health is None:
+                problem = "missing from the status"
+            elif health.blind:
+                problem = "blind: no points (covered or failed)"
+            elif health.rate_hz < p.lidar_min_hz:
+                problem = f"{health.rate_hz:.1f} Hz < {p.lidar_min_hz:.0f}"
+            elif health.road_points < p.lidar_min_road_points:
+                problem = f"{health.road_points} road points < {p.lidar_min_road_points} (blocked?)"
+            else:
+                problem = ""
+            out.sensors[f"lidar {name}"] = problem or "ok"
+            if problem:
+                out.add(CRITICAL, f"lidar {name}: {problem}")
+
+    def _processes(self, now: float, supervisor: SupervisorState | None, whitelist: set[str] | None,
+                   out: Assessment) -> None:
+        if supervisor is None or now - supervisor.t > self.p.supervisor_timeout_s:
+            out.add(LOW, "processes: no state from the supervisor")
+            return
+        for proc in supervisor.processes:
+            if whitelist is not None and proc.name not in whitelist:
+                continue
+            if whitelist is None and not proc.safety_relevant:
+                continue
+            problem = "" if proc.state == ProcessState.RUNNING else \
+                proc.state.value + (f" ({proc.last_failure})" if proc.last_failure else "")
+            out.processes[proc.name] = problem or "ok"
+            if problem:
+                out.add(LOW, f"process {proc.name}: {problem}")

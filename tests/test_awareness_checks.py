@@ -1,0 +1,115 @@
+"""Self-awareness checks (managers/awareness_checks.py): each sensor and process fault gives its
+level and a cause that says what is wrong; level 1 outranks level 2; faults clear by themselves."""
+from __future__ import annotations
+
+import pytest
+
+from ares.messages import (GnssFix, Imu, LidarHealth, LidarStatus, ProcessState, ProcessStatus, SupervisorState)
+from managers.awareness_checks import CRITICAL, LOW, NOMINAL, AwarenessChecks, AwarenessParams
+
+P = AwarenessParams()
+LIDARS = ["front_left", "front_right", "roof"]
+WELL = LidarHealth(rate_hz=10.0, points=20000, road_points=3000, age_s=0.05)
+
+
+def imu(t: float, k: int) -> Imu:
+    return Imu(t=t, yaw=0.1, roll=0.0, pitch=0.0, gyro_x=0.001 * k, gyro_y=0.0, gyro_z=0.01, accel_x=0.0, accel_y=0.0,
+               accel_z=9.81)
+
+
+def fix(t: float, rtk: bool = True, var: float = 2.5e-5) -> GnssFix:
+    return GnssFix(t=t, x=0.0, y=0.0, z=0.0, lat=28.48, lon=-16.32, easting=0.0, northing=0.0, zone=28,
+                   hemisphere="N", quality=4 if rtk else 1, rtk=rtk, satellites=12, hdop=0.8, var_x=var, var_y=var,
+                   var_z=var)
+
+
+def supervisor(t: float, **states: ProcessState) -> SupervisorState:
+    names = ("localization", "mpc", "movement_manager", "blackbox")
+    return SupervisorState(t=t, processes=[
+        ProcessStatus(name=n, state=states.get(n, ProcessState.RUNNING), safety_relevant=n != "blackbox",
+                      last_failure="liveliness lost" if n in states else "") for n in names])
+
+
+def fed(seconds: float = 3.0, imu_hz: float = 50.0, gnss_hz: float = 5.0, frozen_after: float | None = None,
+        rtk_until: float | None = None, var: float = 2.5e-5) -> AwarenessChecks:
+    checks = AwarenessChecks(P, LIDARS, started_at=0.0)
+    for k in range(int(seconds * imu_hz)):
+        t = k / imu_hz
+        checks.on_imu(imu(t, k if frozen_after is None or t < frozen_after else int(frozen_after * imu_hz)))
+    for k in range(int(seconds * gnss_hz)):
+        t = k / gnss_hz
+        checks.on_gnss(fix(t, rtk=rtk_until is None or t < rtk_until, var=var))
+    return checks
+
+
+def lidars(t: float, **faults: LidarHealth) -> LidarStatus:
+    return LidarStatus(t=t, sensors={name: faults.get(name, WELL) for name in LIDARS})
+
+
+def test_all_well_is_nominal():
+    found = fed().assess(3.0, lidars(2.95), supervisor(2.9))
+    assert found.level == NOMINAL and found.causes == []
+    assert set(found.sensors.values()) == {"ok"} and set(found.processes) == {"localization", "mpc",
+                                                                                "movement_manager"}
+
+
+@pytest.mark.parametrize("fault,level,says", [
+    ({"roof": LidarHealth(rate_hz=10.0, points=3, road_points=0, blind=True)}, CRITICAL, "lidar roof: blind: no points (covered or failed)"),
+    ({"front_left": LidarHealth(rate_hz=10.0, points=9000, road_points=12)}, CRITICAL,
+     "lidar front_left: 12 road points < 200 (blocked?)"),
+    ({"front_right": LidarHealth(rate_hz=4.0, points=9000, road_points=900)}, CRITICAL,
+     "lidar front_right: 4.0 Hz < 8"),
+])
+def test_a_blocked_or_slow_lidar_is_level_1(fault, level, says):
+    found = fed().assess(3.0, lidars(2.95, **fault), supervisor(2.9))
+    assert found.level == level and found.causes == [says]
+
+
+def test_no_lidar_status_is_level_2():
+    found = fed().assess(3.0, lidars(1.5), supervisor(2.9))
+    assert found.level == LOW and found.causes == ["lidars: no status from perception"]
+
+
+@pytest.mark.parametrize("kwargs,says", [
+    ({"imu_hz": 20.0}, "imu: 20 Hz < 30"),
+    ({"frozen_after": 2.0}, "imu: frozen: the same reading for 1.0 s"),
+    ({"gnss_hz": 2.0}, "gnss: 1.5 Hz < 4"),       # stamps 1.5, 2.0, 2.5 in the last 2 s
+    ({"var": 0.8}, "gnss: variance 1.60 m² > 1.00"),
+])
+def test_imu_and_gnss_faults_are_level_2(kwargs, says):
+    found = fed(**kwargs).assess(3.0, lidars(2.95), supervisor(2.9))
+    assert found.level == LOW and found.causes == [says]
+
+
+def test_corrections_lost_for_more_than_5_minutes_is_level_2_and_clears_when_they_return():
+    checks = fed(seconds=400.0, imu_hz=50.0, rtk_until=50.0)
+    found = checks.assess(349.0, lidars(348.9), supervisor(348.9))
+    assert found.level == NOMINAL                     # 299 s without corrections: still fine
+    found = checks.assess(399.9, lidars(399.8), supervisor(399.8))
+    assert found.level == LOW and found.causes == ["gnss: RTK corrections lost for 350 s > 300"]
+    checks.on_gnss(fix(400.0, rtk=True))
+    assert checks.assess(400.1, lidars(400.0), supervisor(400.0)).level == NOMINAL
+
+
+def test_a_process_down_is_level_2_and_only_whitelisted_ones_count():
+    checks = fed()
+    found = checks.assess(3.0, lidars(2.95), supervisor(2.9, mpc=ProcessState.RESTARTING,
+                                                        blackbox=ProcessState.RESTARTING))
+    assert found.level == LOW and found.causes == ["process mpc: restarting (liveliness lost)"]
+    assert checks.assess(3.0, lidars(2.95), None).causes == ["processes: no state from the supervisor"]
+
+
+def test_level_1_outranks_level_2_and_every_cause_is_kept():
+    found = fed(imu_hz=10.0).assess(3.0, lidars(2.95, roof=LidarHealth(rate_hz=0.0, points=0, road_points=0,
+                                                                       blind=True)),
+                                    supervisor(2.9, mpc=ProcessState.STARTING))
+    assert found.level == CRITICAL and len(found.causes) == 3
+
+
+def test_without_lidars_only_the_other_checks_run():
+    checks = AwarenessChecks(P, [], started_at=0.0)
+    for k in range(150):
+        checks.on_imu(imu(k / 50, k))
+    for k in range(15):
+        checks.on_gnss(fix(k / 5))
+    assert checks.assess(3.0, None, supervisor(2.9)).level == NOMINAL

@@ -1,0 +1,133 @@
+"""The movement and awareness managers as nodes (managers/movement.py, managers/awareness.py) on
+the in-memory bus with a manual clock: what reaches movement/command, the events the black box
+keeps (emergency stop, controlled stop, re-arm with the operator's name), and the awareness
+level from the sensors' messages and the supervisor's table."""
+from __future__ import annotations
+
+import pytest
+
+from ares import config
+from ares.clock import ManualClock
+from ares.membus import MemoryNetwork
+from ares.messages import (AwarenessState, Imu, ProcessState, ProcessStatus, RearmRequest, Setpoint, SpeedLimits,
+                           SupervisorState)
+from managers.awareness import AwarenessManager
+from managers.movement import MovementManager
+
+PERIOD = 0.02
+
+
+class Gate:
+    def __init__(self, cfg: dict):
+        self.clock = ManualClock()
+        self.network = MemoryNetwork()
+        self.node = MovementManager(cfg, clock=self.clock, bus=self.network.bus("movement_manager", self.clock))
+        self.node.setup()
+        self.bus = self.network.bus("test", self.clock)
+        self.commands = self.bus.subscribe("movement/command", queue=1000)
+        self.status = self.bus.subscribe("movement/status")
+        self.events = self.bus.subscribe("events", queue=1000)
+        self.t = 0.0
+
+    def run(self, seconds: float, *, command=(2.0, 0.01), limit: float | None = 3.0, level: int | None = 0,
+            causes=()):
+        for _ in range(round(seconds / PERIOD)):
+            t = self.t = round(self.t + PERIOD, 9)
+            self.clock.set(t)
+            if command is not None:
+                self.bus.publish("control/setpoint", Setpoint(t=t, v=command[0], kappa=command[1], source="mpc"))
+            if limit is not None:
+                self.bus.publish("speed/limits", SpeedLimits(t=t, s=5.0, section=0, kind="cruise", limit_mps=limit,
+                                                             next_section=1, next_limit_mps=limit,
+                                                             distance_to_next_m=10.0))
+            if level is not None:
+                self.bus.publish("awareness/state", AwarenessState(t=t, level=level, causes=list(causes)))
+            self.node.step_once(t)
+            self.node.bus.poll_services()
+        return self.commands.latest, self.status.latest
+
+    def kinds(self) -> list[tuple[str, str]]:
+        return [(e.kind, e.message) for _, e in self.events.drain()]
+
+
+@pytest.fixture
+def gate(run_config) -> Gate:
+    return Gate(run_config)
+
+
+def test_the_command_follows_the_control_manager_under_the_speed_limit(gate):
+    command, status = gate.run(3.0)
+    assert (command.v, command.kappa, command.emergency, command.source) == (2.0, 0.01, False, "mpc")
+    command, status = gate.run(0.1, limit=1.2)
+    assert command.v == 1.2 and status.limited_by == "speed" and status.limits == {"speed": 1.2}
+
+
+def test_a_missing_input_stops_under_control_and_the_shuttle_goes_on_when_it_returns(gate):
+    gate.run(3.0)
+    gate.kinds()
+    command, status = gate.run(1.5, limit=None)      # missing once older than limit_timeout_s (1 s)
+    assert status.stopping and "speed limit missing" in status.reason and command.source == "stop"
+    assert command.v == pytest.approx(2.0 - 0.48 * 1.0, abs=0.03)     # slowing at the stop's deceleration
+    command, status = gate.run(3.0)
+    assert not status.stopping and command.v == 2.0
+    assert [k for k, _ in gate.kinds()] == ["controlled_stop", "controlled_stop"]
+
+
+def test_level_1_latches_until_an_operator_rearms_and_the_event_names_them(gate):
+    gate.run(2.0)
+    command, status = gate.run(0.1, level=1, causes=["lidar roof: blind"])
+    assert command.emergency and command.v == 0.0 and status.latched and status.latch_cause == "lidar roof: blind"
+    refused = gate.bus.call("movement/rearm", RearmRequest(operator="ana"))
+    assert not refused.accepted and "level 1 persists" in refused.reason
+    command, _ = gate.run(1.0)                                  # cleared, still latched
+    assert command.emergency
+    accepted = gate.bus.call("movement/rearm", RearmRequest(operator="ana"))
+    assert accepted.accepted
+    command, status = gate.run(1.0)
+    assert not command.emergency and command.v > 0.0 and not status.latched
+    events = [e for _, e in gate.events.drain()]
+    stops = [e for e in events if e.kind == "emergency_stop"]
+    rearms = [e for e in events if e.kind == "rearm"]
+    assert len(stops) == 1 and stops[0].data["cause"] == "lidar roof: blind"
+    assert [(e.data["operator"], e.data["accepted"]) for e in rearms] == [("ana", False), ("ana", True)]
+
+
+def imu(t: float, k: int) -> Imu:
+    return Imu(t=t, yaw=0.1, roll=0.0, pitch=0.0, gyro_x=0.001 * k, gyro_y=0.0, gyro_z=0.0, accel_x=0.0, accel_y=0.0,
+               accel_z=9.81)
+
+
+def test_the_awareness_manager_reports_a_frozen_imu_and_a_dead_process(run_config):
+    cfg = config.deep_merge(run_config, {"lidars": False})
+    clock = ManualClock()
+    network = MemoryNetwork()
+    node = AwarenessManager(cfg, clock=clock, bus=network.bus("awareness_manager", clock))
+    node.setup()
+    bus = network.bus("test", clock)
+    states = bus.subscribe("awareness/state")
+    events = bus.subscribe("events", queue=100)
+    from tests.test_awareness_checks import fix
+
+    def run(t0: float, t1: float, frozen: bool = False, mpc=ProcessState.RUNNING) -> AwarenessState:
+        k = round(t0 * 50)
+        while k < round(t1 * 50):
+            t = k / 50
+            clock.set(t)
+            bus.publish("sensors/imu", imu(t, 0 if frozen else k))
+            if k % 10 == 0:
+                bus.publish("gnss/fix", fix(t))
+                bus.publish("supervisor/state", SupervisorState(t=t, processes=[
+                    ProcessStatus(name="mpc", state=mpc, safety_relevant=True)]))
+            if k % 25 == 0:
+                node.step_once(t)
+            k += 1
+        return states.latest
+
+    assert run(0.0, 3.0).level == 0
+    state = run(3.0, 4.5, frozen=True)
+    assert state.level == 2 and state.causes[0].startswith("imu: frozen") and state.sensors["imu"] != "ok"
+    state = run(4.5, 6.0, mpc=ProcessState.RESTARTING)
+    assert state.level == 2 and state.causes == ["process mpc: restarting"]
+    assert run(6.0, 7.0).level == 0
+    changes = [(e.data["level_from"], e.data["level_to"]) for _, e in events.drain() if e.kind == "awareness"]
+    assert changes[0] == (0, 2) and changes[-1] == (2, 0)
