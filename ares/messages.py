@@ -292,6 +292,19 @@ class MovementStatus(Msg):
     reason: str
 
 
+class ObstacleState(Msg):
+    """The obstacle manager's verdict (ARES §3.5.3): the search area and what is in it."""
+    score: float = Field(ge=0.0, le=1.0)    # the nearest obstacle's distance / the area's length (1: none)
+    band: Literal["clear", "ready", "slow", "stop", "unknown"]
+    nearest_m: float | None     # along the predicted arc from the front bumper
+    limit_mps: float = Field(ge=0.0)
+    length_m: float
+    cells: int                  # occupied cells inside the area
+    area_x: list[float]         # the area's outline, vehicle frame (x ahead of the rear axle, y left)
+    area_y: list[float]
+    reason: str = ""
+
+
 class AwarenessState(Msg):
     """Self-awareness (ARES §3.7): the level and everything that holds it there."""
     level: int = Field(ge=0, le=2)    # 0 nominal, 1 critical (emergency stop), 2 low (stop, resume when cleared)

@@ -80,6 +80,8 @@ TOPIC_TABLE: list[Topic] = [
                                                  "accepts; the movement manager's, the only one that may ask for an "
                                                  "emergency stop"),
     Topic("movement/status", m.MovementStatus, "what limits the shuttle now and why; a latched emergency stop"),
+    Topic("obstacle/state", m.ObstacleState, "the obstacle search area, the nearest obstacle in it and the speed "
+                                             "limit it sets (ARES §3.5.3)", score="obstacle"),
     Topic("awareness/state", m.AwarenessState, "self-awareness level (0, 1 critical, 2 low) and its causes"),
     Topic("control/status", m.ControllerStatus, "the controller in charge, why, and the errors along the route"),
     Topic("dbw/actuators", m.ActuatorCommand, "efforts to the steering motor and traction/brake"),

@@ -9,6 +9,7 @@ command an emergency stop. Each cycle managers/movement_gate.py turns the contro
 |--------------------|---------------------------------------------|
 | control/setpoint   | a controlled stop, the wheels held          |
 | speed/limits       | a controlled stop                           |
+| obstacle/state     | a controlled stop (with the LiDARs on)      |
 | awareness/state    | a controlled stop (as level 2)              |
 
 Level 1 latches an emergency stop until an operator re-arms it (`movement/rearm`, which the REST
@@ -31,6 +32,8 @@ class MovementParams(Params):
                            unit="Hz", gt=0)
     command_timeout_s: float = param(0.3, "an older control manager's command counts as missing", unit="s", gt=0)
     limit_timeout_s: float = param(1.0, "an older speed limit counts as missing", unit="s", gt=0)
+    obstacle_timeout_s: float = param(0.5, "an older obstacle verdict counts as missing (it comes at 10 Hz)", unit="s",
+                                      gt=0)
     awareness_timeout_s: float = param(1.5, "an older awareness level counts as missing (it comes every 0.5 s)",
                                        unit="s", gt=0)
     stop_decel_mps2: float = param(1.0, "a controlled stop's deceleration", unit="m/s^2", gt=0)
@@ -47,6 +50,7 @@ class MovementManager(Node):
     Params = MovementParams
     setpoint = Input("control/setpoint", max_age="command_timeout_s", doc="the control manager's (v, kappa)")
     speed = Input("speed/limits", max_age="limit_timeout_s", doc="the speed manager's limit where the vehicle is")
+    obstacle = Input("obstacle/state", max_age="obstacle_timeout_s", doc="the obstacle manager's limit (with LiDARs)")
     awareness = Input("awareness/state", max_age="awareness_timeout_s", doc="level 0, 1 (critical) or 2 (low)")
     command = Output("movement/command", rate="rate_hz", doc="(v, kappa, emergency) to the drive-by-wire bridge")
     status = Output("movement/status", rate="rate_hz", doc="the active limit, a latched stop, why")
@@ -62,6 +66,8 @@ class MovementManager(Node):
         self._last_step: float | None = None
         self._was_stopping = False
         self._level: Level | None = Level.NOMINAL
+        # without LiDARs (simulation runs about something else) there is no grid and no obstacle manager
+        self.obstacle_required = bool(self.core.lidars)
 
     @staticmethod
     def _level_of(state: AwarenessState | None) -> tuple[Level | None, str]:
@@ -82,11 +88,13 @@ class MovementManager(Node):
         sp: Setpoint | None = self.setpoint.fresh(now)
         speed: SpeedLimits | None = self.speed.fresh(now)
         self._level, cause = self._level_of(self.awareness.fresh(now))
+        limits = {"speed": None if speed is None else speed.limit_mps}
+        if self.obstacle_required:
+            obstacle = self.obstacle.fresh(now)
+            limits["obstacle"] = None if obstacle is None else obstacle.limit_mps
         was_latched = self.gate.latched
-        out = self.gate.step(dt, GateInputs(
-            command=None if sp is None else (sp.v, sp.kappa),
-            limits={"speed": None if speed is None else speed.limit_mps},
-            level=self._level, level_cause=cause))
+        out = self.gate.step(dt, GateInputs(command=None if sp is None else (sp.v, sp.kappa), limits=limits,
+                                            level=self._level, level_cause=cause))
         if self.gate.latched and not was_latched:
             self.event("emergency_stop", f"emergency stop: {self.gate.latch_cause}", EventLevel.FAULT,
                        cause=self.gate.latch_cause)
@@ -102,5 +110,5 @@ class MovementManager(Node):
             t=now, level=None if self._level is None else int(self._level), latched=self.gate.latched,
             latch_cause=self.gate.latch_cause, stopping=out.stopping,
             limit_mps=out.limit_mps if math.isfinite(out.limit_mps) else None, limited_by=out.limited_by,
-            limits={"speed": None if speed is None else speed.limit_mps}, v=out.v, kappa=out.kappa,
+            limits=limits, v=out.v, kappa=out.kappa,
             reason=out.reason))

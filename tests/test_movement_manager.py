@@ -9,7 +9,7 @@ import pytest
 from ares import config
 from ares.clock import ManualClock
 from ares.membus import MemoryNetwork
-from ares.messages import (AwarenessState, Imu, ProcessState, ProcessStatus, RearmRequest, Setpoint, SpeedLimits,
+from ares.messages import (AwarenessState, Imu, ObstacleState, ProcessState, ProcessStatus, RearmRequest, Setpoint, SpeedLimits,
                            SupervisorState)
 from managers.awareness import AwarenessManager
 from managers.movement import MovementManager
@@ -18,7 +18,8 @@ PERIOD = 0.02
 
 
 class Gate:
-    def __init__(self, cfg: dict):
+    def __init__(self, cfg: dict, lidars: bool = False):
+        cfg = config.deep_merge(cfg, {"lidars": lidars})
         self.clock = ManualClock()
         self.network = MemoryNetwork()
         self.node = MovementManager(cfg, clock=self.clock, bus=self.network.bus("movement_manager", self.clock))
@@ -30,7 +31,7 @@ class Gate:
         self.t = 0.0
 
     def run(self, seconds: float, *, command=(2.0, 0.01), limit: float | None = 3.0, level: int | None = 0,
-            causes=()):
+            causes=(), obstacle: float | None = None):
         for _ in range(round(seconds / PERIOD)):
             t = self.t = round(self.t + PERIOD, 9)
             self.clock.set(t)
@@ -40,6 +41,10 @@ class Gate:
                 self.bus.publish("speed/limits", SpeedLimits(t=t, s=5.0, section=0, kind="cruise", limit_mps=limit,
                                                              next_section=1, next_limit_mps=limit,
                                                              distance_to_next_m=10.0))
+            if obstacle is not None:
+                self.bus.publish("obstacle/state", ObstacleState(t=t, score=0.5, band="slow", nearest_m=4.0,
+                                                                 limit_mps=obstacle, length_m=8.0, cells=4,
+                                                                 area_x=[], area_y=[]))
             if level is not None:
                 self.bus.publish("awareness/state", AwarenessState(t=t, level=level, causes=list(causes)))
             self.node.step_once(t)
@@ -60,6 +65,14 @@ def test_the_command_follows_the_control_manager_under_the_speed_limit(gate):
     assert (command.v, command.kappa, command.emergency, command.source) == (2.0, 0.01, False, "mpc")
     command, status = gate.run(0.1, limit=1.2)
     assert command.v == 1.2 and status.limited_by == "speed" and status.limits == {"speed": 1.2}
+
+
+def test_with_lidars_the_obstacle_managers_limit_is_required(run_config):
+    gate = Gate(run_config, lidars=True)
+    command, status = gate.run(3.0, obstacle=0.8)
+    assert command.v == 0.8 and status.limited_by == "obstacle"
+    command, status = gate.run(1.0)                     # the obstacle manager falls silent
+    assert status.stopping and "obstacle limit missing" in status.reason
 
 
 def test_a_missing_input_stops_under_control_and_the_shuttle_goes_on_when_it_returns(gate):

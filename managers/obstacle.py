@@ -1,0 +1,67 @@
+"""Obstacle manager: a speed limit from what stands in the vehicle's way (ARES §3.5.3).
+
+Each cycle it lays the search area (managers/obstacle_zone.py) along the arc the wheels are
+turned to (the CAN steering angle through the bridge's car state), sized for the larger of the
+speed now and the speed manager's limit, and looks for occupied cells of the occupancy grid in it.
+The nearest one sets the limit (ready, slow in proportion, stop) that the movement manager applies;
+the score and the area's outline go out for the black box and the pages. Without a fresh grid or
+car state the area is unknown: the limit is 0.
+"""
+from __future__ import annotations
+
+import math
+
+from ares.messages import CarState, EventLevel, ObstacleState, OccupancyGrid, SpeedLimits
+from ares.node import Input, Node, Output
+from managers.obstacle_zone import ObstacleParams, judge, occupied_cells, zone_for
+
+
+class ObstacleManager(Node):
+    """The trapezoid along the predicted trajectory: ready, slow or stop for what is in it."""
+    name = "obstacle_manager"
+    Params = ObstacleParams
+    grid = Input("perception/grid", max_age="grid_timeout_s", doc="occupied cells around the vehicle")
+    car = Input("dbw/car_state", max_age="grid_timeout_s", doc="speed and steering-wheel angle now")
+    limits = Input("speed/limits", max_age="grid_timeout_s", doc="the speed the shuttle is allowed here")
+    state = Output("obstacle/state", rate="rate_hz", doc="score, nearest obstacle, speed limit, the area")
+
+    def setup(self) -> None:
+        vehicle = self.vehicle
+        # the front bumper ahead of the rear axle: the wheelbase and half the overhangs
+        self.bumper_m = vehicle.wheelbase_m + (vehicle.length_m - vehicle.wheelbase_m) / 2.0
+        self._band = "clear"
+
+    def step(self, now: float) -> None:
+        grid: OccupancyGrid | None = self.grid.fresh(now)
+        car: CarState | None = self.car.fresh(now)
+        limits: SpeedLimits | None = self.limits.fresh(now)
+        v = self.vehicle
+        allowed = limits.limit_mps if limits is not None else v.max_speed_mps
+        speed = 0.0 if car is None else car.speed_mps
+        kappa = 0.0 if car is None else math.tan(math.radians(car.steering_wheel_deg) / v.steering_ratio) / v.wheelbase_m
+        zone = zone_for(self.params, max(speed, allowed), kappa, v.width_m, self.bumper_m)
+        outline = zone.outline()
+        xs, ys = [round(p[0], 3) for p in outline], [round(p[1], 3) for p in outline]
+        if grid is None or car is None:
+            missing = "grid" if grid is None else "car state"
+            self._report("unknown", f"no fresh {missing}: the area is unknown")
+            self.state.put(ObstacleState(t=now, score=0.0, band="unknown", nearest_m=None, limit_mps=0.0,
+                                         length_m=zone.length_m, cells=0, area_x=xs, area_y=ys,
+                                         reason=f"no fresh {missing}"))
+            return
+        ox, oy = occupied_cells(grid.cells, grid.origin_x, grid.origin_y, grid.resolution_m)
+        verdict = judge(self.params, zone, ox, oy, max(speed, allowed))
+        reason = "" if verdict.nearest_m is None else f"obstacle {verdict.nearest_m:.1f} m ahead ({verdict.cells} cells)"
+        self._report(verdict.band, reason)
+        self.state.put(ObstacleState(t=now, score=verdict.share, band=verdict.band, nearest_m=verdict.nearest_m,
+                                     limit_mps=verdict.limit_mps, length_m=zone.length_m, cells=verdict.cells,
+                                     area_x=xs, area_y=ys, reason=reason))
+
+    def _report(self, band: str, reason: str) -> None:
+        """An event when the shuttle starts or stops stopping for something."""
+        if (band in ("stop", "unknown")) != (self._band in ("stop", "unknown")):
+            if band in ("stop", "unknown"):
+                self.event("obstacle_stop", f"stopping: {reason}", EventLevel.WARNING)
+            else:
+                self.event("obstacle_stop", "the way is clear", EventLevel.INFO)
+        self._band = band

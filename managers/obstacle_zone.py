@@ -1,0 +1,129 @@
+"""The obstacle manager's search area and its speed limit (ARES §3.5.3), without a bus.
+
+The area is a trapezoid laid along the trajectory the vehicle will drive if nothing changes: the
+arc of the curvature its wheels are at now (from the CAN steering angle), from the front bumper
+on. Its length grows with speed, `headway_s` × v (10 m at 4 m/s), never shorter than
+`min_length_m`; its half-width is half the body plus `near_margin_m` at the bumper, narrowing to
+half the body plus `far_margin_m` at its end: far ahead the trajectory is less certain, but what
+stands beside a narrow lane is not in the way, and a rectangle as wide as the near end would stop
+for the walls (`ares bench obstacle-zone` counts both).
+
+An occupied cell of the occupancy grid inside the area is an obstacle; the nearest one's
+distance along the arc, as a share f of the length, sets the limit:
+
+    f >= 0.9          ready: no limit
+    0.5 <= f < 0.9    slow in proportion: v_max · (f − 0.5) / 0.4
+    f < 0.5           stop
+
+and the score is f (1: nothing in the area). The speed v that sizes the area is the larger of the
+speed now and the speed the shuttle is allowed (the speed manager's limit): sized from the speed
+now alone, the area would shrink as the shuttle slowed for an obstacle and let it go again.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ares.config import Params, param
+
+OCCUPIED = 100
+
+
+class ObstacleParams(Params):
+    rate_hz: float = param(10.0, "checks per second (the grid comes at the LiDARs' 10 Hz)", unit="Hz", gt=0)
+    headway_s: float = param(2.5, "the area's length per m/s of speed (ARES §3.5.3: 10 m at 4 m/s)", unit="s", gt=0)
+    min_length_m: float = param(4.0, "the area's length at walking pace and standstill", unit="m", gt=0)
+    near_margin_m: float = param(0.3, "beyond half the body's width on each side, at the bumper (the tour's narrow "
+                                      "lane leaves 0.6 m each side of the ARES shuttle)", unit="m", ge=0)
+    far_margin_m: float = param(0.05, "... and at the area's far end", unit="m", ge=0)
+    ready_share: float = param(0.9, "an obstacle beyond this share of the length: be ready, no limit", gt=0, le=1)
+    stop_share: float = param(0.5, "an obstacle nearer than this share of the length: stop", ge=0, lt=1)
+    min_cells: int = param(2, "occupied cells an obstacle needs (one stray cell is noise)", ge=1)
+    grid_timeout_s: float = param(0.5, "an older grid or CAN frame: the area is unknown, so stop", unit="s", gt=0)
+
+
+@dataclass(frozen=True)
+class Zone:
+    """The area for one cycle: along the arc of curvature kappa from the rear axle, starting at
+    the front bumper (`start_m` ahead of the axle), `length_m` long."""
+    kappa: float
+    start_m: float
+    length_m: float
+    near_half_width_m: float
+    far_half_width_m: float
+
+    def half_width(self, s: np.ndarray) -> np.ndarray:
+        share = np.clip(s / self.length_m, 0.0, 1.0)
+        return self.near_half_width_m + (self.far_half_width_m - self.near_half_width_m) * share
+
+    def along(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For points of the vehicle frame (x ahead, y left, from the rear axle): the distance
+        along the arc ahead of the bumper and the offset across it."""
+        if abs(self.kappa) < 1e-6:
+            return x - self.start_m, y
+        radius = 1.0 / self.kappa                      # the turn's centre is at (0, radius)
+        dy = y - radius
+        angle = np.arctan2(x, -dy) if radius > 0 else np.arctan2(x, dy)
+        arc = angle * abs(radius)
+        across = abs(radius) - np.hypot(x, dy)        # + towards the centre
+        return arc - self.start_m, across if radius > 0 else -across
+
+    def contains(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s, d = self.along(x, y)
+        return (s >= 0.0) & (s <= self.length_m) & (np.abs(d) <= self.half_width(s)), s
+
+    def outline(self, steps: int = 12) -> list[tuple[float, float]]:
+        """The trapezoid's corners along the arc, in the vehicle frame (for the pages)."""
+        s = np.linspace(0.0, self.length_m, steps)
+        left, right = [], []
+        for si, wi in zip(s, self.half_width(s)):
+            a = si + self.start_m
+            if abs(self.kappa) < 1e-6:
+                cx, cy, hx, hy = a, 0.0, 0.0, 1.0
+            else:
+                heading = a * self.kappa
+                cx, cy = math.sin(heading) / self.kappa, (1.0 - math.cos(heading)) / self.kappa
+                hx, hy = -math.sin(heading), math.cos(heading)
+            left.append((cx + wi * hx, cy + wi * hy))
+            right.append((cx - wi * hx, cy - wi * hy))
+        return [*left, *reversed(right)]
+
+
+@dataclass(frozen=True)
+class ObstacleVerdict:
+    share: float                    # f: the nearest obstacle's distance / the length (1: none)
+    nearest_m: float | None         # along the arc from the bumper
+    limit_mps: float
+    band: str                       # clear, ready, slow, stop
+    cells: int                      # occupied cells in the area
+
+
+def zone_for(p: ObstacleParams, speed_mps: float, kappa: float, body_width_m: float, bumper_m: float,
+             far_margin_m: float | None = None) -> Zone:
+    half = body_width_m / 2.0
+    far = p.far_margin_m if far_margin_m is None else far_margin_m
+    return Zone(kappa, bumper_m, max(p.min_length_m, p.headway_s * max(speed_mps, 0.0)), half + p.near_margin_m,
+                half + far)
+
+
+def judge(p: ObstacleParams, zone: Zone, occupied_x: np.ndarray, occupied_y: np.ndarray, v_max: float) -> ObstacleVerdict:
+    inside, s = zone.contains(occupied_x, occupied_y)
+    count = int(inside.sum())
+    if count < p.min_cells:
+        return ObstacleVerdict(1.0, None, v_max, "clear", count)
+    nearest = float(np.sort(s[inside])[p.min_cells - 1])     # the nearest distance that min_cells cells reach
+    share = min(max(nearest / zone.length_m, 0.0), 1.0)
+    if share >= p.ready_share:
+        return ObstacleVerdict(share, nearest, v_max, "ready", count)
+    if share >= p.stop_share:
+        limit = v_max * (share - p.stop_share) / (p.ready_share - p.stop_share)
+        return ObstacleVerdict(share, nearest, limit, "slow", count)
+    return ObstacleVerdict(share, nearest, 0.0, "stop", count)
+
+
+def occupied_cells(cells: np.ndarray, origin_x: float, origin_y: float, resolution_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Centres of the occupied cells of a grid (cells[row, col], row along y)."""
+    rows, cols = np.nonzero(cells == OCCUPIED)
+    return origin_x + (cols + 0.5) * resolution_m, origin_y + (rows + 0.5) * resolution_m
