@@ -84,6 +84,7 @@ class AwarenessChecks:
         self._gnss_var: float | None = None
         self._rtk_last_seen = started_at
         self._started_at = started_at
+        self._lidar_since: float | None = None      # the first LiDAR status: rates are judged a window later
 
     def on_imu(self, imu: Imu) -> None:
         self.imu_rate.add(imu.t)
@@ -137,13 +138,16 @@ class AwarenessChecks:
                 out.sensors[f"lidar {name}"] = "unknown: no LiDAR status"
             out.add(LOW, "lidars: no status from perception")
             return
+        if self._lidar_since is None:
+            self._lidar_since = status.t
+        warm = status.t - self._lidar_since >= p.window_s      # a sensor's rate counts once it has run a window
         for name in self.lidars:
             health = status.sensors.get(name)
             if health is None:
                 problem = "missing from the status"
             elif health.blind:
                 problem = "blind: no points (covered or failed)"
-            elif health.rate_hz < p.lidar_min_hz:
+            elif warm and health.rate_hz < p.lidar_min_hz:
                 problem = f"{health.rate_hz:.1f} Hz < {p.lidar_min_hz:.0f}"
             elif health.road_points < p.lidar_min_road_points:
                 problem = f"{health.road_points} road points < {p.lidar_min_road_points} (blocked?)"

@@ -6,6 +6,11 @@ speed now and the speed manager's limit, and looks for occupied cells of the occ
 The nearest one sets the limit (ready, slow in proportion, stop) that the movement manager applies;
 the score and the area's outline go out for the black box and the pages. Without a fresh grid or
 car state the area is unknown: the limit is 0.
+
+One grid alone never slows the shuttle: the limit is the higher of the last two grids' (a tenth of
+a second later for a real obstacle, which stays). The simulated LiDARs' clusters of false cells a
+metre or two past the bumper last one frame: without this the shuttle braked for them every few
+seconds.
 """
 from __future__ import annotations
 
@@ -30,6 +35,8 @@ class ObstacleManager(Node):
         # the front bumper ahead of the rear axle: the wheelbase and half the overhangs
         self.bumper_m = vehicle.wheelbase_m + (vehicle.length_m - vehicle.wheelbase_m) / 2.0
         self._band = "clear"
+        self._grid_t: float | None = None
+        self._limits: tuple[float, float] | None = None      # the limits from the last two grids
 
     def step(self, now: float) -> None:
         grid: OccupancyGrid | None = self.grid.fresh(now)
@@ -51,10 +58,20 @@ class ObstacleManager(Node):
             return
         ox, oy = occupied_cells(grid.cells, grid.origin_x, grid.origin_y, grid.resolution_m)
         verdict = judge(self.params, zone, ox, oy, max(speed, allowed))
+        if self._limits is None:
+            self._limits = (verdict.limit_mps, verdict.limit_mps)
+        elif grid.t != self._grid_t:                    # a new grid: the last two grids' limits
+            self._limits = (self._limits[1], verdict.limit_mps)
+        else:                                           # the same grid judged again (a new speed or angle)
+            self._limits = (self._limits[0], verdict.limit_mps)
+        self._grid_t = grid.t
+        limit, band = max(self._limits), verdict.band
+        if limit > verdict.limit_mps:
+            band = "ready"                              # seen in one grid only: be ready, do not brake yet
         reason = "" if verdict.nearest_m is None else f"obstacle {verdict.nearest_m:.1f} m ahead ({verdict.cells} cells)"
-        self._report(verdict.band, reason)
-        self.state.put(ObstacleState(t=now, score=verdict.share, band=verdict.band, nearest_m=verdict.nearest_m,
-                                     limit_mps=verdict.limit_mps, length_m=zone.length_m, cells=verdict.cells,
+        self._report(band, reason)
+        self.state.put(ObstacleState(t=now, score=verdict.share, band=band, nearest_m=verdict.nearest_m,
+                                     limit_mps=limit, length_m=zone.length_m, cells=verdict.cells,
                                      area_x=xs, area_y=ys, reason=reason))
 
     def _report(self, band: str, reason: str) -> None:

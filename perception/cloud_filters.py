@@ -70,7 +70,9 @@ class SelfHitParams(Params):
 
 class GhostParams(Params):
     near_field_m: float = param(4.0, "points this close to the body's box (on any side) are checked", unit="m", ge=0)
-    radius_m: float = param(0.3, "neighbours are counted within this distance", unit="m", gt=0)
+    radius_m: float = param(0.15, "neighbours are counted within this distance (0.3 let a ghost 0.2-0.3 m above a "
+                                  "dense patch of road count the road as its neighbours, and the obstacle manager "
+                                  "stopped for it in half the frames)", unit="m", gt=0)
     min_neighbours: int = param(3, "a near-field point with fewer neighbours than this is a ghost", ge=1)
     min_range_m: float = param(0.5, "returns closer to their own sensor than this are dropped", unit="m", ge=0)
 

@@ -61,7 +61,9 @@ def test_all_well_is_nominal():
      "lidar front_right: 4.0 Hz < 8"),
 ])
 def test_a_blocked_or_slow_lidar_is_level_1(fault, level, says):
-    found = fed().assess(3.0, lidars(2.95, **fault), supervisor(2.9))
+    checks = fed()
+    checks.assess(0.95, lidars(0.9), supervisor(0.9))      # the LiDARs have been running since
+    found = checks.assess(3.0, lidars(2.95, **fault), supervisor(2.9))
     assert found.level == level and found.causes == [says]
 
 
@@ -113,3 +115,14 @@ def test_without_lidars_only_the_other_checks_run():
     for k in range(15):
         checks.on_gnss(fix(k / 5))
     assert checks.assess(3.0, None, supervisor(2.9)).level == NOMINAL
+
+
+def test_a_lidars_rate_is_judged_once_it_has_run_a_window_but_a_blind_one_at_once():
+    checks = fed()
+    starting = LidarHealth(rate_hz=3.0, points=20000, road_points=3000)
+    assert checks.assess(3.0, lidars(2.95, roof=starting), supervisor(2.9)).level == NOMINAL
+    assert checks.assess(5.0, lidars(4.95, roof=starting), supervisor(4.9)).level == CRITICAL
+    blind = AwarenessChecks(P, LIDARS, started_at=0.0)
+    found = blind.assess(0.5, lidars(0.45, roof=LidarHealth(rate_hz=1.0, points=0, road_points=0, blind=True)),
+                         supervisor(0.4))
+    assert found.level == CRITICAL

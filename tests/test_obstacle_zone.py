@@ -79,3 +79,45 @@ def test_occupied_cells_are_read_from_the_grid():
     cells[2, 0] = 255           # unknown: not an obstacle
     x, y = occupied_cells(cells, -1.0, -0.4, 0.2)
     assert x.tolist() == pytest.approx([-0.3]) and y.tolist() == pytest.approx([-0.1])
+
+
+# ---- the node ------------------------------------------------------------------------------------
+
+def test_the_node_stops_for_what_stays_and_not_for_one_grid(run_config):
+    from ares.clock import ManualClock
+    from ares.membus import MemoryNetwork
+    from ares.messages import CarState, DriveMode, OccupancyGrid
+    from managers.obstacle import ObstacleManager
+
+    clock, network = ManualClock(), MemoryNetwork()
+    node = ObstacleManager(run_config, clock=clock, bus=network.bus("obstacle_manager", clock))
+    node.setup()
+    bus = network.bus("test", clock)
+    states = bus.subscribe("obstacle/state")
+    events = bus.subscribe("events", queue=100)
+
+    def step(t: float, obstacle_at: float | None):
+        clock.set(t)
+        cells = np.zeros((100, 100), dtype=np.uint8)
+        if obstacle_at is not None:                 # a pedestrian on the path, 0.4 m square
+            col = int((node.bumper_m + obstacle_at + 8.6) / 0.2)
+            cells[49:51, col:col + 2] = 100
+        bus.publish("perception/grid", OccupancyGrid(t=t, frame="vehicle", resolution_m=0.2, origin_x=-8.6,
+                                                     origin_y=-10.0, cells=cells))
+        bus.publish("dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
+                                              setpoint_age_s=0.05, v_command=3.0, kappa_command=0.0, speed_mps=3.0,
+                                              steering_wheel_deg=0.0, reason=""))
+        node.step_once(t)
+        return states.latest
+
+    assert step(0.1, None).band == "clear"
+    once = step(0.2, 2.0)                           # one grid: be ready, no braking yet
+    assert once.band == "ready" and once.limit_mps == node.vehicle.max_speed_mps and once.nearest_m == pytest.approx(2.0, abs=0.2)
+    assert step(0.3, None).limit_mps == node.vehicle.max_speed_mps
+    step(0.4, 2.0)
+    stays = step(0.5, 2.0)
+    assert stays.band == "stop" and stays.limit_mps == 0.0 and stays.score < 0.5
+    assert len(stays.area_x) == len(stays.area_y) > 4
+    assert step(0.6, None).band == "clear"           # gone: the higher of the two limits, at once
+    kinds = [(e.kind, e.message) for _, e in events.drain()]
+    assert [k for k, _ in kinds] == ["obstacle_stop", "obstacle_stop"] and "2.0 m ahead" in kinds[0][1]
