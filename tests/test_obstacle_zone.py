@@ -120,4 +120,4 @@ def test_the_node_stops_for_what_stays_and_not_for_one_grid(run_config):
     assert len(stays.area_x) == len(stays.area_y) > 4
     assert step(0.6, None).band == "clear"           # gone: the higher of the two limits, at once
     kinds = [(e.kind, e.message) for _, e in events.drain()]
-    assert [k for k, _ in kinds] == ["obstacle_stop", "obstacle_stop"] and "2.0 m ahead" in kinds[0][1]
+    assert [k for k, _ in kinds] == ["obstacle_stop", "obstacle_stop"] and "m ahead (4 cells)" in kinds[0][1]
