@@ -47,6 +47,7 @@ def contract(spec: Process, cfg: Mapping) -> dict:
         "services": [{"name": name, "request": topics.service(name).request.schema_name(),
                       "reply": topics.service(name).reply.schema_name(), "doc": topics.service(name).doc}
                      for name in sorted(cls.services())],
+        "calls": sorted(cls.calls),
         "sections": [cls.section(), *cls.sections],
         "parameters": parameters(cls.Params, cls.section(), params)
         + [row for name, model in cls.sections.items()
@@ -180,6 +181,8 @@ def markdown(c: dict) -> list[str]:
     lines += ["**Services**", ""]
     lines += _table(["service", "request", "reply", ""],
                     [[f"`{s['name']}`", s["request"], s["reply"], s["doc"]] for s in c["services"]])
+    if c["calls"]:
+        lines += ["Calls: " + ", ".join(f"`{name}`" for name in c["calls"]), ""]
     lines += ["**Parameters**", ""]
     lines += _table(["name", "value", "unit", "range", ""],
                     [[f"`{p['name']}`", p["value"], p["unit"], p["range"], p["doc"]] for p in c["parameters"]])

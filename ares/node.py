@@ -163,6 +163,7 @@ class Node:
     sections: ClassVar[dict[str, type[Params]]] = {}    # other (shared) config sections it reads
     rate: ClassVar[float | str] = "rate_hz"             # loop rate: Hz, or the name of a parameter
     steps: ClassVar[bool] = True        # works in periodic steps (latched inputs; a --speed max participant)
+    calls: ClassVar[tuple[str, ...]] = ()   # the services it calls (any other call is refused)
 
     # ---- the contract, as data --------------------------------------------------------------
     @classmethod
@@ -445,8 +446,7 @@ class AsyncNode(Node):
 # ---- the bus as the contract allows it ---------------------------------------------------------
 
 class _DeclaredBus:
-    """The node's view of the bus: what its contract declares, and nothing else (no service calls
-    until a node needs them and its contract can say so)."""
+    """The node's view of the bus: what its contract declares, and nothing else."""
 
     def __init__(self, bus: BaseBus, node: Node):
         self._bus = bus
@@ -468,6 +468,13 @@ class _DeclaredBus:
             raise ContractError(f"{self._node.name} subscribes to {topic!r} outside its contract: declare "
                                 f"`Input({topic!r}, ...)` on {type(self._node).__name__} instead")
         return self._bus.subscribe(topic, *args, **kwargs)
+
+    def call(self, name: str, request=None, timeout_s: float | None = None):
+        """A service the contract declares in `calls`."""
+        if name not in self._node.calls:
+            raise ContractError(f"{self._node.name} calls service {name!r} outside its contract: add it to "
+                                f"`calls` on {type(self._node).__name__}")
+        return self._bus.call(name, request, timeout_s)
 
     def serve(self, name: str, handler) -> None:
         raise ContractError(f"{self._node.name} offers service {name!r} outside its contract: mark the "

@@ -27,6 +27,7 @@ computer, not the simulated vehicle.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import queue
 import signal
@@ -54,7 +55,9 @@ from ares.processes import Process, for_run
 log = logging.getLogger("supervisor")
 
 NAME = "supervisor"
-STATE_PERIOD_S = 0.5            # supervisor/state is published at ~2 Hz, and on every change
+STATE_PERIOD_S = 0.5            # supervisor/state is published every 0.5 s of wall or stack time
+                                # (--speed max runs the stack clock several times faster: the
+                                # awareness manager judges the state's age in stack time), and on every change
 RUN_DIR_ENV = "ARES_RUN_DIR"
 # what the supervisor itself reads and writes on the bus (it is not a Node: it hosts the router)
 INPUTS = ("heartbeat/*", "sim/clock")      # sim/clock: at --speed max only
@@ -170,6 +173,7 @@ class Supervisor:
         self._started = False
         self._changed = True
         self._last_state_pub = 0.0
+        self._last_state_stack = -math.inf
         self._hb_seq = 0
         self._hb_last = 0.0
         self._liveliness_sub = None
@@ -236,7 +240,8 @@ class Supervisor:
                     self._spawn(child)
             self.bus.poll_services()
             self._own_heartbeat()
-            if self._changed or time.monotonic() - self._last_state_pub >= STATE_PERIOD_S:
+            if (self._changed or time.monotonic() - self._last_state_pub >= STATE_PERIOD_S
+                    or self.clock.now() - self._last_state_stack >= STATE_PERIOD_S):
                 self._publish_state()
         finally:
             if outer:
@@ -297,6 +302,7 @@ class Supervisor:
             return
         self._changed = False
         self._last_state_pub = time.monotonic()
+        self._last_state_stack = self.clock.now()
         try:
             self.bus.publish("supervisor/state", self.status())
         except Exception:

@@ -65,11 +65,12 @@ class ApiServer(AsyncNode):
     name = "api"
     Params = ApiSettings
     sections = {"blackbox_store": StoreSettings}
+    calls = ("movement/rearm",)         # an operator's re-arm (blackbox/api/routes/commands.py)
 
     def setup(self) -> None:
         settings = self.shared["blackbox_store"]
         self.store = open_configured_store(settings)
-        self.app = create_app(self.store, self.params, self.core.vehicle_id, self.clock)
+        self.app = create_app(self.store, self.params, self.core.vehicle_id, self.clock, call=self.bus.call)
         self.server_cfg = uvicorn_config(self.app, self.params)
         self.server_cfg.timeout_graceful_shutdown = GRACEFUL_SHUTDOWN_S
         self.server = None

@@ -2,6 +2,7 @@
 handlers and routers."""
 import logging
 from functools import partial
+from typing import Any, Callable
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -14,7 +15,7 @@ from ares.clock import Clock
 from blackbox.api.dependencies import Services
 from blackbox.api.models import STORE_RETRY_AFTER_S
 from blackbox.api.repository import Repository
-from blackbox.api.routes import auth, events, health, records, users, vehicles
+from blackbox.api.routes import auth, commands, events, health, records, users, vehicles
 from blackbox.api.settings import PREFIX, TOKEN_PATH, ApiSettings, state_dir
 from blackbox.auth import Passwords, Tokens, load_secret
 from blackbox.security import Guard, SecurityMiddleware, security_headers
@@ -23,14 +24,16 @@ from blackbox.store import RecordStore, StoreUnavailable
 log = logging.getLogger(__name__)
 
 
-def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock: Clock | None = None) -> FastAPI:
+def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock: Clock | None = None,
+               call: Callable[[str, Any], Any] | None = None) -> FastAPI:
     """The API over `store`, serving the black box of `vehicle_id` (whose events the API's own events
-    are; stack time from `clock`). Holds no global state: tests build as many as they like."""
+    are; stack time from `clock`); `call`: the stack's services on its bus (blocking; the command
+    routes run it in a thread). Holds no global state: tests build as many as they like."""
     sdir = state_dir(settings, store)
     services = Services(
         repository=Repository(store, settings.limits, vehicle_id, (clock or Clock.from_env()).now),
         tokens=Tokens(settings.auth, load_secret(settings.auth, sdir)), passwords=Passwords(settings.auth.argon2),
-        guard=Guard(settings.rate_limit, settings.blacklist), settings=settings, vehicle_id=vehicle_id)
+        guard=Guard(settings.rate_limit, settings.blacklist), settings=settings, vehicle_id=vehicle_id, call=call)
 
     app = FastAPI(
         title="ARES black box API",
@@ -63,7 +66,7 @@ def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock
     app.add_exception_handler(RequestValidationError, invalid)
 
     methods: dict[str, set[str]] = {}       # path -> its methods
-    for routes in (health, auth, vehicles, records, events, users):
+    for routes in (health, auth, vehicles, records, events, users, commands):
         router = routes.build_router(services)
         app.include_router(router, prefix=PREFIX)
         for route in router.routes:

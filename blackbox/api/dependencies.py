@@ -21,6 +21,7 @@ ROLES_RECORDS = ("auditor", "operator")                 # browse records
 ROLES_EXPORT = ("auditor",)                             # export records (the black box interface)
 ROLES_EVENTS = ("auditor", "operator", "fleet")         # events and reliability summaries
 ROLES_ADMIN = ("admin",)
+ROLES_COMMAND = ("operator",)                           # the vehicle's services (re-arm, and the mission's to come)
 
 
 # ---- the application's services ------------------------------------------------------------------
@@ -36,6 +37,9 @@ class Services:
     guard: Guard
     settings: ApiSettings
     vehicle_id: str             # the stack's own, the example id of the schema
+    # the stack's services on its bus: (name, request) -> reply; None outside a stack (tests of the
+    # records alone, `ares api serve` over a store): the command routes then answer 503
+    call: Callable[[str, Any], Any] | None = None
 
 
 # ---- authentication ------------------------------------------------------------------------------

@@ -161,7 +161,7 @@ ERROR_DESCRIPTIONS = {
     403: "Forbidden: the token's role may not do this, or the client address is blacklisted "
          "after an abnormal flow of requests (then with Retry-After)",
     404: "Unknown vehicle",
-    409: "Already exists",
+    409: "Conflict: the user already exists, or the vehicle refused the command in its present state",
     413: "Request body too large (any request's: over api.limits.max_body_bytes)",
     422: "Invalid parameters or body: a value outside its documented type, format, range, pattern or "
          "enumeration (the offending ones in `errors`)",

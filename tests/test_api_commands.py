@@ -1,0 +1,89 @@
+"""The REST API's command route (blackbox/api/routes/commands.py): an operator, and only an
+operator, re-arms the shuttle through the movement manager's service, which decides; the black
+box's event names the operator. The movement manager is the real node, on the in-memory bus."""
+from __future__ import annotations
+
+import pytest
+from fastapi.testclient import TestClient
+
+from ares import config
+from ares.clock import ManualClock
+from ares.membus import MemoryNetwork
+from ares.messages import AwarenessState, Setpoint, SpeedLimits
+from blackbox.api import create_app
+from managers.movement import MovementManager
+from tests.test_api import VEHICLE_ID, add_role_users, api_settings, auth, open_test_store, token_for
+
+
+@pytest.fixture
+def vehicle(run_config, tmp_path):
+    """(client, tokens, step(level, seconds), events): the API of a stack whose movement manager runs
+    on the in-memory bus."""
+    cfg = config.deep_merge(run_config, {"lidars": False})
+    clock, network = ManualClock(), MemoryNetwork()
+    node = MovementManager(cfg, clock=clock, bus=network.bus("movement_manager", clock))
+    node.setup()
+    feed = network.bus("test", clock)
+    events = feed.subscribe("events", queue=100)
+    api_bus = network.bus("api", clock)
+    store = open_test_store(tmp_path / "bb.sqlite")
+    app = create_app(store, api_settings(), VEHICLE_ID, call=api_bus.call)
+    add_role_users(store, app)
+    client = TestClient(app)
+    tokens = {role: token_for(client, role) for role in ("operator", "auditor", "fleet")}
+
+    def step(level: int, seconds: float = 0.5, causes=("lidar roof: blind",)):
+        for _ in range(round(seconds / 0.02)):
+            t = round(clock.now() + 0.02, 9)
+            clock.set(t)
+            feed.publish("control/setpoint", Setpoint(t=t, v=2.0, kappa=0.0, source="mpc"))
+            feed.publish("speed/limits", SpeedLimits(t=t, s=0.0, section=0, kind="cruise", limit_mps=3.0,
+                                                     next_section=None, next_limit_mps=None, distance_to_next_m=None))
+            feed.publish("awareness/state", AwarenessState(t=t, level=level, causes=list(causes) if level else []))
+            node.step_once(t)
+        return node.gate
+
+    yield client, tokens, step, events
+    store.close()
+
+
+URL = f"/api/v1/vehicles/{VEHICLE_ID}/rearm"
+
+
+def test_an_operator_rearms_through_the_movement_manager_which_decides(vehicle):
+    client, tokens, step, events = vehicle
+    step(0)
+    r = client.post(URL, headers=auth(tokens["operator"]))
+    assert r.status_code == 409 and r.json()["reason"].startswith("nothing to re-arm")
+    assert step(1).latched
+    r = client.post(URL, headers=auth(tokens["operator"]))
+    assert r.status_code == 409 and "level 1 persists (lidar roof: blind)" in r.json()["reason"]
+    assert step(0).latched                      # cleared, still latched
+    r = client.post(URL, headers=auth(tokens["operator"]))
+    assert r.status_code == 200 and r.json() == {"accepted": True, "reason": "re-armed after: lidar roof: blind",
+                                                 "operator": "operator"}
+    assert not step(0).latched
+    rearms = [e.data for _, e in events.drain() if e.kind == "rearm"]
+    assert [(d["operator"], d["accepted"]) for d in rearms] == [("operator", False)] * 2 + [("operator", True)]
+
+
+def test_only_an_operator_of_this_vehicle_may(vehicle):
+    client, tokens, step, _ = vehicle
+    step(1)
+    assert client.post(URL).status_code == 401
+    for role in ("auditor", "fleet"):
+        r = client.post(URL, headers=auth(tokens[role]))
+        assert r.status_code == 403 and "needs operator" in r.json()["detail"]
+    r = client.post("/api/v1/vehicles/shuttle99/rearm", headers=auth(tokens["operator"]))
+    assert r.status_code == 404
+    assert step(0).latched                      # none of them re-armed it
+
+
+def test_without_a_bus_the_route_says_so(tmp_path):
+    store = open_test_store(tmp_path / "bb.sqlite")
+    app = create_app(store, api_settings(), VEHICLE_ID)
+    add_role_users(store, app)
+    client = TestClient(app)
+    r = client.post(URL, headers=auth(token_for(client, "operator")))
+    assert r.status_code == 503 and "records only" in r.json()["detail"]
+    store.close()
