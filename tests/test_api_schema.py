@@ -11,7 +11,10 @@ only), paced at 30 requests/s, against the production rate limits and blacklist:
 find nothing, and afterwards the client must not be blacklisted. One operation is left out of
 that run: the login form, because every generated login is a wrong password and a burst of
 those gets a client blacklisted by design (test_api_security proves it). The form is checked
-the same way in a run of its own, against a server whose failed-login limits are raised.
+the same way in a run of its own, against a server whose failed-login limits are raised. The
+operator's re-arm is left out too: it reaches a vehicle's bus, which `ares api serve` over a store
+does not have (it answers 503 there, by design); tests/test_api_commands.py drives it against the
+real movement manager.
 
 A failure fails the test with schemathesis' report (each failure with a curl line to reproduce
 it, and the seed of the run).
@@ -39,6 +42,7 @@ PHASES = "examples,coverage,fuzzing,stateful"
 RATE = "30/s"
 MAX_EXAMPLES = 30               # per operation and phase: ~1,000 requests, ~35 s at 30/s
 LOGIN = "/api/v1/auth/token"
+REARM = "/api/v1/vehicles/{vehicle_id}/rearm"
 RUN_TIMEOUT_S = 240
 
 
@@ -107,7 +111,8 @@ def test_live_api_as_its_schema_says_at_30_per_s(tmp_path, seeded):
         with httpx.Client(base_url=base, verify=ssl.create_default_context(cafile=str(cert)), timeout=10) as client:
             auditor, admin = login(client, "auditor"), login(client, "admin")
             run = schemathesis(tmp_path, f"{base}/openapi.json", cert, {"Authorization": f"Bearer {auditor}"},
-                               {"/api/v1/users": {"Authorization": f"Bearer {admin}"}}, "--exclude-path", LOGIN)
+                               {"/api/v1/users": {"Authorization": f"Bearer {admin}"}}, "--exclude-path", LOGIN,
+                               "--exclude-path", REARM)
             assert run.returncode == 0, report(run)
             summary = run.stdout[run.stdout.index("Test Phases:"):]
             for phase in ("Examples", "Coverage", "Fuzzing", "Stateful"):

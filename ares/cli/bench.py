@@ -1,4 +1,4 @@
-"""`ares bench bus|path|blackbox|supervisor|perception|mpc`: the benchmarks."""
+"""`ares bench bus|path|blackbox|supervisor|perception|mpc|obstacle-zone`: the benchmarks."""
 from __future__ import annotations
 
 import argparse
@@ -46,6 +46,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     mpc.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
     mpc.add_argument("--solves", type=positive_int, default=2000, metavar="N", help="solves (default 2000)")
     mpc.add_argument("--vehicle", default="ares_shuttle", metavar="NAME", help="vehicle profile (default ares_shuttle)")
+    zone = bench_sub.add_parser(
+        "obstacle-zone", help="false stops of the obstacle manager's trapezoid beside a rectangle's, in the narrow lane",
+        description="The built-in tour's narrow lane between rock walls, nothing in the way: every STEP m the three "
+                    "simulated LiDARs' frame through the perception pipeline, and the obstacle manager's trapezoid "
+                    "and a rectangle of the same length laid along the wheels' arc; the frames each would have "
+                    "slowed or stopped the shuttle.")
+    zone.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    zone.add_argument("--step", type=positive_float, default=2.0, metavar="M", help="between frames (default 2 m)")
+    zone.add_argument("--speed", type=positive_float, default=4.0, metavar="MPS",
+                      help="the speed the areas are sized for (default 4 m/s: the longest, 10 m)")
     blackbox = bench_sub.add_parser(
         "blackbox", help="black box: ingest rate, one-hour query with 7 days stored, latest-state API over HTTPS",
         description="Ingests records in batches into a fresh embedded store, times one-hour queries with "
@@ -80,6 +90,9 @@ def _run(args: argparse.Namespace, progress):
     if args.bench == "mpc":
         from ares.bench.mpc import run_mpc_bench
         return run_mpc_bench(args.solves, args.vehicle, progress=progress), _key_per_line
+    if args.bench == "obstacle-zone":
+        from ares.bench.obstacle_zone import run_obstacle_zone_bench
+        return run_obstacle_zone_bench(args.step, args.speed, progress=progress), _key_per_line
     if args.bench == "path":
         from ares.bench.path import format_path_result, run_path_bench
         return run_path_bench(progress=progress), format_path_result
@@ -91,9 +104,9 @@ def _run(args: argparse.Namespace, progress):
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    if args.bench not in ("bus", "path", "blackbox", "supervisor", "perception", "mpc"):
+    if args.bench not in ("bus", "path", "blackbox", "supervisor", "perception", "mpc", "obstacle-zone"):
         raise CliError("which benchmark? try `ares bench bus`, `ares bench path`, `ares bench supervisor`, "
-                       "`ares bench perception`, `ares bench mpc` or `ares bench blackbox`")
+                       "`ares bench perception`, `ares bench mpc`, `ares bench obstacle-zone` or `ares bench blackbox`")
     progress = lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     result, for_people = _run(args, progress)
     if args.json:

@@ -1,0 +1,61 @@
+"""`ares bench obstacle-zone`: false stops of the obstacle manager's trapezoid beside those of a
+rectangle of the same length, in the built-in tour's narrow lane between rock walls (s 60-200 m,
+3.2 m wide, a 30 m bend in it), where nothing stands in the way.
+
+Every `step_m` along the lane the three simulated LiDARs of the ARES shuttle (full resolution) cast
+one frame from the vehicle on the lane's centre line with its wheels at the path's curvature there,
+and LidarPipeline.process makes the occupancy grid. Both areas are laid along that arc, sized for
+`speed_mps`: the trapezoid narrows from half the body + near_margin_m at the bumper to half the
+body + far_margin_m at its end; the rectangle keeps the near width all along. A frame whose verdict
+is `slow` or `stop` is a false one (there is no obstacle in the lane).
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+
+def run_obstacle_zone_bench(step_m: float = 2.0, speed_mps: float = 4.0,
+                            progress: Callable[[str], None] = lambda _m: None) -> dict:
+    from ares.bench.perception import TourScene
+    from ares.config import load_vehicle
+    from ares.sim.lidar import LidarSimParams, SimulatedLidar
+    from managers.obstacle_zone import ObstacleParams, judge, occupied_cells, zone_for
+    from perception.lidar_pipeline import LidarPipeline, SensorSweep
+
+    vehicle = load_vehicle("ares_shuttle")
+    scene = TourScene(vehicle.wheelbase_m)
+    route = scene.route
+    stretches = [(z.s_start, z.s_end) for z in route.zones if z.kind == "narrow"]
+    params = ObstacleParams()
+    bumper = vehicle.wheelbase_m + (vehicle.length_m - vehicle.wheelbase_m) / 2.0
+    pipeline = LidarPipeline(vehicle)
+    sensors = {name: SimulatedLidar(name, mount, vehicle, LidarSimParams(), np.random.default_rng([7, k]))
+               for k, (name, mount) in enumerate(sorted(vehicle.lidars.items()))}
+    shapes = {"trapezoid": params.far_margin_m, "rectangle": params.near_margin_m}
+    counts = {shape: {"clear": 0, "ready": 0, "slow": 0, "stop": 0} for shape in shapes}
+    frames = 0
+    for start, end in stretches:
+        places = np.arange(start, end, step_m)
+        for i, s in enumerate(places):
+            sweeps = [SensorSweep(name, np.stack([sw.x, sw.y, sw.z], axis=1).astype(np.float32), sw.ring)
+                      for name, sw in ((name, scene.sweep(sensor, float(s))) for name, sensor in sensors.items())]
+            result = pipeline.process(sweeps)
+            grid = pipeline.mapper.grid
+            ox, oy = occupied_cells(result.grid, grid.origin_x, grid.origin_y, grid.cell_m)
+            kappa = float(route.curvature[route.index_at(float(s))])
+            for shape, far in shapes.items():
+                zone = zone_for(params, speed_mps, kappa, vehicle.width_m, bumper, far_margin_m=far)
+                counts[shape][judge(params, zone, ox, oy, speed_mps).band] += 1
+            frames += 1
+            if i % 10 == 0:
+                progress(f"s {s:.0f} m: {frames} frames")
+    out: dict = {"frames": frames, "speed_mps": speed_mps, "area_length_m": max(params.min_length_m,
+                                                                                 params.headway_s * speed_mps),
+                 "stretches_m": [[round(a, 1), round(b, 1)] for a, b in stretches]}
+    for shape, bands in counts.items():
+        out[f"{shape}_false_stops"] = bands["stop"]
+        out[f"{shape}_false_slows"] = bands["slow"]
+        out[f"{shape}_bands"] = bands
+    return out
