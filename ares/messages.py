@@ -386,6 +386,7 @@ class CarState(Msg):
     speed_mps: float
     steering_wheel_deg: float
     reason: str = ""
+    emergency: bool = False     # braking fully for the movement manager's latched emergency stop
 
 
 # ---- black box ----------------------------------------------------------------------------

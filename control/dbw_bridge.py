@@ -163,4 +163,5 @@ class DbwBridge(Node):
             t=now, mode=DriveMode(self.board.core.mode.value), engaged=cmd.engaged,
             watchdog_tripped=cmd.watchdog_tripped, setpoint_age_s=cmd.setpoint_age_s,
             v_command=cmd.v, kappa_command=cmd.kappa, speed_mps=can.speed_mps if can else 0.0,
-            steering_wheel_deg=can.steering_wheel_deg if can else 0.0, reason=cmd.reason))
+            steering_wheel_deg=can.steering_wheel_deg if can else 0.0, reason=cmd.reason,
+            emergency=self.board.emergency))

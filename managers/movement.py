@@ -13,7 +13,10 @@ command an emergency stop. Each cycle managers/movement_gate.py turns the contro
 | awareness/state    | a controlled stop (as level 2)              |
 
 Level 1 latches an emergency stop until an operator re-arms it (`movement/rearm`, which the REST
-API offers to the operator role only; refused while level 1 lasts). Every latch, re-arm and
+API offers to the operator role only; refused while level 1 lasts). The latch survives a restart
+of this process: the bridge keeps braking and says so in its car state, and a movement manager
+that starts sends nothing until it has read the bridge's state, latching again if the bridge is in
+an emergency stop (an operator must still re-arm). Every latch, re-arm and
 controlled stop is an event, so the black box keeps them with their causes and the operator's name.
 """
 from __future__ import annotations
@@ -52,6 +55,7 @@ class MovementManager(Node):
     speed = Input("speed/limits", max_age="limit_timeout_s", doc="the speed manager's limit where the vehicle is")
     obstacle = Input("obstacle/state", max_age="obstacle_timeout_s", doc="the obstacle manager's limit (with LiDARs)")
     awareness = Input("awareness/state", max_age="awareness_timeout_s", doc="level 0, 1 (critical) or 2 (low)")
+    car = Input("dbw/car_state", max_age="command_timeout_s", doc="at start: is the bridge in an emergency stop?")
     command = Output("movement/command", rate="rate_hz", doc="(v, kappa, emergency) to the drive-by-wire bridge")
     status = Output("movement/status", rate="rate_hz", doc="the active limit, a latched stop, why")
 
@@ -68,6 +72,8 @@ class MovementManager(Node):
         self._level: Level | None = Level.NOMINAL
         # without LiDARs (simulation runs about something else) there is no grid and no obstacle manager
         self.obstacle_required = bool(self.core.lidars)
+        self._synced = False                # the bridge's emergency state read (at start)
+        self._started = self.clock.now()
 
     @staticmethod
     def _level_of(state: AwarenessState | None) -> tuple[Level | None, str]:
@@ -82,9 +88,27 @@ class MovementManager(Node):
                    operator=request.operator, accepted=accepted)
         return RearmReply(t=self.clock.now(), accepted=accepted, reason=reason)
 
+    def _sync_with_the_bridge(self, now: float) -> bool:
+        """Whether commands may go out: not before the bridge's state is known (a restarted
+        movement manager must not clear the emergency stop its predecessor latched), unless the
+        bridge stays silent for a second (it is not there to brake anyway)."""
+        if self._synced:
+            return True
+        car = self.car.fresh(now)
+        if car is None and now - self._started < 1.0:
+            return False
+        self._synced = True
+        if car is not None and car.emergency:
+            self.gate.latched, self.gate.latch_cause = True, "emergency stop in force when the movement manager started"
+            self.event("emergency_stop", f"emergency stop: {self.gate.latch_cause}", EventLevel.FAULT,
+                       cause=self.gate.latch_cause)
+        return True
+
     def step(self, now: float) -> None:
         dt = 1.0 / self.params.rate_hz if self._last_step is None else max(now - self._last_step, 0.0)
         self._last_step = now
+        if not self._sync_with_the_bridge(now):
+            return
         sp: Setpoint | None = self.setpoint.fresh(now)
         speed: SpeedLimits | None = self.speed.fresh(now)
         self._level, cause = self._level_of(self.awareness.fresh(now))

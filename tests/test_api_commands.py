@@ -9,7 +9,7 @@ from fastapi.testclient import TestClient
 from ares import config
 from ares.clock import ManualClock
 from ares.membus import MemoryNetwork
-from ares.messages import AwarenessState, Setpoint, SpeedLimits
+from ares.messages import AwarenessState, CarState, DriveMode, Setpoint, SpeedLimits
 from blackbox.api import create_app
 from managers.movement import MovementManager
 from tests.test_api import VEHICLE_ID, add_role_users, api_settings, auth, open_test_store, token_for
@@ -39,6 +39,9 @@ def vehicle(run_config, tmp_path):
             feed.publish("control/setpoint", Setpoint(t=t, v=2.0, kappa=0.0, source="mpc"))
             feed.publish("speed/limits", SpeedLimits(t=t, s=0.0, section=0, kind="cruise", limit_mps=3.0,
                                                      next_section=None, next_limit_mps=None, distance_to_next_m=None))
+            feed.publish("dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
+                                                   setpoint_age_s=0.02, v_command=2.0, kappa_command=0.0,
+                                                   speed_mps=2.0, steering_wheel_deg=0.0))
             feed.publish("awareness/state", AwarenessState(t=t, level=level, causes=list(causes) if level else []))
             node.step_once(t)
         return node.gate

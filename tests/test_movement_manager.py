@@ -9,7 +9,7 @@ import pytest
 from ares import config
 from ares.clock import ManualClock
 from ares.membus import MemoryNetwork
-from ares.messages import (AwarenessState, Imu, ObstacleState, ProcessState, ProcessStatus, RearmRequest, Setpoint, SpeedLimits,
+from ares.messages import (AwarenessState, CarState, DriveMode, Imu, ObstacleState, ProcessState, ProcessStatus, RearmRequest, Setpoint, SpeedLimits,
                            SupervisorState)
 from managers.awareness import AwarenessManager
 from managers.movement import MovementManager
@@ -31,7 +31,7 @@ class Gate:
         self.t = 0.0
 
     def run(self, seconds: float, *, command=(2.0, 0.01), limit: float | None = 3.0, level: int | None = 0,
-            causes=(), obstacle: float | None = None):
+            causes=(), obstacle: float | None = None, bridge_emergency: bool = False):
         for _ in range(round(seconds / PERIOD)):
             t = self.t = round(self.t + PERIOD, 9)
             self.clock.set(t)
@@ -41,6 +41,10 @@ class Gate:
                 self.bus.publish("speed/limits", SpeedLimits(t=t, s=5.0, section=0, kind="cruise", limit_mps=limit,
                                                              next_section=1, next_limit_mps=limit,
                                                              distance_to_next_m=10.0))
+            self.bus.publish("dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True,
+                                                       watchdog_tripped=False, setpoint_age_s=0.02, v_command=0.0,
+                                                       kappa_command=0.0, speed_mps=0.0, steering_wheel_deg=0.0,
+                                                       emergency=bridge_emergency))
             if obstacle is not None:
                 self.bus.publish("obstacle/state", ObstacleState(t=t, score=0.5, band="slow", nearest_m=4.0,
                                                                  limit_mps=obstacle, length_m=8.0, cells=4,
@@ -103,6 +107,22 @@ def test_level_1_latches_until_an_operator_rearms_and_the_event_names_them(gate)
     rearms = [e for e in events if e.kind == "rearm"]
     assert len(stops) == 1 and stops[0].data["cause"] == "lidar roof: blind"
     assert [(e.data["operator"], e.data["accepted"]) for e in rearms] == [("ana", False), ("ana", True)]
+
+
+def test_a_restarted_movement_manager_keeps_the_emergency_stop_the_bridge_is_in(run_config):
+    gate = Gate(run_config)
+    command, status = gate.run(1.0, bridge_emergency=True)
+    assert command.emergency and status.latched
+    assert status.latch_cause == "emergency stop in force when the movement manager started"
+    assert gate.bus.call("movement/rearm", RearmRequest(operator="ana")).accepted
+    command, _ = gate.run(1.0)
+    assert not command.emergency
+
+
+def test_nothing_goes_out_before_the_bridge_is_heard_for_a_second(run_config):
+    gate = Gate(run_config)
+    gate.node.step_once(0.5)
+    assert gate.commands.latest is None
 
 
 def imu(t: float, k: int) -> Imu:
