@@ -75,22 +75,49 @@ def test_no_lidar_status_is_level_2():
 @pytest.mark.parametrize("kwargs,says", [
     ({"imu_hz": 20.0}, "imu: 20 Hz < 30"),
     ({"frozen_after": 2.0}, "imu: frozen: the same reading for 1.0 s"),
-    ({"gnss_hz": 2.0}, "gnss: 1.5 Hz < 4"),       # stamps 1.5, 2.0, 2.5 in the last 2 s
-    ({"var": 0.8}, "gnss: variance 1.60 m² > 1.00"),
 ])
-def test_imu_and_gnss_faults_are_level_2(kwargs, says):
+def test_imu_faults_are_level_2(kwargs, says):
     found = fed(**kwargs).assess(3.0, lidars(2.95), supervisor(2.9))
     assert found.level == LOW and found.causes == [says]
 
 
-def test_corrections_lost_for_more_than_5_minutes_is_level_2_and_clears_when_they_return():
-    checks = fed(seconds=400.0, imu_hz=50.0, rtk_until=50.0)
-    found = checks.assess(349.0, lidars(348.9), supervisor(348.9))
-    assert found.level == NOMINAL                     # 299 s without corrections: still fine
-    found = checks.assess(399.9, lidars(399.8), supervisor(399.8))
-    assert found.level == LOW and found.causes == ["gnss: RTK corrections lost for 350 s > 300"]
-    checks.on_gnss(fix(400.0, rtk=True))
-    assert checks.assess(400.1, lidars(400.0), supervisor(400.0)).level == NOMINAL
+def walk(seconds: float, gnss_hz: float = 5.0, var: float = 2.5e-5, rtk_until: float | None = None,
+         rtk_again: float | None = None):
+    """The manager's life: IMU at 50 Hz and GNSS as asked, checked every 0.5 s; the assessments."""
+    checks = AwarenessChecks(P, LIDARS, started_at=0.0)
+    found, k_imu, k_gnss = [], 0, 0
+    for step in range(1, int(seconds * 2) + 1):
+        t = step / 2
+        while k_imu / 50 <= t:
+            checks.on_imu(imu(k_imu / 50, k_imu))
+            k_imu += 1
+        while k_gnss / gnss_hz <= t:
+            tg = k_gnss / gnss_hz
+            rtk = rtk_until is None or tg < rtk_until or (rtk_again is not None and tg >= rtk_again)
+            checks.on_gnss(fix(tg, rtk=rtk, var=var))
+            k_gnss += 1
+        found.append((t, checks.assess(t, lidars(t - 0.05), supervisor(t - 0.05))))
+    return found
+
+
+@pytest.mark.parametrize("kwargs,says", [
+    ({"gnss_hz": 2.0}, "2.0 Hz < 4"),
+    ({"var": 0.8}, "variance 1.60 m² > 1.00"),
+    ({"rtk_until": 0.5}, "no RTK corrections"),
+])
+def test_a_gnss_outage_is_the_control_managers_for_5_minutes_then_level_2(kwargs, says):
+    found = walk(320.0, **kwargs)
+    assert all(a.level == NOMINAL for t, a in found if t <= 300.0)
+    t, last = found[-1]
+    assert last.level == LOW and len(last.causes) == 1
+    assert last.causes[0].startswith("gnss: an outage longer than 300 s: " + says)
+    assert last.sensors["gnss"].startswith(says)
+
+
+def test_corrections_back_clear_the_outage():
+    found = walk(420.0, rtk_until=50.0, rtk_again=400.0)
+    levels = {t: a.level for t, a in found}
+    assert levels[340.0] == NOMINAL and levels[360.0] == LOW and levels[401.0] == NOMINAL
 
 
 def test_a_process_down_is_level_2_and_only_whitelisted_ones_count():
