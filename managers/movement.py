@@ -99,7 +99,7 @@ class MovementManager(Node):
             return False
         self._synced = True
         if car is not None and car.emergency:
-            self.gate.latched, self.gate.latch_cause = True, "emergency stop in force when the movement manager started"
+            self.gate.latch("emergency stop in force when the movement manager started")
             self.event("emergency_stop", f"emergency stop: {self.gate.latch_cause}", EventLevel.FAULT,
                        cause=self.gate.latch_cause)
         return True

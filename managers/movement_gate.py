@@ -73,6 +73,10 @@ class MovementGate:
         self.kappa = 0.0
         self._stop_limit: float | None = None   # the controlled stop's falling limit, while one runs
 
+    def latch(self, cause: str) -> None:
+        """An emergency stop from outside the levels (one already in force at start-up)."""
+        self.latched, self.latch_cause = True, cause
+
     def rearm(self, level: Level | None) -> tuple[bool, str]:
         """A person's re-arm: clears a latched emergency stop unless its cause is still there."""
         if not self.latched:
@@ -85,7 +89,7 @@ class MovementGate:
     def step(self, dt: float, inputs: GateInputs) -> GateOutput:
         lim = self.limits
         if inputs.level == Level.CRITICAL and not self.latched:
-            self.latched, self.latch_cause = True, inputs.level_cause or "level 1"
+            self.latch(inputs.level_cause or "level 1")
         if self.latched:
             self.v, self.accel, self._stop_limit = 0.0, 0.0, None
             return GateOutput(0.0, self.kappa, True, False, 0.0, "emergency",
