@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 import difflib
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, Literal, Mapping
@@ -236,6 +237,22 @@ class VehicleProfile(Params):
     ground_clearance_m: float = param(0.25, "underside of the body above the road", unit="m", ge=0)
     lidars: dict[Literal["roof", "front_left", "front_right"], LidarMount] = param(
         factory=dict, doc="the LiDARs and their extrinsics (ARES §3.4.1); `ares calibrate lidars` writes them")
+
+    # ---- figures that follow from the above ------------------------------------------------------
+    @property
+    def max_curvature(self) -> float:
+        """1/m: tan(largest wheel angle) / wheelbase."""
+        return math.tan(self.max_wheel_angle_rad) / self.wheelbase_m
+
+    @property
+    def max_curvature_rate(self) -> float:
+        """1/m/s, at least: the steering motor's wheel rate over the wheelbase (d tan δ / dt >= dδ/dt)."""
+        return math.radians(self.actuators.steering.max_rate_deg_s) / self.steering_ratio / self.wheelbase_m
+
+    @property
+    def front_bumper_m(self) -> float:
+        """The front bumper ahead of the rear axle: the wheelbase and half the overhangs."""
+        return self.wheelbase_m + (self.length_m - self.wheelbase_m) / 2.0
 
 
 # ---- tours ------------------------------------------------------------------------------------

@@ -47,7 +47,7 @@ class MpcNode(Node):
 
     def setup(self) -> None:
         self.mpc = Mpc(self.vehicle, MpcParams(**{k: getattr(self.params, k) for k in MpcParams.model_fields}))
-        self.max_kappa = math.tan(self.vehicle.max_wheel_angle_rad) / self.vehicle.wheelbase_m
+        self.max_kappa = self.vehicle.max_curvature
         self._accel = 0.0
 
     def step(self, now: float) -> None:

@@ -75,7 +75,7 @@ class PurePursuit:
         self.lookahead_min = params.lookahead_min_m
         self.lookahead_gain = params.lookahead_gain_s
         self.lookahead_max = params.lookahead_max_m
-        self.max_kappa = math.tan(vehicle.max_wheel_angle_rad) / vehicle.wheelbase_m
+        self.max_kappa = vehicle.max_curvature
         self.max_heading_sigma = params.max_heading_sigma_rad
         self.creep_speed = params.creep_speed_mps
         self.finish_distance = params.finish_distance_m

@@ -22,7 +22,6 @@ to 0.5; road detection's confidence is trusted from 0.6 and kept down to 0.4.
 """
 from __future__ import annotations
 
-import math
 from typing import Literal
 
 from ares.config import Params, param
@@ -75,13 +74,10 @@ class ControlManager(Node):
 
     def setup(self) -> None:
         p, vehicle = self.params, self.vehicle
-        steering = vehicle.actuators.steering
-        # d(kappa)/dt = d(tan delta)/dt / L, at least the wheel's rate over L (tan' >= 1)
-        kappa_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio / vehicle.wheelbase_m
         pinned = None if p.pinned is None else (Mode.RRC if p.pinned == "rrc" else Mode.ODOMETRY)
         self.selector = ControlSelector(SelectionParams(
             score_enter=p.score_enter, score_exit=p.score_exit, road_enter=p.road_enter, road_exit=p.road_exit,
-            min_dwell_s=p.min_dwell_s, max_kappa_rate=kappa_rate * p.steering_rate_share,
+            min_dwell_s=p.min_dwell_s, max_kappa_rate=vehicle.max_curvature_rate * p.steering_rate_share,
             stop_decel_mps2=p.stop_decel_mps2, pinned=pinned))
         primary = p.pinned if p.pinned in ODOMETRY_CONTROLLERS else p.odometry_controller
         # pinned: no stand-in (a comparison must show the pinned controller alone)

@@ -61,12 +61,10 @@ class MovementManager(Node):
 
     def setup(self) -> None:
         p, vehicle = self.params, self.vehicle
-        steering = vehicle.actuators.steering
-        kappa_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio / vehicle.wheelbase_m
         self.gate = MovementGate(GateLimits(
             max_accel_mps2=vehicle.max_accel_mps2, max_decel_mps2=vehicle.max_decel_mps2,
-            max_jerk_mps3=p.max_jerk_mps3, max_kappa=math.tan(vehicle.max_wheel_angle_rad) / vehicle.wheelbase_m,
-            max_kappa_rate=kappa_rate * p.kappa_rate_factor, stop_decel_mps2=p.stop_decel_mps2))
+            max_jerk_mps3=p.max_jerk_mps3, max_kappa=vehicle.max_curvature,
+            max_kappa_rate=vehicle.max_curvature_rate * p.kappa_rate_factor, stop_decel_mps2=p.stop_decel_mps2))
         self._last_step: float | None = None
         self._was_stopping = False
         self._level: Level | None = Level.NOMINAL

@@ -31,9 +31,7 @@ class ObstacleManager(Node):
     state = Output("obstacle/state", rate="rate_hz", doc="score, nearest obstacle, speed limit, the area")
 
     def setup(self) -> None:
-        vehicle = self.vehicle
-        # the front bumper ahead of the rear axle: the wheelbase and half the overhangs
-        self.bumper_m = vehicle.wheelbase_m + (vehicle.length_m - vehicle.wheelbase_m) / 2.0
+        self.bumper_m = self.vehicle.front_bumper_m
         self._band = "clear"
         self._grid_t: float | None = None
         self._limits: tuple[float, float] | None = None      # the limits from the last two grids

@@ -29,7 +29,7 @@ def run_obstacle_zone_bench(step_m: float = 2.0, speed_mps: float = 4.0,
     route = scene.route
     stretches = [(z.s_start, z.s_end) for z in route.zones if z.kind == "narrow"]
     params = ObstacleParams()
-    bumper = vehicle.wheelbase_m + (vehicle.length_m - vehicle.wheelbase_m) / 2.0
+    bumper = vehicle.front_bumper_m
     pipeline = LidarPipeline(vehicle)
     sensors = {name: SimulatedLidar(name, mount, vehicle, LidarSimParams(), np.random.default_rng([7, k]))
                for k, (name, mount) in enumerate(sorted(vehicle.lidars.items()))}
