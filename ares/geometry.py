@@ -53,3 +53,33 @@ def signed_distance(x: float, y: float, ax: float, ay: float, ex: float, ey: flo
     when the point lies left of the segment's direction: the cross-track error."""
     side = ex * (y - ay) - ey * (x - ax)
     return math.copysign(math.sqrt(d2), side) if d2 > 0.0 else 0.0
+
+
+def rectangle_corners(cx: float, cy: float, yaw: float, front: float, back: float, half_width: float) -> np.ndarray:
+    """The 4 corners (counter-clockwise) of a rectangle reaching `front` ahead of and `back` behind
+    (cx, cy) along yaw, half_width either side."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    local = [(front, -half_width), (front, half_width), (-back, half_width), (-back, -half_width)]
+    return np.array([(cx + c * x - s * y, cy + s * x + c * y) for x, y in local])
+
+
+def convex_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """The distance between two convex polygons (corners in order); 0 when they overlap."""
+    def separated_along_an_edge_of(p: np.ndarray, q: np.ndarray) -> bool:
+        for i in range(len(p)):
+            edge = p[(i + 1) % len(p)] - p[i]
+            normal = np.array([-edge[1], edge[0]])
+            if (p @ normal).max() < (q @ normal).min() or (q @ normal).max() < (p @ normal).min():
+                return True
+        return False
+    if not separated_along_an_edge_of(a, b) and not separated_along_an_edge_of(b, a):
+        return 0.0
+    best = math.inf
+    for p, q in ((a, b), (b, a)):
+        for x, y in p:
+            for i in range(len(q)):
+                ax, ay = q[i]
+                bx, by = q[(i + 1) % len(q)]
+                _, d2 = project_on_segment(x, y, ax, ay, bx - ax, by - ay)
+                best = min(best, d2)
+    return math.sqrt(best)

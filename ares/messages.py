@@ -92,6 +92,7 @@ class VehicleTruth(Msg):
     lap: int = 0
     rtk_available: bool = True
     passengers: int = 0
+    board_failsafe: bool = False    # the drive-by-wire board brakes: the bridge has gone quiet
 
 
 class ObstacleBox(BaseModel):
@@ -286,7 +287,7 @@ class MovementStatus(Msg):
     stopping: bool              # a controlled stop (level 2, or an input missing)
     limit_mps: float | None     # the lowest active limit (None: none)
     limited_by: str             # the manager it comes from, "stop", "emergency" or ""
-    limits: dict[str, float | None] = Field(default_factory=dict)    # each limiting manager's (None: missing)
+    limits: dict[str, float | None] = Field(default_factory=dict)    # each manager's limit (None: missing; absent: none)
     v: float
     kappa: float
     reason: str
@@ -387,6 +388,77 @@ class CarState(Msg):
     steering_wheel_deg: float
     reason: str = ""
     emergency: bool = False     # braking fully for the movement manager's latched emergency stop
+
+
+# ---- mission and the body (doors, ramp) ------------------------------------------------------
+
+DoorState = Literal["closed", "opening", "open", "closing"]
+RampState = Literal["stowed", "deploying", "deployed", "stowing"]
+
+
+class BodyState(Msg):
+    """The body's end-position sensors: doors and ramp, and whether anyone is in the entrance."""
+    doors: DoorState
+    ramp: RampState
+    entrance_clear: bool        # nobody in the doorway or on the ramp
+    media: bool = False         # the on-board media are playing
+    passengers: int = Field(0, ge=0)
+
+
+class BodyCommand(Msg):
+    """The mission manager's demand to the body's actuators (None: leave it as it is)."""
+    doors: Literal["open", "close"] | None = None
+    ramp: Literal["deploy", "stow"] | None = None
+    media: bool = False         # start the media
+
+
+class PoiProgress(BaseModel):
+    """One point of interest of a goal, and its actions done so far."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    name: str
+    done: list[str] = Field(default_factory=list)
+
+
+class MissionStatus(Msg):
+    """The mission's feedback (ARES §3.3): state, the POI driven to, how far, when."""
+    goal_id: int                # 0: no goal yet
+    state: Literal["IDLE", "DRIVING", "AT_POI", "PAUSED", "SUCCEEDED", "CANCELED"]
+    kind: Literal["none", "tour", "drive"]      # a tour stops at its POIs; a drive goes round without stopping
+    poi: str | None             # the POI driven to, or the one whose actions run
+    action: str | None          # the action running (AT_POI)
+    distance_m: float | None    # to the POI's stop point
+    eta_s: float | None         # expected arrival, stack time
+    limit_mps: float | None = Field(ge=0.0)   # the mission's speed limit, which the movement gate applies (None: none)
+    ready_to_move: bool         # doors closed and ramp stowed
+    pois: list[PoiProgress] = Field(default_factory=list)
+    result: str = ""            # why the last goal ended
+
+
+class MissionGoal(Msg):
+    """A goal: the POIs to serve in order (their names), every POI of the route ahead (`pois`
+    None), or no POI at all (`drive`: go round without stopping). A new goal pre-empts one that runs."""
+    operator: str = Field(min_length=1, max_length=64)
+    pois: list[str] | None = None
+    drive: bool = False
+    repeat: bool = False        # a closed route's tour: round again after the last POI, until canceled
+
+    @model_validator(mode="after")
+    def _one_kind(self):
+        if self.drive and self.pois:
+            raise ValueError("a drive goal has no POIs")
+        return self
+
+
+class MissionRequest(Msg):
+    """Pause, resume or cancel the mission (the operator's name goes to the black box)."""
+    operator: str = Field(min_length=1, max_length=64)
+
+
+class MissionReply(Msg):
+    accepted: bool
+    reason: str
+    goal_id: int = 0
+    state: str = ""
 
 
 # ---- black box ----------------------------------------------------------------------------

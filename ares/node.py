@@ -91,9 +91,12 @@ class _Port:
     def _resolve(value: float | str | None, params: Params, what: str) -> float | None:
         if value is None or isinstance(value, (int, float)):
             return value
-        if not hasattr(params, value):
-            raise ContractError(f"{what} names parameter {value!r}, which {type(params).__name__} does not have")
-        return float(getattr(params, value))
+        found = params
+        for part in value.split("."):               # "body.rate_hz": a parameter of a sub-section
+            if not hasattr(found, part):
+                raise ContractError(f"{what} names parameter {value!r}, which {type(params).__name__} does not have")
+            found = getattr(found, part)
+        return float(found)
 
 
 class Input(_Port):

@@ -50,6 +50,7 @@ PROCESSES: list[Process] = [
     Process("control_manager", "managers.control:ControlManager", safety_relevant=True),
     # nothing moves unless every manager allows it: the gate is the bridge's only source of commands
     Process("obstacle_manager", "managers.obstacle:ObstacleManager", safety_relevant=True, lidars=True),
+    Process("mission_manager", "managers.mission:MissionManager", safety_relevant=True),
     Process("awareness_manager", "managers.awareness:AwarenessManager", safety_relevant=True),
     Process("movement_manager", "managers.movement:MovementManager", safety_relevant=True),
     # the black box: losing it never stops the vehicle (the recorder spools; see blackbox/recorder.py)

@@ -39,6 +39,8 @@ from ares.metrics import LapTracker, LocalizationTracker
 from ares.perception_eval import PerceptionTracker
 from ares.report import write_lap_svg
 from ares.route import Route, RouteError, load_route, read_origin
+from ares.safety_eval import SafetyTracker
+from ares.scenario_run import ScenarioDriver
 from ares.supervisor import Supervisor
 from blackbox.api_server import api_url
 from blackbox.recorder import open_configured_store, store_uri
@@ -75,6 +77,8 @@ def overrides_from_args(args) -> dict:
             over["route_file"] = str(Path(args.route).resolve())
     if getattr(args, "scenario", None):
         over["scenario"] = args.scenario
+    if getattr(args, "mission", None):
+        over["mission_manager"] = {"autostart": args.mission}
     if getattr(args, "controller", None):
         over["control_manager"] = {"pinned": None if args.controller == "auto" else args.controller}
     if getattr(args, "listen", None):
@@ -117,7 +121,7 @@ def run(args) -> int:
     try:
         if not headless:
             return _interactive(args, cfg, route, supervisor.bus, clock, stop, run_dir)
-        result = _headless(args, cfg, route, supervisor.bus, clock, stop, run_dir)
+        result = _headless(args, cfg, route, supervisor.bus, clock, stop, run_dir, supervisor.inject)
     except RunFailed as exc:
         print(f"ares run: {exc} (logs in {run_dir / 'logs'})", file=sys.stderr)
         if headless:
@@ -147,8 +151,16 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str) -> dict
             cfg["origin_utm"] = {**origin.model_dump(), "reach_km": cfg["origin_utm"]["reach_km"]}
     if cfg["scenario"]:
         scenario = config.named_file("scenarios", cfg["scenario"])
-        config.load_scenario(str(scenario))           # a bad scenario stops the run here, with its error
+        loaded = config.load_scenario(str(scenario))  # a bad scenario stops the run here, with its error
         cfg["scenario"] = str(scenario.resolve()) if scenario.suffix else cfg["scenario"]
+        # the simulator and its LiDARs stand for the vehicle and its sensors: not theirs to kill
+        running = {p.name for p in processes.for_run(cfg["simulate"], cfg["lidars"]) if not p.sim_only}
+        unknown = sorted({f.process for f in loaded.faults if f.kind in config.PROCESS_FAULTS} - running)
+        if unknown:
+            raise config.ConfigError(f"{scenario}: process faults name {', '.join(unknown)}, which this run does not "
+                                     f"start (it runs {', '.join(sorted(running))})")
+        if loaded.mission is not None and "autostart" not in overrides.get("mission_manager", {}):
+            cfg.setdefault("mission_manager", {})["autostart"] = loaded.mission     # --mission still wins
     store = config.section(cfg, "blackbox_store", StoreSettings)
     cfg["blackbox_store"]["uri"] = store_uri(store)
     if speed != 1 and not cfg["simulate"]:
@@ -226,7 +238,7 @@ def engage_automatic(bus: Bus, car_state, stop: threading.Event) -> None:
         time.sleep(0.2)
 
 
-def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path) -> dict:
+def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path, inject) -> dict:
     laps = int(getattr(args, "laps", None) or 1)
     seconds = getattr(args, "seconds", None)   # drive this long (vehicle time) instead of laps
     truth = bus.subscribe("sim/truth", queue=4096)
@@ -251,6 +263,14 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     mpc_candidates = bus.subscribe("control/candidate/mpc", queue=4096)
     events = bus.subscribe("events", queue=4096)
     control = ControlTracker()
+    safety = SafetyTracker(vehicle.length_m, vehicle.width_m, vehicle.front_bumper_m)
+    movement = bus.subscribe("movement/status", queue=4096)
+    bodies = bus.subscribe("body/state", queue=1024)
+    awareness = bus.subscribe("awareness/state", queue=1024)
+    mission = bus.subscribe("mission/status")
+    cars = bus.subscribe("dbw/car_state", queue=4096)
+    scenario = ScenarioDriver(config.load_scenario(cfg["scenario"]) if cfg["scenario"] else None, bus, inject,
+                              safety)
     target_m = laps * route.length if route.closed else route.length
     cruise = cruise_speed(config.section(cfg, "speed_profile", SpeedProfileParams), vehicle, route)
     time_limit_s = 3.0 * target_m / (0.5 * cruise) + 60.0     # stack seconds
@@ -264,7 +284,17 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
         while True:
             if stop.is_set():
                 raise RunFailed("interrupted")
+            scenario.step(clock.now())
+            for _, body in bodies.drain():
+                safety.add_body(body)
+            for _, st in movement.drain():
+                safety.add_status(st)
+            for _, car in cars.drain():
+                safety.add_car(car)
+            for _, aware in awareness.drain():
+                safety.add_awareness(aware)
             for _, msg in truth.drain():
+                safety.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.v, msg.board_failsafe)
                 tracker.update(msg.x, msg.y, msg.odometer_m)
                 localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
                 perception.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.s)
@@ -272,6 +302,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             if perceiving:
                 for _, world in worlds.drain():
                     perception.add_world(world)
+                    safety.add_world(world)
                 for _, road in roads.drain():
                     perception.add_road(road)
                 for _, grid in grids.drain():
@@ -288,6 +319,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             for _, cand in mpc_candidates.drain():
                 control.add_mpc(cand.solve_ms, cand.fresh)
             for _, event in events.drain():
+                safety.add_event(event)
                 if event.kind == "controller_switch":
                     control.add_switch(event.data)
             now = clock.now()
@@ -310,7 +342,9 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             elif time.monotonic() - clock_moved[1] > CLOCK_STALL_S:
                 raise RunFailed(f"the stack clock has not moved for {CLOCK_STALL_S:g} s (the simulator or a process it "
                                 "waits for is stuck)")
-            if tracker.travelled_m > moved[0] + 0.5:
+            held = movement.latest is not None and (movement.latest.latched or movement.latest.stopping
+                                                    or movement.latest.limit_mps == 0.0)
+            if tracker.travelled_m > moved[0] + 0.5 or held:    # standing where a manager says so is not stuck
                 moved = (tracker.travelled_m, now)
             elif now - moved[1] > STANDSTILL_S:
                 why = statuses.latest
@@ -325,7 +359,8 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
                 print(f"[{now - t_start:6.0f} s] {tracker.travelled_m:6.0f} / {target_m:.0f} m", file=sys.stderr)
             time.sleep(0.05)
     except RunFailed as exc:     # what was driven until then, for `ares compare` and the reader
-        exc.figures = {"route": route.name, "vehicle": cfg["vehicle"], **tracker.summary(), **control.summary()}
+        exc.figures = {"route": route.name, "vehicle": cfg["vehicle"], **tracker.summary(), **control.summary(),
+                       **safety.summary(), **scenario.summary()}
         _save_trace(run_dir, tracker, control)
         raise
     lap_time = clock.now() - t_start
@@ -336,6 +371,8 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
               "route_length_m": round(route.length, 2), "lap_time_s": round(lap_time / max(laps, 1), 2),
               "total_time_s": round(lap_time, 2), **tracker.summary(), **localization.summary(),
               **control.summary(), **(perception.summary() if perceiving else {}),
+              **safety.summary(), **scenario.summary(),
+              "mission": _mission_summary(mission.latest),
               "speed_factor": round(lap_time / max(wall_s, 1e-9), 2), "clock": clock.mode,
               "wall_time_s": round(wall_s, 1),
               "vehicle": cfg["vehicle"], "run_dir": str(run_dir),
@@ -346,6 +383,13 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     result["plot"] = str(picture)
     _save_trace(run_dir, tracker, control)
     return result
+
+
+def _mission_summary(status) -> dict | None:
+    if status is None:
+        return None
+    return {"goal_id": status.goal_id, "kind": status.kind, "state": status.state, "poi": status.poi,
+            "result": status.result}
 
 
 def _save_trace(run_dir: Path, tracker: LapTracker, control: ControlTracker) -> None:

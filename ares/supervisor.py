@@ -284,6 +284,19 @@ class Supervisor:
             return
         self._shutdown_once()
 
+    def inject(self, process: str, fault: str) -> str:
+        """A scenario's process fault: kill (SIGKILL), stop (SIGTERM: it exits) or hang (SIGSTOP:
+        alive, its loop stands still). The supervisor then finds it dead or hung as it would any
+        other time. Returns what was done."""
+        signals = {"kill": signal.SIGKILL, "stop": signal.SIGTERM, "hang": signal.SIGSTOP}
+        if process not in self.children:
+            raise KeyError(f"no process {process!r} in this run ({', '.join(self.children)})")
+        pid = self.children[process].pid
+        if pid is None:
+            return f"{process} is not running: nothing to {fault}"
+        _signal_group(pid, signals[fault])
+        return f"{fault} {process} (pid {pid})"
+
     @property
     def stopping(self) -> bool:
         return self._stop_requested.is_set()

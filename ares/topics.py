@@ -82,6 +82,10 @@ TOPIC_TABLE: list[Topic] = [
     Topic("movement/status", m.MovementStatus, "what limits the shuttle now and why; a latched emergency stop"),
     Topic("obstacle/state", m.ObstacleState, "the obstacle search area, the nearest obstacle in it and the speed "
                                              "limit it sets (ARES §3.5.3)", score="obstacle"),
+    Topic("mission/status", m.MissionStatus, "the mission's feedback: state, the POI driven to, distance, expected "
+                                             "arrival, its speed limit (ARES §3.3)"),
+    Topic("body/command", m.BodyCommand, "doors, ramp and media: the mission manager's demand to the body"),
+    Topic("body/state", m.BodyState, "doors and ramp end-position sensors, the entrance, passengers"),
     Topic("awareness/state", m.AwarenessState, "self-awareness level (0, 1 critical, 2 low) and its causes"),
     Topic("control/status", m.ControllerStatus, "the controller in charge, why, and the errors along the route"),
     Topic("dbw/actuators", m.ActuatorCommand, "efforts to the steering motor and traction/brake"),
@@ -104,6 +108,12 @@ SERVICE_TABLE: list[Service] = [
     Service("supervisor/status", m.Empty, m.SupervisorState, "every process's state"),
     Service("movement/rearm", m.RearmRequest, m.RearmReply, "clear a latched emergency stop (refused while level 1 "
                                                              "lasts); the REST API's operators only"),
+    Service("mission/goal", m.MissionGoal, m.MissionReply, "a new goal (POIs in order, the route's POIs, or a drive); "
+                                                           "pre-empts the one that runs"),
+    Service("mission/pause", m.MissionRequest, m.MissionReply, "hold where it is (stopping first)"),
+    Service("mission/resume", m.MissionRequest, m.MissionReply, "go on from a pause"),
+    Service("mission/cancel", m.MissionRequest, m.MissionReply, "end the goal (the doors closed and the ramp stowed "
+                                                               "first)"),
 ]
 
 TOPICS: dict[str, Topic] = {t.name: t for t in TOPIC_TABLE}

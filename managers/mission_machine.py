@@ -15,6 +15,9 @@ A goal is an ordered list of POIs, each with the actions the tour gives it, amon
 | START_MEDIA   | starts the on-board media                              | at once                            |
 | NEXT_POI      | sets off for the next POI (the POI's last action)      | at once                            |
 
+A goal may also be a *drive*: no POI, round the route without stopping (runs about something
+else than passengers: comparisons, tests); its limit is none while the body is ready to move.
+
 Mission states: IDLE (no goal), DRIVING (to the next POI), AT_POI (running its actions), PAUSED
 (holding where it is; resume goes back), SUCCEEDED (the last POI done), CANCELED. A new goal while
 one runs pre-empts it (the old one ends CANCELED with that reason), but never while the doors are
@@ -32,6 +35,8 @@ import math
 from dataclasses import dataclass, field
 from enum import Enum
 
+from ares.config import Params, param
+
 ACTIONS = ("STOP", "FULL_STOP", "OPENING_DOORS", "TAKEOFF_RAMP", "PICKUP_RAMP", "CLOSING_DOORS", "START_MEDIA",
            "NEXT_POI")
 
@@ -48,12 +53,11 @@ class MissionState(str, Enum):
 ACTIVE = (MissionState.DRIVING, MissionState.AT_POI, MissionState.PAUSED)
 
 
-@dataclass(frozen=True)
-class MissionParams:
-    reach_m: float = 0.5            # a POI is reached this close to its stop point
-    stopped_mps: float = 0.05       # standing
-    full_stop_s: float = 2.0        # FULL_STOP: standing this long
-    approach_decel_mps2: float = 0.5
+class MissionParams(Params):
+    reach_m: float = param(0.5, "a POI is reached this close to its stop point", unit="m", gt=0)
+    stopped_mps: float = param(0.05, "standing", unit="m/s", gt=0)
+    full_stop_s: float = param(2.0, "FULL_STOP: standing this long", unit="s", ge=0)
+    approach_decel_mps2: float = param(0.5, "the approach to a POI's stop point", unit="m/s^2", gt=0)
 
 
 @dataclass(frozen=True)
@@ -88,13 +92,16 @@ class Mission:
     action: int = 0                 # its action running (AT_POI)
     result: str = ""                # why the last goal ended
     done: list[tuple[str, str]] = field(default_factory=list)     # (POI, action) done, in order
+    drive: bool = False             # a drive goal: no POI, no stop
     _paused_from: MissionState | None = None
     _standing_since: float | None = None
 
     # ---- the action interface: goal, cancel, pause, resume ------------------------------------
-    def goal(self, pois: list[PoiGoal], body: Body) -> tuple[bool, str]:
-        if not pois:
-            return False, "refused: a goal needs at least one POI"
+    def goal(self, pois: list[PoiGoal], body: Body, drive: bool = False) -> tuple[bool, str]:
+        if not pois and not drive:
+            return False, "refused: a goal needs at least one POI (or to be a drive)"
+        if pois and drive:
+            return False, "refused: a drive goal has no POIs"
         bad = [a for poi in pois for a in poi.actions if a not in ACTIONS]
         if bad:
             return False, f"refused: unknown actions {sorted(set(bad))} (known: {', '.join(ACTIONS)})"
@@ -102,9 +109,9 @@ class Mission:
             return False, "refused: the doors must be closed and the ramp stowed first"
         if self.state in ACTIVE:
             self.result = f"pre-empted by a new goal at {self.current_name()}"
-        self.pois, self.index, self.action, self.done = list(pois), 0, 0, []
+        self.pois, self.index, self.action, self.done, self.drive = list(pois), 0, 0, [], drive
         self.state, self._paused_from, self._standing_since = MissionState.DRIVING, None, None
-        return True, f"accepted: {len(pois)} POIs, first {pois[0].name}"
+        return True, "accepted: a drive, no stops" if drive else f"accepted: {len(pois)} POIs, first {pois[0].name}"
 
     def cancel(self, body: Body) -> tuple[bool, str]:
         if self.state not in ACTIVE:
@@ -133,6 +140,8 @@ class Mission:
         standing = speed_mps <= self.params.stopped_mps
         self._standing_since = (self._standing_since if self._standing_since is not None else now) if standing \
             else None
+        if self.drive:
+            return Commands()
         if self.state is MissionState.DRIVING and distance_m is not None and distance_m <= self.params.reach_m:
             self.state, self.action = MissionState.AT_POI, 0
         if self.state is not MissionState.AT_POI:
@@ -196,9 +205,26 @@ class Mission:
     def limit_mps(self, distance_m: float | None, body: Body) -> float:
         if not ready_to_move(body) or self.state is not MissionState.DRIVING:
             return 0.0
+        if self.drive:
+            return math.inf
         if distance_m is None:
             return 0.0                          # where the POI is is unknown: do not run past it
         return math.sqrt(2.0 * self.params.approach_decel_mps2 * max(distance_m - self.params.reach_m / 2, 0.0))
+
+    # ---- a restarted mission manager goes on where its predecessor was -------------------------
+    def snapshot(self) -> dict:
+        return {"state": self.state.value, "pois": [[p.name, p.s, list(p.actions)] for p in self.pois],
+                "index": self.index, "action": self.action, "result": self.result, "done": [list(d) for d in self.done],
+                "drive": self.drive, "paused_from": self._paused_from.value if self._paused_from else None}
+
+    @classmethod
+    def restore(cls, snap: dict, params: MissionParams) -> "Mission":
+        m = cls(params=params, state=MissionState(snap["state"]),
+                pois=[PoiGoal(name, float(s), tuple(actions)) for name, s, actions in snap["pois"]],
+                index=int(snap["index"]), action=int(snap["action"]), result=str(snap["result"]),
+                done=[(a, b) for a, b in snap["done"]], drive=bool(snap["drive"]))
+        m._paused_from = MissionState(snap["paused_from"]) if snap["paused_from"] else None
+        return m
 
     def current_name(self) -> str:
         return self.pois[self.index].name if self.pois and self.index < len(self.pois) else "-"

@@ -11,6 +11,12 @@ command an emergency stop. Each cycle managers/movement_gate.py turns the contro
 | speed/limits       | a controlled stop                           |
 | obstacle/state     | a controlled stop (with the LiDARs on)      |
 | awareness/state    | a controlled stop (as level 2)              |
+| mission/status     | a controlled stop (nothing moves without a mission) |
+| body/state         | a controlled stop (doors and ramp unknown)  |
+
+Doors not closed or the ramp not stowed is a limit of 0 (`body`), whatever the mission says: the
+gate keeps that rule itself, so no fault of the mission manager can move the shuttle with a door
+open.
 
 Level 1 latches an emergency stop until an operator re-arms it (`movement/rearm`, which the REST
 API offers to the operator role only; refused while level 1 lasts). The latch survives a restart
@@ -24,8 +30,8 @@ from __future__ import annotations
 import math
 
 from ares.config import Params, param
-from ares.messages import (AwarenessState, EventLevel, MovementCommand, MovementStatus, RearmReply, RearmRequest,
-                           Setpoint, SpeedLimits)
+from ares.messages import (AwarenessState, BodyState, EventLevel, MissionStatus, MovementCommand, MovementStatus,
+                           RearmReply, RearmRequest, Setpoint, SpeedLimits)
 from ares.node import Input, Node, Output, service
 from managers.movement_gate import GateInputs, GateLimits, Level, MovementGate
 
@@ -37,7 +43,10 @@ class MovementParams(Params):
     limit_timeout_s: float = param(1.0, "an older speed limit counts as missing", unit="s", gt=0)
     obstacle_timeout_s: float = param(0.5, "an older obstacle verdict counts as missing (it comes at 10 Hz)", unit="s",
                                       gt=0)
-    awareness_timeout_s: float = param(1.5, "an older awareness level counts as missing (it comes every 0.5 s)",
+    mission_timeout_s: float = param(0.5, "an older mission status counts as missing (it comes at 10 Hz)", unit="s",
+                                     gt=0)
+    body_timeout_s: float = param(0.5, "an older body state counts as missing (it comes at 10 Hz)", unit="s", gt=0)
+    awareness_timeout_s: float = param(0.5, "an older awareness level counts as missing (it comes at 10 Hz)",
                                        unit="s", gt=0)
     stop_decel_mps2: float = param(1.0, "a controlled stop's deceleration", unit="m/s^2", gt=0)
     max_jerk_mps3: float = param(2.0, "how fast an acceleration or deceleration may build up (comfort: 0.9-2 "
@@ -54,6 +63,8 @@ class MovementManager(Node):
     setpoint = Input("control/setpoint", max_age="command_timeout_s", doc="the control manager's (v, kappa)")
     speed = Input("speed/limits", max_age="limit_timeout_s", doc="the speed manager's limit where the vehicle is")
     obstacle = Input("obstacle/state", max_age="obstacle_timeout_s", doc="the obstacle manager's limit (with LiDARs)")
+    mission = Input("mission/status", max_age="mission_timeout_s", doc="the mission manager's limit")
+    body = Input("body/state", max_age="body_timeout_s", doc="doors closed and ramp stowed, or a limit of 0")
     awareness = Input("awareness/state", max_age="awareness_timeout_s", doc="level 0, 1 (critical) or 2 (low)")
     car = Input("dbw/car_state", max_age="command_timeout_s", doc="at start: is the bridge in an emergency stop?")
     command = Output("movement/command", rate="rate_hz", doc="(v, kappa, emergency) to the drive-by-wire bridge")
@@ -110,7 +121,12 @@ class MovementManager(Node):
         sp: Setpoint | None = self.setpoint.fresh(now)
         speed: SpeedLimits | None = self.speed.fresh(now)
         self._level, cause = self._level_of(self.awareness.fresh(now))
-        limits = {"speed": None if speed is None else speed.limit_mps}
+        mission: MissionStatus | None = self.mission.fresh(now)
+        body: BodyState | None = self.body.fresh(now)
+        limits = {"speed": None if speed is None else speed.limit_mps,
+                  "mission": None if mission is None else (math.inf if mission.limit_mps is None else mission.limit_mps),
+                  "body": None if body is None else (math.inf if body.doors == "closed" and body.ramp == "stowed"
+                                                     else 0.0)}
         if self.obstacle_required:
             obstacle = self.obstacle.fresh(now)
             limits["obstacle"] = None if obstacle is None else obstacle.limit_mps
@@ -132,5 +148,5 @@ class MovementManager(Node):
             t=now, level=None if self._level is None else int(self._level), latched=self.gate.latched,
             latch_cause=self.gate.latch_cause, stopping=out.stopping,
             limit_mps=out.limit_mps if math.isfinite(out.limit_mps) else None, limited_by=out.limited_by,
-            limits=limits, v=out.v, kappa=out.kappa,
+            limits={k: v for k, v in limits.items() if v is None or math.isfinite(v)}, v=out.v, kappa=out.kappa,
             reason=out.reason))

@@ -55,8 +55,8 @@ def test_all_well_is_nominal():
 
 @pytest.mark.parametrize("fault,level,says", [
     ({"roof": LidarHealth(rate_hz=10.0, points=3, road_points=0, blind=True)}, CRITICAL, "lidar roof: blind: no points (covered or failed)"),
-    ({"front_left": LidarHealth(rate_hz=10.0, points=9000, road_points=12)}, CRITICAL,
-     "lidar front_left: 12 road points < 200 (blocked?)"),
+    ({"front_left": LidarHealth(rate_hz=10.0, points=9000, road_points=12)}, LOW,
+     "lidar front_left: 12 road points < 200 (the road hidden)"),
     ({"front_right": LidarHealth(rate_hz=4.0, points=9000, road_points=900)}, CRITICAL,
      "lidar front_right: 4.0 Hz < 8"),
 ])
@@ -153,3 +153,13 @@ def test_a_lidars_rate_is_judged_once_it_has_run_a_window_but_a_blind_one_at_onc
     found = blind.assess(0.5, lidars(0.45, roof=LidarHealth(rate_hz=1.0, points=0, road_points=0, blind=True)),
                          supervisor(0.4))
     assert found.level == CRITICAL
+
+
+def test_lidars_back_after_a_gap_get_a_window_again_before_their_rate_counts():
+    checks = fed(seconds=12.0)
+    starting = LidarHealth(rate_hz=3.0, points=20000, road_points=3000)
+    assert checks.assess(3.0, lidars(2.95), supervisor(2.9)).level == NOMINAL
+    gap = checks.assess(6.0, None, supervisor(5.9))                     # perception restarted: nothing
+    assert gap.level == LOW and "lidars: no status from perception" in gap.causes
+    assert checks.assess(8.0, lidars(7.95, roof=starting), supervisor(7.9)).level == NOMINAL   # warming up again
+    assert checks.assess(10.5, lidars(10.45, roof=starting), supervisor(10.4)).level == CRITICAL

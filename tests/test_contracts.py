@@ -68,7 +68,7 @@ def test_the_simulator_waits_for_every_process_it_feeds(cfg):
     fed = contracts.fed_by(contracts.all_contracts(cfg), "sim")
     assert fed == ["lidar_sim", "gnss", "localization", "odometry_manager", "path_manager", "speed_manager",
                    "lidar_perception", "dbw_bridge", "mpc", "rrc", "pure_pursuit", "control_manager",
-                   "obstacle_manager", "awareness_manager", "movement_manager", "blackbox"]
+                   "obstacle_manager", "mission_manager", "awareness_manager", "movement_manager", "blackbox"]
 
 
 def test_declaring_a_topic_that_is_not_in_the_table_fails_when_the_class_is_defined():

@@ -145,6 +145,17 @@ def test_a_pedestrian_starts_crossing_when_the_vehicle_comes_near(tour, world):
     assert xte_end == pytest.approx(-4.5, abs=0.05)             # and stays on the far side
 
 
+def test_the_crossing_pedestrian_stands_in_the_middle_as_long_as_the_scenario_says(tour, world):
+    field = ObstacleField(load_scenario("pedestrian_crossing"), tour, world.centre_height)
+    walker = field.obstacles[0]
+    field.update(10.0, 760.0)                                  # starts walking (1.2 m/s, 5 m to the middle)
+    offsets = {dt: tour.project(*walker.where(10.0 + dt)[:2])[1] for dt in (0.0, 2.0, 5.0, 9.0, 12.5, 30.0)}
+    assert offsets[0.0] == pytest.approx(5.0, abs=0.05) and offsets[2.0] == pytest.approx(2.6, abs=0.05)
+    assert abs(offsets[5.0]) < 0.05 and abs(offsets[9.0]) < 0.05       # standing in the way for wait_s
+    assert offsets[12.5] == pytest.approx(-(12.5 - 4.17 - 8.0) * 1.2, abs=0.05)
+    assert offsets[30.0] == pytest.approx(-5.0, abs=0.05)
+
+
 def test_an_obstacle_is_seen_by_the_roof_lidar(tour, world, shuttle):
     scenario = config.Scenario(name="one", obstacles=[config.ScenarioObstacle(
         name="crate", kind="crate", path=[config.ScenarioPlace(s=1012.0, offset_m=0.0)])])

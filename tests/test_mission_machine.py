@@ -43,7 +43,7 @@ def mission_in(state: str) -> Mission:
 
 
 STATES = ("IDLE", "DRIVING", "AT_POI", "PAUSED_DRIVING", "PAUSED_AT_POI", "SUCCEEDED", "CANCELED")
-EVENTS = ("goal", "empty_goal", "cancel", "pause", "resume", "reach", "far")
+EVENTS = ("goal", "drive_goal", "empty_goal", "cancel", "pause", "resume", "reach", "far")
 BODIES = {"ready": READY, "doors_open": OPEN}
 
 
@@ -52,7 +52,7 @@ def expected(state: str, event: str, body: str) -> tuple[bool | None, str]:
     active = state in ("DRIVING", "AT_POI", "PAUSED_DRIVING", "PAUSED_AT_POI")
     ready = body == "ready"
     paused = {"PAUSED_DRIVING": "PAUSED", "PAUSED_AT_POI": "PAUSED"}.get(state, state)
-    if event == "goal":
+    if event in ("goal", "drive_goal"):
         return (True, "DRIVING") if ready else (False, paused)
     if event == "empty_goal":
         return False, paused
@@ -74,6 +74,8 @@ def test_every_state_and_event(state, event, body):
     want_accepted, want_state = expected(state, event, body)
     if event == "goal":
         accepted, reason = m.goal([LAKESIDE], b)
+    elif event == "drive_goal":
+        accepted, reason = m.goal([], b, drive=True)
     elif event == "empty_goal":
         accepted, reason = m.goal([], b)
     elif event == "cancel":
@@ -226,3 +228,23 @@ def test_properties_over_random_sequences(events):
     for poi in (LIBRARY, LAKESIDE):
         done = [a for name, a in m.done if name == poi.name]
         assert done == list(poi.actions[:len(done)])
+
+
+def test_a_drive_goes_round_without_stopping_and_a_door_still_stops_it():
+    m = Mission()
+    assert m.goal([LIBRARY], READY, drive=True) == (False, "refused: a drive goal has no POIs")
+    assert m.goal([], READY, drive=True)[0]
+    for t in range(5):
+        assert m.step(float(t), None, 3.0, READY) == m.step(float(t), 0.1, 3.0, READY)   # nothing asked of the body
+        assert m.state is MissionState.DRIVING and m.limit_mps(None, READY) == float("inf")
+    assert m.limit_mps(None, OPEN) == 0.0
+    assert m.pause()[0] and m.limit_mps(None, READY) == 0.0
+
+
+@pytest.mark.parametrize("state", STATES)
+def test_a_snapshot_restores_the_same_mission(state):
+    m = mission_in(state)
+    back = Mission.restore(m.snapshot(), m.params)
+    assert back.snapshot() == m.snapshot()
+    assert (back.state, back.current_name(), back.current_action()) == (m.state, m.current_name(), m.current_action())
+    assert back.resume() == m.resume()

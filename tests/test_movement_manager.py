@@ -9,7 +9,7 @@ import pytest
 from ares import config
 from ares.clock import ManualClock
 from ares.membus import MemoryNetwork
-from ares.messages import (AwarenessState, CarState, DriveMode, Imu, ObstacleState, ProcessState, ProcessStatus, RearmRequest, Setpoint, SpeedLimits,
+from ares.messages import (AwarenessState, BodyState, CarState, MissionStatus, DriveMode, Imu, ObstacleState, ProcessState, ProcessStatus, RearmRequest, Setpoint, SpeedLimits,
                            SupervisorState)
 from managers.awareness import AwarenessManager
 from managers.movement import MovementManager
@@ -31,7 +31,8 @@ class Gate:
         self.t = 0.0
 
     def run(self, seconds: float, *, command=(2.0, 0.01), limit: float | None = 3.0, level: int | None = 0,
-            causes=(), obstacle: float | None = None, bridge_emergency: bool = False):
+            causes=(), obstacle: float | None = None, bridge_emergency: bool = False,
+            mission: float | str | None = "drive", doors: str | None = "closed"):
         for _ in range(round(seconds / PERIOD)):
             t = self.t = round(self.t + PERIOD, 9)
             self.clock.set(t)
@@ -49,6 +50,13 @@ class Gate:
                 self.bus.publish("obstacle/state", ObstacleState(t=t, score=0.5, band="slow", nearest_m=4.0,
                                                                  limit_mps=obstacle, length_m=8.0, cells=4,
                                                                  area_x=[], area_y=[]))
+            if mission is not None:
+                self.bus.publish("mission/status", MissionStatus(
+                    t=t, goal_id=1, state="DRIVING", kind="drive" if mission == "drive" else "tour", poi=None,
+                    action=None, distance_m=None, eta_s=None, limit_mps=None if mission == "drive" else mission,
+                    ready_to_move=doors == "closed"))
+            if doors is not None:
+                self.bus.publish("body/state", BodyState(t=t, doors=doors, ramp="stowed", entrance_clear=True))
             if level is not None:
                 self.bus.publish("awareness/state", AwarenessState(t=t, level=level, causes=list(causes)))
             self.node.step_once(t)
@@ -164,3 +172,27 @@ def test_the_awareness_manager_reports_a_frozen_imu_and_a_dead_process(run_confi
     assert run(6.0, 7.0).level == 0
     changes = [(e.data["level_from"], e.data["level_to"]) for _, e in events.drain() if e.kind == "awareness"]
     assert changes[0] == (0, 2) and changes[-1] == (2, 0)
+
+
+def test_the_mission_limit_applies_and_a_missing_mission_or_body_stops_the_shuttle(run_config):
+    gate = Gate(run_config)
+    command, status = gate.run(3.0)
+    assert command.v == pytest.approx(2.0) and "mission" not in status.limits     # a drive: no limit
+    command, status = gate.run(1.0, mission=1.2)
+    assert command.v == pytest.approx(1.2) and status.limited_by == "mission"
+    command, status = gate.run(1.0, mission=None)                           # the mission manager gone
+    assert status.stopping and status.limits["mission"] is None and "mission limit missing" in status.reason
+    command, status = gate.run(3.0)
+    assert not status.stopping and command.v > 1.5
+    command, status = gate.run(1.0, doors=None)
+    assert status.stopping and "body limit missing" in status.reason
+
+
+@pytest.mark.parametrize("doors", ["opening", "open", "closing"])
+def test_a_door_not_closed_holds_the_shuttle_whatever_the_mission_says(run_config, doors):
+    gate = Gate(run_config)
+    gate.run(3.0)
+    command, status = gate.run(0.1, doors=doors)            # a door that opens by itself: a limit of 0 at once
+    assert command.v == 0.0 and status.limited_by == "body"
+    command, status = gate.run(5.0, doors=doors)
+    assert command.v == 0.0

@@ -21,6 +21,9 @@
     ares driver button|throttle|brake|steer|release [VALUE] [--duration S]
                                    act as the simulated shuttle's driver
     ares auto                      ask the drive-by-wire bridge for Automatic mode
+    ares mission start [POI ...] [--drive] | pause | resume | cancel | status [--operator NAME]
+                                   the mission manager's action: a goal of POIs (all of the route's if none
+                                   named), a drive without stops, pause, resume, cancel, the feedback
     ares bench bus [--json] [--seconds S] [--mode peer|client]
     ares bench supervisor [--json] [--rounds N]
     ares route import FILE -o ROUTE [--format auto|csv|nmea] [--spacing M] [--strict]
@@ -53,10 +56,10 @@ import logging
 import os
 import sys
 
-from . import bench, blackbox, bus_tools, compare, inspect, perception, route, run
+from . import bench, blackbox, bus_tools, compare, inspect, mission, perception, route, run
 from .args import CliError, Command
 
-COMMAND_GROUPS = (run, compare, inspect, bus_tools, bench, route, blackbox, perception)   # as `ares --help` lists them
+COMMAND_GROUPS = (run, compare, inspect, bus_tools, mission, bench, route, blackbox, perception)   # as `ares --help` lists them
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -45,6 +45,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     p.add_argument("--vehicle", metavar="NAME", help="as ares run --vehicle")
     p.add_argument("--scenario", metavar="NAME|FILE", help="as ares run --scenario")
     p.add_argument("--laps", type=positive_int, metavar="N", help="laps per run (default 1)")
+    p.add_argument("--mission", choices=["tour", "drive"], default="drive",
+                   help="as ares run --mission (default drive: comparisons are about control, not stops)")
     p.add_argument("--seconds", type=positive_float, metavar="S", help="vehicle seconds per run instead of laps")
     p.add_argument("--config", action="append", default=[], metavar="FILE", help="as ares run --config")
     p.add_argument("--out", metavar="PNG", help="the picture (default: compare-<time>.png in the runs folder)")
@@ -55,7 +57,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
 def run_one(controller: str, args: argparse.Namespace, run_dir: Path) -> dict:
     cmd = [sys.executable, "-m", "ares.cli", "run", "--headless", "--speed", "max", "--controller", controller,
            "--run-dir", str(run_dir)]
-    for flag in ("route", "vehicle", "scenario", "laps", "seconds"):
+    for flag in ("route", "vehicle", "scenario", "laps", "seconds", "mission"):
         value = getattr(args, flag)
         if value is not None:
             cmd += [f"--{flag}", str(value)]

@@ -29,6 +29,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
                                                       "YAML, or an open route (CSV of x,y[,z] metres)")
     run.add_argument("--scenario", metavar="NAME|FILE",
                      help="simulated obstacles and faults: a built-in scenario (ares/config/scenarios/) or a YAML file")
+    run.add_argument("--mission", choices=["tour", "drive", "none"],
+                     help="the goal the mission manager sets itself: tour (stop at every POI: doors, ramp, "
+                          "passengers), drive (round the route without stopping) or none (`ares mission start`); "
+                          "default: the scenario's, else mission_manager.autostart (tour)")
     run.add_argument("--controller", choices=["auto", "mpc", "rrc", "pure_pursuit"],
                      help="pin one controller for comparisons (default auto: the control manager chooses)")
     run.add_argument("--vehicle", metavar="NAME", help="vehicle profile (config/vehicles/NAME.yaml)")

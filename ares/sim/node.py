@@ -14,10 +14,11 @@ from dataclasses import dataclass
 from ares.config import load_scenario
 from ares.geodesy import LocalFrame
 from ares.lockstep import LockstepMaster
-from ares.messages import (Ack, ActuatorCommand, CanFrame, DriverCommand, EventLevel, GnssSentences, Imu,
-                           PanelEvent, PanelInput, VehicleTruth)
+from ares.messages import (Ack, ActuatorCommand, BodyCommand, BodyState, CanFrame, DriverCommand, EventLevel,
+                           GnssSentences, Imu, PanelEvent, PanelInput, VehicleTruth)
 from ares.node import Input, Node, Output, service
 from ares.route import load_route
+from ares.sim.body import BodySim
 from ares.sim.params import SimParams
 from ares.sim.sensors import SensorSuite
 from ares.sim.vehicle import VehiclePlant
@@ -54,6 +55,8 @@ class Simulator(Node):
     can = Output("sensors/can", rate="can_hz")
     truth = Output("sim/truth", rate="truth_hz", doc="ground truth, for evaluation only")
     panel = Output("vehicle/panel", doc="driver actions")
+    body_command = Input("body/command", queue=64, doc="doors, ramp and media, from the mission manager")
+    body_state = Output("body/state", rate="body.rate_hz", doc="the doors' and ramp's end switches, the entrance")
     clock_ticks = Output("sim/clock", doc="--speed max: the stack time, moved on when every participant is done")
     participant_ticks = Output("sim/clock/*", doc="--speed max: the time, to each participant when it is due")
     clock_done = Input("clock/done", doc="--speed max: each participant's next due time (ares.lockstep)")
@@ -61,19 +64,28 @@ class Simulator(Node):
     def setup(self) -> None:
         sim = self.params
         self.route = load_route(self.core)
-        self.plant = VehiclePlant(self.route, self.vehicle, sim, s0=sim.start_s_m)
         scenario = load_scenario(self.core.scenario) if self.core.scenario else None
+        start = scenario.start_s_m if scenario is not None and scenario.start_s_m is not None else sim.start_s_m
+        self.plant = VehiclePlant(self.route, self.vehicle, sim, s0=start)
         self.sensors = SensorSuite(self.route, sim, LocalFrame(self.core.origin_utm), self.vehicle.wheel_radius_m,
                                    faults=scenario.faults if scenario else ())
         self.dt = 1.0 / sim.physics_hz
         self.periods = {"gnss": 1.0 / sim.gnss_hz, "imu": 1.0 / sim.imu_hz,
-                        "can": 1.0 / sim.can_hz, "truth": 1.0 / sim.truth_hz}
+                        "can": 1.0 / sim.can_hz, "truth": 1.0 / sim.truth_hz, "body": 1.0 / sim.body.rate_hz}
+        self.body = BodySim(sim.body.door_travel_s, sim.body.ramp_travel_s, sim.body.per_person_s,
+                            passengers=self.plant.passengers,
+                            stops={p.poi: p for p in (scenario.passengers if scenario else ())})
+        unknown = sorted(set(self.body.stops) - {p.name for p in self.route.pois})
+        if unknown:
+            raise ValueError(f"scenario passengers at {unknown}: no such POI on '{self.route.name}' "
+                             f"(its POIs: {', '.join(p.name for p in self.route.pois) or 'none'})")
         now = self.clock.now()
         # physics step k is at t0 + k dt exactly: summing dt would drift off the clock's ticks
         self._t0, self._k = now, 0
         self.plant.state.t = now
         self.next_due = {name: now for name in self.periods}
         self.driver = DriverInputs()
+        self._failsafe = False
         self.progress_m = 0.0      # along the route, unwrapped: laps = progress // length
         self._last_s = self.plant.state.s
 
@@ -123,10 +135,25 @@ class Simulator(Node):
             self.plant.step(command.steer_effort, command.drive_effort, self.dt)
         else:
             self.plant.step(0.0, -1.0, self.dt)   # the board's own fail-safe: brake, hold the wheel
+        self._failsafe = not fresh and not self.driver.active(t)
         self._k += 1
         st.t = t
         self.progress_m += self.route.step_between(self._last_s, st.s)
         self._last_s = st.s
+        for _, cmd in self.body_command.drain():
+            self.body.command(cmd.doors, cmd.ramp, cmd.media)
+        self.body.step(self.dt, self._poi_here())
+        if self.body.passengers != self.plant.passengers:
+            self.plant.passengers = self.body.passengers      # the laden mass the traction feels
+
+    def _poi_here(self) -> str | None:
+        st = self.plant.state
+        if abs(st.v) > 0.05:
+            return None
+        for poi in self.route.pois:
+            if abs(self.route.step_between(poi.s, st.s)) <= self.params.body.at_poi_m:
+                return poi.name
+        return None
 
     def step(self, now: float) -> None:
         steps = 0
@@ -164,7 +191,11 @@ class Simulator(Node):
                 t=t, x=st.x, y=st.y, z=st.z, yaw=st.yaw, pitch=st.pitch, v=st.v, yaw_rate=st.yaw_rate,
                 accel=st.accel, steering_wheel_deg=st.steering_wheel_deg, wheel_angle_rad=st.wheel_angle_rad,
                 s=st.s, odometer_m=st.odometer, lap=self._laps(), rtk_available=self.sensors.gnss.rtk_available(st.s, t),
-                passengers=self.plant.passengers))
+                passengers=self.plant.passengers, board_failsafe=self._failsafe))
+        if self._due("body"):
+            b = self.body
+            self.body_state.put(BodyState(t=t, doors=b.door_state, ramp=b.ramp_state, entrance_clear=b.entrance_clear,
+                                          media=b.media, passengers=b.passengers))
 
 
     # ---- --speed max: this process drives the clock ------------------------------------------

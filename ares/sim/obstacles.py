@@ -33,17 +33,25 @@ class PlacedObstacle:
         return len(self.xy) > 1 and self.spec.speed_mps > 0
 
     def where(self, t: float) -> tuple[float, float, float, float]:
-        """(x, y, z of the base, yaw) at stack time t."""
+        """(x, y, z of the base, yaw) at stack time t: along its path at its speed, standing each
+        place's wait_s."""
         if not self.moving or self.started_at is None:
             return float(self.xy[0, 0]), float(self.xy[0, 1]), float(self.base_z[0]), float(self.yaw_along[0])
+        tau = max(t - self.started_at, 0.0)
         legs = np.hypot(*np.diff(self.xy, axis=0).T)
-        d = min(self.spec.speed_mps * max(t - self.started_at, 0.0), float(legs.sum()))
-        ends = np.cumsum(legs)
-        i = min(int(np.searchsorted(ends, d, side="right")), len(legs) - 1)
-        f = 1.0 if legs[i] == 0 else (d - (ends[i] - legs[i])) / legs[i]
-        x, y = self.xy[i] + f * (self.xy[i + 1] - self.xy[i])
-        z = self.base_z[i] + f * (self.base_z[i + 1] - self.base_z[i])
-        return float(x), float(y), float(z), float(self.yaw_along[i + 1])
+        leave = 0.0
+        for i, place in enumerate(self.spec.path):
+            arrive = leave if i == 0 else leave + legs[i - 1] / self.spec.speed_mps
+            if i > 0 and tau < arrive:          # on the leg from place i-1 to place i
+                f = (tau - leave) / (arrive - leave) if arrive > leave else 1.0
+                x, y = self.xy[i - 1] + f * (self.xy[i] - self.xy[i - 1])
+                z = self.base_z[i - 1] + f * (self.base_z[i] - self.base_z[i - 1])
+                return float(x), float(y), float(z), float(self.yaw_along[i])
+            leave = arrive + place.wait_s
+            if tau < leave or i == len(self.spec.path) - 1:     # standing at place i
+                return (float(self.xy[i, 0]), float(self.xy[i, 1]), float(self.base_z[i]),
+                        float(self.yaw_along[max(i, 1) if len(self.xy) > 1 else 0]))
+        raise AssertionError("unreachable: the last place ends the walk")
 
 
 class ObstacleField:

@@ -48,6 +48,16 @@ class DriverParams(Params):
                                         unit="deg", gt=0)
 
 
+class SimBodyParams(Params):
+    """Doors, ramp and the people passing them (ares/sim/body.py)."""
+    rate_hz: float = param(10.0, "the body's sensors report this often", unit="Hz", gt=0)
+    door_travel_s: float = param(2.5, "doors: closed to open (or back)", unit="s", gt=0)
+    ramp_travel_s: float = param(6.0, "ramp: stowed to deployed (or back)", unit="s", gt=0)
+    per_person_s: float = param(2.0, "one person through the entrance", unit="s", gt=0)
+    at_poi_m: float = param(3.0, "standing this close to a POI's stop point, the shuttle is at it (for its people)",
+                            unit="m", gt=0)
+
+
 class SimParams(Params):
     physics_hz: float = param(100.0, "physics steps per stack second (the simulator's loop rate)", unit="Hz", gt=0)
     gnss_hz: float = param(5.0, "NMEA GGA + GST rate", unit="Hz", gt=0)
@@ -65,6 +75,7 @@ class SimParams(Params):
                                                         unit="m")
     suspension: SuspensionParams = param(doc="body bounce over the roughness", factory=SuspensionParams)
     driver: DriverParams = param(doc="the simulated human driver", factory=DriverParams)
+    body: SimBodyParams = param(doc="doors, ramp and passengers", factory=SimBodyParams)
     actuator_timeout_s: float = param(0.5, "the DBW board brakes if the bridge goes quiet this long", unit="s", gt=0)
     parking_brake_effort: float = param(0.3, "a vehicle left in Manual with nobody driving is parked", ge=0, le=1)
     max_catch_up_steps: int = param(50, "after a stall, jump ahead rather than replay more physics steps than this",

@@ -166,6 +166,7 @@ class ImuSensor:
 
 
     def __init__(self, params: SimImuParams, rng: np.random.Generator | None = None, noise: bool = True):
+        self._last: dict | None = None
         self.noise = noise
         self.rng = rng if rng is not None else np.random.default_rng(1)
         self.yaw_offset = params.yaw_offset_rad
@@ -184,6 +185,13 @@ class ImuSensor:
         return sum(math.radians(f.bias_deg_s) for f in self.faults if f.kind == "gyro_bias" and f.active(t))
 
     def measure(self, state: VehicleState) -> dict:
+        frozen = any(f.kind == "freeze_imu" and f.active(state.t) for f in self.faults)
+        if frozen and self._last is not None:
+            return dict(self._last)                     # a stuck driver repeats its last reading
+        self._last = self._measure(state)
+        return dict(self._last)
+
+    def _measure(self, state: VehicleState) -> dict:
         pitch, roll = state.pitch, state.roll
         # Specific force (what an accelerometer feels) = kinematic acceleration - gravity,
         # expressed in the body frame; with REP-103 pitch (nose down positive) gravity shows
