@@ -33,6 +33,14 @@ class DbwBridgeParams(Params):
     standstill_brake_effort: float = param(0.5, "the brake held at standstill", ge=0, le=1)
     pedal_pressed: float = param(0.05, "pedal travel that counts as the driver acting (filters sensor noise)",
                                  ge=0, le=1)
+    brake_assist_deadband_mps: float = param(0.5, "measured speed this far above the command: the brake helps the "
+                                                  "speed loop (a limit that falls at once: an obstacle, a pause); "
+                                                  "smaller gaps, as a speed section's step, are the loop's alone",
+                                             unit="m/s", ge=0)
+    brake_assist_time_s: float = param(0.5, "... asking the deceleration that closes the gap beyond the deadband in "
+                                            "this time", unit="s", gt=0)
+    brake_assist_max_decel_mps2: float = param(3.0, "... at most (the full brake is for emergencies)", unit="m/s^2",
+                                               gt=0)
     can_timeout_s: float = param(0.5, "older CAN readings leave the inner loops blind: engaged, the board brakes",
                                  unit="s", gt=0)
 
@@ -55,6 +63,10 @@ class BridgeLoop:
         self.steering_pid = PID.from_gains(profile.dbw_pid.steering)
         self.wheel_speed_pid = PID.from_gains(profile.dbw_pid.throttle)
         self.dt = 1.0 / params.rate_hz
+        # the speed loop's PI, tuned for tracking (DBW paper), brakes at a fraction of 1 m/s^2 for
+        # a speed 1 m/s too high: the brake's effort per m/s^2 for a gap it must close fast
+        self.brake_effort_per_mps2 = (profile.empty_mass_kg + 2 * profile.passenger_mass_kg) / \
+            profile.actuators.traction.max_brake_force_n
         self._was_engaged = False
         self.emergency = False          # the movement manager's latched emergency stop: brake fully
 
@@ -88,6 +100,11 @@ class BridgeLoop:
                 self.wheel_speed_pid.reset()
             steer_effort = self.steering_pid.step(reference.steering_wheel_angle_deg, can.steering_wheel_deg, self.dt)
             drive_effort = self.wheel_speed_pid.step(reference.wheel_speed_rad_s, can.wheel_speed_rad_s, self.dt)
+            gap = can.speed_mps - cmd.v
+            if gap > self.params.brake_assist_deadband_mps:
+                decel = min((gap - self.params.brake_assist_deadband_mps) / self.params.brake_assist_time_s,
+                            self.params.brake_assist_max_decel_mps2)
+                drive_effort = min(drive_effort, -min(1.0, decel * self.brake_effort_per_mps2))
             if cmd.v == 0.0 and can.speed_mps < self.params.standstill_speed_mps:
                 # a PI loop alone creeps around zero on a slope; the board holds the brake
                 drive_effort = min(drive_effort, -self.params.standstill_brake_effort)

@@ -1,8 +1,12 @@
 """Obstacle manager: a speed limit from what stands in the vehicle's way (ARES §3.5.3).
 
-Each cycle it lays the search area (managers/obstacle_zone.py) along the arc the wheels are
-turned to (the CAN steering angle through the bridge's car state), sized for the larger of the
-speed now and the speed manager's limit, and looks for occupied cells of the occupancy grid in it.
+Each cycle it lays the search area (managers/obstacle_zone.py) along the trajectory the shuttle
+will drive: the path ahead (the path manager's, into the vehicle's frame by the fused pose) while
+the control manager forwards a controller that follows it (odometry mode: MPC, pure pursuit);
+otherwise the arc the wheels are turned to (the CAN steering angle through the bridge's car
+state). It is sized for the larger of the speed now and the speed manager's limit, and it looks
+for occupied cells of the occupancy grid in it. Along the arc, where a lane's curvature changes
+the arc meets the wall 7-10 m ahead (`ares bench obstacle-zone`); the path ahead bends with the lane.
 The nearest one sets the limit (ready, slow in proportion, stop) that the movement manager applies;
 the score and the area's outline go out for the black box and the pages. Without a fresh grid or
 car state the area is unknown: the limit is 0.
@@ -16,7 +20,10 @@ from __future__ import annotations
 
 import math
 
-from ares.messages import CarState, EventLevel, ObstacleState, OccupancyGrid, SpeedLimits
+import numpy as np
+
+from ares.messages import (CarState, ControllerStatus, EventLevel, ObstacleState, OccupancyGrid, PathMatch, Pose,
+                           SpeedLimits)
 from ares.node import Input, Node, Output
 from managers.obstacle_zone import ObstacleParams, judge, occupied_cells, zone_for
 
@@ -28,6 +35,9 @@ class ObstacleManager(Node):
     grid = Input("perception/grid", max_age="grid_timeout_s", doc="occupied cells around the vehicle")
     car = Input("dbw/car_state", max_age="grid_timeout_s", doc="speed and steering-wheel angle now")
     limits = Input("speed/limits", max_age="grid_timeout_s", doc="the speed the shuttle is allowed here")
+    match = Input("path/match", max_age="grid_timeout_s", doc="the path ahead")
+    pose = Input("localization/pose", max_age="grid_timeout_s", doc="to turn the path ahead into the vehicle's frame")
+    control = Input("control/status", max_age="grid_timeout_s", doc="who drives: a path follower, or not")
     state = Output("obstacle/state", rate="rate_hz", doc="score, nearest obstacle, speed limit, the area")
 
     def setup(self) -> None:
@@ -44,7 +54,7 @@ class ObstacleManager(Node):
         allowed = limits.limit_mps if limits is not None else v.max_speed_mps
         speed = 0.0 if car is None else car.speed_mps
         kappa = 0.0 if car is None else math.tan(math.radians(car.steering_wheel_deg) / v.steering_ratio) / v.wheelbase_m
-        zone = zone_for(self.params, max(speed, allowed), kappa, v.width_m, self.bumper_m)
+        zone = zone_for(self.params, max(speed, allowed), kappa, v.width_m, self.bumper_m, centre=self._path_ahead(now))
         outline = zone.outline()
         xs, ys = [round(p[0], 3) for p in outline], [round(p[1], 3) for p in outline]
         if grid is None or car is None:
@@ -71,6 +81,20 @@ class ObstacleManager(Node):
         self.state.put(ObstacleState(t=now, score=verdict.share, band=band, nearest_m=verdict.nearest_m,
                                      limit_mps=limit, length_m=zone.length_m, cells=verdict.cells,
                                      area_x=xs, area_y=ys, reason=reason))
+
+    def _path_ahead(self, now: float) -> np.ndarray | None:
+        """The path ahead in the vehicle's frame, while a path follower drives (None: the arc)."""
+        status: ControllerStatus | None = self.control.fresh(now)
+        match: PathMatch | None = self.match.fresh(now)
+        pose: Pose | None = self.pose.fresh(now)
+        if status is None or status.mode != "odometry" or match is None or pose is None or len(match.ahead_x) < 2:
+            return None
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        dx, dy = np.asarray(match.ahead_x) - pose.x, np.asarray(match.ahead_y) - pose.y
+        # from a metre behind the axle, so that the bumper's foot is always on it
+        back = np.array([[-1.0, 0.0]])
+        ahead = np.column_stack([dx * c + dy * s, -dx * s + dy * c])
+        return np.vstack([back, ahead[ahead[:, 0] > -1.0]]) if (ahead[:, 0] > -1.0).sum() >= 2 else None
 
     def _report(self, band: str, reason: str) -> None:
         """An event when the shuttle starts or stops stopping for something."""

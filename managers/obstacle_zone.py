@@ -48,13 +48,15 @@ class ObstacleParams(Params):
 
 @dataclass(frozen=True)
 class Zone:
-    """The area for one cycle: along the arc of curvature kappa from the rear axle, starting at
-    the front bumper (`start_m` ahead of the axle), `length_m` long."""
+    """The area for one cycle: along the arc of curvature kappa from the rear axle, or along a
+    centre line (`centre`: points of the vehicle frame, the path ahead), starting at the front
+    bumper (`start_m` ahead of the axle), `length_m` long."""
     kappa: float
     start_m: float
     length_m: float
     near_half_width_m: float
     far_half_width_m: float
+    centre: np.ndarray | None = None    # (k, 2), in driving order, reaching past the area's end
 
     def half_width(self, s: np.ndarray) -> np.ndarray:
         share = np.clip(s / self.length_m, 0.0, 1.0)
@@ -62,7 +64,11 @@ class Zone:
 
     def along(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For points of the vehicle frame (x ahead, y left, from the rear axle): the distance
-        along the arc ahead of the bumper and the offset across it."""
+        along the arc (or centre line) ahead of the bumper and the offset across it."""
+        if self.centre is not None:
+            s, d = _along_polyline(self.centre, np.asarray(x, float), np.asarray(y, float))
+            bumper, _ = _along_polyline(self.centre, np.array([self.start_m]), np.array([0.0]))
+            return s - bumper[0], d
         if abs(self.kappa) < 1e-6:
             return x - self.start_m, y
         radius = 1.0 / self.kappa                      # the turn's centre is at (0, radius)
@@ -77,8 +83,10 @@ class Zone:
         return (s >= 0.0) & (s <= self.length_m) & (np.abs(d) <= self.half_width(s)), s
 
     def outline(self, steps: int = 12) -> list[tuple[float, float]]:
-        """The trapezoid's corners along the arc, in the vehicle frame (for the pages)."""
+        """The trapezoid's corners along the arc or centre line, in the vehicle frame (for the pages)."""
         s = np.linspace(0.0, self.length_m, steps)
+        if self.centre is not None:
+            return _polyline_outline(self.centre, self.start_m, s, self.half_width(s))
         left, right = [], []
         for si, wi in zip(s, self.half_width(s)):
             a = si + self.start_m
@@ -93,6 +101,37 @@ class Zone:
         return [*left, *reversed(right)]
 
 
+def _along_polyline(centre: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's distance along the polyline (from its first point) to its foot on the nearest
+    segment, and its offset across (left +)."""
+    a, seg = centre[:-1], np.diff(centre, axis=0)
+    seg_len2 = np.maximum((seg ** 2).sum(axis=1), 1e-12)
+    rel_x, rel_y = x[:, None] - a[None, :, 0], y[:, None] - a[None, :, 1]
+    t = np.clip((rel_x * seg[None, :, 0] + rel_y * seg[None, :, 1]) / seg_len2[None, :], 0.0, 1.0)
+    dist2 = (rel_x - t * seg[None, :, 0]) ** 2 + (rel_y - t * seg[None, :, 1]) ** 2
+    j = np.argmin(dist2, axis=1)
+    rows = np.arange(len(x))
+    lengths = np.sqrt(seg_len2)
+    starts = np.concatenate([[0.0], np.cumsum(lengths)[:-1]])
+    s = starts[j] + t[rows, j] * lengths[j]
+    cross = seg[j, 0] * rel_y[rows, j] - seg[j, 1] * rel_x[rows, j]
+    return s, np.sign(cross) * np.sqrt(dist2[rows, j])
+
+
+def _polyline_outline(centre: np.ndarray, start_m: float, s: np.ndarray, half: np.ndarray) -> list[tuple[float, float]]:
+    seg = np.diff(centre, axis=0)
+    lengths = np.hypot(seg[:, 0], seg[:, 1])
+    cum = np.concatenate([[0.0], np.cumsum(lengths)])
+    bumper, _ = _along_polyline(centre, np.array([start_m]), np.array([0.0]))
+    at = np.clip(s + bumper[0], 0.0, cum[-1])
+    cx, cy = np.interp(at, cum, centre[:, 0]), np.interp(at, cum, centre[:, 1])
+    j = np.clip(np.searchsorted(cum, at, side="right") - 1, 0, len(seg) - 1)
+    hx, hy = -seg[j, 1] / np.maximum(lengths[j], 1e-12), seg[j, 0] / np.maximum(lengths[j], 1e-12)
+    left = [(float(a + w * b), float(c + w * d)) for a, c, b, d, w in zip(cx, cy, hx, hy, half)]
+    right = [(float(a - w * b), float(c - w * d)) for a, c, b, d, w in zip(cx, cy, hx, hy, half)]
+    return [*left, *reversed(right)]
+
+
 @dataclass(frozen=True)
 class ObstacleVerdict:
     share: float                    # f: the nearest obstacle's distance / the length (1: none)
@@ -103,11 +142,11 @@ class ObstacleVerdict:
 
 
 def zone_for(p: ObstacleParams, speed_mps: float, kappa: float, body_width_m: float, bumper_m: float,
-             far_margin_m: float | None = None) -> Zone:
+             far_margin_m: float | None = None, centre: np.ndarray | None = None) -> Zone:
     half = body_width_m / 2.0
     far = p.far_margin_m if far_margin_m is None else far_margin_m
     return Zone(kappa, bumper_m, max(p.min_length_m, p.headway_s * max(speed_mps, 0.0)), half + p.near_margin_m,
-                half + far)
+                half + far, centre)
 
 
 def judge(p: ObstacleParams, zone: Zone, occupied_x: np.ndarray, occupied_y: np.ndarray, v_max: float) -> ObstacleVerdict:

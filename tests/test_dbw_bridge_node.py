@@ -337,8 +337,20 @@ def test_the_brake_is_held_for_a_zero_speed_setpoint_only_near_standstill(bridge
     _, actuators = bridge.step(t, speed_mps=speed_mps, wheel_speed_rad_s=speed_mps / 0.28)
     if braked:
         assert actuators.drive_effort <= -STANDSTILL_BRAKE
-    else:                                   # slowing from 1 m/s is the speed loop's job alone
-        assert actuators.drive_effort > -STANDSTILL_BRAKE
+    else:                                   # from 1 m/s: no hold, the brake assist closes the gap in 0.5 s
+        assert actuators.drive_effort == pytest.approx(-1.0 * (2450 + 2 * 75) / 10000.0, abs=1e-3)
+
+
+@pytest.mark.parametrize("speed_mps, command_mps, assisted", [(3.0, 2.6, False), (3.0, 2.0, True), (3.5, 0.0, True)])
+def test_the_brake_helps_the_speed_loop_only_for_a_gap_beyond_its_deadband(bridge, speed_mps, command_mps, assisted):
+    t = bridge.arm(0.0)
+    bridge.setpoint(command_mps, 0.0)
+    _, actuators = bridge.step(t, speed_mps=speed_mps, wheel_speed_rad_s=speed_mps / 0.28)
+    wanted = min((speed_mps - command_mps - 0.5) / 0.5, 3.0) * (2450 + 2 * 75) / 10000.0
+    if assisted:
+        assert actuators.drive_effort == pytest.approx(-wanted, abs=1e-3)
+    else:                                   # tracking: the PI alone, gently
+        assert actuators.drive_effort > -0.1
 
 
 def test_no_brake_when_the_setpoint_asks_to_move_off(bridge):

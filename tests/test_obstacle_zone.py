@@ -121,3 +121,67 @@ def test_the_node_stops_for_what_stays_and_not_for_one_grid(run_config):
     assert step(0.6, None).band == "clear"           # gone: the higher of the two limits, at once
     kinds = [(e.kind, e.message) for _, e in events.drain()]
     assert [k for k, _ in kinds] == ["obstacle_stop", "obstacle_stop"] and "m ahead (4 cells)" in kinds[0][1]
+
+
+def test_along_the_path_ahead_the_area_bends_with_a_lane_the_arc_leaves():
+    # the wheels straight, the lane bending left on a 15 m radius from the bumper on: along the arc
+    # the outer wall comes into the area; along the path ahead it stays beside it
+    radius = 15.0
+    s = np.arange(-1.0, 25.0, 0.5)
+    bend = np.clip(s - BUMPER, 0.0, None) / radius
+    straight = np.minimum(s, BUMPER)
+    path = np.column_stack([straight + radius * np.sin(bend), radius * (1 - np.cos(bend))])
+    # walls 1.6 m either side of that lane, every 0.2 m
+    fine = np.arange(0.0, 25.0, 0.2)
+    fb = np.clip(fine - BUMPER, 0.0, None) / radius
+    cx, cy = np.minimum(fine, BUMPER) + radius * np.sin(fb), radius * (1 - np.cos(fb))
+    nx, ny = -np.sin(fb), np.cos(fb)
+    walls_x, walls_y = np.r_[cx + 1.6 * nx, cx - 1.6 * nx], np.r_[cy + 1.6 * ny, cy - 1.6 * ny]
+    along_arc = zone_for(P, 4.0, 0.0, WIDTH, BUMPER)
+    along_path = zone_for(P, 4.0, 0.0, WIDTH, BUMPER, centre=path)
+    assert judge(P, along_arc, walls_x, walls_y, 4.0).band in ("slow", "stop")
+    assert judge(P, along_path, walls_x, walls_y, 4.0).band == "clear"
+    # and a pedestrian on the lane's centre 5 m past the bumper is found along the path, 5 m ahead
+    k = int(np.argmin(np.abs(fine - (BUMPER + 5.0))))
+    verdict = judge(P, along_path, *blob(cx[k], cy[k]), 4.0)
+    assert verdict.band in ("slow", "stop") and verdict.nearest_m == pytest.approx(4.8, abs=0.3)
+
+
+@pytest.mark.parametrize("mode", ["odometry", "rrc"])
+def test_the_node_lays_the_area_along_the_path_only_while_a_path_follower_drives(run_config, mode):
+    from ares.clock import ManualClock
+    from ares.membus import MemoryNetwork
+    from ares.messages import CarState, ControllerStatus, DriveMode, OccupancyGrid, PathMatch, Pose
+    from managers.obstacle import ObstacleManager
+
+    clock, network = ManualClock(), MemoryNetwork()
+    node = ObstacleManager(run_config, clock=clock, bus=network.bus("obstacle_manager", clock))
+    node.setup()
+    bus = network.bus("test", clock)
+    states = bus.subscribe("obstacle/state")
+    t = 0.1
+    clock.set(t)
+    # the shuttle at (100, 50) facing north (local frame); the path ahead turns left (west) on 15 m
+    a = np.arange(0.0, 30.0, 0.5) / 15.0
+    ahead_x, ahead_y = 100.0 - 15.0 * (1 - np.cos(a)), 50.0 + 15.0 * np.sin(a)
+    bus.publish("perception/grid", OccupancyGrid(t=t, frame="vehicle", resolution_m=0.2, origin_x=-8.6,
+                                                 origin_y=-10.0, cells=np.zeros((100, 100), dtype=np.uint8)))
+    bus.publish("dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
+                                          setpoint_age_s=0.05, v_command=3.0, kappa_command=0.0, speed_mps=3.0,
+                                          steering_wheel_deg=0.0, reason=""))
+    bus.publish("localization/pose", Pose(t=t, x=100.0, y=50.0, z=0.0, yaw=math.pi / 2, v=3.0, yaw_rate=0.0,
+                                          cov_xx=1e-4, cov_xy=0.0, cov_yy=1e-4, var_yaw=1e-6, var_v=1e-4,
+                                          position_std_m=0.01, rtk=True, gnss_age_s=0.1))
+    bus.publish("path/match", PathMatch(t=t, index=0, s=0.0, lap=0, xte=0.0, heading_error=0.0, zones=[],
+                                        force_odometry=False, distance_to_end_m=None, ahead_x=ahead_x.tolist(),
+                                        ahead_y=ahead_y.tolist(), ahead_yaw=[0.0] * len(a), ahead_curvature=[0.0] * len(a),
+                                        ahead_speed=[3.0] * len(a), ahead_s=(a * 15.0).tolist()))
+    bus.publish("control/status", ControllerStatus(t=t, controller="mpc" if mode == "odometry" else "rrc", mode=mode,
+                                                   reason="", s=0.0, xte=0.0, heading_error=0.0, target_speed=3.0))
+    node.step_once(t)
+    area = states.latest
+    far_end_y = (area.area_y[len(area.area_y) // 2 - 1] + area.area_y[len(area.area_y) // 2]) / 2
+    if mode == "odometry":       # bent to the left with the path (its far end well left of the axis)
+        assert far_end_y > 1.5
+    else:                        # the wheels are straight: straight ahead
+        assert abs(far_end_y) < 1e-6
