@@ -506,8 +506,8 @@ class VehicleRecord(BaseModel):
     controller: str | None = None                                    # the active controller
     sensors: dict[str, SensorHealth] = Field(default_factory=dict)   # gnss, imu, can, ...
     processes: dict[str, ProcessHealth] = Field(default_factory=dict)
-    awareness_level: int | None = None      # 0 nominal, 1 critical, 2 low (self-awareness, later)
-    mission_state: str | None = None        # mission manager (later)
+    awareness_level: int | None = None      # 0 nominal, 1 critical, 2 low (self-awareness)
+    mission_state: str | None = None        # the mission's state, or the POI action running
     events: int = 0             # events recorded during this second (kept in full apart)
 
 

@@ -55,8 +55,8 @@ from typing import Callable, Mapping, Sequence
 from ares import topics
 from ares.config import Params, param
 from ares.geodesy import LocalFrame
-from ares.messages import (AwarenessState, CarState, ControllerStatus, Event, EventLevel, Pose, Position, ProcessHealth,
-                           SensorHealth, StoredEvent, SupervisorState, VehicleRecord)
+from ares.messages import (AwarenessState, CarState, ControllerStatus, Event, EventLevel, MissionStatus, Pose, Position,
+                           ProcessHealth, SensorHealth, StoredEvent, SupervisorState, VehicleRecord)
 from ares.node import Input, InputGroup, Node
 from blackbox.spool import Item, Spool, split
 from blackbox.store import RecordStore, StoreSettings, StoreUnavailable, is_mongo
@@ -143,6 +143,7 @@ class Snapshot:
     controller: ControllerStatus | None = None
     supervisor: SupervisorState | None = None
     awareness: AwarenessState | None = None
+    mission: MissionStatus | None = None
     scores: dict[str, float] = field(default_factory=dict)
     sensor_rates: dict[str, float] = field(default_factory=dict)
 
@@ -162,8 +163,15 @@ def build_record(vehicle_id: str, time: datetime, k: int, snap: Snapshot, frame:
         processes={p.name: ProcessHealth(state=p.state, restarts=p.restarts)
                    for p in (snap.supervisor.processes if snap.supervisor is not None else [])},
         awareness_level=snap.awareness.level if snap.awareness is not None else None,
-        mission_state=None,         # mission manager: not yet in the stack
+        mission_state=mission_state(snap.mission),
         events=events)
+
+
+def mission_state(status: MissionStatus | None) -> str | None:
+    """The mission's state, or at a POI the action running (OPENING_DOORS, ...): one value to plot."""
+    if status is None:
+        return None
+    return status.action if status.state == "AT_POI" and status.action else status.state
 
 
 def stored_event(vehicle_id: str, time: datetime, ev: Event) -> StoredEvent:
@@ -398,6 +406,7 @@ class Recorder(Node):
     controller = Input("control/status", max_age="max_age_s", doc="the active controller")
     supervisor = Input("supervisor/state", max_age="max_age_s", doc="process health")
     awareness = Input("awareness/state", max_age="max_age_s", doc="the self-awareness level")
+    mission = Input("mission/status", max_age="max_age_s", doc="the mission's state or the POI action running")
     scores = InputGroup(topics.score_topics(), max_age="max_age_s", doc="every manager's score")
     sensors = InputGroup(SENSOR_TOPICS, doc="message rates -> sensor health")
     events = Input("events", queue="event_queue", doc="recorded as they arrive")
@@ -451,6 +460,7 @@ class Recorder(Node):
         return Snapshot(
             pose=self.pose.fresh(now), car=self.car.fresh(now), controller=self.controller.fresh(now),
             supervisor=self.supervisor.fresh(now), awareness=self.awareness.fresh(now),
+            mission=self.mission.fresh(now),
             scores={name: float(msg.score) for name, sub in self.scores.items() if (msg := sub.fresh(now)) is not None},
             sensor_rates={name: sub.rate_hz(window, now) for name, sub in self.sensors.items()})
 

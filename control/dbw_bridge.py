@@ -28,7 +28,9 @@ PANEL_EVENTS = {
 
 class DbwBridgeParams(Params):
     rate_hz: float = param(10.0, "inner PID loops (DBW paper: 100 ms period)", unit="Hz", gt=0)
-    setpoint_timeout_s: float = param(1.0, "no setpoint this long: stop and centre the steering", unit="s", gt=0)
+    setpoint_timeout_s: float = param(0.5, "no command this long: stop and centre the steering (the DBW paper's "
+                                           "1 s was for a 10 Hz navigation setpoint; the movement manager sends at "
+                                           "50 Hz, and a dead one must be a stop begun within 1 s)", unit="s", gt=0)
     standstill_speed_mps: float = param(0.3, "below this with a zero speed setpoint, hold the brake", unit="m/s", ge=0)
     standstill_brake_effort: float = param(0.5, "the brake held at standstill", ge=0, le=1)
     pedal_pressed: float = param(0.05, "pedal travel that counts as the driver acting (filters sensor noise)",

@@ -1,14 +1,14 @@
 """The obstacle manager's search area and its speed limit (ARES §3.5.3), without a bus.
 
-The area is a trapezoid laid along the trajectory the vehicle will drive if nothing changes: the
-arc of the curvature its wheels are at now (from the CAN steering angle), from the front bumper
-on. Its length grows with speed, `headway_s` × v (10 m at 4 m/s), never shorter than
-`min_length_m`; its half-width is half the body plus `near_margin_m` at the bumper, narrowing to
-half the body plus `far_margin_m` at its end: far ahead the trajectory is less certain.
-`ares bench obstacle-zone` counts the false stops of this trapezoid and of a rectangle as wide as
-its near end in the tour's narrow lane. So far they are the same, 3 stops and 3 slows in 70
-frames: where the lane's curvature changes (the bend's entry and exit), the arc of the wheels'
-curvature meets a wall 7-10 m ahead, whatever the area's width there (docs/safety.md).
+The area is a trapezoid laid along the trajectory the vehicle will drive, from the front bumper
+on: a centre line (the path ahead, while a path follower drives) or the arc of the curvature its
+wheels are at now (from the CAN steering angle). Its length grows with speed, `headway_s` × v
+(10 m at 4 m/s), never shorter than `min_length_m`; its half-width is half the body plus
+`near_margin_m` at the bumper, narrowing to half the body plus `far_margin_m` at its end: far
+ahead the trajectory is less certain. `ares bench obstacle-zone` counts the false stops of this
+trapezoid and of a rectangle as wide as its near end in the tour's narrow lane: along the path
+ahead 0 and 0 in 70 frames; along the arc 3 and 3, where the lane's curvature changes and the arc
+meets a wall 7-10 m ahead (docs/safety.md).
 
 An occupied cell of the occupancy grid inside the area is an obstacle; the nearest one's
 distance along the arc, as a share f of the length, sets the limit:

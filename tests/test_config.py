@@ -26,7 +26,7 @@ def write(tmp_path: Path, name: str, data: dict) -> Path:
 def test_the_defaults_build_and_validate():
     cfg = run_config.build()
     assert cfg["vehicle_id"] == "shuttle01" and cfg["vehicle_profile"]["name"] == "ares_shuttle"
-    assert cfg["path_manager"]["radius_m"] == 5.0 and cfg["dbw_bridge"]["setpoint_timeout_s"] == 1.0
+    assert cfg["path_manager"]["radius_m"] == 5.0 and cfg["dbw_bridge"]["setpoint_timeout_s"] == 0.5
     # the code's defaults are the only ones: no file of defaults is shipped beside them
     assert not (REPO / "ares" / "config" / "stack.yaml").exists()
     # and they are what a section model gives when nothing is configured

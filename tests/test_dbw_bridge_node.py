@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from ares import topics
+from ares import config, topics
 from ares.clock import ManualClock
 from ares.membus import MemoryNetwork
 from ares.messages import CanFrame, DriveMode, EventLevel, PanelEvent, MovementCommand, PanelInput
@@ -92,7 +92,8 @@ def ticks(start: float, stop: float) -> list[float]:
 
 @pytest.fixture
 def bridge(run_config) -> BridgeOnTheBus:
-    return BridgeOnTheBus(run_config)
+    # the DBW paper's 1 s watchdog (the stack's is shorter: the movement manager sends at 50 Hz)
+    return BridgeOnTheBus(config.deep_merge(run_config, {"dbw_bridge": {"setpoint_timeout_s": 1.0}}))
 
 
 # ---- the contract ---------------------------------------------------------------------------------

@@ -185,3 +185,12 @@ def test_the_node_lays_the_area_along_the_path_only_while_a_path_follower_drives
         assert far_end_y > 1.5
     else:                        # the wheels are straight: straight ahead
         assert abs(far_end_y) < 1e-6
+
+
+def test_the_bench_counts_each_area_and_layout_in_the_narrow_lane():
+    from ares.bench.obstacle_zone import run_obstacle_zone_bench
+    out = run_obstacle_zone_bench(step_m=35.0)          # 4 frames of the 70 the README's figures come from
+    assert out["frames"] == 4 and out["area_length_m"] == 10.0
+    for name in ("trapezoid", "rectangle", "trapezoid_arc", "rectangle_arc"):
+        assert sum(out[f"{name}_bands"].values()) == 4
+    assert out["trapezoid_false_stops"] == out["trapezoid_false_slows"] == 0

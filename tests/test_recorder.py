@@ -262,6 +262,16 @@ def test_a_record_carries_what_is_known_and_null_for_what_is_not():
     assert empty.awareness_level is None and empty.mission_state is None
 
 
+@pytest.mark.parametrize("state, action, recorded", [("DRIVING", None, "DRIVING"), ("AT_POI", "OPENING_DOORS",
+                                                     "OPENING_DOORS"), ("PAUSED", "OPENING_DOORS", "PAUSED")])
+def test_the_record_keeps_the_mission_state_or_the_poi_action_running(state, action, recorded):
+    from ares.messages import MissionStatus
+    from blackbox.recorder import mission_state
+    status = MissionStatus(t=1.0, goal_id=1, state=state, kind="tour", poi="Library", action=action, distance_m=None,
+                           eta_s=None, limit_mps=0.0, ready_to_move=True)
+    assert mission_state(status) == recorded and mission_state(None) is None
+
+
 def bare_record(k: int, vehicle: str = "v1") -> VehicleRecord:
     """A record of second k that knows nothing but its time."""
     return build_record(vehicle, ManualClock(utc_epoch=UTC_EPOCH).utc(k), k, Snapshot(),

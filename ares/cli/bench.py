@@ -50,8 +50,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         "obstacle-zone", help="false stops of the obstacle manager's trapezoid beside a rectangle's, in the narrow lane",
         description="The built-in tour's narrow lane between rock walls, nothing in the way: every STEP m the three "
                     "simulated LiDARs' frame through the perception pipeline, and the obstacle manager's trapezoid "
-                    "and a rectangle of the same length laid along the wheels' arc; the frames each would have "
-                    "slowed or stopped the shuttle.")
+                    "and a rectangle of the same length, each laid along the path ahead and along the wheels' arc; "
+                    "the frames each would have slowed or stopped the shuttle.")
     zone.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
     zone.add_argument("--step", type=positive_float, default=2.0, metavar="M", help="between frames (default 2 m)")
     zone.add_argument("--speed", type=positive_float, default=4.0, metavar="MPS",
