@@ -83,11 +83,11 @@ class SafetyTracker:
         self._update_faults(t, v, failsafe)
 
     def add_status(self, status: MovementStatus) -> None:
-        if status.limit_mps is not None and status.v > status.limit_mps + 1e-6:
-            self._violate(status.t, f"command {status.v:.3f} m/s above the active limit {status.limit_mps:.3f} "
-                                    f"({status.limited_by})")
         if status.latched and status.v > 0.0:
             self._violate(status.t, f"command {status.v:.3f} m/s under a latched emergency stop")
+        elif status.limit_mps is not None and status.v > status.limit_mps + 1e-6:
+            self._violate(status.t, f"command {status.v:.3f} m/s above the active limit {status.limit_mps:.3f} "
+                                    f"({status.limited_by})")
         self.latched = status.latched
         if status.latched or status.stopping:
             self._stop_begun(status.t)

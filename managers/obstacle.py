@@ -2,8 +2,8 @@
 
 Each cycle it lays the search area (managers/obstacle_zone.py) along the trajectory the shuttle
 will drive: the path ahead (the path manager's, into the vehicle's frame by the fused pose) while
-the control manager forwards a controller that follows it (odometry mode: MPC, pure pursuit);
-otherwise the arc the wheels are turned to (the CAN steering angle through the bridge's car
+the control manager forwards a controller that follows it (odometry mode: MPC, pure pursuit) and
+the pose's heading is sure; otherwise the arc the wheels are turned to (the CAN steering angle through the bridge's car
 state). It is sized for the larger of the speed now and the speed manager's limit, and it looks
 for occupied cells of the occupancy grid in it. Along the arc, where a lane's curvature changes
 the arc meets the wall 7-10 m ahead (`ares bench obstacle-zone`); the path ahead bends with the lane.
@@ -89,6 +89,8 @@ class ObstacleManager(Node):
         pose: Pose | None = self.pose.fresh(now)
         if status is None or status.mode != "odometry" or match is None or pose is None or len(match.ahead_x) < 2:
             return None
+        if pose.var_yaw > self.params.path_max_yaw_std_rad ** 2:
+            return None                             # the heading is not known well enough to turn the path
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
         dx, dy = np.asarray(match.ahead_x) - pose.x, np.asarray(match.ahead_y) - pose.y
         # from a metre behind the axle, so that the bumper's foot is always on it

@@ -43,6 +43,10 @@ class ObstacleParams(Params):
     ready_share: float = param(0.9, "an obstacle beyond this share of the length: be ready, no limit", gt=0, le=1)
     stop_share: float = param(0.5, "an obstacle nearer than this share of the length: stop", ge=0, lt=1)
     min_cells: int = param(2, "occupied cells an obstacle needs (one stray cell is noise)", ge=1)
+    path_max_yaw_std_rad: float = param(0.03, "the area follows the path ahead only while the pose's heading is this "
+                                              "sure (0.3 m across at 10 m); else the arc: a shuttle standing at start "
+                                              "has its magnetometer's 0.1 rad error, which swung the path into the "
+                                              "narrow lane's wall", unit="rad", gt=0)
     grid_timeout_s: float = param(0.5, "an older grid or CAN frame: the area is unknown, so stop", unit="s", gt=0)
 
 

@@ -5,6 +5,8 @@ level from the sensors' messages and the supervisor's table."""
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ares import config
 from ares.clock import ManualClock
@@ -12,9 +14,11 @@ from ares.membus import MemoryNetwork
 from ares.messages import (AwarenessState, BodyState, CarState, MissionStatus, DriveMode, Imu, ObstacleState, ProcessState, ProcessStatus, RearmRequest, Setpoint, SpeedLimits,
                            SupervisorState)
 from managers.awareness import AwarenessManager
+from tests.conftest import make_run_config
 from managers.movement import MovementManager
 
 PERIOD = 0.02
+_CFG = make_run_config(7447)        # hypothesis tests take no function-scoped fixture; no port is opened
 
 
 class Gate:
@@ -196,3 +200,36 @@ def test_a_door_not_closed_holds_the_shuttle_whatever_the_mission_says(run_confi
     assert command.v == 0.0 and status.limited_by == "body"
     command, status = gate.run(5.0, doors=doors)
     assert command.v == 0.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["closed", "opening", "open", "closing", None]),
+                          st.sampled_from(["stowed", "deploying", "deployed", "stowing"]),
+                          st.floats(0.0, 4.0), st.one_of(st.none(), st.floats(0.0, 4.0))),
+                min_size=1, max_size=25))
+def test_no_command_to_move_while_a_door_is_not_closed_or_the_ramp_is_out(steps):
+    """Whatever the control manager and the mission ask: with the doors not closed or the ramp not
+    stowed (or their state unknown), the command is 0 or falling (a stop), never a speed up."""
+    gate = Gate(_CFG)
+    for doors, ramp, wanted, mission in steps:
+        before = gate.node.gate.v
+        for _ in range(5):
+            t = gate.t = round(gate.t + PERIOD, 9)
+            gate.clock.set(t)
+            gate.bus.publish("control/setpoint", Setpoint(t=t, v=wanted, kappa=0.0, source="mpc"))
+            gate.bus.publish("speed/limits", SpeedLimits(t=t, s=5.0, section=0, kind="cruise", limit_mps=4.0,
+                                                         next_section=1, next_limit_mps=4.0, distance_to_next_m=10.0))
+            gate.bus.publish("dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True,
+                                                       watchdog_tripped=False, setpoint_age_s=0.02, v_command=0.0,
+                                                       kappa_command=0.0, speed_mps=0.0, steering_wheel_deg=0.0))
+            gate.bus.publish("mission/status", MissionStatus(
+                t=t, goal_id=1, state="DRIVING", kind="tour", poi=None, action=None, distance_m=None, eta_s=None,
+                limit_mps=mission, ready_to_move=True))
+            if doors is not None:
+                gate.bus.publish("body/state", BodyState(t=t, doors=doors, ramp=ramp, entrance_clear=True))
+            gate.bus.publish("awareness/state", AwarenessState(t=t, level=0))
+            gate.node.step_once(t)
+            command = gate.commands.latest
+            if doors != "closed" or ramp != "stowed":
+                assert command.v == 0.0 or (doors is None and command.v <= before + 1e-9), (doors, ramp, command)
+            before = command.v

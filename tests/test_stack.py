@@ -63,20 +63,20 @@ def test_the_tour_through_its_first_rtk_loss_zone_as_fast_as_the_processes_keep_
 
 
 def test_perception_in_the_stack_sees_the_road_and_the_obstacles():
-    # the first 250 m: kerbs, the narrow lane between rock walls, the grass hairpin; obstacles
+    # the first 190 m: kerbs, the narrow lane between rock walls, the climb onto the grass; obstacles
     # beside the path; the LiDARs light (tests/light_lidars.yaml)
-    result = headless("--seconds", "100", "--speed", "max", "--scenario", "obstacles_along_tour",
+    result = headless("--seconds", "75", "--speed", "max", "--scenario", "obstacles_along_tour",
                       lidars=LIGHT_LIDARS)
     assert result["xte_max_m"] <= 0.85 and result["loc_rmse_rtk_m"] <= 0.05
-    # at this light resolution over these 250 m: detect 0.95, edge p50 0.040 m, centre p50 0.033 m,
-    # recall 0.97 of 75 obstacle-frames, false occupied 0.004. The bounds leave room for frames
+    # at this light resolution over the first 250 m (100 s): detect 0.95, edge p50 0.040 m, centre p50
+    # 0.033 m, recall 0.97 of 75 obstacle-frames, false occupied 0.004. The bounds leave room for frames
     # dropped on a busy machine: the figures are the full-resolution lap's (README). The edge
     # p95 is not asserted: the scenario's obstacles stand on the road's edge every 40 m and hide it
     # (the full-resolution lap without them gives 0.34 m)
-    assert result["road_frames"] > 800 and result["road_detect_rate"] >= 0.90
+    assert result["road_frames"] > 600 and result["road_detect_rate"] >= 0.90
     assert result["road_edge_err_p50_m"] <= 0.15 and result["road_edge_err_p95_m"] is not None
     assert result["road_centre_err_p50_m"] <= 0.10
-    assert result["grid_obstacle_frames"] > 60 and result["grid_obstacle_recall"] >= 0.90
+    assert result["grid_obstacle_frames"] > 40 and result["grid_obstacle_recall"] >= 0.90
     assert result["grid_false_occupied_road"] <= 0.01
     assert result["perception_ms_p50"] > 0
 
