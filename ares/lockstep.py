@@ -17,8 +17,10 @@ their own times) before publishing the tick: a process stepping at time t has se
 sensor message up to t, and the commands the bridge sent at t reach the physics after t.
 
 A participant that does not report for `max_wait_s` (wall) is left out until it reports again
-(a dead process restarted by the supervisor rejoins with its first report); at start the
-master waits up to `start_wait_s` for everyone to join.
+(a dead process restarted by the supervisor rejoins with its first report); one the supervisor
+says is dead or restarting is left out at once (`leave`): the world does not stop for a crashed
+process, as it would not on the vehicle. At start the master waits up to `start_wait_s` for
+everyone to join.
 """
 from __future__ import annotations
 
@@ -69,6 +71,16 @@ class LockstepMaster:
                 p.left_out = False
                 self.left_out_events.append((done.process, False))
             self._cond.notify_all()
+
+    def leave(self, process: str) -> None:
+        """Leave a participant out now (the supervisor found it dead or hung): it rejoins with its
+        first report after its restart."""
+        with self._cond:
+            p = self.participants.get(process)
+            if p is not None and not p.left_out and p.next_due is not None:
+                p.left_out, p.next_due = True, None
+                self.left_out_events.append((process, True))
+                self._cond.notify_all()
 
     def next_due(self) -> float | None:
         """The earliest time a joined participant is due (None if none is)."""

@@ -254,6 +254,17 @@ class Node:
         for name, method in self.services().items():
             raw_bus.serve(name, getattr(self, method))
 
+    @property
+    def restarted(self) -> bool:
+        """Whether this process is a restart by the supervisor (not the run's first start)."""
+        return int(os.environ.get(INCARNATION_ENV, "0")) > 0
+
+    def kept_state_path(self) -> Path | None:
+        """Where this process keeps what a restart must find (beside the run's configuration), or
+        None outside a supervised run (tests on the in-memory bus)."""
+        run_config = os.environ.get(config.RUN_CONFIG_ENV)
+        return Path(run_config).with_name(f"{self.name}.json") if run_config else None
+
     def _start_recorder(self) -> StepRecorder:
         incarnation = int(os.environ.get(INCARNATION_ENV, "0"))
         path = recording_path(Path(self.core.replay.dir or "replay"), self.name, incarnation)

@@ -6,8 +6,10 @@
 | min_clearance_m        | the smallest gap between them while the shuttle moves or stands         |
 | invariant_violations   | moving (> 0.05 m/s) with a door not closed or the ramp not stowed; a     |
 |                        | command above the gate's active limit; moving under a latched emergency  |
-| faults                 | per fault: when it began, the stop begun (gate stopping or latched, the  |
-|                        | bridge's watchdog, the board's fail-safe), standstill, moving again      |
+| faults                 | per fault: when it began; the stop begun (the gate stopping or latched,  |
+|                        | the bridge's watchdog or emergency, the board's fail-safe); standstill   |
+|                        | while it lasted (none if the cause cleared first); the stop's end; moving |
+|                        | again at 0.5 m/s after it                                                |
 | level_history          | every change of the awareness level, with its causes                     |
 | poi_actions            | the mission's POI actions, in the order done                             |
 """
@@ -30,6 +32,7 @@ class FaultRecord:
     at_s: float
     stop_begun_s: float | None = None
     standstill_s: float | None = None
+    stop_ended_s: float | None = None
     resumed_s: float | None = None
 
     def summary(self) -> dict:
@@ -37,7 +40,7 @@ class FaultRecord:
             return None if t is None else round(t - self.at_s, 3)
         return {"kind": self.kind, "target": self.target, "at_s": round(self.at_s, 2),
                 "time_to_safe_state_s": after(self.stop_begun_s), "time_to_standstill_s": after(self.standstill_s),
-                "resumed_after_s": after(self.resumed_s)}
+                "stop_ended_after_s": after(self.stop_ended_s), "resumed_after_s": after(self.resumed_s)}
 
 
 @dataclass
@@ -55,7 +58,7 @@ class SafetyTracker:
     faults: list[FaultRecord] = field(default_factory=list)
     body: BodyState | None = None
     latched: bool = False
-    stopping_signal: bool = False
+    stops: dict[str, bool] = field(default_factory=dict)    # each source of a stop: active now?
     v: float = 0.0
 
     # ---- inputs ---------------------------------------------------------------------------------
@@ -89,12 +92,10 @@ class SafetyTracker:
             self._violate(status.t, f"command {status.v:.3f} m/s above the active limit {status.limit_mps:.3f} "
                                     f"({status.limited_by})")
         self.latched = status.latched
-        if status.latched or status.stopping:
-            self._stop_begun(status.t)
+        self._stop_signal(status.t, "gate", status.latched or status.stopping)
 
     def add_car(self, car: CarState) -> None:
-        if car.watchdog_tripped or car.emergency:
-            self._stop_begun(car.t)
+        self._stop_signal(car.t, "bridge", car.watchdog_tripped or car.emergency)
 
     def add_awareness(self, state: AwarenessState) -> None:
         if not self.level_history or self.level_history[-1][1] != state.level:
@@ -113,20 +114,27 @@ class SafetyTracker:
         if len(self.examples) < 5:
             self.examples.append(f"t={t:.2f}: {what}")
 
-    def _stop_begun(self, t: float) -> None:
-        for fault in self.faults:
-            if fault.stop_begun_s is None and t >= fault.at_s:
-                fault.stop_begun_s = t
-
-    def _update_faults(self, t: float, v: float, failsafe: bool) -> None:
-        if failsafe:
-            self._stop_begun(t)
+    def _stop_signal(self, t: float, source: str, active: bool) -> None:
+        was = any(self.stops.values())
+        self.stops[source] = active
+        now = any(self.stops.values())
         for fault in self.faults:
             if t < fault.at_s:
                 continue
-            if fault.standstill_s is None and abs(v) <= MOVING_MPS:
-                fault.standstill_s = t
-            elif fault.standstill_s is not None and fault.resumed_s is None and abs(v) >= RESUMED_MPS:
+            if now and fault.stop_begun_s is None:
+                fault.stop_begun_s = t
+            elif was and not now and fault.stop_begun_s is not None and fault.stop_ended_s is None:
+                fault.stop_ended_s = t
+
+    def _update_faults(self, t: float, v: float, failsafe: bool) -> None:
+        self._stop_signal(t, "board", failsafe)
+        for fault in self.faults:
+            if fault.stop_begun_s is None or t < fault.stop_begun_s:
+                continue
+            if fault.stop_ended_s is None:
+                if fault.standstill_s is None and abs(v) <= MOVING_MPS:
+                    fault.standstill_s = t
+            elif fault.resumed_s is None and abs(v) >= RESUMED_MPS:
                 fault.resumed_s = t
 
     def summary(self) -> dict:

@@ -65,7 +65,8 @@ class ApiServer(AsyncNode):
     name = "api"
     Params = ApiSettings
     sections = {"blackbox_store": StoreSettings}
-    calls = ("movement/rearm",)         # an operator's re-arm (blackbox/api/routes/commands.py)
+    # an operator's re-arm and mission commands (blackbox/api/routes/commands.py)
+    calls = ("movement/rearm", "mission/goal", "mission/pause", "mission/resume", "mission/cancel")
 
     def setup(self) -> None:
         settings = self.shared["blackbox_store"]

@@ -4,9 +4,15 @@ The mode machine, watchdog and command gate live in control.dbw_logic; the equat
 control.ackermann. `BridgeLoop` is one period of the board: driver actions and setpoints into the
 mode machine, the gated command through Ackermann into the two inner PID loops at 10 Hz, the
 standstill brake. The node wires it to the bus; the closed-loop harness drives the same class.
+
+The mode lives on the board (its hardware keeps it), this process is its software half: a
+restarted bridge process finds the mode where its predecessor left it (`dbw_bridge.json` beside
+the run's configuration stands for the board's memory), with the watchdog tripped until commands
+come again. A first start is always Manual: only a person's button arms the board.
 """
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 
@@ -15,7 +21,7 @@ from ares.messages import (ActuatorCommand, CanFrame, CarState, DbwMeasure, DbwR
                            ModeReply, PanelInput)
 from ares.node import Input, Node, Output, service
 from control.ackermann import ActuatorSetpoint, SetpointConversion
-from control.dbw_logic import Command, DbwCore, Event, Outcome
+from control.dbw_logic import Command, DbwCore, Event, Mode, Outcome
 from control.pid import PID
 
 PANEL_EVENTS = {
@@ -132,6 +138,21 @@ class DbwBridge(Node):
 
     def setup(self) -> None:
         self.board = BridgeLoop(self.vehicle, self.params)
+        self.kept = self.kept_state_path()
+        if self.restarted and self.kept is not None and self.kept.exists():
+            try:
+                mode = Mode(json.loads(self.kept.read_text())["mode"])
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                self.event("mode_change", f"the board's mode could not be read ({exc}): Manual", EventLevel.WARNING)
+            else:
+                self.board.core.mode = mode
+                self.event("mode_change", f"restarted: the board is still in {mode.value}", to=mode.value)
+
+    def _keep_mode(self) -> None:
+        if self.kept is not None:
+            tmp = self.kept.with_suffix(".tmp")
+            tmp.write_text(json.dumps({"mode": self.board.core.mode.value}))
+            tmp.replace(self.kept)
 
     @service("set_automatic_mode")
     def _set_automatic_mode(self, _request) -> ModeReply:
@@ -147,6 +168,7 @@ class DbwBridge(Node):
             tr = outcome.transition
             self.event("mode_change", f"{tr.from_mode.value} -> {tr.to_mode.value}: {tr.reason}",
                        **{"from": tr.from_mode.value, "to": tr.to_mode.value, "cause": event.kind.value})
+            self._keep_mode()
         if outcome.watchdog_changed:
             cmd = outcome.command
             if cmd.watchdog_tripped:

@@ -15,22 +15,19 @@ point along the route, the speed and the body's sensors, and gives the body's de
 no faster than `pause_decel_mps2` from the speed the shuttle has (a pause is a stop, not a brake).
 
 A restarted mission manager goes on where its predecessor was: the mission is written to
-`mission.json` beside the run's configuration at every change, and read back on a restart.
+`mission_manager.json` beside the run's configuration at every change, and read back on a restart.
 At a first start it sets itself the goal `autostart` names (the tour, a drive, or none).
 """
 from __future__ import annotations
 
 import json
 import math
-import os
-from pathlib import Path
 from typing import Literal
 
-from ares.config import RUN_CONFIG_ENV, param
+from ares.config import param
 from ares.messages import (BodyCommand, BodyState, CarState, EventLevel, MissionGoal, MissionReply, MissionRequest,
                            MissionStatus, PathMatch, PoiProgress, SpeedLimits)
 from ares.node import Input, Node, Output, service
-from ares.recording import INCARNATION_ENV
 from ares.route import load_route
 from managers.mission_machine import Body, Mission, MissionParams, MissionState, PoiGoal, ready_to_move
 
@@ -69,8 +66,8 @@ class MissionManager(Node):
         self._limit = 0.0
         self._last_step: float | None = None
         self._ended_reported = True
-        self.state_path = self._state_path()
-        restarted = int(os.environ.get(INCARNATION_ENV, "0")) > 0
+        self.state_path = self.kept_state_path()
+        restarted = self.restarted
         if restarted and self._restore():
             self.event("mission", f"restarted: going on with goal {self.goal_id} ({self.mission.state.value} "
                                   f"at {self.mission.current_name()})")
@@ -246,10 +243,6 @@ class MissionManager(Node):
             ready_to_move=body is not None and ready_to_move(body), pois=progress, result=m.result))
 
     # ---- a restart goes on ----------------------------------------------------------------------
-    def _state_path(self) -> Path | None:
-        run_config = os.environ.get(RUN_CONFIG_ENV)
-        return Path(run_config).with_name(f"{self.name}.json") if run_config else None
-
     def _save(self) -> None:
         if self.state_path is None:
             return

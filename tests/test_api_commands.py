@@ -90,3 +90,41 @@ def test_without_a_bus_the_route_says_so(tmp_path):
     r = client.post(URL, headers=auth(token_for(client, "operator")))
     assert r.status_code == 503 and "records only" in r.json()["detail"]
     store.close()
+
+
+def test_an_operator_sets_pauses_and_cancels_the_mission_through_the_mission_manager(run_config, tmp_path):
+    from tests.test_mission_manager import Tour
+    tour = Tour(config.deep_merge(run_config, {"mission_manager": {"autostart": "none"}}), s0=40.0)
+    tour.run(0.5)
+    store = open_test_store(tmp_path / "bb.sqlite")
+    app = create_app(store, api_settings(), VEHICLE_ID, call=tour.network.bus("api", tour.clock).call)
+    add_role_users(store, app)
+    client = TestClient(app)
+    tokens = {role: token_for(client, role) for role in ("operator", "auditor", "fleet")}
+    base = f"/api/v1/vehicles/{VEHICLE_ID}/mission"
+    try:
+        assert client.post(base, json={"pois": ["Library"]}).status_code == 401
+        assert client.post(base, json={"pois": ["Library"]}, headers=auth(tokens["auditor"])).status_code == 403
+        assert client.post(f"{base}/pause", headers=auth(tokens["fleet"])).status_code == 403
+        refused = client.post(base, json={"pois": ["Atlantis"]}, headers=auth(tokens["operator"]))
+        assert refused.status_code == 409 and "unknown POIs ['Atlantis']" in refused.json()["reason"]
+        assert client.post(base, json={"pois": ["Library"], "drive": True},
+                           headers=auth(tokens["operator"])).status_code == 422
+        started = client.post(base, json={"pois": ["Library", "Lakeside"]}, headers=auth(tokens["operator"]))
+        assert started.status_code == 200 and started.json() == {
+            "accepted": True, "reason": "accepted: 2 POIs, first Library", "operator": "operator", "goal_id": 1,
+            "state": "DRIVING"}
+        tour.run(5.0)
+        assert tour.v > 2.0
+        assert client.post(f"{base}/pause", headers=auth(tokens["operator"])).json()["state"] == "PAUSED"
+        tour.run(3.0)
+        assert tour.v == 0.0
+        again = client.post(f"{base}/pause", headers=auth(tokens["operator"]))
+        assert again.status_code == 409 and "nothing to pause" in again.json()["reason"]
+        assert client.post(f"{base}/fly", headers=auth(tokens["operator"])).status_code == 422
+        assert client.post(f"{base}/cancel", headers=auth(tokens["operator"])).json()["state"] == "CANCELED"
+        commands = [(e.data["operator"], e.data["accepted"]) for e in tour.kinds("mission_command")]
+        assert commands == [("operator", False), ("operator", True), ("operator", True), ("operator", False),
+                            ("operator", True)]
+    finally:
+        store.close()

@@ -384,3 +384,24 @@ def test_corrupt_setpoints_are_rejected_and_the_bridge_keeps_running(bridge):
     # none of them fed the watchdog: past the timeout after the last good setpoint it stops
     car, _ = bridge.step(round(t + 1.0, 9))
     assert car.watchdog_tripped
+
+
+def test_a_restarted_bridge_process_finds_the_boards_mode_and_a_first_start_is_manual(run_config, tmp_path,
+                                                                                    monkeypatch):
+    from ares.recording import INCARNATION_ENV
+    monkeypatch.setenv(config.RUN_CONFIG_ENV, str(tmp_path / "config.json"))
+    first = BridgeOnTheBus(run_config)
+    t = first.arm(0.0)
+    assert (tmp_path / "dbw_bridge.json").exists()
+    monkeypatch.setenv(INCARNATION_ENV, "1")             # killed, and started again by the supervisor
+    again = BridgeOnTheBus(run_config)
+    again.clock.set(t)
+    car, actuators = again.step(t)
+    assert car.mode == DriveMode.AUTOMATIC and car.watchdog_tripped and actuators.drive_effort < 0   # stopped
+    again.setpoint(1.5, 0.0)
+    car, _ = again.step(round(t + PERIOD, 9))
+    assert not car.watchdog_tripped and car.v_command == 1.5            # commands again: it drives on
+    monkeypatch.setenv(INCARNATION_ENV, "0")             # a new run's first start: Manual, whatever was kept
+    fresh = BridgeOnTheBus(run_config)
+    car, _ = fresh.step(0.0)
+    assert car.mode == DriveMode.MANUAL

@@ -60,6 +60,22 @@ def test_a_process_that_stops_answering_is_left_out_then_rejoins():
     assert master.take_changes() == [("path_manager", False)] and master.next_due() == 0.1
 
 
+def test_a_process_the_supervisor_found_dead_is_left_out_at_once_then_rejoins():
+    master, done = master_with("mpc", "path_manager", max_wait_s=60.0)
+    done("mpc", 0.0, 0.1)
+    done("path_manager", 0.0, 0.05)
+    master.tick(0.1)
+    done("path_manager", 0.1, 0.15)
+    assert not master.wait_done(NEVER, max_wall_s=0.05)           # the mpc is due and silent: the clock waits
+    master.leave("mpc")                                            # ... until the supervisor says it died
+    assert master.wait_done(NEVER, max_wall_s=0.05) and master.next_due() == 0.15
+    assert master.take_changes() == [("mpc", True)]
+    master.leave("mpc")                                            # said once
+    assert master.take_changes() == []
+    done("mpc", 0.1, 0.2)                                          # restarted, it reports again
+    assert master.take_changes() == [("mpc", False)] and master.next_due() == 0.15
+
+
 def test_a_process_that_never_joins_is_left_out_after_the_start_wait():
     master, done = master_with("blackbox", "gnss", start_wait_s=0.2)
     done("gnss", 0.0, 0.05)

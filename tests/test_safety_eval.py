@@ -68,13 +68,21 @@ def test_a_command_above_the_limit_or_under_a_latch_is_a_violation():
 
 def test_a_faults_response_is_timed_from_its_start():
     tracker = SafetyTracker(**SHUTTLE)
-    tracker.add_status(status(5.0, 3.0, 3.0, stopping=True))        # a stop before the fault is not its response
+    tracker.add_status(status(5.0, 3.0, 3.0, stopping=True))        # a stop before the fault, over before it,
+    tracker.add_status(status(6.0, 3.0, 3.0))                        # is not its response
     tracker.add_fault(10.0, "kill_process", "mpc")
     tracker.add_truth(10.2, 0.0, 0.0, 0.0, 3.0)
     tracker.add_status(status(10.6, 2.9, 2.9, stopping=True))
     tracker.add_truth(14.0, 0.0, 0.0, 0.0, 0.0)
+    tracker.add_status(status(17.0, 0.0, 3.0))                       # the cause cleared: on again
     tracker.add_truth(18.0, 0.0, 0.0, 0.0, 0.2)
     tracker.add_truth(19.5, 0.0, 0.0, 0.0, 0.6)
+    brief = SafetyTracker(**SHUTTLE)                                 # a cause that clears before a standstill
+    brief.add_fault(1.0, "kill_process", "gnss")
+    brief.add_status(status(1.2, 3.0, 3.0, stopping=True))
+    brief.add_truth(1.25, 0.0, 0.0, 0.0, 2.9)
+    brief.add_status(status(1.4, 2.8, 2.8))
+    brief.add_truth(1.45, 0.0, 0.0, 0.0, 2.8)
     killed = SafetyTracker(**SHUTTLE)
     killed.add_fault(1.0, "kill_process", "dbw_bridge")
     killed.add_truth(1.55, 0.0, 0.0, 0.0, 3.0, failsafe=True)       # the board's own brake
@@ -82,7 +90,10 @@ def test_a_faults_response_is_timed_from_its_start():
                             v_command=0.0, kappa_command=0.0, speed_mps=2.0, steering_wheel_deg=0.0))
     assert tracker.summary()["faults"] == [{"kind": "kill_process", "target": "mpc", "at_s": 10.0,
                                             "time_to_safe_state_s": 0.6, "time_to_standstill_s": 4.0,
-                                            "resumed_after_s": 9.5}]
+                                            "stop_ended_after_s": 7.0, "resumed_after_s": 9.5}]
+    assert brief.summary()["faults"][0] == {"kind": "kill_process", "target": "gnss", "at_s": 1.0,
+                                                "time_to_safe_state_s": 0.2, "time_to_standstill_s": None,
+                                                "stop_ended_after_s": 0.4, "resumed_after_s": 0.45}
     assert killed.summary()["faults"][0]["time_to_safe_state_s"] == 0.55
 
 

@@ -15,7 +15,7 @@ from ares.config import load_scenario
 from ares.geodesy import LocalFrame
 from ares.lockstep import LockstepMaster
 from ares.messages import (Ack, ActuatorCommand, BodyCommand, BodyState, CanFrame, DriverCommand, EventLevel,
-                           GnssSentences, Imu, PanelEvent, PanelInput, VehicleTruth)
+                           GnssSentences, Imu, PanelEvent, PanelInput, ProcessState, VehicleTruth)
 from ares.node import Input, Node, Output, service
 from ares.route import load_route
 from ares.sim.body import BodySim
@@ -60,6 +60,7 @@ class Simulator(Node):
     clock_ticks = Output("sim/clock", doc="--speed max: the stack time, moved on when every participant is done")
     participant_ticks = Output("sim/clock/*", doc="--speed max: the time, to each participant when it is due")
     clock_done = Input("clock/done", doc="--speed max: each participant's next due time (ares.lockstep)")
+    supervisor = Input("supervisor/state", doc="--speed max: a process found dead or hung does not hold the clock")
 
     def setup(self) -> None:
         sim = self.params
@@ -206,6 +207,7 @@ class Simulator(Node):
         master = LockstepMaster(self.bus, self.core.lockstep, start=self.clock.now(), ticks=self.clock_ticks,
                                 participant_ticks=self.participant_ticks)
         while not self.stopping and not self.parent_gone():
+            self._leave_the_dead(master)
             done = master.wait_done(self._stop, self._hb_period_s)
             self._report_lockstep(master)
             if not done:
@@ -222,6 +224,16 @@ class Simulator(Node):
             self.clock.advance(target)
             master.tick(target)
             self.heartbeat()
+
+    def _leave_the_dead(self, master: LockstepMaster) -> None:
+        """A participant the supervisor is restarting (dead, or killed for a hang) is left out at
+        once: the vehicle's world does not wait for a crashed process."""
+        state = self.supervisor.latest
+        if state is None:
+            return
+        for proc in state.processes:
+            if proc.state == ProcessState.RESTARTING or (proc.state == ProcessState.STARTING and proc.restarts > 0):
+                master.leave(proc.name)
 
     def _report_lockstep(self, master: LockstepMaster) -> None:
         for process, left_out in master.take_changes():

@@ -1,12 +1,17 @@
-"""POST /vehicles/{id}/rearm: an operator re-arms the shuttle after an emergency stop.
+"""The operator's commands, each forwarded with the operator's name to a manager's service on
+the vehicle's bus, which decides and records the event with that name:
+
+| route                                      | service                        |
+|--------------------------------------------|--------------------------------|
+| POST /vehicles/{id}/rearm                  | movement/rearm                 |
+| POST /vehicles/{id}/mission                | mission/goal (POIs, a drive)   |
+| POST /vehicles/{id}/mission/{action}       | mission/pause, resume, cancel  |
 
 The only way a person outside the vehicle reaches its services, and only with an operator's
-token (ARES §3.8: nothing outside may drive the vehicle). The route forwards the request, with
-the operator's name, to the movement manager's `movement/rearm` service on the vehicle's bus. The
-movement manager decides and records the event with that name. A re-arm it refuses (level 1
-still holds, nothing latched) is answered 409 with its reason.
+token (ARES §3.8: nothing outside may drive the vehicle: a goal, a pause, a re-arm are requests
+the managers may refuse). A refusal is answered 409 with the manager's reason.
 """
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi.responses import Response
@@ -14,7 +19,7 @@ from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
 from ares.bus import ServiceError
-from ares.messages import RearmRequest
+from ares.messages import MissionGoal, MissionRequest, Msg, RearmRequest
 from blackbox.api.dependencies import ROLES_COMMAND, Services, allow, vehicle_id_path
 from blackbox.api.models import error_responses, json_response
 from blackbox.auth import Claims
@@ -24,6 +29,15 @@ class CommandReply(BaseModel):
     accepted: bool
     reason: str
     operator: str
+    goal_id: int | None = None      # mission commands: the goal concerned
+    state: str | None = None        # ... and the mission's state after
+
+
+class GoalBody(BaseModel):
+    """A mission goal: the POIs in order, every POI of the route ahead (null), or a drive."""
+    pois: list[str] | None = None
+    drive: bool = False
+    repeat: bool = False
 
 
 def build_router(services: Services) -> APIRouter:
@@ -31,19 +45,40 @@ def build_router(services: Services) -> APIRouter:
     Operator = Annotated[Claims, Depends(allow(services.tokens, *ROLES_COMMAND))]
     router = APIRouter(tags=["commands"])
 
-    @router.post("/vehicles/{vehicle_id}/rearm", response_model=CommandReply,
-                 responses=error_responses(401, 404, 409, 422, 503))
-    async def rearm(vehicle_id: VehicleId, claims: Operator) -> Response:
+    async def forward(vehicle_id: str, service: str, request: Msg, who: str, manager: str) -> Response:
         if vehicle_id != services.vehicle_id:
             raise HTTPException(404, f"vehicle {vehicle_id!r} is not this API's: commands go to "
                                      f"{services.vehicle_id!r} only")
         if services.call is None:
             raise HTTPException(503, "this API serves records only: it is not on a vehicle's bus")
         try:
-            reply = await run_in_threadpool(services.call, "movement/rearm", RearmRequest(operator=claims.name))
+            reply = await run_in_threadpool(services.call, service, request)
         except ServiceError as exc:
-            raise HTTPException(503, f"the movement manager did not answer: {exc}") from None
-        body = {"accepted": reply.accepted, "reason": reply.reason, "operator": claims.name}
+            raise HTTPException(503, f"the {manager} did not answer: {exc}") from None
+        body = {"accepted": reply.accepted, "reason": reply.reason, "operator": who}
+        if hasattr(reply, "goal_id"):
+            body.update(goal_id=reply.goal_id, state=reply.state)
         return json_response(body, 200 if reply.accepted else 409)
+
+    @router.post("/vehicles/{vehicle_id}/rearm", response_model=CommandReply,
+                 responses=error_responses(401, 404, 409, 422, 503))
+    async def rearm(vehicle_id: VehicleId, claims: Operator) -> Response:
+        return await forward(vehicle_id, "movement/rearm", RearmRequest(operator=claims.name), claims.name,
+                             "movement manager")
+
+    @router.post("/vehicles/{vehicle_id}/mission", response_model=CommandReply,
+                 responses=error_responses(401, 404, 409, 422, 503))
+    async def mission_goal(vehicle_id: VehicleId, goal: GoalBody, claims: Operator) -> Response:
+        if goal.drive and goal.pois:
+            raise HTTPException(422, "a drive goal has no POIs")
+        request = MissionGoal(operator=claims.name, pois=goal.pois, drive=goal.drive, repeat=goal.repeat)
+        return await forward(vehicle_id, "mission/goal", request, claims.name, "mission manager")
+
+    @router.post("/vehicles/{vehicle_id}/mission/{action}", response_model=CommandReply,
+                 responses=error_responses(401, 404, 409, 422, 503))
+    async def mission_action(vehicle_id: VehicleId, action: Literal["pause", "resume", "cancel"],
+                             claims: Operator) -> Response:
+        return await forward(vehicle_id, f"mission/{action}", MissionRequest(operator=claims.name), claims.name,
+                             "mission manager")
 
     return router
