@@ -342,9 +342,11 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             elif time.monotonic() - clock_moved[1] > CLOCK_STALL_S:
                 raise RunFailed(f"the stack clock has not moved for {CLOCK_STALL_S:g} s (the simulator or a process it "
                                 "waits for is stuck)")
-            held = movement.latest is not None and (movement.latest.latched or movement.latest.stopping
-                                                    or movement.latest.limit_mps == 0.0)
-            if tracker.travelled_m > moved[0] + 0.5 or held:    # standing where a manager says so is not stuck
+            held = (movement.latest is not None and (movement.latest.latched or movement.latest.stopping
+                                                     or movement.latest.limit_mps == 0.0)) or \
+                (statuses.latest is not None and statuses.latest.controller == "stop" and seconds is not None)
+            # standing where a manager says so is not stuck (a run of given seconds waits with it)
+            if tracker.travelled_m > moved[0] + 0.5 or held:
                 moved = (tracker.travelled_m, now)
             elif now - moved[1] > STANDSTILL_S:
                 why = statuses.latest
