@@ -632,6 +632,8 @@ class LidarHealth(BaseModel):
     road_points: int = Field(ge=0)          # of them scored as road
     age_s: float | None = None              # since the last sweep
     blind: bool = False                     # its point count fell to about zero (covered, failed)
+    counting_s: float | None = None         # since this perception process's first sweep of it: a rate
+                                            # counted over less than a window is not judged (a restart)
 
 
 class LidarStatus(Msg):

@@ -164,7 +164,8 @@ class AwarenessChecks:
                 problem = "missing from the status"
             elif health.blind:
                 problem = "blind: no points (covered or failed)"
-            elif warm and health.rate_hz < p.lidar_min_hz:
+            elif (warm if health.counting_s is None else health.counting_s >= p.window_s) \
+                    and health.rate_hz < p.lidar_min_hz:
                 problem = f"{health.rate_hz:.1f} Hz < {p.lidar_min_hz:.0f}"
             elif health.road_points < p.lidar_min_road_points:
                 # it returns points, but not of the road: something close in front hides it (a person

@@ -58,6 +58,7 @@ class LidarPerception(Node):
         self.last_t: float | None = None
         self.arrivals = {name: deque() for name in LIDAR_NAMES}
         self.seen = {name: None for name in LIDAR_NAMES}
+        self.first_seen: dict[str, float | None] = {name: None for name in LIDAR_NAMES}
         self.counts = {name: deque(maxlen=USUAL_FRAMES) for name in LIDAR_NAMES}
         self.blind: set[str] = set()
 
@@ -70,6 +71,8 @@ class LidarPerception(Node):
             fresh[name] = msg
             if self.seen[name] != msg.t:
                 self.seen[name] = msg.t
+                if self.first_seen[name] is None:
+                    self.first_seen[name] = msg.t
                 self.arrivals[name].append(msg.t)
         if not fresh:
             return
@@ -113,5 +116,7 @@ class LidarPerception(Node):
             seen = self.seen[name]
             sensors[name] = LidarHealth(rate_hz=len(arrivals) / RATE_WINDOW_S, points=result.raw_points.get(name, 0),
                                         road_points=result.road_points.get(name, 0),
-                                        age_s=None if seen is None else round(now - seen, 3), blind=name in self.blind)
+                                        age_s=None if seen is None else round(now - seen, 3), blind=name in self.blind,
+                                        counting_s=None if self.first_seen[name] is None
+                                        else round(now - self.first_seen[name], 3))
         return LidarStatus(t=t, sensors=sensors, stage_ms=result.stage_ms)

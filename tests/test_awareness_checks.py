@@ -163,3 +163,13 @@ def test_lidars_back_after_a_gap_get_a_window_again_before_their_rate_counts():
     assert gap.level == LOW and "lidars: no status from perception" in gap.causes
     assert checks.assess(8.0, lidars(7.95, roof=starting), supervisor(7.9)).level == NOMINAL   # warming up again
     assert checks.assess(10.5, lidars(10.45, roof=starting), supervisor(10.4)).level == CRITICAL
+
+
+def test_a_restarted_perceptions_rates_count_once_it_has_counted_a_window():
+    checks = fed(seconds=12.0)
+    assert checks.assess(3.0, lidars(2.95), supervisor(2.9)).level == NOMINAL
+    # perception restarted within a status period: no gap, but its rates start from nothing
+    restarting = LidarHealth(rate_hz=1.0, points=20000, road_points=3000, counting_s=0.1)
+    assert checks.assess(3.1, lidars(3.05, roof=restarting, front_left=restarting), supervisor(3.0)).level == NOMINAL
+    slow = LidarHealth(rate_hz=3.0, points=20000, road_points=3000, counting_s=2.5)
+    assert checks.assess(6.0, lidars(5.95, roof=slow), supervisor(5.9)).level == CRITICAL

@@ -228,6 +228,7 @@ class Simulator(Node):
     def _leave_the_dead(self, master: LockstepMaster) -> None:
         """A participant the supervisor is restarting (dead, or killed for a hang) is left out at
         once: the vehicle's world does not wait for a crashed process."""
+        self.supervisor.latch()         # read between steps: while the clock waits, no step latches it
         state = self.supervisor.latest
         if state is None:
             return
