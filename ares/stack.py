@@ -276,6 +276,35 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     time_limit_s = 3.0 * target_m / (0.5 * cruise) + 60.0     # stack seconds
     if seconds is not None:
         time_limit_s = seconds + 60.0
+
+    def on_truth(msg) -> None:
+        safety.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.v, msg.board_failsafe)
+        tracker.update(msg.x, msg.y, msg.odometer_m)
+        localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
+        perception.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.s)
+        control.add_truth(msg.t, tracker.xte[-1], msg.v, msg.yaw_rate, msg.accel)
+
+    def on_world(world) -> None:
+        perception.add_world(world)
+        safety.add_world(world)
+
+    def on_event(event) -> None:
+        safety.add_event(event)
+        if event.kind == "controller_switch":
+            control.add_switch(event.data)
+
+    # what each tracker learns from which topic, in this order every loop: the body and the gate
+    # before the truth (its motion is judged against them), the truth before what is matched to it
+    feeds = [(bodies, safety.add_body), (movement, safety.add_status), (cars, safety.add_car),
+             (awareness, safety.add_awareness), (truth, on_truth)]
+    if perceiving:
+        feeds += [(worlds, on_world), (roads, perception.add_road), (grids, perception.add_grid),
+                  (lidar_status, perception.add_status)]
+    feeds += [(poses, lambda pose: localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)),
+              (scores, lambda score: localization.add_score(score.t, score.score)),
+              (statuses, lambda st: control.add_status(st.t, st.controller)),
+              (mpc_candidates, lambda cand: control.add_mpc(cand.solve_ms, cand.fresh)),
+              (events, on_event)]
     left_automatic = 0
     last_progress = 0.0
     clock_moved = (clock.now(), time.monotonic())      # a clock that stops moving is a stalled run
@@ -285,43 +314,11 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
             if stop.is_set():
                 raise RunFailed("interrupted")
             scenario.step(clock.now())
-            for _, body in bodies.drain():
-                safety.add_body(body)
-            for _, st in movement.drain():
-                safety.add_status(st)
-            for _, car in cars.drain():
-                safety.add_car(car)
-            for _, aware in awareness.drain():
-                safety.add_awareness(aware)
-            for _, msg in truth.drain():
-                safety.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.v, msg.board_failsafe)
-                tracker.update(msg.x, msg.y, msg.odometer_m)
-                localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
-                perception.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.s)
-                control.add_truth(msg.t, tracker.xte[-1], msg.v, msg.yaw_rate, msg.accel)
+            for subscription, handle in feeds:
+                for _, msg in subscription.drain():
+                    handle(msg)
             if perceiving:
-                for _, world in worlds.drain():
-                    perception.add_world(world)
-                    safety.add_world(world)
-                for _, road in roads.drain():
-                    perception.add_road(road)
-                for _, grid in grids.drain():
-                    perception.add_grid(grid)
-                for _, sensors in lidar_status.drain():
-                    perception.add_status(sensors)
                 perception.retry()
-            for _, pose in poses.drain():
-                localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)
-            for _, score in scores.drain():
-                localization.add_score(score.t, score.score)
-            for _, st in statuses.drain():
-                control.add_status(st.t, st.controller)
-            for _, cand in mpc_candidates.drain():
-                control.add_mpc(cand.solve_ms, cand.fresh)
-            for _, event in events.drain():
-                safety.add_event(event)
-                if event.kind == "controller_switch":
-                    control.add_switch(event.data)
             now = clock.now()
             if car_state.latest is not None and car_state.latest.mode != DriveMode.AUTOMATIC:
                 left_automatic += 1

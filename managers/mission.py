@@ -42,6 +42,8 @@ class MissionManagerParams(MissionParams):
                                   unit="s", gt=0)
     body_timeout_s: float = param(1.0, "an older body state counts as missing (doors and ramp unknown: limit 0)",
                                   unit="s", gt=0)
+    save_period_s: float = param(2.0, "the mission (and where along the route the shuttle is) is kept for a restart "
+                                      "at every change and at least this often", unit="s", gt=0)
     eta_min_speed_mps: float = param(1.0, "the expected arrival counts on at least this speed", unit="m/s", gt=0)
 
 
@@ -66,6 +68,11 @@ class MissionManager(Node):
         self._limit = 0.0
         self._last_step: float | None = None
         self._ended_reported = True
+        # the mission's own odometer along the route (laps unwrapped): the path manager's lap count
+        # starts again when it restarts, which would move every POI a lap away
+        self.progress: float | None = None
+        self._last_s: float | None = None
+        self._saved_at = -math.inf
         self.state_path = self.kept_state_path()
         restarted = self.restarted
         if restarted and self._restore():
@@ -74,8 +81,18 @@ class MissionManager(Node):
         self._autostart_pending = not restarted and self.params.autostart != "none"
 
     # ---- where things are ------------------------------------------------------------------------
+    def _follow(self, match: PathMatch | None) -> None:
+        """Move the odometer on to the match (the short way round a closed route)."""
+        if match is None:
+            return
+        if not self.route.closed or self.progress is None:
+            self.progress = match.s
+        elif self._last_s is not None:
+            self.progress += self.route.step_between(self._last_s, match.s)
+        self._last_s = match.s
+
     def _progress(self, match: PathMatch) -> float:
-        return match.lap * self.route.length + match.s if self.route.closed else match.s
+        return self.progress if self.progress is not None else match.s
 
     def _body(self, now: float) -> Body | None:
         b: BodyState | None = self.body.fresh(now)
@@ -168,6 +185,7 @@ class MissionManager(Node):
         dt = 0.0 if self._last_step is None else max(now - self._last_step, 0.0)
         self._last_step = now
         match: PathMatch | None = self.match.fresh(now)
+        self._follow(match)
         car: CarState | None = self.car.fresh(now)
         body = self._body(now)
         if self._autostart_pending and match is not None and body is not None:
@@ -189,8 +207,9 @@ class MissionManager(Node):
                 self.body_command.put(BodyCommand(t=now, doors=asked.doors, ramp=asked.ramp, media=asked.media))
         for poi, action in m.done[before[3]:]:
             self.event("poi_action", f"{poi}: {action}", poi=poi, action=action, goal_id=self.goal_id)
-        if (m.state, m.index, m.action, len(m.done)) != before:
+        if (m.state, m.index, m.action, len(m.done)) != before or now - self._saved_at >= self.params.save_period_s:
             self._save()
+            self._saved_at = now
         if m.state is MissionState.SUCCEEDED and self.repeat and match is not None and body is not None:
             self._next_round(match, body)
         if m.state in (MissionState.SUCCEEDED, MissionState.CANCELED) and not self._ended_reported:
@@ -247,6 +266,7 @@ class MissionManager(Node):
         if self.state_path is None:
             return
         snap = {"goal_id": self.goal_id, "kind": self.kind, "targets": self.targets, "repeat": self.repeat,
+                "progress": self.progress, "last_s": self._last_s,
                 "ended_reported": self._ended_reported, "mission": self.mission.snapshot()}
         tmp = self.state_path.with_suffix(".tmp")
         tmp.write_text(json.dumps(snap))
@@ -260,6 +280,7 @@ class MissionManager(Node):
             self.mission = Mission.restore(snap["mission"], self.mission.params)
             self.goal_id, self.kind, self.targets = int(snap["goal_id"]), snap["kind"], list(snap["targets"])
             self.repeat = bool(snap["repeat"])
+            self.progress, self._last_s = snap["progress"], snap["last_s"]
             self._ended_reported = bool(snap["ended_reported"])
             return True
         except (OSError, ValueError, KeyError, TypeError) as exc:

@@ -37,6 +37,7 @@ class Tour:
         self.t, self.progress, self.v = 0.0, s0, 0.0
         self.node = self.start_node()
         self.violations: list[str] = []
+        self.lap_offset = 0            # a restarted path manager counts its laps from 0 again
 
     def start_node(self) -> MissionManager:
         node = MissionManager(self.cfg, clock=self.clock, bus=self.network.bus("mission_manager", self.clock))
@@ -58,7 +59,7 @@ class Tour:
             self.clock.set(t)
             lap, s = divmod(self.progress, self.route.length)
             self.bus.publish("path/match", PathMatch(
-                t=t, index=0, s=s, lap=int(lap), xte=0.0, heading_error=0.0, zones=[], force_odometry=False,
+                t=t, index=0, s=s, lap=int(lap) - self.lap_offset, xte=0.0, heading_error=0.0, zones=[], force_odometry=False,
                 distance_to_end_m=None, ahead_x=[], ahead_y=[], ahead_yaw=[], ahead_curvature=[], ahead_speed=[],
                 ahead_s=[]))
             self.bus.publish("dbw/car_state", CarState(
@@ -218,3 +219,11 @@ def test_the_tour_goes_round_again_after_its_last_poi(tour_cfg):
     assert st.goal_id == 1 and st.kind == "tour" and st.state == "DRIVING"
     assert 1587 + 20 < tour.progress < 1587 + 330 and tour.violations == []
     assert not tour.kinds("mission_result")     # a repeating tour does not end
+
+
+def test_a_restarted_path_managers_lap_count_does_not_move_the_pois(tour_cfg):
+    tour = Tour(tour_cfg, s0=1560.0)            # before the start line: the Depot (20 m) is on the next lap
+    tour.until(lambda: tour.status.latest.poi == "Library", 120, "the Depot served, across the start line")
+    tour.lap_offset = 1                         # the path manager restarted: lap 0 again
+    tour.until(lambda: tour.status.latest.poi == "Lakeside", 300, "the Library served all the same")
+    assert [p.done[-1] for p in tour.status.latest.pois[:2]] == ["NEXT_POI", "NEXT_POI"]
