@@ -400,13 +400,14 @@ def _save_trace(run_dir: Path, tracker: LapTracker, control: ControlTracker) -> 
 def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path) -> int:
     truth = bus.subscribe("sim/truth")
     car_state = bus.subscribe("dbw/car_state")
+    mission = bus.subscribe("mission/status")
     pace = "as fast as every process keeps up" if clock.mode == "driven" else f"speed x{clock.speed:g}"
     print(f"ARES is running: vehicle {cfg['vehicle_id']} ({cfg['vehicle']}) on '{route.name}' "
           f"({route.length:.0f} m), {pace}.\n"
           f"  router    {cfg['bus']['router']}\n"
           f"  api       {api_url(cfg)}  (black box REST API; store {cfg['blackbox_store']['uri']})\n"
           f"  logs      {run_dir / 'logs'}\n"
-          f"  look      ares topics | ares echo dbw/car_state | ares echo supervisor/state\n"
+          f"  look      ares topics | ares echo dbw/car_state | ares mission status\n"
           f"Ctrl-C stops everything.", flush=True)
     if not getattr(args, "manual", False):
         _wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
@@ -415,6 +416,9 @@ def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir:
     while not stop.wait(1.0):
         t, c = truth.latest, car_state.latest
         if t is not None and c is not None:
+            m = mission.latest
+            doing = "" if m is None else f"  mission {m.state}" + (f" {m.poi}" if m.poi else "") + \
+                (f" {m.action}" if m.action else "")
             print(f"t={clock.now():7.1f}s  lap {t.lap}  s={t.s:7.1f} m  v={t.v:4.2f} m/s  "
-                  f"mode={c.mode.value}{' (watchdog)' if c.watchdog_tripped else ''}", flush=True)
+                  f"mode={c.mode.value}{' (watchdog)' if c.watchdog_tripped else ''}{doing}", flush=True)
     return 0

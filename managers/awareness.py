@@ -10,11 +10,19 @@ with its causes.
 """
 from __future__ import annotations
 
+import re
+
 from ares.messages import AwarenessState, EventLevel
 from ares.node import Input, Node, Output
 from managers.awareness_checks import CRITICAL, NOMINAL, AwarenessChecks, AwarenessParams
 
 LEVEL_NAMES = {NOMINAL: "nominal", CRITICAL: "level 1 (critical)", 2: "level 2 (low)"}
+
+
+def _kinds(causes: list[str]) -> list[str]:
+    """The causes without their figures: "no RTK corrections for 301 s" is the cause it was a
+    second before (an event each second would bury the ones that matter)."""
+    return [re.sub(r"\d+(\.\d+)?", "#", cause) for cause in causes]
 
 
 class AwarenessManager(Node):
@@ -39,7 +47,7 @@ class AwarenessManager(Node):
         for _, fix in self.gnss.drain():
             self.checks.on_gnss(fix)
         found = self.checks.assess(now, self.lidar.latest, self.supervisor.latest)
-        if found.level != self._level or (found.level != NOMINAL and found.causes != self._causes):
+        if found.level != self._level or (found.level != NOMINAL and _kinds(found.causes) != _kinds(self._causes)):
             level = EventLevel.INFO if found.level == NOMINAL else \
                 EventLevel.FAULT if found.level == CRITICAL else EventLevel.WARNING
             text = LEVEL_NAMES[found.level] + (": " + "; ".join(found.causes) if found.causes else "")
