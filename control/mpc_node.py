@@ -11,6 +11,13 @@ At start-up the heading is the magnetometer's guess until the vehicle has moved 
 real one. While the heading's sigma is above max_heading_sigma_rad the candidate follows the
 path's own curvature at no more than creep_speed_mps, as pure pursuit does.
 
+A standing shuttle off the path (road reactive control left it 0.56 m aside and turned away, and
+then stopped) can be the MPC's local minimum: any start first adds to the cross-track error, so
+the best plan is to stay. Seen after the 6-minute GNSS outage: the MPC in charge, everything
+allowing motion, and `v = 0` for a minute. A plan that keeps the shuttle standing while the path
+asks it to move, for `stall_handover_s`, asks for a hand-over: pure pursuit stands in, starts from
+any offset, and the MPC takes over again once moving (`StallGuard`).
+
 Without a fresh pose and path there is no candidate: the control manager must never forward a
 command computed from stale data.
 """
@@ -30,9 +37,27 @@ class MpcNodeParams(MpcParams):
                                                "curvature ...", unit="rad", gt=0)
     creep_speed_mps: float = param(1.0, "... no faster than this, until yaw from poses has fixed the heading",
                                    unit="m/s", gt=0)
+    stall_handover_s: float = param(2.0, "a plan that keeps the standing shuttle standing while the path asks it "
+                                         "to move this long: hand over (pure pursuit starts it)", unit="s", gt=0)
     pipeline_latency_s: float = param(0.1, "from this process's step to the wheels' actuators, beyond the pose's "
                                            "age: the control manager's step (20 Hz) and the bridge's (10 Hz); the MPC "
                                            "solves from the state predicted that far ahead", unit="s", ge=0)
+
+
+class StallGuard:
+    """Whether the MPC's plan keeps a standing shuttle standing although the path asks it to move
+    (`move_mps` or more ahead) for `after_s`: then it should hand over."""
+
+    def __init__(self, after_s: float, standing_mps: float = 0.1, move_mps: float = 0.5):
+        self.after_s, self.standing_mps, self.move_mps = after_s, standing_mps, move_mps
+        self.since: float | None = None
+
+    def stalled(self, now: float, v_command: float, v_now: float, v_path: float) -> bool:
+        if v_command < self.standing_mps and abs(v_now) < self.standing_mps and v_path >= self.move_mps:
+            self.since = now if self.since is None else self.since
+            return now - self.since >= self.after_s
+        self.since = None
+        return False
 
 
 class MpcNode(Node):
@@ -49,6 +74,7 @@ class MpcNode(Node):
         self.mpc = Mpc(self.vehicle, MpcParams(**{k: getattr(self.params, k) for k in MpcParams.model_fields}))
         self.max_kappa = self.vehicle.max_curvature
         self._accel = 0.0
+        self.stall = StallGuard(self.params.stall_handover_s)
 
     def step(self, now: float) -> None:
         pose, match, car = self.pose.fresh(now), self.path.fresh(now), self.car.fresh(now)
@@ -69,10 +95,12 @@ class MpcNode(Node):
                              latency_s=max(now - pose.t, 0.0) + self.params.pipeline_latency_s,
                              delta_age_s=max(pose.t - car.t, 0.0) if car is not None else 0.0)
         self._accel = cmd.accel
+        stalled = self.stall.stalled(now, cmd.v, pose.v, max(match.ahead_speed[:20], default=0.0))
         self.candidate.put(ControlCandidate(
-            t=now, controller="mpc", v=cmd.v, kappa=cmd.kappa, fresh=cmd.ok, handover=cmd.handover,
+            t=now, controller="mpc", v=cmd.v, kappa=cmd.kappa, fresh=cmd.ok, handover=cmd.handover or stalled,
             solve_ms=round(cmd.solve_ms, 3), cross_track_m=-cmd.cte if math.isfinite(cmd.cte) else match.xte,
-            heading_error_rad=cmd.epsi if math.isfinite(cmd.epsi) else match.heading_error, note=cmd.status))
+            heading_error_rad=cmd.epsi if math.isfinite(cmd.epsi) else match.heading_error,
+            note="stalled: standing although the path asks to move" if stalled else cmd.status))
         if len(cmd.predicted_x):
             self.trajectory.put(PredictedTrajectory(t=now, controller="mpc", x=cmd.predicted_x.tolist(),
                                                     y=cmd.predicted_y.tolist(), step_s=self.params.step_s))

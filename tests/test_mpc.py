@@ -171,3 +171,17 @@ def test_one_iteration_per_cycle_tracks_as_well_as_a_converged_solve():
     rmse = lambda e: float(np.sqrt(np.mean(e ** 2)))       # noqa: E731
     assert rmse(rti) == pytest.approx(rmse(full), rel=0.1) and rti.max() <= full.max() * 1.1 + 0.01
     assert all(c.ok for c in rti_cmds)
+
+
+@pytest.mark.parametrize("v_command, v_now, v_path, stalls", [
+    (0.0, 0.0, 2.0, True),        # standing, the plan stays, the path asks to move: stalled
+    (0.3, 0.0, 2.0, False),       # the plan starts the shuttle
+    (0.0, 1.5, 2.0, False),       # a plan to stop from speed is not a stall
+    (0.0, 0.0, 0.2, False),       # the path asks for nothing (its end, a stop)
+])
+def test_a_plan_that_keeps_the_shuttle_standing_hands_over_after_a_while(v_command, v_now, v_path, stalls):
+    from control.mpc_node import StallGuard
+    guard = StallGuard(after_s=2.0)
+    answers = [guard.stalled(t / 10, v_command, v_now, v_path) for t in range(31)]
+    assert answers[19] is False and answers[-1] is stalls       # never before 2 s
+    assert guard.stalled(3.1, 0.5, 0.0, v_path) is False and guard.since is None   # moving again: reset
