@@ -12,6 +12,8 @@ from ares.messages import MissionRequest, RearmRequest
 from ares.safety_eval import SafetyTracker
 
 OPERATOR = "scenario"
+SENSOR_OF = {"block_lidar": None, "freeze_imu": "imu", "gyro_bias": "imu", "gnss_outage": "gnss",
+             "gnss_no_corrections": "gnss", "wheel_speed_scale": "can"}     # None: the fault names its sensor
 
 
 class ScenarioDriver:
@@ -40,7 +42,7 @@ class ScenarioDriver:
             except KeyError as exc:
                 detail, ok = str(exc), False
         else:
-            target = fault.sensor or {"freeze_imu": "imu"}.get(fault.kind, "gnss" if "gnss" in fault.kind else "")
+            target = fault.sensor or SENSOR_OF[fault.kind]
             detail, ok = "injected by the simulator", True
         self.tracker.add_fault(at, fault.kind, target)
         self.done.append([round(at, 2), f"{fault.kind} {target}".strip(), ok, detail])

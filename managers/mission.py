@@ -74,11 +74,10 @@ class MissionManager(Node):
         self._last_s: float | None = None
         self._saved_at = -math.inf
         self.state_path = self.kept_state_path()
-        restarted = self.restarted
-        if restarted and self._restore():
+        if self.restarted and self._restore():
             self.event("mission", f"restarted: going on with goal {self.goal_id} ({self.mission.state.value} "
                                   f"at {self.mission.current_name()})")
-        self._autostart_pending = not restarted and self.params.autostart != "none"
+        self._autostart_pending = not self.restarted and self.params.autostart != "none"
 
     # ---- where things are ------------------------------------------------------------------------
     def _follow(self, match: PathMatch | None) -> None:
