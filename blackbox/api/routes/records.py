@@ -31,9 +31,9 @@ EXPORT_RESPONSE = {
 FIELDS_PARAMETER = {
     "name": "fields", "in": "query", "required": False, "style": "form", "explode": False,
     "description": "the record fields to return, comma-separated, each once (the time is always included; "
-                   "none: every field)",
+                   "left out: every field; present, it names at least one)",
     "schema": {"type": "array", "items": {"type": "string", "enum": list(RECORD_FIELDS)}, "uniqueItems": True,
-               "maxItems": len(RECORD_FIELDS)},
+               "minItems": 1, "maxItems": len(RECORD_FIELDS)},
 }
 
 
