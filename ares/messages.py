@@ -322,6 +322,7 @@ class ControlCandidate(Msg):
     kappa: float
     fresh: bool = True          # False: the MPC reused its previous solution (a late or failed solve)
     handover: bool = False      # the controller asks the control manager for its fallback
+    stop_only: bool = False     # only to steer a controlled stop by (the RRC's road remembered, v = 0)
     solve_ms: float | None = None
     cross_track_m: float | None = None      # the error the controller sees (its own input), + vehicle left
     heading_error_rad: float | None = None
@@ -452,6 +453,13 @@ class MissionGoal(Msg):
 class MissionRequest(Msg):
     """Pause, resume or cancel the mission (the operator's name goes to the black box)."""
     operator: str = Field(min_length=1, max_length=64)
+
+
+class BodyRequest(Msg):
+    """An operator's demand to the doors or the ramp (the mission manager decides)."""
+    operator: str = Field(min_length=1, max_length=64)
+    doors: Literal["open", "close"] | None = None
+    ramp: Literal["deploy", "stow"] | None = None
 
 
 class MissionReply(Msg):

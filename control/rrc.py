@@ -19,7 +19,14 @@ kp = λ², kd = 2ζλ put the lateral error's response at a spatial frequency λ
 (critically damped at ζ = 1). The integral, bounded, takes out a steady offset such as a road's
 cross-fall pulling the vehicle aside. The speed is the RRC's own cap (the road is seen only so far
 ahead), lowered in proportion as the detection's confidence falls towards min_confidence.
-Without a fresh, confident detection there is no candidate.
+
+When the detection is lost (grass verges hide an edge now and then), the road last seen is
+remembered for `memory_m` of travel: its centre line, in the frame of the vehicle when it was
+seen, and the vehicle moved along it by the distance and the curvature actually driven (dead
+reckoning over a few metres is good to centimetres). The same law then steers along that centre
+line, and the command's speed is 0: the remembered road is good enough to steer a controlled stop
+by, not to drive on (`remembered`; the control manager only steers its stop with it). Beyond
+`memory_m` there is no candidate, and the integral starts again from zero.
 """
 from __future__ import annotations
 
@@ -44,6 +51,8 @@ class RrcParams(Params):
     full_speed_confidence: float = param(0.25, "from this confidence the RRC drives at its cap; below, slower in "
                                                "proportion down to 0 at min_confidence", ge=0, le=1)
     max_kappa: float = param(0.25, "largest curvature commanded", unit="1/m", gt=0)
+    memory_m: float = param(8.0, "a lost road is steered along, remembered, for this distance travelled (a "
+                                 "controlled stop from the cap speed takes ~4 m)", unit="m", ge=0)
 
 
 @dataclass(frozen=True)
@@ -61,30 +70,90 @@ class RrcCommand:
     kappa: float
     error_m: float                  # eq. 15
     feedforward: float              # b
+    remembered: bool = False        # steering along the road last seen: for a controlled stop only (v = 0)
+
+
+@dataclass
+class RememberedRoad:
+    """The last road seen (its centre line in the vehicle frame of then) and the vehicle's pose in
+    that frame since, moved by what was driven."""
+    centre: list[float]
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0
+    travelled_m: float = 0.0
+
+    def advance(self, ds: float, kappa: float) -> None:
+        """Move the vehicle ds metres along an arc of curvature kappa (exact for a constant kappa)."""
+        dyaw = kappa * ds
+        chord = ds if abs(dyaw) < 1e-9 else 2.0 * math.sin(dyaw / 2.0) / kappa
+        self.x += chord * math.cos(self.yaw + dyaw / 2.0)
+        self.y += chord * math.sin(self.yaw + dyaw / 2.0)
+        self.yaw += dyaw
+        self.travelled_m += ds
+
+    def view(self, confidence: float) -> RoadView:
+        """What road detection would say from here of the remembered centre line y = f(x): the offset
+        across the line at the vehicle's x, the heading relative to the line's direction there."""
+        f = _polynomial(self.centre, self.x)
+        road_yaw = math.atan(_polynomial(_derivative(self.centre), self.x))
+        heading = math.remainder(self.yaw - road_yaw, 2.0 * math.pi)
+        offset = (self.y - f) * math.cos(road_yaw)
+        return RoadView(offset, heading, self.centre, confidence)
 
 
 class RoadReactiveControl:
     def __init__(self, params: RrcParams | None = None):
         self.p = params or RrcParams()
         self.integral = 0.0         # ∫ e ds, m²
+        self.memory: RememberedRoad | None = None
 
     def reset(self) -> None:
         self.integral = 0.0
+        self.memory = None
 
-    def step(self, road: RoadView | None, travelled_m: float) -> RrcCommand | None:
-        """One cycle: `travelled_m` since the last one. None: nothing to follow."""
+    def step(self, road: RoadView | None, travelled_m: float, driven_kappa: float = 0.0) -> RrcCommand | None:
+        """One cycle: `travelled_m` since the last one, at the measured curvature `driven_kappa`.
+        None: nothing to follow, not even a road remembered."""
         p = self.p
+        travelled_m = max(travelled_m, 0.0)
         if road is None or road.confidence < p.min_confidence or not all(
                 math.isfinite(v) for v in (road.lateral_offset_m, road.heading_rad)):
-            self.reset()
-            return None
+            return self._remembered(travelled_m, driven_kappa)
+        self.memory = RememberedRoad(list(road.centre)) if p.memory_m > 0 else None
         e = road.lateral_offset_m
-        self.integral = max(-p.integral_limit_m2, min(p.integral_limit_m2, self.integral + e * max(travelled_m, 0.0)))
-        b = _curvature(road.centre, p.curvature_lookahead_m)
-        kappa = -(p.kp * e + p.ki * self.integral + p.kd * math.sin(road.heading_rad)) + b
-        kappa = max(-p.max_kappa, min(p.max_kappa, kappa))
+        self.integral = max(-p.integral_limit_m2, min(p.integral_limit_m2, self.integral + e * travelled_m))
+        kappa, b = self._law(road)
         share = min(1.0, (road.confidence - p.min_confidence) / max(p.full_speed_confidence - p.min_confidence, 1e-9))
         return RrcCommand(p.max_speed_mps * max(share, 0.0), kappa, e, b)
+
+    def _remembered(self, travelled_m: float, driven_kappa: float) -> RrcCommand | None:
+        memory = self.memory
+        if memory is None:
+            self.reset()
+            return None
+        memory.advance(travelled_m, driven_kappa)
+        if memory.travelled_m > self.p.memory_m:
+            self.reset()
+            return None
+        view = memory.view(confidence=0.0)
+        kappa, b = self._law(view, ahead_m=memory.x)
+        return RrcCommand(0.0, kappa, view.lateral_offset_m, b, remembered=True)
+
+    def _law(self, road: RoadView, ahead_m: float = 0.0) -> tuple[float, float]:
+        """Eq. 14 per metre: the curvature commanded and the road's own curvature fed forward."""
+        p = self.p
+        b = _curvature(road.centre, ahead_m + p.curvature_lookahead_m)
+        kappa = -(p.kp * road.lateral_offset_m + p.ki * self.integral + p.kd * math.sin(road.heading_rad)) + b
+        return max(-p.max_kappa, min(p.max_kappa, kappa)), b
+
+
+def _polynomial(coefficients: list[float], x: float) -> float:
+    return sum(c * x ** i for i, c in enumerate(coefficients))
+
+
+def _derivative(coefficients: list[float]) -> list[float]:
+    return [i * c for i, c in enumerate(coefficients) if i >= 1]
 
 
 def _curvature(coefficients: list[float], x: float) -> float:

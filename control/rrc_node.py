@@ -3,9 +3,12 @@
 The RRC trusts nothing but the LiDARs: the road's centre line and the vehicle's offset and
 heading from perception/road, and the distance travelled (for its terms per metre) from the
 drive-by-wire bridge's measured speed, never from the fused pose. Without a fresh, confident
-detection there is no candidate, and the integral starts again from zero.
+detection it steers along the road last seen for a few metres (moved by the measured speed and
+steering), a candidate marked `stop_only` with v = 0; after that there is no candidate.
 """
 from __future__ import annotations
+
+import math
 
 from ares.config import param
 from ares.messages import ControlCandidate, RoadDetection
@@ -34,7 +37,8 @@ class RrcNode(Node):
     road = Input("perception/road", max_age="road_timeout_s", doc="centre line, offset and heading, confidence")
     car = Input("dbw/car_state", max_age="speed_timeout_s", doc="the measured speed: distance travelled")
     # no declared rate: silent wherever the road is not seen (not news for the supervisor)
-    candidate = Output("control/candidate/rrc", doc="(v, kappa) at rate_hz while the road is seen; silent without it")
+    candidate = Output("control/candidate/rrc", doc="(v, kappa) at rate_hz while the road is seen (or remembered, "
+                                                   "stop_only); silent without it")
 
     def setup(self) -> None:
         self.rrc = RoadReactiveControl(RrcParams(**{k: getattr(self.params, k) for k in RrcParams.model_fields}))
@@ -45,9 +49,17 @@ class RrcNode(Node):
         dt = 0.0 if self._last is None else max(now - self._last, 0.0)
         self._last = now
         travelled = abs(car.speed_mps) * dt if car is not None else 0.0
+        driven_kappa = 0.0 if car is None else math.tan(
+            math.radians(car.steering_wheel_deg) / self.vehicle.steering_ratio) / self.vehicle.wheelbase_m
         road = self.road.fresh(now)
-        cmd = self.rrc.step(road_view(road), travelled)
+        cmd = self.rrc.step(road_view(road), travelled, driven_kappa)
         if cmd is None:
+            return
+        if cmd.remembered:
+            memory = self.rrc.memory
+            self.candidate.put(ControlCandidate(
+                t=now, controller="rrc", v=0.0, kappa=cmd.kappa, cross_track_m=cmd.error_m, stop_only=True,
+                note=f"road lost: steering along the road seen {memory.travelled_m:.1f} m back"))
             return
         self.candidate.put(ControlCandidate(t=now, controller="rrc", v=cmd.v, kappa=cmd.kappa,
                                             cross_track_m=cmd.error_m, heading_error_rad=road.heading_rad,

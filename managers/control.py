@@ -102,7 +102,7 @@ class ControlManager(Node):
             road_confidence=None if road is None or not road.found else road.confidence,
             force_odometry=bool(match is not None and match.force_odometry),
             odometry=None if odometry is None else Candidate(odometry[1].v, odometry[1].kappa),
-            rrc=None if rrc is None else Candidate(rrc.v, rrc.kappa)))
+            rrc=None if rrc is None else Candidate(rrc.v, rrc.kappa, rrc.stop_only)))
         controller = {Mode.ODOMETRY: odometry[0] if odometry else "stop", Mode.RRC: "rrc"}.get(decision.mode, "stop")
         if controller != self.in_charge:
             cause = decision.cause if decision.switched else "stand_in"

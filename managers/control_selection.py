@@ -21,10 +21,15 @@ curvature forwarded so far to the new candidate's, no faster than the steering c
 (`max_kappa_rate`, from the steering motor's rate). Once caught up, the candidate passes through
 unchanged: the controller in charge already commands no faster than the steering turns (the
 MPC's model has the rate), and a ramp on top would only delay it (at 25 km/h, by enough to make
-the MPC weave). In STOP the speed ramps down at `stop_decel_mps2` and the curvature is held.
+the MPC weave). In STOP the speed ramps down at `stop_decel_mps2`, and the curvature goes, at the
+steering's rate, to the RRC's while it has a candidate (the road seen, however faintly, or
+remembered for a few metres after it was lost: `stop_only`), else it is held. A held curvature rolls
+the shuttle off a bend's line (0.5 m over the 6 m of a stop from 2.5 m/s, measured on grass).
+A `stop_only` candidate never drives.
 
 `pinned` (for comparisons, `ares run --controller`) takes the order of trust away: the pinned
-mode drives whenever its candidate is fresh, whatever the score or the road, and STOP otherwise.
+mode drives whenever its candidate is fresh, whatever the score or the road, and STOP otherwise
+(holding the curvature: a comparison shows the pinned controller alone).
 
 Each decision carries a short `cause` beside its sentence (score_low, road_ok, forced, ...): the
 lap figures count switches by cause, the sentence is for people.
@@ -61,6 +66,7 @@ class SelectionParams:
 class Candidate:
     v: float
     kappa: float
+    stop_only: bool = False         # only to steer a controlled stop by
 
 
 @dataclass(frozen=True)
@@ -107,6 +113,8 @@ class ControlSelector:
         """Whether `mode` may drive (holding: it is in charge now, so the exit thresholds apply), the
         cause's short code and the sentence."""
         candidate = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc}.get(mode)
+        if candidate is not None and candidate.stop_only:
+            candidate = None
         if self.p.pinned is not None and mode is not Mode.STOP:
             if mode is not self.p.pinned:
                 return False, "pinned", f"pinned to {self.p.pinned.value}"
@@ -127,7 +135,7 @@ class ControlSelector:
             if inputs.force_odometry and inputs.odometry is not None:
                 return False, "forced", "the path manager forces odometry control"
             if candidate is None:
-                return False, "no_candidate", "the RRC has no fresh candidate"
+                return False, "no_candidate", "the RRC has no fresh candidate to drive by"
             if self._road_trusted(inputs, holding):
                 return True, "road_ok", f"road confidence {inputs.road_confidence:.2f}"
             if inputs.road_confidence is None:
@@ -164,9 +172,11 @@ class ControlSelector:
                 cause = current_cause
                 reason = f"{current_why}; {want.value} is wanted once {self.p.min_dwell_s:g} s in charge have passed"
         target = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc}.get(self.mode)
-        if target is None:                              # STOP: slow down, hold the curvature
+        if target is None:                              # STOP: slow down, steer along the road or hold
             self.v = max(0.0, self.v - self.p.stop_decel_mps2 * dt)
-            kappa_target = self.kappa
+            steer_by = inputs.rrc if self.p.pinned is None else None
+            kappa_target = self.kappa if steer_by is None else steer_by.kappa
+            self.catching_up = True                     # a stop's curvature always moves at the steering's rate
         else:
             self.v, kappa_target = target.v, target.kappa
         if switched:

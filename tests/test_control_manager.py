@@ -163,11 +163,17 @@ class RrcHarness:
         return [c for _, c in self.candidates.drain()]
 
 
-def test_the_rrc_node_steers_back_to_the_centre_and_is_silent_without_a_confident_road(run_config):
+def test_the_rrc_node_steers_back_to_the_centre_and_remembers_a_lost_road_for_a_stop_only(run_config):
     h = RrcHarness(run_config)
     got = h.step(0.05, road(0.05, 0.9, offset=0.5))           # half a metre left of the centre: steer right
     assert len(got) == 1 and got[0].kappa < 0 and got[0].v > 0 and got[0].controller == "rrc"
-    assert h.step(0.10, road(0.10, 0.01)) == []                # not confident
+    assert not got[0].stop_only
+    lost = h.step(0.10, road(0.10, 0.01))                      # not confident: the road seen at 0.05 s, remembered
+    assert len(lost) == 1 and lost[0].stop_only and lost[0].v == 0.0 and lost[0].kappa < 0
+    assert "road lost" in lost[0].note
     assert h.step(0.15, road(0.15, 0.9, offset=-0.5))[0].kappa > 0      # right of the centre: steer left
-    stale = 0.15 + h.node.params.road_timeout_s + 0.05
-    assert h.step(stale, None) == []                           # the detection has gone stale: silence
+    t = 0.15
+    while h.node.rrc.memory is not None and t < 10.0:           # stale detection: remembered for memory_m
+        t += 0.05
+        got = h.step(t, None)
+    assert got == [] and 3.5 < t < 5.0                          # 8 m at 2 m/s, after the road's timeout

@@ -15,6 +15,7 @@ from managers.control_selection import Candidate, ControlSelector, Inputs, Mode,
 P = SelectionParams(score_enter=0.6, score_exit=0.4, road_enter=0.6, road_exit=0.4, min_dwell_s=1.0,
                     max_kappa_rate=0.2, stop_decel_mps2=1.0)
 ODO, RRC = Candidate(3.0, 0.01), Candidate(2.0, -0.02)
+RRC_REMEMBERED = Candidate(0.0, -0.03, stop_only=True)     # the road lost, remembered: steers a stop only
 LEVELS = (None, 0.2, 0.5, 0.9)          # missing, below exit, between exit and enter, above enter
 
 
@@ -26,7 +27,7 @@ def rule(current: Mode, i: Inputs, dwelt: bool) -> Mode:
             return i.odometry is not None and (i.force_odometry or (
                 i.odometry_score is not None and i.odometry_score >= (P.score_exit if holding else P.score_enter)))
         if mode is Mode.RRC:
-            return (i.rrc is not None and not (i.force_odometry and i.odometry is not None)
+            return (i.rrc is not None and not i.rrc.stop_only and not (i.force_odometry and i.odometry is not None)
                     and i.road_confidence is not None
                     and i.road_confidence >= (P.road_exit if holding else P.road_enter))
         return True
@@ -34,7 +35,8 @@ def rule(current: Mode, i: Inputs, dwelt: bool) -> Mode:
     return want if want is not current and (not ok(current) or dwelt) else current
 
 
-CASES = list(itertools.product(Mode, LEVELS, LEVELS, (False, True), (None, ODO), (None, RRC), (False, True)))
+CASES = list(itertools.product(Mode, LEVELS, LEVELS, (False, True), (None, ODO), (None, RRC, RRC_REMEMBERED),
+                               (False, True)))
 
 
 @pytest.mark.parametrize("current,score,road,force,odo,rrc,dwelt", CASES)
@@ -45,8 +47,9 @@ def test_every_mode_and_input(current, score, road, force, odo, rrc, dwelt):
     decision = selector.step(1.5 if dwelt else 0.5, inputs)
     assert decision.mode is rule(current, inputs, dwelt)
     assert decision.switched == (decision.mode is not current) and decision.reason
-    # never a stale candidate; forced odometry always wins when its candidate is there
+    # never a stale candidate, never a stop-only one; forced odometry always wins when its candidate is there
     assert {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(decision.mode, "stop") is not None
+    assert not (decision.mode is Mode.RRC and rrc.stop_only)
     if force and odo is not None and (current is not Mode.STOP or dwelt):
         assert decision.mode is Mode.ODOMETRY         # (a stop, once begun, lasts its dwell)
     if decision.mode is Mode.STOP and current is not Mode.STOP:
@@ -87,13 +90,33 @@ def test_a_controlled_stop_slows_and_holds_the_curvature():
     assert selector.step(5.0, Inputs(None, None, False, None, None)).v == 0.0
 
 
+def test_a_controlled_stop_steers_along_the_rrc_at_the_steering_rate():
+    selector = ControlSelector(P, start=Mode.RRC)
+    selector.step(0.0, Inputs(None, 0.9, False, None, Candidate(2.5, 0.05)))
+    d = selector.step(0.1, Inputs(None, 0.1, False, None, Candidate(0.0, -0.05, stop_only=True)))
+    assert d.mode is Mode.STOP and d.v == pytest.approx(2.4) and d.kappa == pytest.approx(0.03)   # 0.2 /m/s × 0.1 s
+    for t in (0.2, 0.3, 0.4, 0.5, 0.6):
+        d = selector.step(t, Inputs(None, 0.1, False, None, Candidate(0.0, -0.05, stop_only=True)))
+    assert d.kappa == pytest.approx(-0.05) and d.mode is Mode.STOP and d.v == pytest.approx(1.9)
+    d = selector.step(0.7, Inputs(None, 0.1, False, None, None))       # the memory ran out: held
+    assert d.kappa == pytest.approx(-0.05)
+
+
+def test_a_pinned_stop_holds_the_curvature_whatever_the_rrc_says():
+    selector = ControlSelector(SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, pinned=Mode.ODOMETRY),
+                               start=Mode.ODOMETRY)
+    selector.step(0.0, Inputs(0.9, None, False, Candidate(3.0, 0.05), None))
+    d = selector.step(0.5, Inputs(0.9, 0.9, False, None, Candidate(2.0, -0.1)))
+    assert d.mode is Mode.STOP and d.kappa == pytest.approx(0.05)
+
+
 def test_thresholds_are_checked():
     with pytest.raises(ValueError):
         SelectionParams(0.4, 0.6, 0.6, 0.4, 1.0, 0.2, 1.0)
 
 
 maybe_level = st.one_of(st.none(), st.floats(0.0, 1.0))
-maybe_candidate = st.one_of(st.none(), st.builds(Candidate, st.floats(0.0, 5.0), st.floats(-0.3, 0.3)))
+maybe_candidate = st.one_of(st.none(), st.builds(Candidate, st.floats(0.0, 5.0), st.floats(-0.3, 0.3), st.booleans()))
 cycle = st.tuples(st.floats(0.01, 0.6), maybe_level, maybe_level, st.booleans(), maybe_candidate, maybe_candidate)
 
 
@@ -109,6 +132,7 @@ def test_properties_over_random_sequences(start, cycles):
         ramping = selector.catching_up
         d = selector.step(t, inputs)
         assert {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(d.mode, "stop") is not None
+        assert not (d.mode is Mode.RRC and rrc.stop_only)         # a stop-only candidate never drives
         if d.switched:
             assert held_ok is False or t - last_switch >= P.min_dwell_s - 1e-9   # early only when it had to
             last_switch = t
@@ -131,7 +155,8 @@ def test_a_pinned_mode_drives_whenever_its_candidate_is_there(params, current, s
     selector = ControlSelector(params, start=current)
     selector.since, selector.last_t = 0.0, 0.0
     decision = selector.step(1.5 if dwelt else 0.5, Inputs(score, road, force, odo, rrc))
-    available = {Mode.ODOMETRY: odo, Mode.RRC: rrc}[params.pinned] is not None
+    pinned = {Mode.ODOMETRY: odo, Mode.RRC: rrc}[params.pinned]
+    available = pinned is not None and not pinned.stop_only
     if available and (current is not Mode.STOP or dwelt):
         assert decision.mode is params.pinned and decision.cause == "pinned"
     elif not available:

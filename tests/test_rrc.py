@@ -65,7 +65,7 @@ def test_the_scatter_of_road_detection_is_not_amplified():
 
 
 def test_no_confident_detection_no_candidate_and_the_integral_starts_again():
-    rrc = RoadReactiveControl()
+    rrc = RoadReactiveControl(RrcParams(memory_m=0.0))            # nothing remembered
     view, _ = view_of(0.0, 0.5, 0.0, math.inf)
     assert rrc.step(view, 1.0) is not None and rrc.integral == pytest.approx(0.5)
     assert rrc.step(None, 1.0) is None and rrc.integral == 0.0
@@ -73,6 +73,39 @@ def test_no_confident_detection_no_candidate_and_the_integral_starts_again():
     assert rrc.step(low, 1.0) is None
     nan = RoadView(math.nan, 0.0, [0.0], 0.9)
     assert rrc.step(nan, 1.0) is None
+
+
+def test_a_lost_road_is_remembered_for_a_stop_then_forgotten():
+    p = RrcParams()
+    rrc = RoadReactiveControl(p)
+    view, _ = view_of(0.0, 0.5, 0.0, math.inf)
+    seen = rrc.step(view, 1.0)
+    lost = rrc.step(None, 0.0)
+    assert lost.remembered and lost.v == 0.0 and lost.kappa == pytest.approx(seen.kappa)   # the same road, from the same place
+    assert rrc.step(None, p.memory_m + 0.1) is None and rrc.integral == 0.0 and rrc.memory is None
+
+
+@pytest.mark.parametrize("radius", [math.inf, 30.0])
+def test_a_stop_steered_along_the_remembered_road_keeps_to_its_line(radius):
+    """Seen up to the loss, then driven 8 m on the remembered road alone, slowing to a stop from
+    2.5 m/s: the true offset stays where the road seen would have kept it."""
+    rrc = RoadReactiveControl()
+    x, y, yaw, v, dt = 0.0, 0.3, 0.0, 2.5, 0.05
+    kappa = 0.0
+    for step in range(200):
+        seen = step < 40                                            # 2 s seen (5 m), then lost
+        view, truth = view_of(x, y, yaw, radius)
+        cmd = rrc.step(view if seen else None, v * dt, kappa)
+        if not seen:
+            assert cmd is not None and cmd.remembered and cmd.v == 0.0
+            v = max(0.0, v - 1.0 * dt)                              # the control manager's controlled stop
+        kappa = cmd.kappa
+        x, y, yaw, _ = predict(x, y, yaw, v, math.atan(kappa * WHEELBASE), 0.0, dt, WHEELBASE)
+        if v == 0.0:
+            break
+    _, truth = view_of(x, y, yaw, radius)
+    assert abs(truth) < 0.25                                        # steered back towards the centre, not rolled off
+    assert rrc.memory.travelled_m == pytest.approx(3.125 + 2.5 * dt * 0.5, abs=0.15)   # v²/2a of the stop
 
 
 def test_speed_falls_with_confidence_and_commands_stay_bounded():
