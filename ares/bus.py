@@ -302,6 +302,7 @@ class BaseBus:
         self._subscriptions: list[Subscription] = []
         self._services: list[tuple[str, ServiceInbox, Callable]] = []
         self._queryables: list[object] = []
+        self._fleet_subscriptions: list[object] = []
 
     # ---- keys -------------------------------------------------------------------------------
     def key(self, topic: str) -> str:
@@ -355,6 +356,27 @@ class BaseBus:
         sub.handle = self._declare_subscriber(self.key(topic), on_payload)
         self._subscriptions.append(sub)
         return sub
+
+    def subscribe_fleet(self, topic: str, on_message: Callable[[str, str, Msg], None]) -> object:
+        """One topic of the table from every vehicle on the network (`ares/*/<topic>`): on_message(
+        vehicle_id, topic, msg) runs on a transport thread and must return at once. For the fleet's
+        views (the API's live gateway); a stack's own processes read their own vehicle only."""
+        entry = topics.topic(topic)
+        if entry.is_pattern:
+            raise KeyError(f"subscribe_fleet takes one topic, not the family {topic!r}")
+
+        def on_payload(key: str, encoding: str, payload: bytes) -> None:
+            try:
+                parts = key.split("/", 2)
+                msg = decode(payload, encoding, entry.schema, topic, self.rejects)
+                if msg is not None and len(parts) == 3:
+                    on_message(parts[1], topic, msg)
+            except Exception as exc:  # a bad message must never take the receiver down
+                self.rejects.reject("receiver error", f"{key}: {exc!r}")
+
+        handle = self._declare_subscriber(f"ares/*/{topic}", on_payload)
+        self._fleet_subscriptions.append(handle)    # held: a dropped subscriber is undeclared
+        return handle
 
     def unsubscribe(self, sub: Subscription) -> None:
         kept = [s for s in self._subscriptions if s is not sub]

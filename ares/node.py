@@ -167,6 +167,7 @@ class Node:
     rate: ClassVar[float | str] = "rate_hz"             # loop rate: Hz, or the name of a parameter
     steps: ClassVar[bool] = True        # works in periodic steps (latched inputs; a --speed max participant)
     calls: ClassVar[tuple[str, ...]] = ()   # the services it calls (any other call is refused)
+    fleet_inputs: ClassVar[tuple[str, ...]] = ()    # topics it reads from every vehicle (bus.subscribe_fleet)
 
     # ---- the contract, as data --------------------------------------------------------------
     @classmethod
@@ -482,6 +483,13 @@ class _DeclaredBus:
             raise ContractError(f"{self._node.name} subscribes to {topic!r} outside its contract: declare "
                                 f"`Input({topic!r}, ...)` on {type(self._node).__name__} instead")
         return self._bus.subscribe(topic, *args, **kwargs)
+
+    def subscribe_fleet(self, topic: str, on_message) -> object:
+        """A topic of every vehicle on the network, declared in `fleet_inputs`."""
+        if topic not in self._node.fleet_inputs:
+            raise ContractError(f"{self._node.name} reads {topic!r} of every vehicle outside its contract: add it "
+                                f"to `fleet_inputs` on {type(self._node).__name__}")
+        return self._bus.subscribe_fleet(topic, on_message)
 
     def call(self, name: str, request=None, timeout_s: float | None = None):
         """A service the contract declares in `calls`."""

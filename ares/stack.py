@@ -34,6 +34,7 @@ from ares import config, contracts, processes, run_config
 from ares.bus import Bus, ServiceError
 from ares.clock import Clock, DrivenClock, ScaledClock, WallClock
 from ares.control_eval import ControlTracker
+from ares.fleet import fleet_configs, start_fleet
 from ares.messages import DriveMode, DriverCommand
 from ares.metrics import LapTracker, LocalizationTracker
 from ares.perception_eval import PerceptionTracker
@@ -42,7 +43,10 @@ from ares.route import Route, RouteError, load_route, read_origin
 from ares.safety_eval import SafetyTracker
 from ares.scenario_run import ScenarioDriver
 from ares.supervisor import Supervisor
-from blackbox.api_server import api_url
+from blackbox.api import ApiSettings
+from blackbox.api.settings import state_dir
+from blackbox.api_server import api_url, pages_url
+from blackbox.first_logins import ensure_first_logins
 from blackbox.recorder import open_configured_store, store_uri
 from blackbox.store import StoreSettings
 from managers.speed_profile import SpeedProfileParams, cruise_speed
@@ -110,6 +114,8 @@ def run(args) -> int:
         return 2
     clock = stack_clock(cfg, speed)
     run_dir = Path(args.run_dir) if getattr(args, "run_dir", None) else default_run_dir()
+    if (getattr(args, "fleet", None) or 1) > 1:
+        return _fleet(args, cfg, route, clock, run_dir)
     if cfg["replay"]["record"] and not cfg["replay"]["dir"]:
         cfg["replay"]["dir"] = str((run_dir / "replay").resolve())
     supervisor = Supervisor(cfg, processes.for_run(cfg["simulate"], cfg["lidars"]), run_dir, clock)
@@ -397,6 +403,70 @@ def _save_trace(run_dir: Path, tracker: LapTracker, control: ControlTracker) -> 
                         controller=np.array([c or "none" for c in control.in_charge()]))
 
 
+def _fleet(args, cfg: dict, route: Route, clock: Clock, run_dir: Path) -> int:
+    """`--fleet N`: N shuttles on one router (ares/fleet.py), each engaged, until Ctrl-C."""
+    if headless_or_max(args):
+        print("ares run: --fleet runs interactively at real or scaled time (not --headless, not --speed max)",
+              file=sys.stderr)
+        return 2
+    try:
+        cfgs = fleet_configs(cfg, args.fleet, route.length)
+    except config.ConfigError as exc:
+        print(f"ares run: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    supervisors = start_fleet(cfgs, clock, run_dir, stop)
+    try:
+        print(f"ARES fleet: {len(cfgs)} shuttles on '{route.name}' ({route.length:.0f} m), router "
+              f"{cfg['bus']['router']}.\n" + "".join(
+                  f"  {c['vehicle_id']:<10} {pages_url(c)}/operator   logs {run_dir / c['vehicle_id'] / 'logs'}\n"
+                  for c in cfgs) +
+              f"  fleet     {pages_url(cfgs[0])}/fleet  (any of the APIs serves the whole fleet)\n{first_logins(cfg)}"
+              "Ctrl-C stops everything.", flush=True)
+        views = [(c["vehicle_id"], sup.bus.subscribe("sim/truth"), sup.bus.subscribe("dbw/car_state"))
+                 for c, sup in zip(cfgs, supervisors)]
+        if not getattr(args, "manual", False):
+            for (vehicle_id, truth, car), sup in zip(views, supervisors):
+                _wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, f"the simulator of {vehicle_id}", stop)
+                engage_automatic(sup.bus, car, stop)
+            print("Automatic mode engaged on every shuttle.", flush=True)
+        while not stop.wait(2.0):
+            print("  ".join(f"{vid} s={t.latest.s:6.0f} m v={t.latest.v:4.2f}" for vid, t, _ in views
+                            if t.latest is not None), flush=True)
+        return 0
+    except RunFailed as exc:
+        print(f"ares run: {exc} (logs in {run_dir})", file=sys.stderr)
+        return 1
+    finally:
+        stop.set()
+        for sup in reversed(supervisors):       # the router's host last
+            sup.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def headless_or_max(args) -> bool:
+    return bool(getattr(args, "headless", False)) or getattr(args, "speed", 1.0) == "max"
+
+
+def first_logins(cfg: dict) -> str:
+    """The pages' logins, for the banner: made on a black box without users (blackbox/first_logins.py)."""
+    settings = config.section(cfg, "api", ApiSettings)
+    try:
+        store = open_configured_store(config.section(cfg, "blackbox_store", StoreSettings))
+    except Exception as exc:        # the store's own process will say more
+        return f"  logins    (the black box store cannot be opened: {exc})\n"
+    try:
+        made = ensure_first_logins(store, settings.auth, state_dir(settings, store))
+    finally:
+        store.close()
+    if made is None:
+        return "  logins    the black box's users (`ares users list`; `ares users add NAME --role operator`)\n"
+    users = "".join(f"            {line}\n" for line in made.read_text().splitlines() if not line.startswith("#"))
+    return f"  logins    first users made (also in {made}):\n{users}"
+
+
 def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path) -> int:
     truth = bus.subscribe("sim/truth")
     car_state = bus.subscribe("dbw/car_state")
@@ -406,6 +476,8 @@ def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir:
           f"({route.length:.0f} m), {pace}.\n"
           f"  router    {cfg['bus']['router']}\n"
           f"  api       {api_url(cfg)}  (black box REST API; store {cfg['blackbox_store']['uri']})\n"
+          f"  pages     {pages_url(cfg)}/operator  /blackbox  /fleet  (self-signed certificate: accept it once)\n"
+          f"{first_logins(cfg)}"
           f"  logs      {run_dir / 'logs'}\n"
           f"  look      ares topics | ares echo dbw/car_state | ares mission status\n"
           f"Ctrl-C stops everything.", flush=True)

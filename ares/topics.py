@@ -114,6 +114,8 @@ SERVICE_TABLE: list[Service] = [
     Service("mission/resume", m.MissionRequest, m.MissionReply, "go on from a pause"),
     Service("mission/cancel", m.MissionRequest, m.MissionReply, "end the goal (the doors closed and the ramp stowed "
                                                                "first)"),
+    Service("mission/body", m.BodyRequest, m.MissionReply, "an operator opens or closes the doors, deploys or stows "
+                                                          "the ramp (standing, no POI's actions running)"),
 ]
 
 TOPICS: dict[str, Topic] = {t.name: t for t in TOPIC_TABLE}

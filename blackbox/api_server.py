@@ -24,10 +24,14 @@ import signal
 import socket
 from typing import Mapping
 
+import numpy as np
+
 from ares import config
 from ares.messages import EventLevel
 from ares.node import AsyncNode
+from ares.route import RouteError, load_route
 from blackbox.api import PREFIX, ApiSettings, create_app, uvicorn_config
+from blackbox.live import GATEWAY_TOPICS, LiveHub
 from blackbox.recorder import open_configured_store, store_uri
 from blackbox.store import StoreSettings
 
@@ -47,6 +51,12 @@ def api_url(cfg: Mapping) -> str:
     return f"https://{host}:{settings.port}{PREFIX}"
 
 
+def pages_url(cfg: Mapping) -> str:
+    """The address of the web pages (the API's, without its prefix)."""
+    url = api_url(cfg)
+    return url[:-len(PREFIX)] if url.endswith(PREFIX) else url
+
+
 def bind(host: str, port: int) -> socket.socket:
     """The server's listening socket (uvicorn listens on it); OSError if the port is taken."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
@@ -60,18 +70,43 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
+def route_view(core: config.CoreConfig, spacing_m: float = 2.0) -> dict | None:
+    """The vehicle's route for the pages' maps, in its local frame: the centre line every
+    `spacing_m`, its POIs and zones, the origin (for latitude/longitude)."""
+    try:
+        route = load_route(core)
+    except RouteError:
+        return None
+    every = np.arange(0.0, route.length, spacing_m)
+    x, y = np.interp(every, route.s, route.x), np.interp(every, route.s, route.y)
+    pois = []
+    for poi in route.pois:
+        px, py = float(np.interp(poi.s, route.s, route.x)), float(np.interp(poi.s, route.s, route.y))
+        pois.append({"name": poi.name, "s": poi.s, "x": round(px, 2), "y": round(py, 2), "actions": list(poi.actions)})
+    return {"name": route.name, "closed": route.closed, "length_m": round(route.length, 1),
+            "x": [round(float(v), 2) for v in x], "y": [round(float(v), 2) for v in y], "pois": pois,
+            "zones": [{"kind": z.kind, "s_start": z.s_start, "s_end": z.s_end} for z in route.zones]}
+
+
 class ApiServer(AsyncNode):
     """The black box's REST API over HTTPS: records, events, reliability; users for admins."""
     name = "api"
     Params = ApiSettings
     sections = {"blackbox_store": StoreSettings}
-    # an operator's re-arm and mission commands (blackbox/api/routes/commands.py)
-    calls = ("movement/rearm", "mission/goal", "mission/pause", "mission/resume", "mission/cancel")
+    # an operator's re-arm, mission and body commands (blackbox/api/routes/commands.py)
+    calls = ("movement/rearm", "mission/goal", "mission/pause", "mission/resume", "mission/cancel", "mission/body")
+    # the live gateway's view of every vehicle on the router (blackbox/live.py), for the pages
+    fleet_inputs = tuple(GATEWAY_TOPICS)
 
     def setup(self) -> None:
         settings = self.shared["blackbox_store"]
         self.store = open_configured_store(settings)
-        self.app = create_app(self.store, self.params, self.core.vehicle_id, self.clock, call=self.bus.call)
+        real_time = getattr(self.clock, "speed", None) == 1.0
+        self.live = LiveHub(self.params.live, wall_of=(lambda t: self.clock.utc_epoch + t) if real_time else None)
+        for topic in self.fleet_inputs:
+            self.bus.subscribe_fleet(topic, self.live.put)
+        self.app = create_app(self.store, self.params, self.core.vehicle_id, self.clock, call=self.bus.call,
+                              live=self.live, route=route_view(self.core))
         self.server_cfg = uvicorn_config(self.app, self.params)
         self.server_cfg.timeout_graceful_shutdown = GRACEFUL_SHUTDOWN_S
         self.server = None

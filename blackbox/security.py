@@ -58,16 +58,24 @@ class BlacklistSettings(Params):
 
 class HeaderSettings(Params):
     content_security_policy: str = param("default-src 'none'; frame-ancestors 'none'", "Content-Security-Policy")
+    page_content_security_policy: str = param(
+        "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; connect-src 'self'; "
+        "font-src 'self'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'",
+        "Content-Security-Policy of the pages and their assets: their own scripts, styles and images only, no "
+        "inline script, nothing from elsewhere")
     hsts_max_age_s: int = param(31_536_000, "Strict-Transport-Security max-age", unit="s", ge=0)
 
 
-def security_headers(cfg: HeaderSettings) -> list[tuple[bytes, bytes]]:
+def security_headers(cfg: HeaderSettings, page: bool = False) -> list[tuple[bytes, bytes]]:
+    """Every response's headers; `page`: those of the web pages and their assets (a CSP that lets
+    them run their own scripts and call the API, and nothing else)."""
+    csp = cfg.page_content_security_policy if page else cfg.content_security_policy
     return [
         (b"strict-transport-security", f"max-age={cfg.hsts_max_age_s}; includeSubDomains".encode()),
         (b"x-content-type-options", b"nosniff"),
         (b"x-frame-options", b"DENY"),
         (b"referrer-policy", b"no-referrer"),
-        (b"content-security-policy", cfg.content_security_policy.encode()),
+        (b"content-security-policy", csp.encode()),
         (b"cache-control", b"no-store"),
     ]
 
@@ -213,10 +221,15 @@ class SecurityMiddleware:
     """Pure ASGI (no per-request task or body buffering): the guard, then the headers."""
 
     def __init__(self, app, guard: Guard, headers: list[tuple[bytes, bytes]], token_path: str,
-                 on_blacklist: Callable[[str, str, float], Awaitable[None]]):
+                 on_blacklist: Callable[[str, str, float], Awaitable[None]],
+                 page_headers: list[tuple[bytes, bytes]] | None = None, page_paths: tuple[str, ...] = (),
+                 page_prefixes: tuple[str, ...] = ()):
         self.app = app
         self.guard = guard
         self.headers = headers
+        self.page_headers = page_headers or headers
+        self.page_paths = page_paths            # the pages
+        self.page_prefixes = page_prefixes      # ... and their assets' folders
         self.token_path = token_path
         self.on_blacklist = on_blacklist
 
@@ -224,7 +237,9 @@ class SecurityMiddleware:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        extra = self.headers
+        path = scope["path"]
+        is_page = path in self.page_paths or path.startswith(self.page_prefixes)
+        extra = self.page_headers if is_page else self.headers
 
         async def send_with_headers(message):
             if message["type"] == "http.response.start":

@@ -8,6 +8,7 @@
 | feedback    | `mission/status`: state, POI, action, distance, expected arrival, limit          |
 | result      | `mission/status.result` and a `mission_result` event when a goal ends            |
 | control     | services `mission/pause`, `mission/resume`, `mission/cancel`                     |
+| body        | service `mission/body`: an operator's doors and ramp, standing, no POI running   |
 
 Each step the state machine (managers/mission_machine.py) gets the distance to the POI's stop
 point along the route, the speed and the body's sensors, and gives the body's demands
@@ -25,7 +26,7 @@ import math
 from typing import Literal
 
 from ares.config import param
-from ares.messages import (BodyCommand, BodyState, CarState, EventLevel, MissionGoal, MissionReply, MissionRequest,
+from ares.messages import (BodyCommand, BodyRequest, BodyState, CarState, EventLevel, MissionGoal, MissionReply, MissionRequest,
                            MissionStatus, PathMatch, PoiProgress, SpeedLimits)
 from ares.node import Input, Node, Output, service
 from ares.route import load_route
@@ -169,6 +170,32 @@ class MissionManager(Node):
         if body is None:
             return self._reply(False, "refused: the doors' state is not known", request.operator)
         return self._reply(*self.mission.cancel(body), request.operator)
+
+    @service("mission/body")
+    def _body_request(self, request: BodyRequest) -> MissionReply:
+        """The operator's doors and ramp: only with the shuttle standing and no POI's actions running
+        (the mission would undo it), and by the body's own interlocks (a ramp under open doors,
+        doors closed over a stowed ramp and an empty entrance)."""
+        now = self.clock.now()
+        body, car = self._body(now), self.car.fresh(now)
+        refusal = None
+        if request.doors is None and request.ramp is None:
+            refusal = "refused: nothing asked of the doors or the ramp"
+        elif body is None or car is None:
+            refusal = "refused: the body's or the speed's state is not known"
+        elif abs(car.speed_mps) > self.params.stopped_mps:
+            refusal = "refused: the shuttle is moving"
+        elif self.mission.state in (MissionState.DRIVING, MissionState.AT_POI):
+            refusal = f"refused: the mission is {self.mission.state.value} (pause it first)"
+        elif request.ramp == "deploy" and body.doors != "open":
+            refusal = "refused: the ramp deploys only under open doors"
+        elif request.doors == "close" and (body.ramp != "stowed" or not body.entrance_clear):
+            refusal = "refused: the doors close only over a stowed ramp and an empty entrance"
+        if refusal is not None:
+            return self._reply(False, refusal, request.operator)
+        self.body_command.put(BodyCommand(t=now, doors=request.doors, ramp=request.ramp))
+        asked = " and ".join(f"{what} {how}" for what, how in (("doors", request.doors), ("ramp", request.ramp)) if how)
+        return self._reply(True, f"{asked}: asked of the body", request.operator)
 
     def _reply(self, accepted: bool, reason: str, operator: str = "") -> MissionReply:
         if operator:

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Set up this checkout: system libraries, .venv (Python >= 3.11), `pip install -e '.[test]'`.
+# Set up this checkout: system libraries, .venv (Python >= 3.11), `pip install -e '.[test]'`, the
+# pages' JavaScript libraries (npm ci in blackbox/web).
 # Idempotent and fast when already done: pip runs only when pyproject.toml changed since the
 # last install (its hash is kept in .venv/.ares-install-stamp). Progress goes to stderr.
 set -euo pipefail
@@ -7,7 +8,9 @@ set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
 STAMP="$VENV/.ares-install-stamp"
-SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libgomp1 wrk)   # open3d needs libusb and libGL; numpy/open3d libgomp; wrk: API bench load
+# open3d needs libusb and libGL; numpy/open3d libgomp; wrk: API bench load; chromium: the page tests'
+# browser (Playwright drives Debian's Chromium); npm: the pages' libraries
+SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libgomp1 wrk chromium npm)
 
 say() { echo "[setup] $*" >&2; }
 
@@ -71,4 +74,18 @@ else
   "$VENV/bin/python" -m pip install --disable-pip-version-check -q -e "$ROOT[test]"
   echo "$want" > "$STAMP"
   say "package: installed"
+fi
+
+# ---- 4. the pages' libraries (Leaflet, uPlot) from the npm registry -------------------------
+WEB="$ROOT/blackbox/web"
+web_want="$(sha256sum "$WEB/package-lock.json" | cut -d' ' -f1)"
+web_have="$(cat "$WEB/node_modules/.ares-install-stamp" 2>/dev/null || true)"
+if [ "$web_want" = "$web_have" ]; then
+  say "page libraries: up to date"
+elif command -v npm >/dev/null 2>&1; then
+  say "page libraries: npm ci (blackbox/web)"
+  (cd "$WEB" && npm ci --no-audit --no-fund --loglevel=error >&2)
+  echo "$web_want" > "$WEB/node_modules/.ares-install-stamp"
+else
+  say "WARNING: npm is missing: the web pages will have no map or plots (apt-get install npm)"
 fi

@@ -501,12 +501,13 @@ def test_nothing_alters_records(world):
             assert client.request(method, path, headers=h).status_code == 405, (method, path)
     schema = client.get("/openapi.json").json()
     writes = {(p, m) for p, ops in schema["paths"].items() for m in ops if m in ("put", "delete", "patch", "post")}
-    # besides logging in and adding users, the operator's commands: a re-arm and the mission's goal,
-    # pause, resume, cancel, which the managers decide and which alter no record (each adds the
-    # event that says who asked)
+    # besides logging in and adding users, the operator's commands: a re-arm, the mission's goal,
+    # pause, resume, cancel, the doors and the ramp, which the managers decide and which alter no
+    # record (each adds the event that says who asked)
     assert writes == {("/api/v1/auth/token", "post"), ("/api/v1/auth/renew", "post"), ("/api/v1/users", "post"),
                       ("/api/v1/vehicles/{vehicle_id}/rearm", "post"), ("/api/v1/vehicles/{vehicle_id}/mission", "post"),
-                      ("/api/v1/vehicles/{vehicle_id}/mission/{action}", "post")}
+                      ("/api/v1/vehicles/{vehicle_id}/mission/{action}", "post"),
+                      ("/api/v1/vehicles/{vehicle_id}/body", "post")}
 
 
 def test_other_methods_get_405_and_allow(world):

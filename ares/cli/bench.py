@@ -1,4 +1,4 @@
-"""`ares bench bus|path|blackbox|supervisor|perception|mpc|obstacle-zone`: the benchmarks."""
+"""`ares bench bus|path|blackbox|supervisor|perception|mpc|obstacle-zone|live`: the benchmarks."""
 from __future__ import annotations
 
 import argparse
@@ -64,6 +64,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     blackbox.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
     blackbox.add_argument("--seconds", type=positive_float, default=10.0, metavar="S",
                           help="duration of the API load (default 10)")
+    live = bench_sub.add_parser(
+        "live", help="how far the operator page lags the bus, with N browsers connected (the whole stack)",
+        description="The whole stack at real time and N headless Chromium pages on /operator: each frame's lag from "
+                    "the moment its vehicle state was published on the bus to the page having drawn it.")
+    live.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    live.add_argument("--browsers", type=positive_int, default=3, metavar="N", help="pages connected (default 3)")
+    live.add_argument("--seconds", type=positive_float, default=30.0, metavar="S", help="measured (default 30)")
+    live.add_argument("--config", action="append", metavar="FILE", help="configuration overrides, as for ares run")
     return {"bench": cmd_bench}
 
 
@@ -93,6 +101,13 @@ def _run(args: argparse.Namespace, progress):
     if args.bench == "obstacle-zone":
         from ares.bench.obstacle_zone import run_obstacle_zone_bench
         return run_obstacle_zone_bench(args.step, args.speed, progress=progress), _key_per_line
+    if args.bench == "live":
+        from ares.bench.live import run_live_bench
+        try:
+            return run_live_bench(args.browsers, args.seconds, config_files=tuple(args.config or ()),
+                                  progress=progress), _key_per_line
+        except BenchError as exc:
+            raise CliError(f"live bench failed: {exc}") from None
     if args.bench == "path":
         from ares.bench.path import format_path_result, run_path_bench
         return run_path_bench(progress=progress), format_path_result
@@ -104,9 +119,10 @@ def _run(args: argparse.Namespace, progress):
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    if args.bench not in ("bus", "path", "blackbox", "supervisor", "perception", "mpc", "obstacle-zone"):
+    if args.bench not in ("bus", "path", "blackbox", "supervisor", "perception", "mpc", "obstacle-zone", "live"):
         raise CliError("which benchmark? try `ares bench bus`, `ares bench path`, `ares bench supervisor`, "
-                       "`ares bench perception`, `ares bench mpc`, `ares bench obstacle-zone` or `ares bench blackbox`")
+                       "`ares bench perception`, `ares bench mpc`, `ares bench obstacle-zone`, `ares bench blackbox` or "
+                       "`ares bench live`")
     progress = lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     result, for_people = _run(args, progress)
     if args.json:

@@ -47,6 +47,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     run.add_argument("--store", metavar="URI",
                      help="black box store for the recorder and the API: a mongodb:// URI or the embedded "
                           "store's file (default: blackbox_store.uri, else data/blackbox.sqlite)")
+    run.add_argument("--fleet", type=positive_int, metavar="N",
+                     help="N simulated shuttles on one router (ids shuttle01, shuttle02, ...; APIs on consecutive "
+                          "ports), for the fleet page; interactive only")
     run.add_argument("--seconds", type=positive_float, metavar="S",
                      help="headless: drive for S seconds of vehicle time (the tour repeats as needed) instead of --laps")
 

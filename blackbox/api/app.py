@@ -15,9 +15,10 @@ from ares.clock import Clock
 from blackbox.api.dependencies import Services
 from blackbox.api.models import STORE_RETRY_AFTER_S
 from blackbox.api.repository import Repository
-from blackbox.api.routes import auth, commands, events, health, records, users, vehicles
+from blackbox.api.routes import auth, commands, events, health, live as live_routes, pages, records, users, vehicles
 from blackbox.api.settings import PREFIX, TOKEN_PATH, ApiSettings, state_dir
 from blackbox.auth import Passwords, Tokens, load_secret
+from blackbox.live import LiveHub
 from blackbox.security import Guard, SecurityMiddleware, security_headers
 from blackbox.store import RecordStore, StoreUnavailable
 
@@ -25,15 +26,18 @@ log = logging.getLogger(__name__)
 
 
 def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock: Clock | None = None,
-               call: Callable[[str, Any], Any] | None = None) -> FastAPI:
+               call: Callable[[str, Any], Any] | None = None, live: LiveHub | None = None,
+               route: dict | None = None) -> FastAPI:
     """The API over `store`, serving the black box of `vehicle_id` (whose events the API's own events
     are; stack time from `clock`); `call`: the stack's services on its bus (blocking; the command
-    routes run it in a thread). Holds no global state: tests build as many as they like."""
+    routes run it in a thread); `live`: the bus state for the pages; `route`: the vehicle's route
+    for their maps. Holds no global state: tests build as many as they like."""
     sdir = state_dir(settings, store)
     services = Services(
         repository=Repository(store, settings.limits, vehicle_id, (clock or Clock.from_env()).now),
         tokens=Tokens(settings.auth, load_secret(settings.auth, sdir)), passwords=Passwords(settings.auth.argon2),
-        guard=Guard(settings.rate_limit, settings.blacklist), settings=settings, vehicle_id=vehicle_id, call=call)
+        guard=Guard(settings.rate_limit, settings.blacklist), settings=settings, vehicle_id=vehicle_id, call=call,
+        live=live, route=route)
 
     app = FastAPI(
         title="ARES black box API",
@@ -59,6 +63,8 @@ def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock
     # added last: outermost, so refusals and CORS answers carry the security headers too;
     # the blacklisting is stored off the event loop
     app.add_middleware(SecurityMiddleware, guard=services.guard, headers=security_headers(settings.headers),
+                       page_headers=security_headers(settings.headers, page=True), page_paths=pages.PAGE_PATHS,
+                       page_prefixes=pages.PAGE_PREFIXES,
                        token_path=TOKEN_PATH,
                        on_blacklist=partial(run_in_threadpool, services.repository.record_blacklisting))
 
@@ -66,13 +72,14 @@ def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock
     app.add_exception_handler(RequestValidationError, invalid)
 
     methods: dict[str, set[str]] = {}       # path -> its methods
-    for routes in (health, auth, vehicles, records, events, users, commands):
+    for routes in (health, auth, vehicles, records, events, users, commands, live_routes):
         router = routes.build_router(services)
         app.include_router(router, prefix=PREFIX)
         for route in router.routes:
             if isinstance(route, APIRoute):
                 methods.setdefault(PREFIX + route.path, set()).update(route.methods)
     answer_other_methods(app, methods)
+    pages.mount(app)
     return app
 
 

@@ -13,6 +13,7 @@ from ares.config import VEHICLE_ID_PATTERN      # what a stack's vehicle id may 
 from blackbox.api.repository import Repository
 from blackbox.api.settings import TOKEN_PATH, ApiSettings, LimitSettings
 from blackbox.auth import AuthError, Claims, Passwords, Tokens
+from blackbox.live import LiveHub
 from blackbox.security import Guard
 
 # who may call what (the roles of ARES §3.9's three GUIs, plus user administration)
@@ -40,6 +41,8 @@ class Services:
     # the stack's services on its bus: (name, request) -> reply; None outside a stack (tests of the
     # records alone, `ares api serve` over a store): the command routes then answer 503
     call: Callable[[str, Any], Any] | None = None
+    live: LiveHub | None = None         # the live gateway (None outside a stack: its routes answer 503)
+    route: dict | None = None           # the vehicle's route for the maps (None outside a stack)
 
 
 # ---- authentication ------------------------------------------------------------------------------

@@ -8,6 +8,7 @@ from pydantic import model_validator
 
 from ares.config import Params, param
 from blackbox.auth import AuthSettings
+from blackbox.live import LiveSettings
 from blackbox.security import BlacklistSettings, HeaderSettings, RateLimitSettings
 from blackbox.tls import TlsSettings
 
@@ -54,6 +55,7 @@ class ApiSettings(Params):
     rate_limit: RateLimitSettings = param(doc="per-client rate limits", factory=RateLimitSettings)
     blacklist: BlacklistSettings = param(doc="abnormal flows", factory=BlacklistSettings)
     headers: HeaderSettings = param(doc="security headers", factory=HeaderSettings)
+    live: LiveSettings = param(doc="the live gateway the pages read (server-sent events)", factory=LiveSettings)
 
     @model_validator(mode="after")
     def _within_the_rate_limit_is_never_abnormal(self) -> "ApiSettings":

@@ -6,6 +6,7 @@ the vehicle's bus, which decides and records the event with that name:
 | POST /vehicles/{id}/rearm                  | movement/rearm                 |
 | POST /vehicles/{id}/mission                | mission/goal (POIs, a drive)   |
 | POST /vehicles/{id}/mission/{action}       | mission/pause, resume, cancel  |
+| POST /vehicles/{id}/body                   | mission/body (doors, ramp)     |
 
 The only way a person outside the vehicle reaches its services, and only with an operator's
 token (ARES §3.8: nothing outside may drive the vehicle: a goal, a pause, a re-arm are requests
@@ -19,7 +20,7 @@ from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
 from ares.bus import ServiceError
-from ares.messages import MissionGoal, MissionRequest, Msg, RearmRequest
+from ares.messages import BodyRequest, MissionGoal, MissionRequest, Msg, RearmRequest
 from blackbox.api.dependencies import ROLES_COMMAND, Services, allow, vehicle_id_path
 from blackbox.api.models import error_responses, json_response
 from blackbox.auth import Claims
@@ -38,6 +39,12 @@ class GoalBody(BaseModel):
     pois: list[str] | None = None
     drive: bool = False
     repeat: bool = False
+
+
+class BodyBody(BaseModel):
+    """The doors and the ramp: open or close, deploy or stow (null: leave as it is)."""
+    doors: Literal["open", "close"] | None = None
+    ramp: Literal["deploy", "stow"] | None = None
 
 
 def build_router(services: Services) -> APIRouter:
@@ -80,5 +87,13 @@ def build_router(services: Services) -> APIRouter:
                              claims: Operator) -> Response:
         return await forward(vehicle_id, f"mission/{action}", MissionRequest(operator=claims.name), claims.name,
                              "mission manager")
+
+    @router.post("/vehicles/{vehicle_id}/body", response_model=CommandReply,
+                 responses=error_responses(401, 404, 409, 422, 503))
+    async def body(vehicle_id: VehicleId, asked: BodyBody, claims: Operator) -> Response:
+        if asked.doors is None and asked.ramp is None:
+            raise HTTPException(422, "ask something of the doors or the ramp")
+        request = BodyRequest(operator=claims.name, doors=asked.doors, ramp=asked.ramp)
+        return await forward(vehicle_id, "mission/body", request, claims.name, "mission manager")
 
     return router

@@ -1,0 +1,57 @@
+"""`ares run --fleet N`: N simulated shuttles on one router, for the fleet page.
+
+Each shuttle is a whole stack of its own (its supervisor, simulator and every process, its REST
+API on its own port) under its own vehicle id; they share the router the first one hosts, the
+clock and the black box store (the fleet's records side by side, as a depot's store would hold
+them). They start at different places of the route (past a POI, clear of the RTK-loss zones and
+crossings) so the map shows them apart. Interactive only, at real time or scaled (`--speed max`
+has each simulator drive the clock: one clock cannot have N drivers).
+"""
+from __future__ import annotations
+
+import re
+import threading
+from pathlib import Path
+
+from ares import config, processes
+from ares.clock import Clock
+from ares.supervisor import Supervisor
+
+# where along the default tour each shuttle starts (m): the depot, then past POIs, clear of zones
+START_S_M = (0.0, 340.0, 710.0, 1460.0, 800.0, 1000.0, 400.0, 250.0)
+MAX_FLEET = len(START_S_M)
+
+
+def fleet_ids(first: str, n: int) -> list[str]:
+    """shuttle01 -> shuttle01, shuttle02, ...; another id gets -2, -3 ..."""
+    m = re.fullmatch(r"(.*?)(\d+)", first)
+    if m:
+        stem, digits = m[1], m[2]
+        return [f"{stem}{int(digits) + i:0{len(digits)}d}" for i in range(n)]
+    return [first] + [f"{first}-{i + 1}" for i in range(1, n)]
+
+
+def fleet_configs(cfg: dict, n: int, route_length_m: float) -> list[dict]:
+    """The first vehicle's configuration made into n: ids, API ports, starts, the shared router."""
+    if not 1 <= n <= MAX_FLEET:
+        raise config.ConfigError(f"--fleet takes 1 to {MAX_FLEET} shuttles")
+    out = []
+    for i, vehicle_id in enumerate(fleet_ids(cfg["vehicle_id"], n)):
+        one = config.deep_merge(cfg, {"vehicle_id": vehicle_id,
+                                      "sim": {"start_s_m": START_S_M[i] % max(route_length_m, 1.0)},
+                                      "api": {"port": int(cfg["api"]["port"]) + i}})
+        if i > 0:       # the first hosts the router (or all join the external one)
+            one["bus"] = {**one["bus"], "embedded_router": False}
+        out.append(one)
+    return out
+
+
+def start_fleet(cfgs: list[dict], clock: Clock, run_dir: Path, stop: threading.Event) -> list[Supervisor]:
+    """Start every shuttle's supervisor (the router's host first) and its loop thread."""
+    supervisors = []
+    for cfg in cfgs:
+        sup = Supervisor(cfg, processes.for_run(cfg["simulate"], cfg["lidars"]), run_dir / cfg["vehicle_id"], clock)
+        sup.start()
+        threading.Thread(target=sup.run, args=(stop,), name=f"supervisor-{cfg['vehicle_id']}", daemon=True).start()
+        supervisors.append(sup)
+    return supervisors

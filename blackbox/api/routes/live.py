@@ -1,0 +1,96 @@
+"""The live gateway: the bus state the pages need, streamed as Server-Sent Events under the same
+tokens and roles as the rest of the API.
+
+| route                              | roles                      | what                                  |
+|------------------------------------|----------------------------|---------------------------------------|
+| GET /live/vehicles/{id}            | operator, auditor          | one vehicle, all the operator sees    |
+| GET /live/fleet                    | fleet, operator, auditor   | every vehicle on the router, light    |
+| GET /route                         | fleet, operator, auditor   | this API's vehicle, its route, POIs   |
+
+A stream sends `event: frame` (JSON) at `hz` (at most the gateway's rate_hz) and `event: events`
+with the events that arrived since the last frame (the recent ones first). It ends when the
+token expires: the page renews its token and opens a new stream. Each user has a few streams
+at most (429 beyond); the frames are built from what the bus left in memory, so a slow browser
+only slows its own stream. Outside a stack (`ares api`) the gateway answers 503.
+"""
+import asyncio
+import time
+from typing import Annotated
+
+import orjson
+from fastapi import APIRouter, Depends, HTTPException, Query, Request
+from fastapi.responses import StreamingResponse
+
+from blackbox.api.dependencies import ROLES_LIVE, ROLES_RECORDS, Services, allow, vehicle_id_path
+from blackbox.api.models import error_responses, json_response
+from blackbox.auth import Claims
+from blackbox.live import LiveHub
+
+SSE_HEADERS = {"X-Accel-Buffering": "no", "Cache-Control": "no-store"}
+
+
+def build_router(services: Services) -> APIRouter:
+    VehicleId = vehicle_id_path(services.vehicle_id)
+    Viewer = Annotated[Claims, Depends(allow(services.tokens, *ROLES_RECORDS))]
+    Watcher = Annotated[Claims, Depends(allow(services.tokens, *ROLES_LIVE))]
+    live = services.live
+    rate = live.s.rate_hz if live is not None else 5.0
+    Hz = Annotated[float, Query(gt=0, le=rate, description=f"frames per second (at most {rate:g})")]
+    router = APIRouter(tags=["live"])
+
+    def hub() -> LiveHub:
+        if live is None:
+            raise HTTPException(503, "this API serves records only: it is not on a vehicle's bus")
+        return live
+
+    def stream(request: Request, claims: Claims, hz: float, build) -> StreamingResponse:
+        gateway = hub()
+        refused = gateway.open_stream(claims.name)
+        if refused is not None:
+            raise HTTPException(429, f"too many live streams: {refused}", headers={"Retry-After": "5"})
+
+        async def frames():
+            try:
+                seq = max(gateway.event_seq - 50, 0)        # a new page sees the recent events
+                period = 1.0 / hz
+                while time.time() < claims.expires and not await request.is_disconnected():
+                    started = time.monotonic()
+                    frame, events = build(seq)
+                    if events:
+                        seq = events[-1]["seq"]
+                        yield b"event: events\ndata: " + orjson.dumps(events) + b"\n\n"
+                    yield b"event: frame\ndata: " + orjson.dumps(frame) + b"\n\n"
+                    await asyncio.sleep(max(period - (time.monotonic() - started), 0.0))
+                yield b"event: expired\ndata: {}\n\n"
+            finally:
+                gateway.close_stream(claims.name)
+
+        return StreamingResponse(frames(), media_type="text/event-stream", headers=SSE_HEADERS)
+
+    @router.get("/live/vehicles/{vehicle_id}", responses=error_responses(401, 403, 404, 422, 429, 503),
+                response_class=StreamingResponse)
+    async def vehicle_stream(request: Request, vehicle_id: VehicleId, claims: Viewer, hz: Hz = rate):
+        gateway = hub()
+        if gateway.frame(vehicle_id) is None and vehicle_id != services.vehicle_id:
+            raise HTTPException(404, f"vehicle {vehicle_id!r} is not on this router")
+
+        def build(seq):
+            frame = gateway.frame(vehicle_id) or {"vehicle_id": vehicle_id, "wall_ms": time.time() * 1e3}
+            return frame, gateway.events_since(seq, vehicle_id)
+        return stream(request, claims, hz, build)
+
+    @router.get("/live/fleet", responses=error_responses(401, 403, 422, 429, 503), response_class=StreamingResponse)
+    async def fleet_stream(request: Request, claims: Watcher, hz: Hz = min(rate, 2.0)):
+        gateway = hub()
+
+        def build(seq):
+            return {"vehicles": gateway.fleet_frame(), "wall_ms": time.time() * 1e3}, gateway.events_since(seq)
+        return stream(request, claims, hz, build)
+
+    @router.get("/route", responses=error_responses(401, 403, 503))
+    async def route(_claims: Watcher):
+        if services.route is None:
+            raise HTTPException(503, "this API does not know the vehicle's route: it is not in a stack")
+        return json_response({"vehicle_id": services.vehicle_id, **services.route})
+
+    return router

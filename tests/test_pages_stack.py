@@ -1,0 +1,230 @@
+"""The web pages in a real browser (Playwright driving Debian's Chromium) against the whole stack
+at real time: real processes, the Zenoh router, the API over HTTPS with its live gateway.
+
+One stack, one browser, the three roles in turn (a run of the stack costs ~20 s to start):
+- the operator logs in, sees live values change; an auditor is refused the operator's page;
+- Pause on the page: the simulated shuttle is standing within 2 s of the click, the page says the
+  vehicle confirmed it, the black box holds the event with the operator's name; Resume drives on;
+- a LiDAR covered: the emergency stop latches (the page shows it); uncovered, Re-arm on the page
+  (refused while level 1 lasts, pressed again) clears it and the shuttle moves;
+- the auditor's black box page shows a window; its JSON-lines export holds exactly the records
+  the REST API returns for that window;
+- the fleet page lists the vehicle live.
+Screenshots of each page go to artifacts/pages/ (kept by CI as the test's artifacts).
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from urllib.parse import parse_qs, urlparse
+
+import httpx
+import pytest
+
+from ares.bench.live import BrowserCalmer, calm_browsers, niced_chromium
+from ares.bus import Bus
+from ares.clock import WallClock
+from ares.messages import LidarFault
+from blackbox.auth import Argon2Settings, Passwords, add_user
+from blackbox.sqlite_store import SqliteStore
+from tests.conftest import LIGHT_LIDARS, REPO, free_port, make_run_config, stop_process
+
+pytestmark = pytest.mark.stack
+
+ARTIFACTS = REPO / "artifacts" / "pages"
+PASSWORD = "a page test password"
+FAST_ARGON2 = {"time_cost": 1, "memory_kib": 64, "parallelism": 1}
+VEHICLE = "shuttle01"
+
+
+def wait_for(condition, timeout_s: float, what: str, step_s: float = 0.1):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(step_s)
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory, browser):
+    """`ares run` as a newcomer starts it (interactive: it engages Automatic itself), on free
+    ports, with the LiDARs (light) and a store holding one user per role; started after the
+    browser. The test watches the bus from a session of its own.
+
+    At `--speed max`: the simulator drives the clock and waits for every process it feeds, so a
+    browser sharing the two cores slows the run rather than starving the LiDAR simulation into a
+    rate fault (at real time the stack alone keeps both cores busy; on the vehicle the browsers
+    are tablets). Vehicle time is stack time: "stopped within 2 s" is 2 s of it."""
+    tmp = tmp_path_factory.mktemp("pages")
+    store_path = tmp / "bb.sqlite"
+    store = SqliteStore(str(store_path))
+    passwords = Passwords(Argon2Settings(**FAST_ARGON2))
+    for role in ("operator", "auditor", "fleet"):
+        add_user(store, passwords, f"{role}1", role, PASSWORD, 10)
+    store.close()
+    (tmp / "pages.yaml").write_text("api:\n  rate_limit:\n    token_burst: 30\n")    # the tests log in often
+    port, router = free_port(), f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ares.cli", "run", "--speed", "max", "--config", str(LIGHT_LIDARS), "--config", str(tmp / "pages.yaml"),
+         "--listen", router, "--api-port", str(port), "--store", str(store_path), "--run-dir", str(tmp / "run")],
+        cwd=REPO, stdout=open(tmp / "stdout.log", "w"), stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+        start_new_session=True)
+    bus = Bus(make_run_config(free_port(), {"bus": {"router": router, "embedded_router": False}}), "pages_test",
+              WallClock())
+    try:
+        truth = bus.subscribe("sim/truth")
+        wait_for(lambda: truth.latest is not None and truth.latest.v > 1.5 or proc.poll() is not None, 90,
+                 "the shuttle to drive")
+        assert proc.poll() is None, (tmp / "stdout.log").read_text()[-3000:]
+        yield {"bus": bus, "truth": truth, "url": f"https://127.0.0.1:{port}", "store": store_path}
+    finally:
+        bus.close()
+        stop_process(proc, timeout_s=10, group=True)
+
+
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory):
+    from playwright.sync_api import sync_playwright
+    with sync_playwright() as p, BrowserCalmer():
+        # niced: on the vehicle the pages' browsers are tablets, not a load on its computer
+        chromium = niced_chromium(tmp_path_factory.mktemp("browser"))
+        b = p.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox"])
+        calm_browsers()
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser, stack, request):
+    context = browser.new_context(ignore_https_errors=True, viewport={"width": 1024, "height": 900},
+                                  accept_downloads=True)
+    pg = context.new_page()
+    calm_browsers()                                 # its renderer
+    pg.set_default_timeout(20_000)
+    problems: list[str] = []
+    # a refused command (409) is part of a flow; any other failed load or script error is a problem
+    pg.on("console", lambda m: problems.append(m.text) if m.type == "error" and "409" not in m.text else None)
+    pg.on("pageerror", lambda e: problems.append(str(e)))
+    pg.problems = problems
+    yield pg
+    shot(pg, f"last_{request.node.name}")        # where the test ended (a failure's picture)
+    print("browser console errors:", problems)
+    context.close()
+
+
+def login(pg, url: str, user: str) -> None:
+    pg.goto(url)
+    pg.fill("input[name=username]", user)
+    pg.fill("input[name=password]", PASSWORD)
+    pg.click("button[type=submit]")
+
+
+def shot(pg, name: str) -> None:
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    pg.screenshot(path=str(ARTIFACTS / f"{name}.png"), full_page=True)
+
+
+def field(pg, name: str) -> str:
+    return pg.locator(f"[data-field='{name}']").first.get_attribute("data-value") or ""
+
+
+def rest(stack, user: str) -> httpx.Client:
+    client = httpx.Client(base_url=stack["url"] + "/api/v1", verify=False, timeout=10)
+    r = client.post("/auth/token", data={"username": user, "password": PASSWORD})
+    assert r.status_code == 200, r.text
+    client.headers["Authorization"] = "Bearer " + r.json()["access_token"]
+    return client
+
+
+def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covered_lidar(page, stack):
+    pg, truth, bus = page, stack["truth"], stack["bus"]
+    login(pg, stack["url"] + "/operator", "auditor1")             # the wrong role first: refused
+    pg.wait_for_selector("#refused:not([hidden])")
+    assert "operator role" in pg.inner_text("#refused")
+    shot(pg, "operator_refused_to_an_auditor")
+    pg.click("#logout")
+    login(pg, stack["url"] + "/operator", "operator1")
+    pg.wait_for_selector("#app:not([hidden])")
+    # live values change from frame to frame
+    wait_for(lambda: field(pg, "speed_mps") not in ("", "0"), 15, "a speed on the page")
+    first = (field(pg, "speed_mps"), field(pg, "steering_wheel_deg"))
+    wait_for(lambda: (field(pg, "speed_mps"), field(pg, "steering_wheel_deg")) != first, 10, "live values to change")
+    assert field(pg, "mode") == "AUTOMATIC" and field(pg, "controller")
+    wait_for(lambda: pg.locator("#events li").count() > 0, 10, "events on the page")
+    lag = pg.evaluate("window.aresLag.slice(-20)")
+    assert lag and max(lag) < 2000, lag                            # (measured properly: ares bench live)
+
+    # Pause: standing within 2 s, confirmed by the vehicle, recorded with the operator's name
+    wait_for(lambda: truth.latest.v > 1.0, 30, "the shuttle at speed before the pause")
+    clicked = truth.latest.t
+    pg.click("[data-command=pause]")
+    wait_for(lambda: truth.latest.v < 0.05, 10, "the shuttle to stop", step_s=0.01)
+    stopped_after = truth.latest.t - clicked
+    assert stopped_after <= 2.0, f"stopped {stopped_after:.2f} s (vehicle time) after the click"
+    wait_for(lambda: pg.get_attribute("#command-status", "data-state") == "confirmed", 10, "the pause confirmed")
+    shot(pg, "operator_paused")
+    auditor = rest(stack, "auditor1")
+    events = wait_for(lambda: [e for e in auditor.get(f"/vehicles/{VEHICLE}/events",
+                                                      params={"kinds": "mission_command"}).json()["events"]
+                               if e["data"].get("operator") == "operator1"], 10, "the pause in the black box")
+    assert any("paused" in e["message"] for e in events)
+    pg.click("[data-command=resume]")
+    wait_for(lambda: truth.latest.v > 0.5, 20, "the shuttle to drive on after the resume")
+
+    # a covered LiDAR: the emergency stop latches; uncovered, the operator re-arms from the page
+    bus.call("sim/lidar_fault", LidarFault(sensor="roof", blocked=True))
+    wait_for(lambda: field(pg, "movement.latched") == "true", 10, "the latched emergency stop on the page")
+    wait_for(lambda: truth.latest.v < 0.05, 10, "the emergency stop")
+    bus.call("sim/lidar_fault", LidarFault(sensor="roof", blocked=False))
+    shot(pg, "operator_emergency_stop")
+
+    def rearmed() -> bool:
+        pg.click("[data-command=rearm]")            # refused while level 1 lasts: pressed again
+        return bool(wait_for(lambda: pg.get_attribute("#command-status", "data-state") in ("confirmed", "refused"),
+                             5, "an answer")) and pg.get_attribute("#command-status", "data-state") == "confirmed"
+    wait_for(rearmed, 30, "the re-arm confirmed", step_s=1.0)
+    assert field(pg, "movement.latched") == "false"
+    wait_for(lambda: truth.latest.v > 0.5, 30, "the shuttle moving after the re-arm")
+    shot(pg, "operator")
+    assert not [p for p in pg.problems if "favicon" not in p], pg.problems
+
+
+def test_the_auditor_exports_the_window_the_rest_api_returns(page, stack):
+    pg = page
+    login(pg, stack["url"] + "/blackbox", "auditor1")
+    pg.wait_for_selector("#app:not([hidden])")
+    wait_for(lambda: pg.get_attribute("#query-status", "data-state") == "confirmed", 20, "the records shown")
+    shown = int(pg.get_attribute("#query-status", "data-count"))
+    assert shown > 10 and pg.locator("#records tr").count() == shown + 1      # a header and a row per record
+    assert pg.locator("#plots .uplot").count() >= 4                          # speed, steering, scores, ...
+    shot(pg, "blackbox")
+    with pg.expect_download() as download, pg.expect_request(lambda r: "/export?" in r.url) as request:
+        pg.click("#export-jsonl")
+    lines = Path(download.value.path()).read_text().splitlines()
+    query = parse_qs(urlparse(request.value.url).query)
+    rest_page = rest(stack, "auditor1").get(f"/vehicles/{VEHICLE}/records", params={
+        "start": query["start"][0], "end": query["end"][0], "page_size": 1000}).json()
+    exported = [json.loads(line) for line in lines]
+    assert [r["time"] for r in exported] == [r["time"] for r in rest_page["records"]]
+    assert exported == rest_page["records"]
+    assert len(exported) == rest_page["total"] >= shown
+    assert not [p for p in pg.problems if "favicon" not in p], pg.problems
+
+
+def test_the_fleet_page_shows_the_vehicle_and_refuses_an_operator(page, stack):
+    pg = page
+    login(pg, stack["url"] + "/fleet", "operator1")
+    pg.wait_for_selector("#refused:not([hidden])")
+    pg.click("#logout")
+    login(pg, stack["url"] + "/fleet", "fleet1")
+    pg.wait_for_selector(f"#vehicles tr[data-vehicle='{VEHICLE}']")
+    wait_for(lambda: pg.locator("#events li").count() > 0, 10, "the fleet's events")
+    assert pg.locator("#map canvas").count() >= 1                             # the route and POIs drawn
+    wait_for(lambda: pg.locator(f".leaflet-tooltip:has-text('{VEHICLE}')").count() == 1, 10, "the vehicle on the map")
+    shot(pg, "fleet")
+    assert not [p for p in pg.problems if "favicon" not in p], pg.problems
