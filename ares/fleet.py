@@ -11,15 +11,18 @@ from __future__ import annotations
 
 import re
 import threading
+import time
 from pathlib import Path
 
 from ares import config, processes
 from ares.clock import Clock
+from ares.messages import ProcessState
 from ares.supervisor import Supervisor
 
 # where along the default tour each shuttle starts (m): the depot, then past POIs, clear of zones
 START_S_M = (0.0, 340.0, 710.0, 1460.0, 800.0, 1000.0, 400.0, 250.0)
 MAX_FLEET = len(START_S_M)
+STARTUP_WAIT_S = 40.0        # wall seconds for one shuttle's processes to come up before the next starts
 
 
 def fleet_ids(first: str, n: int) -> list[str]:
@@ -46,12 +49,22 @@ def fleet_configs(cfg: dict, n: int, route_length_m: float) -> list[dict]:
     return out
 
 
-def start_fleet(cfgs: list[dict], clock: Clock, run_dir: Path, stop: threading.Event) -> list[Supervisor]:
-    """Start every shuttle's supervisor (the router's host first) and its loop thread."""
+def start_fleet(cfgs: list[dict], clock: Clock, run_dir: Path, stop: threading.Event,
+                up_timeout_s: float = STARTUP_WAIT_S) -> list[Supervisor]:
+    """Start every shuttle's supervisor (the router's host first) and its loop thread, one shuttle
+    at a time: each waits until the one before has every process running (all at once, 15
+    processes a shuttle starting on two cores miss their first heartbeat and are restarted)."""
     supervisors = []
     for cfg in cfgs:
         sup = Supervisor(cfg, processes.for_run(cfg["simulate"], cfg["lidars"]), run_dir / cfg["vehicle_id"], clock)
         sup.start()
         threading.Thread(target=sup.run, args=(stop,), name=f"supervisor-{cfg['vehicle_id']}", daemon=True).start()
         supervisors.append(sup)
+        deadline = time.monotonic() + up_timeout_s
+        while not stop.is_set() and time.monotonic() < deadline and not all_running(sup):
+            time.sleep(0.2)
     return supervisors
+
+
+def all_running(sup: Supervisor) -> bool:
+    return all(p.state is ProcessState.RUNNING for p in sup.status().processes)

@@ -30,15 +30,19 @@ from ares.messages import (BodyCommand, BodyRequest, BodyState, CarState, EventL
                            MissionStatus, PathMatch, PoiProgress, SpeedLimits)
 from ares.node import Input, Node, Output, service
 from ares.route import load_route
-from managers.mission_machine import Body, Mission, MissionParams, MissionState, PoiGoal, ready_to_move
+from managers.mission_machine import (Body, Mission, MissionParams, MissionState, PoiGoal, body_request_refusal,
+                                      ready_to_move)
 
 class MissionManagerParams(MissionParams):
     rate_hz: float = param(10.0, "steps per second", unit="Hz", gt=0)
     autostart: Literal["tour", "drive", "none"] = param(
         "tour", "the goal set at a first start: tour (every POI of the route), drive (round without stopping) or "
                 "none (wait for `ares mission start`)")
-    pause_decel_mps2: float = param(2.0, "the mission's limit falls no faster than this from the speed the shuttle "
-                                         "has (a pause from 3.5 m/s: standing within 2 s)", unit="m/s^2", gt=0)
+    pause_decel_mps2: float = param(3.0, "the mission's limit falls no faster than this from the speed the shuttle "
+                                         "has: a pause stands the shuttle within 2 s of the operator's click (from "
+                                         "3.5 m/s: 1.2 s braking after ~0.6 s for the request to reach the wheels "
+                                         "and the brake to bite; docs/pages.md); firm, at the bridge's brake-assist "
+                                         "limit", unit="m/s^2", gt=0)
     path_timeout_s: float = param(1.0, "an older path match counts as missing (where the POIs are is unknown)",
                                   unit="s", gt=0)
     body_timeout_s: float = param(1.0, "an older body state counts as missing (doors and ramp unknown: limit 0)",
@@ -162,7 +166,7 @@ class MissionManager(Node):
 
     @service("mission/resume")
     def _resume(self, request: MissionRequest) -> MissionReply:
-        return self._reply(*self.mission.resume(), request.operator)
+        return self._reply(*self.mission.resume(self._body(self.clock.now())), request.operator)
 
     @service("mission/cancel")
     def _cancel(self, request: MissionRequest) -> MissionReply:
@@ -173,24 +177,14 @@ class MissionManager(Node):
 
     @service("mission/body")
     def _body_request(self, request: BodyRequest) -> MissionReply:
-        """The operator's doors and ramp: only with the shuttle standing and no POI's actions running
-        (the mission would undo it), and by the body's own interlocks (a ramp under open doors,
-        doors closed over a stowed ramp and an empty entrance)."""
+        """The operator's doors and ramp (managers/mission_machine.body_request_refusal decides)."""
         now = self.clock.now()
         body, car = self._body(now), self.car.fresh(now)
-        refusal = None
-        if request.doors is None and request.ramp is None:
-            refusal = "refused: nothing asked of the doors or the ramp"
-        elif body is None or car is None:
+        if body is None or car is None:
             refusal = "refused: the body's or the speed's state is not known"
-        elif abs(car.speed_mps) > self.params.stopped_mps:
-            refusal = "refused: the shuttle is moving"
-        elif self.mission.state in (MissionState.DRIVING, MissionState.AT_POI):
-            refusal = f"refused: the mission is {self.mission.state.value} (pause it first)"
-        elif request.ramp == "deploy" and body.doors != "open":
-            refusal = "refused: the ramp deploys only under open doors"
-        elif request.doors == "close" and (body.ramp != "stowed" or not body.entrance_clear):
-            refusal = "refused: the doors close only over a stowed ramp and an empty entrance"
+        else:
+            refusal = body_request_refusal(self.mission.state, abs(car.speed_mps) <= self.params.stopped_mps, body,
+                                           request.doors, request.ramp)
         if refusal is not None:
             return self._reply(False, refusal, request.operator)
         self.body_command.put(BodyCommand(t=now, doors=request.doors, ramp=request.ramp))

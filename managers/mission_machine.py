@@ -127,9 +127,12 @@ class Mission:
         self._paused_from, self.state = self.state, MissionState.PAUSED
         return True, f"paused at {self.current_name()}"
 
-    def resume(self) -> tuple[bool, str]:
+    def resume(self, body: Body | None = None) -> tuple[bool, str]:
         if self.state is not MissionState.PAUSED or self._paused_from is None:
             return False, f"nothing to resume ({self.state.value})"
+        if self._paused_from is MissionState.DRIVING and body is not None and not ready_to_move(body):
+            # (a POI's actions close what they opened themselves; a drive does not)
+            return False, "refused: close the doors and stow the ramp first"
         self.state, self._paused_from = self._paused_from, None
         return True, f"resumed: {self.state.value}"
 
@@ -239,3 +242,22 @@ class Mission:
 
 def ready_to_move(body: Body) -> bool:
     return body.doors == "closed" and body.ramp == "stowed"
+
+
+def body_request_refusal(state: MissionState, standing: bool, body: Body, doors: str | None,
+                         ramp: str | None) -> str | None:
+    """Why an operator's demand to the doors or the ramp is refused, or None to pass it on.
+    Only standing, and never while the mission drives or runs a POI's actions (it would undo
+    them); and by the body's interlocks: the ramp under open doors, the doors closed over a
+    stowed ramp and an empty entrance."""
+    if doors is None and ramp is None:
+        return "refused: nothing asked of the doors or the ramp"
+    if not standing:
+        return "refused: the shuttle is moving"
+    if state in (MissionState.DRIVING, MissionState.AT_POI):
+        return f"refused: the mission is {state.value} (pause it first)"
+    if ramp == "deploy" and (body.doors != "open" or doors == "close"):
+        return "refused: the ramp deploys only under open doors"
+    if doors == "close" and (body.ramp != "stowed" or ramp == "deploy" or not body.entrance_clear):
+        return "refused: the doors close only over a stowed ramp and an empty entrance"
+    return None

@@ -4,6 +4,7 @@ limit along the built-in tour: goals, each POI's actions in order, passengers ho
 pause / resume / cancel, pre-emption, and a restart that goes on where the last process was."""
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -12,10 +13,12 @@ from ares import config
 from ares.clock import ManualClock
 from ares.config import ScenarioPassengers
 from ares.membus import MemoryNetwork
-from ares.messages import (BodyState, CarState, DriveMode, MissionGoal, MissionRequest, PathMatch, SpeedLimits)
+from ares.messages import (BodyRequest, BodyState, CarState, DriveMode, MissionGoal, MissionRequest, PathMatch,
+                           SpeedLimits)
 from ares.recording import INCARNATION_ENV
 from ares.sim.body import BodySim
 from managers.mission import MissionManager
+from managers.mission_machine import Body, MissionState, body_request_refusal
 
 DT = 0.1
 CRUISE = 3.0
@@ -142,7 +145,7 @@ def test_pause_holds_resume_goes_on_and_the_limit_falls_gently(tour_cfg):
     for _ in range(30):
         tour.run(DT)
         limits.append(tour.status.latest.limit_mps)
-    assert all(a - b <= 2.0 * DT + 1e-6 for a, b in zip(limits, limits[1:]))    # <= pause_decel_mps2
+    assert all(a - b <= 3.0 * DT + 1e-6 for a, b in zip(limits, limits[1:]))    # <= pause_decel_mps2
     assert tour.v == 0.0 and limits[-1] == 0.0
     assert [(e.data["operator"], e.data["accepted"]) for e in tour.kinds("mission_command")] == [("ana", True)]
     refused = tour.bus.call("mission/pause", MissionRequest(operator="ana"))
@@ -227,3 +230,60 @@ def test_a_restarted_path_managers_lap_count_does_not_move_the_pois(tour_cfg):
     tour.lap_offset = 1                         # the path manager restarted: lap 0 again
     tour.until(lambda: tour.status.latest.poi == "Lakeside", 300, "the Library served all the same")
     assert [p.done[-1] for p in tour.status.latest.pois[:2]] == ["NEXT_POI", "NEXT_POI"]
+
+
+# ---- the operator's doors and ramp (service mission/body) -----------------------------------------
+
+DOORS = ("closed", "opening", "open", "closing")
+RAMPS = ("stowed", "deploying", "deployed", "stowing")
+
+
+@pytest.mark.parametrize("state", list(MissionState))
+@pytest.mark.parametrize("standing", (True, False))
+@pytest.mark.parametrize("doors_ask", (None, "open", "close"))
+@pytest.mark.parametrize("ramp_ask", (None, "deploy", "stow"))
+def test_every_doors_and_ramp_request_in_every_state(state, standing, doors_ask, ramp_ask):
+    for doors, ramp, clear in itertools.product(DOORS, RAMPS, (True, False)):
+        body = Body(doors=doors, ramp=ramp, entrance_clear=clear)
+        refusal = body_request_refusal(state, standing, body, doors_ask, ramp_ask)
+        allowed = (
+            (doors_ask is not None or ramp_ask is not None) and standing
+            and state not in (MissionState.DRIVING, MissionState.AT_POI)
+            and not (ramp_ask == "deploy" and (doors != "open" or doors_ask == "close"))
+            and not (doors_ask == "close" and (ramp != "stowed" or ramp_ask == "deploy" or not clear)))
+        assert (refusal is None) == allowed, (state, standing, body, doors_ask, ramp_ask, refusal)
+        if refusal is not None:
+            assert refusal.startswith("refused: ")
+
+
+def test_an_operator_opens_and_closes_the_doors_while_paused_and_is_refused_on_the_move(tour_cfg):
+    tour = Tour(tour_cfg, s0=40.0)
+    tour.run(5.0)
+    moving = tour.bus.call("mission/body", BodyRequest(operator="ana", doors="open"))
+    assert not moving.accepted and "moving" in moving.reason
+    assert tour.bus.call("mission/pause", MissionRequest(operator="ana")).accepted
+    tour.until(lambda: tour.v == 0.0, 10, "stopped")
+    tour.run(0.5)
+    reply = tour.bus.call("mission/body", BodyRequest(operator="ana", doors="open"))
+    assert reply.accepted and reply.state == "PAUSED"
+    tour.until(lambda: tour.body.door_state == "open", 5, "the doors open")
+    tour.run(0.2)                                              # the manager hears the body
+    ramp = tour.bus.call("mission/body", BodyRequest(operator="ana", ramp="deploy"))
+    assert ramp.accepted
+    tour.until(lambda: tour.body.ramp_state == "deployed", 8, "the ramp deployed")
+    tour.run(0.2)                                              # the manager hears the body
+    assert not tour.bus.call("mission/body", BodyRequest(operator="ana", doors="close")).accepted  # over the ramp
+    assert "close the doors" in tour.bus.call("mission/resume", MissionRequest(operator="ana")).reason
+    tour.run(3.0)
+    assert tour.v == 0.0
+    assert tour.bus.call("mission/body", BodyRequest(operator="ana", ramp="stow")).accepted
+    tour.until(lambda: tour.body.ramp_state == "stowed", 8, "the ramp stowed")
+    tour.run(0.2)                                              # the manager hears the body
+    assert tour.bus.call("mission/body", BodyRequest(operator="ana", doors="close")).accepted
+    tour.until(lambda: tour.body.door_state == "closed", 5, "the doors closed")
+    tour.run(0.2)                                              # the manager hears the body
+    assert tour.bus.call("mission/resume", MissionRequest(operator="ana")).accepted
+    tour.until(lambda: tour.v > 1.0, 15, "driving on")
+    commands = [e for e in tour.kinds("mission_command") if e.data["operator"] == "ana"]
+    assert [e.data["accepted"] for e in commands] == [False, True, True, True, False, False, True, True, True]
+    assert tour.violations == []

@@ -161,11 +161,12 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
 
     # Pause: standing within 2 s, confirmed by the vehicle, recorded with the operator's name
     wait_for(lambda: truth.latest.v > 1.0, 30, "the shuttle at speed before the pause")
-    clicked = truth.latest.t
+    clicked, speed = truth.latest.t, truth.latest.v
     pg.click("[data-command=pause]")
     wait_for(lambda: truth.latest.v < 0.05, 10, "the shuttle to stop", step_s=0.01)
     stopped_after = truth.latest.t - clicked
     assert stopped_after <= 2.0, f"stopped {stopped_after:.2f} s (vehicle time) after the click"
+    print(f"paused at {speed:.2f} m/s: standing {stopped_after:.2f} s (vehicle time) after the click")
     wait_for(lambda: pg.get_attribute("#command-status", "data-state") == "confirmed", 10, "the pause confirmed")
     shot(pg, "operator_paused")
     auditor = rest(stack, "auditor1")

@@ -106,6 +106,7 @@ def run_live_bench(browsers: int = 3, seconds: float = 30.0, warmup_s: float = 5
         try:
             bus = supervisor.bus
             truth, car = bus.subscribe("sim/truth"), bus.subscribe("dbw/car_state")
+            events = bus.subscribe("events", queue=100_000)
             deadline = time.monotonic() + 90
             while truth.latest is None and time.monotonic() < deadline:
                 time.sleep(0.1)
@@ -125,6 +126,8 @@ def run_live_bench(browsers: int = 3, seconds: float = 30.0, warmup_s: float = 5
                 lags = [page.evaluate("window.aresLag.slice()") for page in pages]
                 browser.close()
             speed = truth.latest.v if truth.latest is not None else None
+            stops = [e for _, e in events.drain() if e.kind in ("emergency_stop", "controlled_stop")
+                     and not e.message.startswith("cleared")]
         finally:
             stop.set()
             loop.join(timeout=5)
@@ -141,7 +144,9 @@ def run_live_bench(browsers: int = 3, seconds: float = 30.0, warmup_s: float = 5
         "lag_p50_ms": round(statistics.median(every), 1), "lag_p95_ms": round(percentile(every, 95), 1),
         "lag_p99_ms": round(percentile(every, 99), 1), "lag_max_ms": round(every[-1], 1),
         "goal_ms": GOAL_MS, "goal_met": every[-1] <= GOAL_MS, "per_browser": per_page,
-        "shuttle_speed_mps_at_end": speed, **versions("playwright", "fastapi", "eclipse-zenoh"),
+        "shuttle_speed_mps_at_end": speed,
+        # the stack's own state meanwhile (browsers and stack share this machine's cores)
+        "stack_stops": len(stops), "stack_stop_reasons": sorted({e.message[:80] for e in stops}), **versions("playwright", "fastapi", "eclipse-zenoh"),
     }
 
 
