@@ -197,6 +197,10 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
 
 def test_the_auditor_exports_the_window_the_rest_api_returns(page, stack):
     pg = page
+    login(pg, stack["url"] + "/blackbox", "fleet1")                 # the wrong role first: refused
+    pg.wait_for_selector("#refused:not([hidden])")
+    assert "auditor role" in pg.inner_text("#refused") and pg.locator("#app").is_hidden()
+    pg.click("#logout")
     login(pg, stack["url"] + "/blackbox", "auditor1")
     pg.wait_for_selector("#app:not([hidden])")
     wait_for(lambda: pg.get_attribute("#query-status", "data-state") == "confirmed", 20, "the records shown")

@@ -16,19 +16,33 @@ fetched from the internet at run time (vehicles have patchy 4G).
 from pathlib import Path
 
 from fastapi import FastAPI
-from fastapi.responses import FileResponse, RedirectResponse
+from fastapi.responses import HTMLResponse, RedirectResponse
 from starlette.staticfiles import StaticFiles
 
 WEB = Path(__file__).resolve().parents[2] / "web"
-PAGES = {"operator": "operator.html", "blackbox": "blackbox.html", "fleet": "fleet.html"}
 VENDOR = {"leaflet": WEB / "node_modules" / "leaflet" / "dist", "uplot": WEB / "node_modules" / "uplot" / "dist"}
+MAP = ("/vendor/leaflet/leaflet.css", "/vendor/leaflet/leaflet.js")
+PLOTS = ("/vendor/uplot/uPlot.min.css", "/vendor/uplot/uPlot.iife.min.js")
+# page -> its title and library; its content is web/pages/<page>.main.html, its script web/static/<page>.js,
+# the frame around it (header, login, refusal) web/pages/frame.html
+PAGES = {"operator": ("operator", MAP), "blackbox": ("black box", PLOTS), "fleet": ("fleet", MAP)}
 PAGE_PATHS = ("/", *(f"/{name}" for name in PAGES))
 PAGE_PREFIXES = ("/static/", "/vendor/")
 
 
+def render(name: str) -> str:
+    """A page: the frame filled with its title, library and content."""
+    title, (css, js) = PAGES[name]
+    page = (WEB / "pages" / "frame.html").read_text()
+    for key, value in (("main", (WEB / "pages" / f"{name}.main.html").read_text().strip()), ("title", title),
+                       ("library_css", css), ("library_js", js), ("name", name)):
+        page = page.replace("{{" + key + "}}", value)
+    return page
+
+
 def mount(app: FastAPI) -> None:
-    for name, file in PAGES.items():
-        app.add_api_route(f"/{name}", _page(WEB / "pages" / file), methods=["GET"], include_in_schema=False)
+    for name in PAGES:
+        app.add_api_route(f"/{name}", _page(render(name)), methods=["GET"], include_in_schema=False)
     app.add_api_route("/", _index, methods=["GET"], include_in_schema=False)
     app.mount("/static", StaticFiles(directory=WEB / "static"), name="static")
     for lib, folder in VENDOR.items():
@@ -36,9 +50,9 @@ def mount(app: FastAPI) -> None:
         app.mount(f"/vendor/{lib}", StaticFiles(directory=folder, check_dir=False), name=f"vendor-{lib}")
 
 
-def _page(path: Path):
-    async def page() -> FileResponse:
-        return FileResponse(path, media_type="text/html; charset=utf-8")
+def _page(html: str):
+    async def page() -> HTMLResponse:
+        return HTMLResponse(html)
     return page
 
 
