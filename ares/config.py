@@ -85,6 +85,8 @@ class LockstepSettings(Params):
     start_wait_s: float = param(60.0, "wall seconds the simulator waits at start for every participant to join",
                                 unit="s", gt=0)
     max_step_s: float = param(0.1, "longest clock step while no participant is due", unit="s", gt=0)
+    pace: float | None = param(None, "at most this many stack seconds per wall second (`--speed paced`: 1); null: "
+                                     "as fast as every participant keeps up (`--speed max`)", gt=0)
     broadcast_period_s: float = param(0.05, "how often the time goes to the processes outside the lockstep "
                                             "(supervisor, API): each participant hears it only when it is due",
                                       unit="s", gt=0)

@@ -152,3 +152,24 @@ class LockstepMaster:
         with self._cond:
             out, self.left_out_events = self.left_out_events, []
         return out
+
+
+class Pacer:
+    """`--speed paced`: the lockstep at most `pace` stack seconds per wall second. Behind (the
+    machine too slow for the stack), it counts again from where it is instead of sprinting to
+    catch up; a run on a big machine is real time, on a small one slower, never faster."""
+
+    def __init__(self, pace: float, slack_s: float = 0.1):
+        self.pace = float(pace)
+        self.slack_s = slack_s
+        self._anchor: tuple[float, float] | None = None      # (wall, stack time)
+
+    def wait_s(self, now: float, target: float, wall: float) -> float:
+        """Wall seconds to wait before stepping the clock from `now` to `target`, at wall time `wall`."""
+        if self._anchor is None or self._due(now) < wall - self.slack_s:
+            self._anchor = (wall, now)
+        return max(self._due(target) - wall, 0.0)
+
+    def _due(self, t: float) -> float:
+        wall0, t0 = self._anchor
+        return wall0 + (t - t0) / self.pace

@@ -172,16 +172,17 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str) -> dict
     if speed != 1 and not cfg["simulate"]:
         # on the vehicle the wall clock runs as it is: only a simulated shuttle can be hurried
         raise config.ConfigError(f"--speed {speed} needs the simulator (simulate: true)")
-    if speed == "max":
+    if speed in ("max", "paced"):
         running = processes.for_run(True, cfg["lidars"])
         cfg["lockstep"]["participants"] = contracts.fed_by(contracts.all_contracts(cfg, running), "sim")
+        cfg["lockstep"]["pace"] = 1.0 if speed == "paced" else None
     return cfg
 
 
 def stack_clock(cfg: dict, speed: float | str) -> Clock:
     if not cfg["simulate"]:
         return WallClock()
-    if speed == "max":
+    if speed in ("max", "paced"):
         return DrivenClock()
     return ScaledClock(float(speed))
 
@@ -406,7 +407,7 @@ def _save_trace(run_dir: Path, tracker: LapTracker, control: ControlTracker) -> 
 def _fleet(args, cfg: dict, route: Route, clock: Clock, run_dir: Path) -> int:
     """`--fleet N`: N shuttles on one router (ares/fleet.py), each engaged, until Ctrl-C."""
     if headless_or_max(args):
-        print("ares run: --fleet runs interactively at real or scaled time (not --headless, not --speed max)",
+        print("ares run: --fleet runs interactively at real or scaled time (not --headless, not --speed max|paced)",
               file=sys.stderr)
         return 2
     try:
@@ -447,7 +448,7 @@ def _fleet(args, cfg: dict, route: Route, clock: Clock, run_dir: Path) -> int:
 
 
 def headless_or_max(args) -> bool:
-    return bool(getattr(args, "headless", False)) or getattr(args, "speed", 1.0) == "max"
+    return bool(getattr(args, "headless", False)) or getattr(args, "speed", 1.0) in ("max", "paced")
 
 
 def first_logins(cfg: dict) -> str:
@@ -471,7 +472,9 @@ def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir:
     truth = bus.subscribe("sim/truth")
     car_state = bus.subscribe("dbw/car_state")
     mission = bus.subscribe("mission/status")
-    pace = "as fast as every process keeps up" if clock.mode == "driven" else f"speed x{clock.speed:g}"
+    paced = cfg["lockstep"].get("pace")
+    pace = (f"in lockstep, at most {paced:g}x real time" if paced else "as fast as every process keeps up") \
+        if clock.mode == "driven" else f"speed x{clock.speed:g}"
     print(f"ARES is running: vehicle {cfg['vehicle_id']} ({cfg['vehicle']}) on '{route.name}' "
           f"({route.length:.0f} m), {pace}.\n"
           f"  router    {cfg['bus']['router']}\n"

@@ -9,8 +9,10 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
 STAMP="$VENV/.ares-install-stamp"
 # open3d needs libusb and libGL; numpy/open3d libgomp; wrk: API bench load; chromium: the page tests'
-# browser (Playwright drives Debian's Chromium); npm: the pages' libraries
-SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libgomp1 wrk chromium npm)
+# browser (Playwright drives Debian's Chromium). npm (the pages' libraries) only where no npm is on
+# the PATH: a Node.js from elsewhere brings its own, and Debian's npm package would conflict with it.
+SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libgomp1 wrk chromium)
+command -v npm >/dev/null 2>&1 || SYSTEM_PACKAGES+=(npm)
 
 say() { echo "[setup] $*" >&2; }
 
@@ -30,7 +32,8 @@ if command -v dpkg-query >/dev/null 2>&1; then
     apt_log="$(mktemp)"
     if ! { apt-get update -qq && apt-get install -y -qq --no-install-recommends "${missing[@]}"; } >"$apt_log" 2>&1; then
       tail -n 5 "$apt_log" >&2
-      say "WARNING: could not install ${missing[*]}; open3d (LiDAR simulation) may fail to load"
+      say "WARNING: could not install ${missing[*]}; what needs them will fail (open3d: the LiDAR simulation;"
+    say "         chromium: the page tests; npm: the pages' map and plots)"
     fi
     rm -f "$apt_log"
   else

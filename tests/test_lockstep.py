@@ -9,7 +9,7 @@ import pytest
 from ares import config
 from ares.clock import DrivenClock, ManualClock
 from ares.config import LockstepSettings, Params, param
-from ares.lockstep import LockstepMaster
+from ares.lockstep import LockstepMaster, Pacer
 from ares.membus import MemoryNetwork
 from ares.messages import ClockDone
 from ares.node import Node, Output, grid_after
@@ -154,3 +154,13 @@ def test_a_participant_hears_the_time_only_when_it_is_due_and_the_others_now_and
     assert ticks["localization"] == [0.02, 0.04, 0.06, 0.08, 0.1, 0.12, 0.14, 0.16, 0.18, 0.2]
     assert ticks["controller"] == [0.05, 0.1, 0.15, 0.2]
     assert ticks["api"] == [0.02, 0.08, 0.14, 0.2]          # at least 0.05 s apart
+
+
+def test_the_pacer_keeps_to_real_time_and_does_not_sprint_after_falling_behind():
+    pacer = Pacer(1.0)
+    assert pacer.wait_s(0.0, 0.1, wall=100.0) == pytest.approx(0.1)         # ahead of the wall: wait
+    assert pacer.wait_s(0.1, 0.2, wall=100.15) == pytest.approx(0.05)
+    # the machine falls 2 s behind (a slow step): no sprint, the pace counts from here
+    assert pacer.wait_s(0.2, 0.3, wall=102.3) == pytest.approx(0.1)
+    assert pacer.wait_s(0.3, 0.4, wall=102.4) == pytest.approx(0.1)
+    assert Pacer(2.0).wait_s(0.0, 1.0, wall=5.0) == pytest.approx(0.5)      # twice real time

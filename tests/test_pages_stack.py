@@ -56,10 +56,10 @@ def stack(tmp_path_factory, browser):
     ports, with the LiDARs (light) and a store holding one user per role; started after the
     browser. The test watches the bus from a session of its own.
 
-    At `--speed max`: the simulator drives the clock and waits for every process it feeds, so a
-    browser sharing the two cores slows the run rather than starving the LiDAR simulation into a
-    rate fault (at real time the stack alone keeps both cores busy; on the vehicle the browsers
-    are tablets). Vehicle time is stack time: "stopped within 2 s" is 2 s of it."""
+    At `--speed paced` (scripts/run.sh's default): the simulator drives the clock, waits for every
+    process it feeds and never runs ahead of real time, so a browser sharing the two cores slows
+    the run rather than starving the LiDAR simulation into a rate fault (on the vehicle the
+    browsers are tablets). Vehicle time is stack time: "stopped within 2 s" is 2 s of it."""
     tmp = tmp_path_factory.mktemp("pages")
     store_path = tmp / "bb.sqlite"
     store = SqliteStore(str(store_path))
@@ -70,7 +70,7 @@ def stack(tmp_path_factory, browser):
     (tmp / "pages.yaml").write_text("api:\n  rate_limit:\n    token_burst: 30\n")    # the tests log in often
     port, router = free_port(), f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ares.cli", "run", "--speed", "max", "--config", str(LIGHT_LIDARS), "--config", str(tmp / "pages.yaml"),
+        [sys.executable, "-m", "ares.cli", "run", "--speed", "paced", "--config", str(LIGHT_LIDARS), "--config", str(tmp / "pages.yaml"),
          "--listen", router, "--api-port", str(port), "--store", str(store_path), "--run-dir", str(tmp / "run")],
         cwd=REPO, stdout=open(tmp / "stdout.log", "w"), stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
         start_new_session=True)

@@ -8,8 +8,10 @@ from .args import CliError, Command, endpoint, non_negative_int, positive_float,
 
 
 def speed(text: str) -> float | str:
-    """--speed: a positive factor, or `max` (the simulator drives the clock)."""
-    return "max" if text.strip().lower() == "max" else positive_float(text)
+    """--speed: a positive factor, `max` (the simulator drives the clock) or `paced` (it drives
+    the clock, at most at real time)."""
+    word = text.strip().lower()
+    return word if word in ("max", "paced") else positive_float(text)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
@@ -21,7 +23,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     run.add_argument("--laps", type=positive_int, metavar="N", help="laps of the tour to drive headless (default 1)")
     run.add_argument("--speed", type=speed, default=1.0, metavar="X",
                      help="clock speed: simulated seconds per wall second (default 1), or `max`: as fast as "
-                          "every process keeps up (the simulator drives the clock)")
+                          "every process keeps up (the simulator drives the clock), or `paced`: the same, but never "
+                          "faster than real time (a machine too small for the stack runs it slower instead of "
+                          "starving the simulated sensors into faults; scripts/run.sh's default)")
     run.add_argument("--config", action="append", default=[], metavar="FILE",
                      help="a YAML file of configuration overrides (repeatable; later files win); "
                           "`ares config show` prints every key")

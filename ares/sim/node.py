@@ -9,11 +9,12 @@ goes quiet for sim.actuator_timeout_s the board brakes, whatever the bridge's la
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 from ares.config import load_scenario
 from ares.geodesy import LocalFrame
-from ares.lockstep import LockstepMaster
+from ares.lockstep import LockstepMaster, Pacer
 from ares.messages import (Ack, ActuatorCommand, BodyCommand, BodyState, CanFrame, DriverCommand, EventLevel,
                            GnssSentences, Imu, PanelEvent, PanelInput, ProcessState, VehicleTruth)
 from ares.node import Input, Node, Output, service
@@ -64,6 +65,8 @@ class Simulator(Node):
 
     def setup(self) -> None:
         sim = self.params
+        pace = self.core.lockstep.pace
+        self._pacer = Pacer(pace) if pace else None     # --speed paced
         self.route = load_route(self.core)
         scenario = load_scenario(self.core.scenario) if self.core.scenario else None
         start = scenario.start_s_m if scenario is not None and scenario.start_s_m is not None else sim.start_s_m
@@ -220,10 +223,20 @@ class Simulator(Node):
             # on the physics grid: sensors and ticks share one timeline
             target = round(max(math.ceil(target / self.dt - 1e-9), math.floor(master.t / self.dt + 1e-9) + 1)
                            * self.dt, 9)
+            self._keep_pace(master.t, target)
             self.step_once(target)
             self.clock.advance(target)
             master.tick(target)
             self.heartbeat()
+
+    def _keep_pace(self, now: float, target: float) -> None:
+        """`--speed paced`: wait (answering services) until the wall clock allows `target`."""
+        if self._pacer is None:
+            return
+        due = time.monotonic() + self._pacer.wait_s(now, target, time.monotonic())
+        while not self.stopping and (left := due - time.monotonic()) > 0:
+            time.sleep(min(left, 0.02))
+            self.bus.poll_services()
 
     def _leave_the_dead(self, master: LockstepMaster) -> None:
         """A participant the supervisor is restarting (dead, or killed for a hang) is left out at
