@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import re
 import threading
 import time
 from typing import Callable, Generic, TypeVar
@@ -33,9 +34,11 @@ import pydantic
 
 from ares import schema, topics
 from ares.clock import Clock, WallClock
-from ares.config import BusSettings
+from ares.config import VEHICLE_ID_PATTERN, BusSettings
 from ares.messages import ServiceErrorReply
 from ares.schema import Msg
+
+VEHICLE_ID = re.compile(VEHICLE_ID_PATTERN)     # what subscribe_fleet takes from a key
 
 log = logging.getLogger("ares.bus")
 
@@ -368,8 +371,11 @@ class BaseBus:
         def on_payload(key: str, encoding: str, payload: bytes) -> None:
             try:
                 parts = key.split("/", 2)
+                if len(parts) != 3 or not VEHICLE_ID.fullmatch(parts[1]):
+                    self.rejects.reject("bad vehicle id", key[:80])     # a key no stack of ours publishes
+                    return
                 msg = decode(payload, encoding, entry.schema, topic, self.rejects)
-                if msg is not None and len(parts) == 3:
+                if msg is not None:
                     on_message(parts[1], topic, msg)
             except Exception as exc:  # a bad message must never take the receiver down
                 self.rejects.reject("receiver error", f"{key}: {exc!r}")

@@ -50,11 +50,12 @@ def fleet_configs(cfg: dict, n: int, route_length_m: float) -> list[dict]:
 
 
 def start_fleet(cfgs: list[dict], clock: Clock, run_dir: Path, stop: threading.Event,
-                up_timeout_s: float = STARTUP_WAIT_S) -> list[Supervisor]:
+                up_timeout_s: float = STARTUP_WAIT_S, started: list | None = None) -> list[Supervisor]:
     """Start every shuttle's supervisor (the router's host first) and its loop thread, one shuttle
     at a time: each waits until the one before has every process running (all at once, 15
-    processes a shuttle starting on two cores miss their first heartbeat and are restarted)."""
-    supervisors = []
+    processes a shuttle starting on two cores miss their first heartbeat and are restarted).
+    `started` is filled as they start, so that a failure midway leaves the caller what to stop."""
+    supervisors = started if started is not None else []
     for cfg in cfgs:
         sup = Supervisor(cfg, processes.for_run(cfg["simulate"], cfg["lidars"]), run_dir / cfg["vehicle_id"], clock)
         sup.start()

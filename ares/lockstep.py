@@ -166,8 +166,10 @@ class Pacer:
 
     def wait_s(self, now: float, target: float, wall: float) -> float:
         """Wall seconds to wait before stepping the clock from `now` to `target`, at wall time `wall`."""
-        if self._anchor is None or self._due(now) < wall - self.slack_s:
+        if self._anchor is None:
             self._anchor = (wall, now)
+        elif self._due(target) < wall - self.slack_s:
+            self._anchor = (wall, target)       # behind: step now, and count from here
         return max(self._due(target) - wall, 0.0)
 
     def _due(self, t: float) -> float:

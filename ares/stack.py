@@ -417,8 +417,9 @@ def _fleet(args, cfg: dict, route: Route, clock: Clock, run_dir: Path) -> int:
         return 2
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    supervisors = start_fleet(cfgs, clock, run_dir, stop)
+    supervisors: list = []
     try:
+        start_fleet(cfgs, clock, run_dir, stop, started=supervisors)
         print(f"ARES fleet: {len(cfgs)} shuttles on '{route.name}' ({route.length:.0f} m), router "
               f"{cfg['bus']['router']}.\n" + "".join(
                   f"  {c['vehicle_id']:<10} {pages_url(c)}/operator   logs {run_dir / c['vehicle_id'] / 'logs'}\n"

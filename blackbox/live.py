@@ -31,6 +31,8 @@ from ares.messages import (AwarenessState, BodyState, CarState, ControllerStatus
                            MovementStatus, ObstacleState, OccupancyGrid, OdometryScore, Pose, PredictedTrajectory,
                            RoadDetection, SpeedLimits, SupervisorState)
 
+FORGET_AFTER_S = 3600.0     # a vehicle silent this long is dropped from memory
+
 # topic -> what the pages make of it
 GATEWAY_TOPICS: dict[str, type] = {
     "localization/pose": Pose,
@@ -101,6 +103,12 @@ class LegTimer:
             self.started_t = self.to_poi = None
         self.was_at_poi = at_poi
 
+    def snapshot(self) -> "LegTimer":
+        """A copy to read outside the hub's lock (the bus's thread updates the original)."""
+        key = (self.from_poi or "", self.to_poi or "")
+        history = {key: deque(self.history[key])} if key in self.history else {}
+        return LegTimer(history, self.from_poi, self.to_poi, self.started_t, self.profile_s, self.was_at_poi)
+
     def expected_s(self) -> tuple[float | None, str]:
         past = self.history.get((self.from_poi or "", self.to_poi or ""))
         if past:
@@ -113,7 +121,7 @@ class _Vehicle:
     latest: dict[str, _Stored] = field(default_factory=dict)
     legs: LegTimer = field(default_factory=LegTimer)
     heard: float = 0.0
-    grid_cache: tuple[int, dict] | None = None
+    grid_cache: tuple[object, dict] | None = None      # (the grid message, its thinned cells)
 
 
 class LiveHub:
@@ -154,8 +162,11 @@ class LiveHub:
 
     # ---- the streams' side ------------------------------------------------------------------
     def vehicles(self) -> list[str]:
-        cutoff = self.now() - self.s.vehicle_gone_s
+        now = self.now()
+        cutoff = now - self.s.vehicle_gone_s
         with self._lock:
+            for gone in [v for v, state in self._vehicles.items() if state.heard < now - FORGET_AFTER_S]:
+                del self._vehicles[gone]            # (a vehicle back later starts its leg history anew)
             return sorted(v for v, state in self._vehicles.items() if state.heard >= cutoff)
 
     def events_since(self, seq: int, vehicle_id: str | None = None) -> list[dict]:
@@ -182,7 +193,7 @@ class LiveHub:
             get = {topic: self._fresh(vehicle, topic, now) for topic in GATEWAY_TOPICS if topic != "events"}
             newest = max((s.wall for s in vehicle.latest.values()), default=None)
             stamp = vehicle.latest.get("dbw/car_state")
-            legs = vehicle.legs
+            legs = vehicle.legs.snapshot()
         frame = _summary(vehicle_id, get, legs, now, self.s)
         frame["gateway_wall_ms"] = None if newest is None else newest * 1e3
         frame["car_state_wall_ms"] = None if stamp is None else stamp.wall * 1e3      # reached the gateway
@@ -216,7 +227,7 @@ class LiveHub:
             with self._lock:
                 vehicle = self._vehicles[vehicle_id]
                 get = {topic: self._fresh(vehicle, topic, now) for topic in GATEWAY_TOPICS if topic != "events"}
-                legs = vehicle.legs
+                legs = vehicle.legs.snapshot()
             out.append(_summary(vehicle_id, get, legs, now, self.s))
         return out
 
@@ -224,8 +235,7 @@ class LiveHub:
         """Occupied cells, thinned to grid_cell_m, in the local frame (cached per grid message)."""
         if grid is None or pose is None:
             return None
-        key = id(grid)
-        if vehicle.grid_cache is not None and vehicle.grid_cache[0] == key:
+        if vehicle.grid_cache is not None and vehicle.grid_cache[0] is grid:
             return vehicle.grid_cache[1]
         rows, cols = np.nonzero(grid.cells == 100)
         x = grid.origin_x + (cols + 0.5) * grid.resolution_m
@@ -240,7 +250,7 @@ class LiveHub:
             cells = cells[np.linspace(0, len(cells) - 1, self.s.grid_max_cells).astype(int)]
         out = {"cell_m": size, "x": [round(float(v) * size, 2) for v in cells[:, 0]],
                "y": [round(float(v) * size, 2) for v in cells[:, 1]]}
-        vehicle.grid_cache = (key, out)
+        vehicle.grid_cache = (grid, out)
         return out
 
     # ---- streams per user -------------------------------------------------------------------

@@ -183,7 +183,11 @@ class MissionManager(Node):
         if body is None or car is None:
             refusal = "refused: the body's or the speed's state is not known"
         else:
-            refusal = body_request_refusal(self.mission.state, abs(car.speed_mps) <= self.params.stopped_mps, body,
+            m = self.mission
+            # paused amid a POI's actions counts as at the POI: its actions own the doors and the ramp
+            state = MissionState.AT_POI if m.state is MissionState.PAUSED and m.paused_from is MissionState.AT_POI \
+                else m.state
+            refusal = body_request_refusal(state, abs(car.speed_mps) <= self.params.stopped_mps, body,
                                            request.doors, request.ramp)
         if refusal is not None:
             return self._reply(False, refusal, request.operator)

@@ -127,12 +127,17 @@ class Mission:
         self._paused_from, self.state = self.state, MissionState.PAUSED
         return True, f"paused at {self.current_name()}"
 
+    @property
+    def paused_from(self) -> MissionState | None:
+        return self._paused_from
+
     def resume(self, body: Body | None = None) -> tuple[bool, str]:
         if self.state is not MissionState.PAUSED or self._paused_from is None:
             return False, f"nothing to resume ({self.state.value})"
-        if self._paused_from is MissionState.DRIVING and body is not None and not ready_to_move(body):
+        if self._paused_from is MissionState.DRIVING and (body is None or not ready_to_move(body)):
             # (a POI's actions close what they opened themselves; a drive does not)
-            return False, "refused: close the doors and stow the ramp first"
+            return False, "refused: close the doors and stow the ramp first" if body is not None else \
+                "refused: the doors' state is not known"
         self.state, self._paused_from = self._paused_from, None
         return True, f"resumed: {self.state.value}"
 
@@ -247,17 +252,22 @@ def ready_to_move(body: Body) -> bool:
 def body_request_refusal(state: MissionState, standing: bool, body: Body, doors: str | None,
                          ramp: str | None) -> str | None:
     """Why an operator's demand to the doors or the ramp is refused, or None to pass it on.
-    Only standing, and never while the mission drives or runs a POI's actions (it would undo
-    them); and by the body's interlocks: the ramp under open doors, the doors closed over a
-    stowed ramp and an empty entrance."""
+    `state`: the mission's, or while paused the state it was paused from. Only standing, and
+    never while the mission drives or is amid a POI's actions (they would undo it, or drive off
+    with the doors open); and by the body's interlocks: the ramp under open doors and stowed only
+    with nobody on it, the doors closed over a stowed ramp and an empty entrance."""
     if doors is None and ramp is None:
         return "refused: nothing asked of the doors or the ramp"
     if not standing:
         return "refused: the shuttle is moving"
-    if state in (MissionState.DRIVING, MissionState.AT_POI):
-        return f"refused: the mission is {state.value} (pause it first)"
+    if state is MissionState.DRIVING:
+        return "refused: the mission is DRIVING (pause it first)"
+    if state is MissionState.AT_POI:           # running, or paused amid, a POI's actions: they own the body
+        return "refused: a POI's actions run the doors and the ramp (cancel the mission first)"
     if ramp == "deploy" and (body.doors != "open" or doors == "close"):
         return "refused: the ramp deploys only under open doors"
+    if ramp == "stow" and not body.entrance_clear:
+        return "refused: someone is on the ramp or in the doorway"
     if doors == "close" and (body.ramp != "stowed" or ramp == "deploy" or not body.entrance_clear):
         return "refused: the doors close only over a stowed ramp and an empty entrance"
     return None

@@ -160,7 +160,9 @@ def test_the_pacer_keeps_to_real_time_and_does_not_sprint_after_falling_behind()
     pacer = Pacer(1.0)
     assert pacer.wait_s(0.0, 0.1, wall=100.0) == pytest.approx(0.1)         # ahead of the wall: wait
     assert pacer.wait_s(0.1, 0.2, wall=100.15) == pytest.approx(0.05)
-    # the machine falls 2 s behind (a slow step): no sprint, the pace counts from here
-    assert pacer.wait_s(0.2, 0.3, wall=102.3) == pytest.approx(0.1)
-    assert pacer.wait_s(0.3, 0.4, wall=102.4) == pytest.approx(0.1)
+    # the machine falls 2 s behind (a slow step): the step goes at once, then the pace counts from there
+    assert pacer.wait_s(0.2, 0.3, wall=102.3) == 0.0
+    assert pacer.wait_s(0.3, 0.4, wall=102.32) == pytest.approx(0.08)
+    # steps that each take longer than they stand for: never a wait (the machine sets the pace)
+    assert all(pacer.wait_s(0.4 + k * 0.1, 0.5 + k * 0.1, wall=102.6 + k * 0.15) == 0.0 for k in range(10))
     assert Pacer(2.0).wait_s(0.0, 1.0, wall=5.0) == pytest.approx(0.5)      # twice real time

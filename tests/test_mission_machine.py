@@ -61,7 +61,9 @@ def expected(state: str, event: str, body: str) -> tuple[bool | None, str]:
     if event == "pause":
         return (True, "PAUSED") if state in ("DRIVING", "AT_POI") else (False, paused)
     if event == "resume":
-        return {"PAUSED_DRIVING": (True, "DRIVING"), "PAUSED_AT_POI": (True, "AT_POI")}.get(state, (False, paused))
+        # a paused drive goes on only ready to move (a POI's actions close what they opened)
+        return {"PAUSED_DRIVING": (True, "DRIVING") if ready else (False, paused),
+                "PAUSED_AT_POI": (True, "AT_POI")}.get(state, (False, paused))
     if event == "reach":
         return None, "AT_POI" if state == "DRIVING" else paused
     return None, paused
@@ -83,7 +85,7 @@ def test_every_state_and_event(state, event, body):
     elif event == "pause":
         accepted, reason = m.pause()
     elif event == "resume":
-        accepted, reason = m.resume()
+        accepted, reason = m.resume(b)
     else:
         # moving (no action can finish): only where the mission is changes
         m.step(1.0, 0.3 if event == "reach" else 50.0, 1.0, b)
@@ -221,7 +223,7 @@ def test_properties_over_random_sequences(events):
             accepted, _ = m.goal([LIBRARY, LAKESIDE], body)
             assert accepted == ready_to_move(body)
         else:
-            getattr(m, event[0])(*(() if event[0] != "cancel" else (body,)))
+            getattr(m, event[0])(*((body,) if event[0] in ("cancel", "resume") else ()))
         if m.state not in ACTIVE:
             assert m.limit_mps(10.0, body) == 0.0
     # whatever happened, each POI's actions were done in its own order
@@ -247,4 +249,4 @@ def test_a_snapshot_restores_the_same_mission(state):
     back = Mission.restore(m.snapshot(), m.params)
     assert back.snapshot() == m.snapshot()
     assert (back.state, back.current_name(), back.current_action()) == (m.state, m.current_name(), m.current_action())
-    assert back.resume() == m.resume()
+    assert back.resume(READY) == m.resume(READY)

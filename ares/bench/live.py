@@ -46,13 +46,13 @@ def niced_chromium(folder: Path) -> str:
 
 
 def calm_browsers() -> int:
-    """Renice every Chromium process to 19 (Chromium raises its browser and GPU processes' priority
-    itself, whatever it was started with): the processes reniced."""
+    """Renice this process's Chromium processes to 19 (Chromium raises its browser and GPU
+    processes' priority itself, whatever it was started with): the processes reniced."""
     import psutil
     calmed = 0
-    for proc in psutil.process_iter(["name", "exe"]):
+    for proc in psutil.Process().children(recursive=True):     # ours: Playwright's driver and its browsers
         try:
-            if "chrom" in (proc.info["name"] or "") and proc.nice() < 19:
+            if "chrom" in proc.name() and proc.nice() < 19:
                 proc.nice(19)
                 calmed += 1
         except (psutil.NoSuchProcess, psutil.AccessDenied):

@@ -29,6 +29,21 @@ from blackbox.live import LiveHub
 SSE_HEADERS = {"X-Accel-Buffering": "no", "Cache-Control": "no-store"}
 
 
+class SlotStream(StreamingResponse):
+    """A stream that gives its slot back however it ends: finished, the client gone before the
+    first frame (the generator then never runs, so its own `finally` would not), or cancelled."""
+
+    def __init__(self, content, release, **kwargs):
+        super().__init__(content, **kwargs)
+        self._release = release
+
+    async def __call__(self, scope, receive, send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            self._release()
+
+
 def build_router(services: Services) -> APIRouter:
     VehicleId = vehicle_id_path(services.vehicle_id)
     Viewer = Annotated[Claims, Depends(allow(services.tokens, *ROLES_RECORDS))]
@@ -50,22 +65,20 @@ def build_router(services: Services) -> APIRouter:
             raise HTTPException(429, f"too many live streams: {refused}", headers={"Retry-After": "5"})
 
         async def frames():
-            try:
-                seq = max(gateway.event_seq - 50, 0)        # a new page sees the recent events
-                period = 1.0 / hz
-                while time.time() < claims.expires and not await request.is_disconnected():
-                    started = time.monotonic()
-                    frame, events = build(seq)
-                    if events:
-                        seq = events[-1]["seq"]
-                        yield b"event: events\ndata: " + orjson.dumps(events) + b"\n\n"
-                    yield b"event: frame\ndata: " + orjson.dumps(frame) + b"\n\n"
-                    await asyncio.sleep(max(period - (time.monotonic() - started), 0.0))
-                yield b"event: expired\ndata: {}\n\n"
-            finally:
-                gateway.close_stream(claims.name)
+            seq = max(gateway.event_seq - 50, 0)        # a new page sees the recent events
+            period = 1.0 / hz
+            while time.time() < claims.expires and not await request.is_disconnected():
+                started = time.monotonic()
+                frame, events = build(seq)
+                if events:
+                    seq = events[-1]["seq"]
+                    yield b"event: events\ndata: " + orjson.dumps(events) + b"\n\n"
+                yield b"event: frame\ndata: " + orjson.dumps(frame) + b"\n\n"
+                await asyncio.sleep(max(period - (time.monotonic() - started), 0.0))
+            yield b"event: expired\ndata: {}\n\n"
 
-        return StreamingResponse(frames(), media_type="text/event-stream", headers=SSE_HEADERS)
+        return SlotStream(frames(), lambda: gateway.close_stream(claims.name), media_type="text/event-stream",
+                          headers=SSE_HEADERS)
 
     @router.get("/live/vehicles/{vehicle_id}", responses=error_responses(401, 403, 404, 422, 429, 503),
                 response_class=StreamingResponse)

@@ -67,16 +67,19 @@ const ARES = (() => {
   }
 
   // A live stream: handlers.frame(data), handlers.events(list); reopened after a drop or the
-  // token's expiry (with the renewed token). Returns a function that closes it.
+  // token's expiry (with the renewed token; a refusal is retried after 5 s). Returns a function
+  // that closes it.
   function stream(path, handlers) {
     let controller = null;
     let closed = false;
     async function open() {
       controller = new AbortController();
+      let refused = false;
       try {
         const r = await api(path, {signal: controller.signal, headers: {Accept: "text/event-stream"}});
         if (!r.ok) {
           const j = await r.json().catch(() => ({}));
+          refused = true;
           if (handlers.error) handlers.error(j.detail || r.statusText);
           throw new Error("stream refused");
         }
@@ -102,9 +105,11 @@ const ARES = (() => {
         }
       } catch (e) {
         if (closed) return;
+      } finally {
+        controller.abort();             // a handler's error must not leave the old request holding a slot
       }
-      if (handlers.drop) handlers.drop();
-      if (!closed) setTimeout(open, 1000);
+      if (!refused && handlers.drop) handlers.drop();
+      if (!closed) setTimeout(open, refused ? 5000 : 1000);
     }
     open();
     return () => { closed = true; if (controller) controller.abort(); };

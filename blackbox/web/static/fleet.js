@@ -17,7 +17,7 @@ ARES.page(["fleet"], "fleet", async () => {
     map.fitBounds(line.getBounds(), {padding: [10, 10]});
     for (const poi of route.pois) {
       L.circleMarker(ARES.ll(poi.x, poi.y), {radius: 5, color: "#1d3557", fillOpacity: 1})
-        .bindTooltip(poi.name, {direction: "right"}).addTo(map);
+        .bindTooltip(ARES.text("span", poi.name), {direction: "right"}).addTo(map);
     }
   }
 
@@ -31,7 +31,7 @@ ARES.page(["fleet"], "fleet", async () => {
       let m = markers.get(v.vehicle_id);
       if (!m) {
         m = L.circleMarker(ARES.ll(v.pose.x, v.pose.y), {radius: 8, color: "#b42318", fillOpacity: 0.9})
-          .bindTooltip(v.vehicle_id, {permanent: true, direction: "top"}).addTo(map);
+          .bindTooltip(ARES.text("span", v.vehicle_id), {permanent: true, direction: "top"}).addTo(map);
         markers.set(v.vehicle_id, m);
       }
       m.setLatLng(ARES.ll(v.pose.x, v.pose.y));

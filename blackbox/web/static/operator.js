@@ -26,7 +26,7 @@ ARES.page(["operator"], "operator", async () => {
     map.fitBounds(line.getBounds(), {padding: [10, 10]});
     for (const poi of route.pois) {
       L.circleMarker(ARES.ll(poi.x, poi.y), {radius: 6, color: "#1d3557", fillOpacity: 1})
-        .bindTooltip(poi.name, {permanent: true, direction: "right"}).addTo(map);
+        .bindTooltip(ARES.text("span", poi.name), {permanent: true, direction: "right"}).addTo(map);
     }
     layers = {
       cells: L.polygon([], {weight: 0, color: "#1d232a", fillOpacity: 0.6}).addTo(map),   // one shape: cheap to redraw
