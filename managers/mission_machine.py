@@ -15,6 +15,10 @@ A goal is an ordered list of POIs, each with the actions the tour gives it, amon
 | START_MEDIA   | starts the on-board media                              | at once                            |
 | NEXT_POI      | sets off for the next POI (the POI's last action)      | at once                            |
 
+The doors and the ramp move only once the shuttle has stood `settle_s` (0.5 s): the speed read at
+the standing threshold may still be the end of a roll (tests/test_mission_stack.py once saw the doors opening at
+0.05 m/s of true speed).
+
 A goal may also be a *drive*: no POI, round the route without stopping (runs about something
 else than passengers: comparisons, tests); its limit is none while the body is ready to move.
 
@@ -56,6 +60,9 @@ ACTIVE = (MissionState.DRIVING, MissionState.AT_POI, MissionState.PAUSED)
 class MissionParams(Params):
     reach_m: float = param(0.5, "a POI is reached this close to its stop point", unit="m", gt=0)
     stopped_mps: float = param(0.05, "standing", unit="m/s", gt=0)
+    settle_s: float = param(0.5, "doors and ramp move only after standing this long: a speed read at the standing "
+                                 "threshold may still be the last of a roll (the parking brake holds it after)",
+                            unit="s", ge=0)
     full_stop_s: float = param(2.0, "FULL_STOP: standing this long", unit="s", ge=0)
     approach_decel_mps2: float = param(0.5, "the approach to a POI's stop point", unit="m/s^2", gt=0)
 
@@ -184,8 +191,9 @@ class Mission:
         if name == "FULL_STOP":
             return standing and self._standing_since is not None and \
                 now - self._standing_since >= self.params.full_stop_s, Commands()
-        if name in ("OPENING_DOORS", "TAKEOFF_RAMP", "PICKUP_RAMP", "CLOSING_DOORS") and not standing:
-            return False, Commands()            # doors and ramp move only with the shuttle standing
+        settled = standing and self._standing_since is not None and now - self._standing_since >= self.params.settle_s
+        if name in ("OPENING_DOORS", "TAKEOFF_RAMP", "PICKUP_RAMP", "CLOSING_DOORS") and not settled:
+            return False, Commands()            # doors and ramp move only with the shuttle standing, settled
         if name == "OPENING_DOORS":
             return body.doors == "open", Commands(doors=None if body.doors == "open" else "open")
         if name == "TAKEOFF_RAMP":
