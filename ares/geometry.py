@@ -17,6 +17,13 @@ import numpy as np
 TWO_PI = 2.0 * math.pi
 
 
+def vehicle_to_local(x: float, y: float, yaw: float, xv, yv):
+    """Points of the vehicle frame (x ahead, y left; floats or arrays) in the local frame, the
+    vehicle at (x, y) heading yaw."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return x + c * xv - s * yv, y + s * xv + c * yv
+
+
 def wrap_angle(a: float) -> float:
     """An angle in [-pi, pi)."""
     return (a + math.pi) % TWO_PI - math.pi

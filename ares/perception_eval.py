@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ares.geometry import vehicle_to_local
 from ares.messages import LidarStatus, OccupancyGrid, RoadDetection, WorldTruth
 from ares.route import Route
 from ares.sim.world import BOUNDARY_VERGES
@@ -84,8 +85,7 @@ class PerceptionTracker:
 
     def _to_local(self, pose, xv: np.ndarray, yv: np.ndarray):
         x, y, yaw, _ = pose
-        c, s = math.cos(yaw), math.sin(yaw)
-        return x + c * xv - s * yv, y + s * xv + c * yv
+        return vehicle_to_local(x, y, yaw, xv, yv)
 
     def _edges(self, s: float) -> tuple[float | None, float | None]:
         left, right = self.route.verge_at(s)

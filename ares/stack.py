@@ -201,7 +201,7 @@ def count_blackbox_records(cfg: dict, clock: Clock) -> int | None:
         return None
 
 
-def _wait_for(condition, timeout_s: float, what: str, stop: threading.Event) -> None:
+def wait_for(condition, timeout_s: float, what: str, stop: threading.Event) -> None:
     deadline = time.monotonic() + timeout_s
     while not condition():
         if stop.is_set():
@@ -217,7 +217,7 @@ def wait_until_ready_to_drive(bus: Bus, stop: threading.Event) -> None:
     vehicle seconds: a run engaged before this would count them in its lap time."""
     status = bus.subscribe("control/status")
     try:
-        _wait_for(lambda: status.alive(READY_MAX_AGE_S) and status.latest.controller != "stop", STARTUP_TIMEOUT_S,
+        wait_for(lambda: status.alive(READY_MAX_AGE_S) and status.latest.controller != "stop", STARTUP_TIMEOUT_S,
                   "a controller in charge (localization, path manager, a controller and the control manager up)", stop)
     finally:
         bus.unsubscribe(status)
@@ -226,11 +226,11 @@ def wait_until_ready_to_drive(bus: Bus, stop: threading.Event) -> None:
 def engage_automatic(bus: Bus, car_state, stop: threading.Event) -> None:
     """When the stack is ready to drive: Manual -> Ready with the panel button, then Ready ->
     Automatic with the service."""
-    _wait_for(lambda: car_state.latest is not None, STARTUP_TIMEOUT_S, "the drive-by-wire bridge", stop)
+    wait_for(lambda: car_state.latest is not None, STARTUP_TIMEOUT_S, "the drive-by-wire bridge", stop)
     wait_until_ready_to_drive(bus, stop)
     if car_state.latest.mode == DriveMode.MANUAL:
         bus.call("sim/driver", DriverCommand(t=bus.clock.now(), action="BUTTON"))
-        _wait_for(lambda: car_state.latest.mode == DriveMode.READY, ENGAGE_TIMEOUT_S, "Ready mode", stop)
+        wait_for(lambda: car_state.latest.mode == DriveMode.READY, ENGAGE_TIMEOUT_S, "Ready mode", stop)
     deadline = time.monotonic() + ENGAGE_TIMEOUT_S
     while True:
         try:
@@ -250,7 +250,7 @@ def _headless(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Pa
     seconds = getattr(args, "seconds", None)   # drive this long (vehicle time) instead of laps
     truth = bus.subscribe("sim/truth", queue=4096)
     car_state = bus.subscribe("dbw/car_state")
-    _wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
+    wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
     engage_automatic(bus, car_state, stop)
     t_start = clock.now()
     wall_start = time.monotonic()
@@ -430,7 +430,7 @@ def _fleet(args, cfg: dict, route: Route, clock: Clock, run_dir: Path) -> int:
                  for c, sup in zip(cfgs, supervisors)]
         if not getattr(args, "manual", False):
             for (vehicle_id, truth, car), sup in zip(views, supervisors):
-                _wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, f"the simulator of {vehicle_id}", stop)
+                wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, f"the simulator of {vehicle_id}", stop)
                 engage_automatic(sup.bus, car, stop)
             print("Automatic mode engaged on every shuttle.", flush=True)
         while not stop.wait(2.0):
@@ -486,7 +486,7 @@ def _interactive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir:
           f"  look      ares topics | ares echo dbw/car_state | ares mission status\n"
           f"Ctrl-C stops everything.", flush=True)
     if not getattr(args, "manual", False):
-        _wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
+        wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
         engage_automatic(bus, car_state, stop)
         print("Automatic mode engaged: the shuttle is driving the tour.", flush=True)
     while not stop.wait(1.0):

@@ -16,7 +16,6 @@ vehicle is late once the time since its last POI exceeds the expected time by
 """
 from __future__ import annotations
 
-import math
 import statistics
 import threading
 import time
@@ -27,6 +26,7 @@ from typing import Callable
 import numpy as np
 
 from ares.config import Params, param
+from ares.geometry import vehicle_to_local
 from ares.messages import (AwarenessState, BodyState, CarState, ControllerStatus, Event, MissionStatus,
                            MovementStatus, ObstacleState, OccupancyGrid, OdometryScore, Pose, PredictedTrajectory,
                            RoadDetection, SpeedLimits, SupervisorState)
@@ -169,6 +169,10 @@ class LiveHub:
                 del self._vehicles[gone]            # (a vehicle back later starts its leg history anew)
             return sorted(v for v, state in self._vehicles.items() if state.heard >= cutoff)
 
+    def knows(self, vehicle_id: str) -> bool:
+        with self._lock:
+            return vehicle_id in self._vehicles
+
     def events_since(self, seq: int, vehicle_id: str | None = None) -> list[dict]:
         with self._lock:
             return [e for e in self._events if e["seq"] > seq and (vehicle_id is None or e["vehicle_id"] == vehicle_id)]
@@ -241,8 +245,7 @@ class LiveHub:
         x = grid.origin_x + (cols + 0.5) * grid.resolution_m
         y = grid.origin_y + (rows + 0.5) * grid.resolution_m
         if grid.frame != "local":               # the vehicle frame: turn and move by the pose
-            c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-            x, y = pose.x + c * x - s * y, pose.y + s * x + c * y
+            x, y = vehicle_to_local(pose.x, pose.y, pose.yaw, x, y)
         size = self.s.grid_cell_m
         cells = np.unique(np.stack([np.floor(x / size), np.floor(y / size)], axis=1), axis=0) if len(x) else \
             np.zeros((0, 2))
@@ -320,6 +323,5 @@ def _round(values, digits: int = 2) -> list[float]:
 
 
 def _to_local(pose: Pose, xs: list[float], ys: list[float]) -> dict:
-    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-    return {"x": [round(pose.x + c * x - s * y, 2) for x, y in zip(xs, ys)],
-            "y": [round(pose.y + s * x + c * y, 2) for x, y in zip(xs, ys)]}
+    x, y = vehicle_to_local(pose.x, pose.y, pose.yaw, np.asarray(xs), np.asarray(ys))
+    return {"x": _round(x), "y": _round(y)}

@@ -33,6 +33,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from numpy.polynomial import polynomial as poly
+
 from ares.config import Params, param
 
 
@@ -95,8 +97,8 @@ class RememberedRoad:
     def view(self, confidence: float) -> RoadView:
         """What road detection would say from here of the remembered centre line y = f(x): the offset
         across the line at the vehicle's x, the heading relative to the line's direction there."""
-        f = _polynomial(self.centre, self.x)
-        road_yaw = math.atan(_polynomial(_derivative(self.centre), self.x))
+        f = poly.polyval(self.x, self.centre)
+        road_yaw = math.atan(poly.polyval(self.x, poly.polyder(self.centre)))
         heading = math.remainder(self.yaw - road_yaw, 2.0 * math.pi)
         offset = (self.y - f) * math.cos(road_yaw)
         return RoadView(offset, heading, self.centre, confidence)
@@ -146,14 +148,6 @@ class RoadReactiveControl:
         b = _curvature(road.centre, ahead_m + p.curvature_lookahead_m)
         kappa = -(p.kp * road.lateral_offset_m + p.ki * self.integral + p.kd * math.sin(road.heading_rad)) + b
         return max(-p.max_kappa, min(p.max_kappa, kappa)), b
-
-
-def _polynomial(coefficients: list[float], x: float) -> float:
-    return sum(c * x ** i for i, c in enumerate(coefficients))
-
-
-def _derivative(coefficients: list[float]) -> list[float]:
-    return [i * c for i, c in enumerate(coefficients) if i >= 1]
 
 
 def _curvature(coefficients: list[float], x: float) -> float:

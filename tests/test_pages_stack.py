@@ -24,13 +24,14 @@ from urllib.parse import parse_qs, urlparse
 import httpx
 import pytest
 
-from ares.bench.live import BrowserCalmer, calm_browsers, niced_chromium
+from ares.bench.live import BrowserCalmer, chromium_path
 from ares.bus import Bus
 from ares.clock import WallClock
 from ares.messages import LidarFault
 from blackbox.auth import Argon2Settings, Passwords, add_user
 from blackbox.sqlite_store import SqliteStore
 from tests.conftest import LIGHT_LIDARS, REPO, free_port, make_run_config, stop_process
+from tests.test_recorder import wait_until
 
 pytestmark = pytest.mark.stack
 
@@ -41,13 +42,7 @@ VEHICLE = "shuttle01"
 
 
 def wait_for(condition, timeout_s: float, what: str, step_s: float = 0.1):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(step_s)
-    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+    return wait_until(condition, timeout_s, what, interval_s=step_s)
 
 
 @pytest.fixture(scope="module")
@@ -88,13 +83,11 @@ def stack(tmp_path_factory, browser):
 
 
 @pytest.fixture(scope="module")
-def browser(tmp_path_factory):
+def browser():
     from playwright.sync_api import sync_playwright
     with sync_playwright() as p, BrowserCalmer():
-        # niced: on the vehicle the pages' browsers are tablets, not a load on its computer
-        chromium = niced_chromium(tmp_path_factory.mktemp("browser"))
-        b = p.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox"])
-        calm_browsers()
+        # reniced (BrowserCalmer): on the vehicle the pages' browsers are tablets, not a load on its computer
+        b = p.chromium.launch(executable_path=chromium_path(), headless=True, args=["--no-sandbox"])
         yield b
         b.close()
 
@@ -104,7 +97,6 @@ def page(browser, stack, request):
     context = browser.new_context(ignore_https_errors=True, viewport={"width": 1024, "height": 900},
                                   accept_downloads=True)
     pg = context.new_page()
-    calm_browsers()                                 # its renderer
     pg.set_default_timeout(20_000)
     problems: list[str] = []
     # a refused command (409) is part of a flow; any other failed load or script error is a problem

@@ -23,7 +23,7 @@ from ares.bench.common import BenchError, percentile, versions
 from ares.clock import ScaledClock
 from ares.localhost import free_port
 from ares.processes import for_run
-from ares.stack import engage_automatic
+from ares.stack import STARTUP_TIMEOUT_S, RunFailed, engage_automatic, wait_for
 from ares.supervisor import Supervisor
 from blackbox.auth import Argon2Settings, Passwords, add_user
 from blackbox.stores import open_store
@@ -32,22 +32,19 @@ GOAL_MS = 500.0
 USER, PASSWORD = "bench-operator", "a bench password"
 
 
-def niced_chromium(folder: Path) -> str:
-    """Debian's Chromium behind `nice -n 19`, as Playwright's executable: the pages' browsers run on
-    tablets, not on the vehicle's computer, so here they must not take the stack's CPU (the LiDAR
-    simulation runs niced, and a browser at normal priority starves it into a rate fault)."""
+def chromium_path() -> str:
+    """Debian's Chromium (Playwright drives it; no browser download)."""
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
         raise BenchError("Chromium is not installed (scripts/setup.sh installs Debian's chromium)")
-    wrapper = Path(folder) / "chromium-niced"
-    wrapper.write_text(f'#!/bin/sh\nexec nice -n 19 {chromium} "$@"\n')
-    wrapper.chmod(0o755)
-    return str(wrapper)
+    return chromium
 
 
 def calm_browsers() -> int:
-    """Renice this process's Chromium processes to 19 (Chromium raises its browser and GPU
-    processes' priority itself, whatever it was started with): the processes reniced."""
+    """Renice this process's Chromium processes to 19: the pages' browsers are tablets on the
+    vehicle, not a load on its computer, and must not take the stack's CPU here (the LiDAR
+    simulation runs niced; a browser at normal priority starves it into a rate fault). Chromium
+    raises its browser and GPU processes' priority itself, so starting it niced is not enough."""
     import psutil
     calmed = 0
     for proc in psutil.Process().children(recursive=True):     # ours: Playwright's driver and its browsers
@@ -86,7 +83,7 @@ def run_live_bench(browsers: int = 3, seconds: float = 30.0, warmup_s: float = 5
                    progress: Callable[[str], None] = lambda _msg: None) -> dict:
     from playwright.sync_api import sync_playwright
     with tempfile.TemporaryDirectory(prefix="ares-bench-live-") as tmp:
-        chromium = niced_chromium(Path(tmp))
+        chromium = chromium_path()
         store_path = Path(tmp) / "bb.sqlite"
         store = open_store(str(store_path))
         add_user(store, Passwords(Argon2Settings(time_cost=1, memory_kib=64, parallelism=1)), USER, "operator",
@@ -107,17 +104,14 @@ def run_live_bench(browsers: int = 3, seconds: float = 30.0, warmup_s: float = 5
             bus = supervisor.bus
             truth, car = bus.subscribe("sim/truth"), bus.subscribe("dbw/car_state")
             events = bus.subscribe("events", queue=100_000)
-            deadline = time.monotonic() + 90
-            while truth.latest is None and time.monotonic() < deadline:
-                time.sleep(0.1)
-            if truth.latest is None:
-                raise BenchError("the simulator did not start")
-            engage_automatic(bus, car, stop)
+            try:
+                wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
+                engage_automatic(bus, car, stop)
+            except RunFailed as exc:
+                raise BenchError(str(exc)) from None
             with sync_playwright() as p, BrowserCalmer():
                 browser = p.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox"])
-                calm_browsers()
                 pages = [_open_operator_page(browser, f"https://127.0.0.1:{api_port}") for _ in range(browsers)]
-                calm_browsers()         # the pages' renderers
                 progress(f"{browsers} pages live; warm-up {warmup_s:g} s, then {seconds:g} s measured")
                 time.sleep(warmup_s)
                 for page in pages:
@@ -153,11 +147,11 @@ def run_live_bench(browsers: int = 3, seconds: float = 30.0, warmup_s: float = 5
 def _open_operator_page(browser, url: str):
     context = browser.new_context(ignore_https_errors=True, viewport={"width": 1024, "height": 800})
     page = context.new_page()
-    calm_browsers()
     page.goto(url + "/operator")
     page.fill("input[name=username]", USER)
     page.fill("input[name=password]", PASSWORD)
     page.click("button[type=submit]")
+    page.wait_for_selector("#app:not([hidden])", timeout=30_000)    # logged in: the page has reloaded
     deadline = time.monotonic() + 30
     # polled, not page.wait_for_function: that evaluates a string in the page, which its CSP forbids
     while page.evaluate("window.aresLag ? window.aresLag.length : 0") < 3:

@@ -84,7 +84,7 @@ def build_router(services: Services) -> APIRouter:
                 response_class=StreamingResponse)
     async def vehicle_stream(request: Request, vehicle_id: VehicleId, claims: Viewer, hz: Hz = rate):
         gateway = hub()
-        if gateway.frame(vehicle_id) is None and vehicle_id != services.vehicle_id:
+        if not gateway.knows(vehicle_id) and vehicle_id != services.vehicle_id:
             raise HTTPException(404, f"vehicle {vehicle_id!r} is not on this router")
 
         def build(seq):

@@ -179,6 +179,16 @@ const ARES = (() => {
 
   function ll(x, y) { return [y, x]; }
 
+  // The route and its POIs on the map, fitted to view; POI names always shown or on hover.
+  function drawRoute(m, route, labelled) {
+    const line = L.polyline(route.x.map((x, i) => ll(x, route.y[i])), {color: "#52606d", weight: 3}).addTo(m);
+    m.fitBounds(line.getBounds(), {padding: [10, 10]});
+    for (const poi of route.pois) {
+      L.circleMarker(ll(poi.x, poi.y), {radius: labelled ? 6 : 5, color: "#1d3557", fillOpacity: 1})
+        .bindTooltip(text("span", poi.name), {permanent: labelled, direction: "right"}).addTo(m);
+    }
+  }
+
   function text(tag, content, cls) {
     const el = document.createElement(tag);
     el.textContent = content;
@@ -188,5 +198,5 @@ const ARES = (() => {
 
   function clock(t) { return new Date(t).toLocaleTimeString(); }
 
-  return {api, json, stream, page, fill, map, ll, text, clock, session};
+  return {api, json, stream, page, fill, map, ll, drawRoute, text, clock, session};
 })();

@@ -12,14 +12,7 @@ ARES.page(["fleet"], "fleet", async () => {
   const eventsEl = document.getElementById("events");
   const markers = new Map();
   const map = ARES.map(document.getElementById("map"));
-  if (map) {
-    const line = L.polyline(route.x.map((x, i) => ARES.ll(x, route.y[i])), {color: "#52606d", weight: 3}).addTo(map);
-    map.fitBounds(line.getBounds(), {padding: [10, 10]});
-    for (const poi of route.pois) {
-      L.circleMarker(ARES.ll(poi.x, poi.y), {radius: 5, color: "#1d3557", fillOpacity: 1})
-        .bindTooltip(ARES.text("span", poi.name), {direction: "right"}).addTo(map);
-    }
-  }
+  if (map) ARES.drawRoute(map, route, false);
 
   const fmt = (v, d) => (v == null ? "–" : typeof v === "number" ? v.toFixed(d) : String(v));
 

@@ -21,13 +21,7 @@ ARES.page(["operator"], "operator", async () => {
   let layers = null;
   let gridDrawn = 0;
   if (map) {
-    const line = L.polyline(route.x.map((x, i) => ARES.ll(x, route.y[i])), {color: "#52606d", weight: 3});
-    line.addTo(map);
-    map.fitBounds(line.getBounds(), {padding: [10, 10]});
-    for (const poi of route.pois) {
-      L.circleMarker(ARES.ll(poi.x, poi.y), {radius: 6, color: "#1d3557", fillOpacity: 1})
-        .bindTooltip(ARES.text("span", poi.name), {permanent: true, direction: "right"}).addTo(map);
-    }
+    ARES.drawRoute(map, route, true);
     layers = {
       cells: L.polygon([], {weight: 0, color: "#1d232a", fillOpacity: 0.6}).addTo(map),   // one shape: cheap to redraw
       area: L.polygon([], {color: "#b54708", weight: 1, fillOpacity: 0.15}).addTo(map),
