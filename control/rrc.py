@@ -13,20 +13,38 @@ the cap speed (the lateral error grows with distance, d²e/ds² ≈ −κ for sm
     κ = −(kp·e + ki·∫e ds + kd·de/ds) + b
     de/ds = sin(heading relative to the road)   (road detection's heading: no differencing of
                                                  frames, which would amplify their scatter)
-    b     = the centre line's own curvature ahead (the road's bend, fed forward)
+    b     = the road's mean curvature over the next curvature_lookahead_m (its bend, fed forward)
 
 kp = λ², kd = 2ζλ put the lateral error's response at a spatial frequency λ with damping ζ
 (critically damped at ζ = 1). The integral, bounded, takes out a steady offset such as a road's
-cross-fall pulling the vehicle aside. The speed is the RRC's own cap (the road is seen only so far
-ahead), lowered in proportion as the detection's confidence falls towards min_confidence.
+cross-fall pulling the vehicle aside. It runs only while the RRC's candidate drives (`driving`):
+the RRC computes all the time, and a reading a centimetre off for the hundreds of metres the MPC
+drives would fill it to its bound, then steer the shuttle aside at the hand-over. The speed is
+the RRC's own cap (the road is seen only so far ahead), lowered in proportion as the detection's
+confidence falls towards min_confidence.
 
-When the detection is lost (grass verges hide an edge now and then), the road last seen is
-remembered for `memory_m` of travel: its centre line, in the frame of the vehicle when it was
-seen, and the vehicle moved along it by the distance and the curvature actually driven (dead
-reckoning over a few metres is good to centimetres). The same law then steers along that centre
-line, and the command's speed is 0: the remembered road is good enough to steer a controlled stop
-by, not to drive on (`remembered`; the control manager only steers its stop with it). Beyond
-`memory_m` there is no candidate, and the integral starts again from zero.
+The road at the wheels is read from frames seen a few metres back. Road detection sees the
+boundaries from about 4 m ahead, so its offset and heading at the vehicle (x = 0) are its fit
+extrapolated backwards; where a tight bend begins ahead, the fit bends towards it and the
+extrapolation is off by up to 1.5 m and 35° (the promenade's 12 m bend), while within its points
+(4-6 m ahead) the same fit is good to ~15 cm. So each confident frame's centre line is remembered,
+in the vehicle frame of the moment it was seen, with the vehicle moved along it since by the
+distance and the curvature actually driven (dead reckoning over a few metres is good to
+centimetres), and e and the heading are the mean of what the frames seen `view_from_m` to
+`view_to_m` back say of the road where the vehicle now is (without any that far back yet, after
+a start, the frame seen nearest to that range).
+
+b is not a fit's curvature either: a quadratic's curvature is one figure for all of 4-12 m ahead,
+so it reads a bend up to 8 m early and, inside a bend turning through 90°, off by a factor of two
+or three. It is the turn of the road's direction from where the vehicle is (the heading just
+read) to curvature_lookahead_m ahead (the newest frame's direction there, near its first points),
+over that distance.
+
+When the detection is lost (grass verges hide an edge now and then), the remembered frames keep
+being read the same way for `memory_m` of travel past the last one. The command's speed is then
+0: the remembered road is good enough to steer a controlled stop by, not to drive on
+(`remembered`; the control manager only steers its stop with it). Beyond `memory_m` there is no
+candidate, and the integral starts again from zero.
 """
 from __future__ import annotations
 
@@ -34,8 +52,11 @@ import math
 from dataclasses import dataclass
 
 from numpy.polynomial import polynomial as poly
+from pydantic import model_validator
 
 from ares.config import Params, param
+
+SPACING_M = 0.1         # a new frame replaces the newest remembered one until the vehicle has moved this far
 
 
 class RrcParams(Params):
@@ -45,8 +66,10 @@ class RrcParams(Params):
     ki: float = param(0.002, "per metre·metre of offset travelled", unit="1/m^3", ge=0)
     kd: float = param(0.45, "per unit of de/ds = sin(heading to the road) (2ζλ, ζ = 0.9)", unit="1/m", ge=0)
     integral_limit_m2: float = param(5.0, "bound on ∫e ds (anti-windup)", unit="m^2", gt=0)
-    curvature_lookahead_m: float = param(4.0, "the road's curvature fed forward is the centre line's at this "
-                                              "distance ahead", unit="m", ge=0)
+    curvature_lookahead_m: float = param(5.0, "the road's curvature fed forward is its mean over this distance "
+                                              "ahead: the turn of its direction from the vehicle to there, there "
+                                              "as the newest frame sees it (from ~4 m ahead: within its points)",
+                                         unit="m", gt=0)
     max_speed_mps: float = param(2.5, "the RRC's own speed cap", unit="m/s", gt=0)
     min_confidence: float = param(0.03, "below this the detection is not followed (docs/control_manager.md: grass "
                                         "verges give right detections at 0.1-0.3)", ge=0, le=1)
@@ -55,6 +78,17 @@ class RrcParams(Params):
     max_kappa: float = param(0.25, "largest curvature commanded", unit="1/m", gt=0)
     memory_m: float = param(8.0, "a lost road is steered along, remembered, for this distance travelled (a "
                                  "controlled stop from the cap speed takes ~4 m)", unit="m", ge=0)
+    view_from_m: float = param(3.0, "the offset and heading are read from the frames seen this far back or "
+                                    "more (the road at the vehicle was then within their boundary points, "
+                                    "which begin ~4 m ahead) ...", unit="m", ge=0)
+    view_to_m: float = param(6.0, "... up to this far (docs/control.md, `ares calibrate rrc-view`: in the 12 m bend "
+                                  "the offset's p95 error fell from 1.45 m to 0.16 m)", unit="m", ge=0)
+
+    @model_validator(mode="after")
+    def _view_range(self):
+        if self.view_to_m < self.view_from_m:
+            raise ValueError("view_to_m must not be below view_from_m")
+        return self
 
 
 @dataclass(frozen=True)
@@ -64,6 +98,7 @@ class RoadView:
     heading_rad: float              # + when the vehicle points left of the road
     centre: list[float]             # centre line y = c0 + c1 x + c2 x² ..., lowest order first
     confidence: float
+    stamp: float | None = None      # the frame's time: a view seen again is not a new frame (None: always new)
 
 
 @dataclass(frozen=True)
@@ -73,6 +108,7 @@ class RrcCommand:
     error_m: float                  # eq. 15
     feedforward: float              # b
     remembered: bool = False        # steering along the road last seen: for a controlled stop only (v = 0)
+    heading_rad: float = 0.0        # the heading to the road the law used
 
 
 @dataclass
@@ -84,6 +120,7 @@ class RememberedRoad:
     y: float = 0.0
     yaw: float = 0.0
     travelled_m: float = 0.0
+    stamp: float | None = None
 
     def advance(self, ds: float, kappa: float) -> None:
         """Move the vehicle ds metres along an arc of curvature kappa (exact for a constant kappa)."""
@@ -107,51 +144,82 @@ class RememberedRoad:
 class RoadReactiveControl:
     def __init__(self, params: RrcParams | None = None):
         self.p = params or RrcParams()
-        self.integral = 0.0         # ∫ e ds, m²
-        self.memory: RememberedRoad | None = None
+        self.integral = 0.0                     # ∫ e ds, m²
+        self.seen: list[RememberedRoad] = []    # the confident frames of the last metres, oldest first
+
+    @property
+    def memory(self) -> RememberedRoad | None:
+        """The road last seen."""
+        return self.seen[-1] if self.seen else None
 
     def reset(self) -> None:
         self.integral = 0.0
-        self.memory = None
+        self.seen = []
 
-    def step(self, road: RoadView | None, travelled_m: float, driven_kappa: float = 0.0) -> RrcCommand | None:
-        """One cycle: `travelled_m` since the last one, at the measured curvature `driven_kappa`.
+    def step(self, road: RoadView | None, travelled_m: float | None, driven_kappa: float = 0.0,
+             since_frame_m: float = 0.0, driving: bool = True) -> RrcCommand | None:
+        """One cycle: `travelled_m` since the last one, at the measured curvature `driven_kappa`
+        (None: not measured, so the frames cannot be moved and only the newest is kept);
+        `since_frame_m` driven since `road`'s frame was taken (perception's latency); `driving`:
+        whether this controller's candidate is the one driving (else the integral stays at 0).
         None: nothing to follow, not even a road remembered."""
         p = self.p
-        travelled_m = max(travelled_m, 0.0)
+        if travelled_m is None:
+            self.seen = self.seen[-1:]
+        travelled_m = max(travelled_m or 0.0, 0.0)
+        for frame in self.seen:
+            frame.advance(travelled_m, driven_kappa)
+        keep = max(p.memory_m, p.view_to_m)
+        self.seen = [frame for frame in self.seen if frame.travelled_m <= keep]
         if road is None or road.confidence < p.min_confidence or not all(
                 math.isfinite(v) for v in (road.lateral_offset_m, road.heading_rad)):
-            return self._remembered(travelled_m, driven_kappa)
-        self.memory = RememberedRoad(list(road.centre)) if p.memory_m > 0 else None
-        e = road.lateral_offset_m
-        self.integral = max(-p.integral_limit_m2, min(p.integral_limit_m2, self.integral + e * travelled_m))
-        kappa, b = self._law(road)
+            return self._remembered()
+        self._remember(road, max(since_frame_m, 0.0), driven_kappa)
+        offset, heading, b = self._at_vehicle()
+        self.integral = max(-p.integral_limit_m2, min(p.integral_limit_m2, self.integral + offset * travelled_m)) \
+            if driving else 0.0
+        kappa = self._law(offset, heading, b)
         share = min(1.0, (road.confidence - p.min_confidence) / max(p.full_speed_confidence - p.min_confidence, 1e-9))
-        return RrcCommand(p.max_speed_mps * max(share, 0.0), kappa, e, b)
+        return RrcCommand(p.max_speed_mps * max(share, 0.0), kappa, offset, b, heading_rad=heading)
 
-    def _remembered(self, travelled_m: float, driven_kappa: float) -> RrcCommand | None:
-        memory = self.memory
-        if memory is None:
-            self.reset()
-            return None
-        memory.advance(travelled_m, driven_kappa)
-        if memory.travelled_m > self.p.memory_m:
-            self.reset()
-            return None
-        view = memory.view(confidence=0.0)
-        kappa, b = self._law(view, ahead_m=memory.x)
-        return RrcCommand(0.0, kappa, view.lateral_offset_m, b, remembered=True)
+    def _remember(self, road: RoadView, since_frame_m: float, driven_kappa: float) -> None:
+        newest = self.memory
+        if newest is not None and road.stamp is not None and newest.stamp == road.stamp:
+            return                                          # the same frame again (the loop outruns the LiDARs)
+        frame = RememberedRoad(list(road.centre), stamp=road.stamp)
+        frame.advance(since_frame_m, driven_kappa)          # the vehicle has moved on since the sweep
+        if newest is not None and newest.travelled_m - frame.travelled_m < SPACING_M:
+            self.seen.pop()
+        self.seen.append(frame)
 
-    def _law(self, road: RoadView, ahead_m: float = 0.0) -> tuple[float, float]:
-        """Eq. 14 per metre: the curvature commanded and the road's own curvature fed forward."""
+    def _at_vehicle(self) -> tuple[float, float, float]:
+        """Offset and heading where the vehicle is, as the frames seen view_from_m to view_to_m back
+        saw the road there (mean), or else the frame seen nearest to that range; and b, the road's
+        mean curvature over the next curvature_lookahead_m: the turn of its direction from here to
+        there, there as the newest frame sees it (within its points)."""
         p = self.p
-        b = _curvature(road.centre, ahead_m + p.curvature_lookahead_m)
-        kappa = -(p.kp * road.lateral_offset_m + p.ki * self.integral + p.kd * math.sin(road.heading_rad)) + b
-        return max(-p.max_kappa, min(p.max_kappa, kappa)), b
+        distance = [max(p.view_from_m - f.travelled_m, f.travelled_m - p.view_to_m, 0.0) for f in self.seen]
+        nearest = min(distance)
+        views = [f.view(0.0) for f, d in zip(self.seen, distance) if d == nearest]
+        offset = sum(v.lateral_offset_m for v in views) / len(views)
+        heading = sum(v.heading_rad for v in views) / len(views)
+        newest = self.seen[-1]
+        ahead = newest.x + p.curvature_lookahead_m
+        road_yaw_ahead = math.atan(poly.polyval(ahead, poly.polyder(newest.centre))) - newest.yaw   # vehicle frame
+        b = math.remainder(road_yaw_ahead + heading, 2.0 * math.pi) / p.curvature_lookahead_m   # here: −heading
+        return offset, heading, b
 
+    def _remembered(self) -> RrcCommand | None:
+        memory = self.memory
+        if memory is None or memory.travelled_m > self.p.memory_m:
+            self.reset()
+            return None
+        offset, heading, b = self._at_vehicle()
+        return RrcCommand(0.0, self._law(offset, heading, b), offset, b, remembered=True, heading_rad=heading)
 
-def _curvature(coefficients: list[float], x: float) -> float:
-    """Signed curvature of y = f(x) at x: f'' / (1 + f'²)^1.5 (+ bending left)."""
-    d1 = sum(i * c * x ** (i - 1) for i, c in enumerate(coefficients) if i >= 1)
-    d2 = sum(i * (i - 1) * c * x ** (i - 2) for i, c in enumerate(coefficients) if i >= 2)
-    return d2 / (1.0 + d1 * d1) ** 1.5
+    def _law(self, offset: float, heading: float, b: float) -> float:
+        """Eq. 14 per metre: the curvature commanded, b the road's own curvature fed forward."""
+        p = self.p
+        kappa = -(p.kp * offset + p.ki * self.integral + p.kd * math.sin(heading)) + b
+        return max(-p.max_kappa, min(p.max_kappa, kappa))
+

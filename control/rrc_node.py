@@ -2,7 +2,9 @@
 
 The RRC trusts nothing but the LiDARs: the road's centre line and the vehicle's offset and
 heading from perception/road, and the distance travelled (for its terms per metre) from the
-drive-by-wire bridge's measured speed, never from the fused pose. Without a fresh, confident
+drive-by-wire bridge's measured speed, never from the fused pose; each frame's road is
+remembered and moved by that speed and the steering, so that the offset and heading at the
+wheels are read from frames seen a few metres back (control/rrc.py). Without a fresh, confident
 detection it steers along the road last seen for a few metres (moved by the measured speed and
 steering), a candidate marked `stop_only` with v = 0; after that there is no candidate.
 """
@@ -27,7 +29,8 @@ def road_view(road: RoadDetection | None) -> RoadView | None:
     if road is None or not road.found or road.centre is None or road.lateral_offset_m is None \
             or road.heading_rad is None:
         return None
-    return RoadView(road.lateral_offset_m, road.heading_rad, list(road.centre.coefficients), road.confidence)
+    return RoadView(road.lateral_offset_m, road.heading_rad, list(road.centre.coefficients), road.confidence,
+                    stamp=road.t)
 
 
 class RrcNode(Node):
@@ -36,6 +39,8 @@ class RrcNode(Node):
     Params = RrcNodeParams
     road = Input("perception/road", max_age="road_timeout_s", doc="centre line, offset and heading, confidence")
     car = Input("dbw/car_state", max_age="speed_timeout_s", doc="the measured speed: distance travelled")
+    control = Input("control/status", max_age="speed_timeout_s", doc="whether the RRC drives: its integral runs "
+                                                                    "only then")
     # no declared rate: silent wherever the road is not seen (not news for the supervisor)
     candidate = Output("control/candidate/rrc", doc="(v, kappa) at rate_hz while the road is seen (or remembered, "
                                                    "stop_only); silent without it")
@@ -48,11 +53,14 @@ class RrcNode(Node):
         car = self.car.fresh(now)
         dt = 0.0 if self._last is None else max(now - self._last, 0.0)
         self._last = now
-        travelled = abs(car.speed_mps) * dt if car is not None else 0.0
+        travelled = abs(car.speed_mps) * dt if car is not None else None     # unknown: frames cannot be moved
         driven_kappa = 0.0 if car is None else math.tan(
             math.radians(car.steering_wheel_deg) / self.vehicle.steering_ratio) / self.vehicle.wheelbase_m
         road = self.road.fresh(now)
-        cmd = self.rrc.step(road_view(road), travelled, driven_kappa)
+        since_frame = abs(car.speed_mps) * max(now - road.t, 0.0) if car is not None and road is not None else 0.0
+        status = self.control.fresh(now)
+        driving = status is not None and status.controller == "rrc"
+        cmd = self.rrc.step(road_view(road), travelled, driven_kappa, since_frame, driving)
         if cmd is None:
             return
         if cmd.remembered:
@@ -62,5 +70,5 @@ class RrcNode(Node):
                 note=f"road lost: steering along the road seen {memory.travelled_m:.1f} m back"))
             return
         self.candidate.put(ControlCandidate(t=now, controller="rrc", v=cmd.v, kappa=cmd.kappa,
-                                            cross_track_m=cmd.error_m, heading_error_rad=road.heading_rad,
+                                            cross_track_m=cmd.error_m, heading_error_rad=cmd.heading_rad,
                                             note=f"road confidence {road.confidence:.2f}"))

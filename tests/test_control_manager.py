@@ -9,8 +9,8 @@ import pytest
 from ares import config
 from ares.clock import ManualClock
 from ares.membus import MemoryNetwork
-from ares.messages import (CarState, ControlCandidate, DriveMode, OdometryScore, PathMatch, RoadBoundary,
-                           RoadDetection, SpeedLimits)
+from ares.messages import (CarState, ControlCandidate, ControllerStatus, DriveMode, OdometryScore, PathMatch,
+                           RoadBoundary, RoadDetection, SpeedLimits)
 from control.rrc_node import RrcNode
 from managers.control import ControlManager
 
@@ -152,10 +152,14 @@ class RrcHarness:
         self.bus = self.network.bus("test", self.clock)
         self.candidates = self.bus.subscribe("control/candidate/rrc", queue=1000)
 
-    def step(self, t: float, detection: RoadDetection | None, speed: float = 2.0):
+    def step(self, t: float, detection: RoadDetection | None, speed: float = 2.0, driving: str | None = None):
         self.clock.set(t)
         if detection is not None:
             self.bus.publish("perception/road", detection)
+        if driving is not None:
+            self.bus.publish("control/status", ControllerStatus(t=t, controller=driving, mode=driving, reason="",
+                                                                s=None, xte=None, heading_error=None,
+                                                                target_speed=speed))
         self.bus.publish("dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
                                                    setpoint_age_s=0.05, v_command=speed, kappa_command=0.0,
                                                    speed_mps=speed, steering_wheel_deg=0.0))
@@ -171,9 +175,27 @@ def test_the_rrc_node_steers_back_to_the_centre_and_remembers_a_lost_road_for_a_
     lost = h.step(0.10, road(0.10, 0.01))                      # not confident: the road seen at 0.05 s, remembered
     assert len(lost) == 1 and lost[0].stop_only and lost[0].v == 0.0 and lost[0].kappa < 0
     assert "road lost" in lost[0].note
-    assert h.step(0.15, road(0.15, 0.9, offset=-0.5))[0].kappa > 0      # right of the centre: steer left
+    again = h.step(0.15, road(0.15, 0.9, offset=0.5))[0]                # seen again: driving again
+    assert not again.stop_only and again.v > 0 and again.kappa < 0
     t = 0.15
     while h.node.rrc.memory is not None and t < 10.0:           # stale detection: remembered for memory_m
         t += 0.05
         got = h.step(t, None)
     assert got == [] and 3.5 < t < 5.0                          # 8 m at 2 m/s, after the road's timeout
+
+
+def test_the_rrc_integrates_its_offset_only_while_it_drives(run_config):
+    """The RRC computes all the time; a reading a little off while the MPC drives must not fill its
+    integral (it would steer the shuttle aside at the hand-over)."""
+    h = RrcHarness(run_config)
+    t = 0.0
+    for _ in range(20):                                         # the MPC drives, 0.3 m off the road seen
+        t += 0.05
+        h.step(t, road(t, 0.9, offset=0.3), driving="mpc")
+    assert h.node.rrc.integral == 0.0
+    for _ in range(20):                                         # the RRC drives: 2 m at 2 m/s
+        t += 0.05
+        h.step(t, road(t, 0.9, offset=0.3), driving="rrc")
+    assert h.node.rrc.integral == pytest.approx(0.3 * 1.9, rel=0.1)
+    h.step(t + 0.05, road(t + 0.05, 0.9, offset=0.3), driving="stop")
+    assert h.node.rrc.integral == 0.0

@@ -2,6 +2,7 @@
 the road view computed from its true pose (what road detection would publish, with its scatter)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -38,7 +39,7 @@ def drive(radius, offset0=0.8, yaw0=0.0, seconds=40.0, rng=None, params=None):
     dt, errors, commands = 0.1, [], []
     for _ in range(int(seconds / dt)):
         view, truth = view_of(x, y, yaw, radius, rng)
-        cmd = rrc.step(view, cmd.v * dt if commands else 0.0)
+        cmd = rrc.step(view, cmd.v * dt if commands else 0.0, cmd.kappa if commands else 0.0)   # as driven
         commands.append(cmd)
         errors.append(truth)
         x, y, yaw, _ = predict(x, y, yaw, cmd.v, math.atan(cmd.kappa * WHEELBASE), 0.0, dt, WHEELBASE)
@@ -119,3 +120,45 @@ def test_speed_falls_with_confidence_and_commands_stay_bounded():
     for _ in range(1000):
         cmd = rrc.step(far, 1.0)
     assert abs(cmd.kappa) <= p.max_kappa and abs(rrc.integral) <= p.integral_limit_m2
+
+
+def test_the_road_at_the_wheels_is_read_from_the_frames_seen_metres_back():
+    """Where a tight bend begins ahead, a frame's fit is good within its points (from ~4 m ahead)
+    but far off extrapolated back to the vehicle. The offset and heading come from the frames seen
+    3-6 m back, moved by what was driven since; a frame seen again is not a new one."""
+    def law(params):
+        rrc = RoadReactiveControl(params)
+        for k in range(17):                                        # 4 m straight on, 0.2 m left of the centre
+            view, _ = view_of(0.25 * k, 0.2, 0.0, math.inf)
+            rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=float(k)), 0.25 if k else 0.0)
+        rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=16.0), 0.0)          # the same frame again
+        assert len(rrc.seen) == 17
+        # This frame's fit bends towards a bend ahead: it has the vehicle 0.3 m right of the centre, turned 10° left.
+        h = math.radians(10.0)
+        bent = RoadView(-0.3, h, [0.3 / math.cos(h), -math.tan(h), 0.02], 0.9, stamp=17.0)
+        return rrc.step(bent, 0.0)
+
+    cmd = law(RrcParams())
+    assert cmd.error_m == pytest.approx(0.2, abs=1e-9) and cmd.heading_rad == pytest.approx(0.0, abs=1e-9)
+    assert cmd.kappa < cmd.feedforward                             # left of the centre: right of the bend's curvature
+    extrapolated = law(RrcParams(view_from_m=0.0, view_to_m=0.0))  # read at x = 0 of the newest frame
+    assert extrapolated.error_m == pytest.approx(-0.3)
+
+
+def test_without_a_measured_speed_only_the_newest_frame_is_kept():
+    rrc = RoadReactiveControl()
+    for k in range(5):
+        view, _ = view_of(0.5 * k, 0.2, 0.0, math.inf)
+        rrc.step(view, 0.5 if k else 0.0)
+    assert len(rrc.seen) == 5
+    view, _ = view_of(2.5, -0.1, 0.0, math.inf)
+    cmd = rrc.step(view, None)                                      # the frames cannot be moved: read the newest
+    assert len(rrc.seen) == 1 and cmd.error_m == pytest.approx(-0.1)
+
+
+def test_a_frame_is_read_where_the_vehicle_is_now_not_where_the_sweep_was_taken():
+    rrc = RoadReactiveControl()
+    yaw = math.radians(5.0)
+    view, _ = view_of(0.0, 0.2, yaw, math.inf)                      # turned 5° left, 0.2 m left of the centre
+    cmd = rrc.step(view, 0.0, 0.0, since_frame_m=1.0)               # perception's latency: 1 m driven since
+    assert cmd.error_m == pytest.approx(0.2 + math.sin(yaw), abs=1e-3)

@@ -45,12 +45,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
                     "extrinsics, found against each other in a simulated warehouse from a wrong first guess and "
                     "compared with the profile's (ARES §3.4.1; ares/harness/lidar_calibration.py). road: road "
                     "detection's β (eqs. 7-10) and knobs, searched on simulated frames over every verge of the tour "
-                    "(docs/road_detection.md; ares/harness/road_betas.py).")
-    calibrate.add_argument("what", choices=["odometry", "lidars", "road"])
+                    "(docs/road_detection.md; ares/harness/road_betas.py). rrc-view: where road reactive control "
+                    "reads the road at the vehicle, compared on simulated frames through the tour's tight bends and "
+                    "plain stretches (docs/control.md; ares/harness/rrc_view.py).")
+    calibrate.add_argument("what", choices=["odometry", "lidars", "road", "rrc-view"])
     calibrate.add_argument("--laps", type=positive_float, default=1.0, metavar="N", help="odometry: laps to drive")
     calibrate.add_argument("--seed", type=non_negative_int, default=None, metavar="S",
-                           help="odometry: the closed loop's; lidars: the scans' noise and the first guess; road: the "
-                                "frames' poses and the LiDARs' noise (default 0)")
+                           help="odometry: the closed loop's; lidars: the scans' noise and the first guess; road, "
+                                "rrc-view: the frames' poses and the LiDARs' noise (default 0)")
     calibrate.add_argument("--samples", type=positive_int, default=4, metavar="N",
                            help="road: sequences of frames per stretch of the tour (default 4)")
     calibrate.add_argument("--vehicle", default="ares_shuttle", metavar="NAME",
@@ -63,7 +65,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
                            help="lidars: write the profile with the calibrated extrinsics here (.yaml); road: a "
                                 "configuration file with the chosen values (.yaml, for --config)")
     calibrate.add_argument("--json", action="store_true",
-                           help="lidars, road: print one JSON object instead of the table")
+                           help="lidars, road, rrc-view: print one JSON object instead of the table")
     return {"describe": cmd_describe, "config": cmd_config, "replay": cmd_replay, "calibrate": cmd_calibrate}
 
 
@@ -172,6 +174,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         return _calibrate_lidars(args)
     if args.what == "road":
         return _calibrate_road(args)
+    if args.what == "rrc-view":
+        from ares.harness import rrc_view
+        report = rrc_view.run(args.seed or 0, verbose=not args.json)
+        print(json.dumps(report) if args.json else rrc_view.table(report))
+        return 0
     from ares.harness.odometry_score import calibrate
     calibrate(args.laps, args.seed)
     return 0
