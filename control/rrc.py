@@ -56,7 +56,7 @@ from pydantic import model_validator
 
 from ares.config import Params, param
 
-SPACING_M = 0.1         # a new frame replaces the newest remembered one until the vehicle has moved this far
+SPACING_M = 0.1         # remembered frames lie at least this far apart (but the newest): bounded at standstill
 
 
 class RrcParams(Params):
@@ -158,26 +158,29 @@ class RoadReactiveControl:
 
     def step(self, road: RoadView | None, travelled_m: float | None, driven_kappa: float = 0.0,
              since_frame_m: float = 0.0, driving: bool = True) -> RrcCommand | None:
-        """One cycle: `travelled_m` since the last one, at the measured curvature `driven_kappa`
-        (None: not measured, so the frames cannot be moved and only the newest is kept);
+        """One cycle: `travelled_m` since the last one (signed, + forwards), at the measured curvature
+        `driven_kappa` (None: not measured, so the frames cannot be moved and only the newest is kept);
         `since_frame_m` driven since `road`'s frame was taken (perception's latency); `driving`:
         whether this controller's candidate is the one driving (else the integral stays at 0).
         None: nothing to follow, not even a road remembered."""
         p = self.p
-        if travelled_m is None:
+        unmeasured = travelled_m is None
+        if unmeasured:
             self.seen = self.seen[-1:]
-        travelled_m = max(travelled_m or 0.0, 0.0)
+        travelled_m = travelled_m or 0.0                    # signed: backwards moves the frames back
         for frame in self.seen:
             frame.advance(travelled_m, driven_kappa)
         keep = max(p.memory_m, p.view_to_m)
         self.seen = [frame for frame in self.seen if frame.travelled_m <= keep]
         if road is None or road.confidence < p.min_confidence or not all(
-                math.isfinite(v) for v in (road.lateral_offset_m, road.heading_rad)):
+                math.isfinite(v) for v in (road.lateral_offset_m, road.heading_rad, *road.centre)):
             return self._remembered()
-        self._remember(road, max(since_frame_m, 0.0), driven_kappa)
+        self._remember(road, since_frame_m, driven_kappa)
+        if unmeasured:
+            self.seen = self.seen[-1:]
         offset, heading, b = self._at_vehicle()
-        self.integral = max(-p.integral_limit_m2, min(p.integral_limit_m2, self.integral + offset * travelled_m)) \
-            if driving else 0.0
+        self.integral = max(-p.integral_limit_m2, min(p.integral_limit_m2,
+                                                      self.integral + offset * abs(travelled_m))) if driving else 0.0
         kappa = self._law(offset, heading, b)
         share = min(1.0, (road.confidence - p.min_confidence) / max(p.full_speed_confidence - p.min_confidence, 1e-9))
         return RrcCommand(p.max_speed_mps * max(share, 0.0), kappa, offset, b, heading_rad=heading)
@@ -188,8 +191,8 @@ class RoadReactiveControl:
             return                                          # the same frame again (the loop outruns the LiDARs)
         frame = RememberedRoad(list(road.centre), stamp=road.stamp)
         frame.advance(since_frame_m, driven_kappa)          # the vehicle has moved on since the sweep
-        if newest is not None and newest.travelled_m - frame.travelled_m < SPACING_M:
-            self.seen.pop()
+        if len(self.seen) >= 2 and self.seen[-2].travelled_m - self.seen[-1].travelled_m < SPACING_M:
+            self.seen.pop()                                 # the newest so far lies too close to the one before
         self.seen.append(frame)
 
     def _at_vehicle(self) -> tuple[float, float, float]:
@@ -211,7 +214,7 @@ class RoadReactiveControl:
 
     def _remembered(self) -> RrcCommand | None:
         memory = self.memory
-        if memory is None or memory.travelled_m > self.p.memory_m:
+        if memory is None or self.p.memory_m <= 0 or memory.travelled_m > self.p.memory_m:
             self.reset()
             return None
         offset, heading, b = self._at_vehicle()

@@ -23,6 +23,7 @@ class RrcNodeParams(RrcParams):
     road_timeout_s: float = param(0.35, "an older road detection is not followed (LiDARs sweep at 10 Hz)",
                                   unit="s", gt=0)
     speed_timeout_s: float = param(0.5, "an older speed measurement counts as standstill", unit="s", gt=0)
+    status_timeout_s: float = param(0.5, "an older control manager status: the RRC is not driving", unit="s", gt=0)
 
 
 def road_view(road: RoadDetection | None) -> RoadView | None:
@@ -39,8 +40,8 @@ class RrcNode(Node):
     Params = RrcNodeParams
     road = Input("perception/road", max_age="road_timeout_s", doc="centre line, offset and heading, confidence")
     car = Input("dbw/car_state", max_age="speed_timeout_s", doc="the measured speed: distance travelled")
-    control = Input("control/status", max_age="speed_timeout_s", doc="whether the RRC drives: its integral runs "
-                                                                    "only then")
+    control = Input("control/status", max_age="status_timeout_s", doc="whether the RRC drives: its integral "
+                                                                     "runs only then")
     # no declared rate: silent wherever the road is not seen (not news for the supervisor)
     candidate = Output("control/candidate/rrc", doc="(v, kappa) at rate_hz while the road is seen (or remembered, "
                                                    "stop_only); silent without it")
@@ -53,11 +54,11 @@ class RrcNode(Node):
         car = self.car.fresh(now)
         dt = 0.0 if self._last is None else max(now - self._last, 0.0)
         self._last = now
-        travelled = abs(car.speed_mps) * dt if car is not None else None     # unknown: frames cannot be moved
+        travelled = car.speed_mps * dt if car is not None else None          # unknown: frames cannot be moved
         driven_kappa = 0.0 if car is None else math.tan(
             math.radians(car.steering_wheel_deg) / self.vehicle.steering_ratio) / self.vehicle.wheelbase_m
         road = self.road.fresh(now)
-        since_frame = abs(car.speed_mps) * max(now - road.t, 0.0) if car is not None and road is not None else 0.0
+        since_frame = car.speed_mps * max(now - road.t, 0.0) if car is not None and road is not None else 0.0
         status = self.control.fresh(now)
         driving = status is not None and status.controller == "rrc"
         cmd = self.rrc.step(road_view(road), travelled, driven_kappa, since_frame, driving)

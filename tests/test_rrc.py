@@ -131,7 +131,7 @@ def test_the_road_at_the_wheels_is_read_from_the_frames_seen_metres_back():
         for k in range(17):                                        # 4 m straight on, 0.2 m left of the centre
             view, _ = view_of(0.25 * k, 0.2, 0.0, math.inf)
             rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=float(k)), 0.25 if k else 0.0)
-        rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=16.0), 0.0)          # the same frame again
+        rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=16.0), 0.25)         # the same frame again
         assert len(rrc.seen) == 17
         # This frame's fit bends towards a bend ahead: it has the vehicle 0.3 m right of the centre, turned 10° left.
         h = math.radians(10.0)
@@ -162,3 +162,42 @@ def test_a_frame_is_read_where_the_vehicle_is_now_not_where_the_sweep_was_taken(
     view, _ = view_of(0.0, 0.2, yaw, math.inf)                      # turned 5° left, 0.2 m left of the centre
     cmd = rrc.step(view, 0.0, 0.0, since_frame_m=1.0)               # perception's latency: 1 m driven since
     assert cmd.error_m == pytest.approx(0.2 + math.sin(yaw), abs=1e-3)
+
+
+def test_the_frames_are_kept_at_walking_pace_and_bounded_at_standstill():
+    """A 20 Hz loop, 10 Hz frames: at 0.5 m/s the frames lie 5 cm apart, closer than the spacing;
+    the history must still reach back 3-6 m (not collapse to the newest), and stay small standing."""
+    def history(speed, seconds):
+        rrc = RoadReactiveControl()
+        for k in range(int(seconds * 20)):
+            view, _ = view_of(0.0, 0.1, 0.0, math.inf)
+            rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=float(k // 2)), speed * 0.05)
+        return rrc.seen
+
+    walking = history(0.5, 20.0)                                    # 10 m
+    assert walking[0].travelled_m > RrcParams().view_to_m
+    assert all(a.travelled_m - b.travelled_m >= 0.1 - 1e-9 for a, b in zip(walking[:-2], walking[1:-1]))
+    assert len(history(0.0, 20.0)) <= 2
+
+
+def test_a_frame_with_a_non_finite_centre_line_is_not_followed():
+    rrc = RoadReactiveControl(RrcParams(memory_m=0.0))
+    assert rrc.step(RoadView(0.0, 0.0, [0.0, 0.0, math.nan], 0.9), 0.1) is None
+    assert rrc.seen == [] and rrc.integral == 0.0
+
+
+def test_no_memory_means_no_stop_candidate_even_standing():
+    rrc = RoadReactiveControl(RrcParams(memory_m=0.0))
+    view, _ = view_of(0.0, 0.1, 0.0, math.inf)
+    assert rrc.step(view, 0.0) is not None
+    assert rrc.step(None, 0.0) is None
+
+
+def test_backing_up_moves_the_frames_back():
+    rrc = RoadReactiveControl()
+    yaw = math.radians(5.0)
+    view, _ = view_of(0.0, 0.2, yaw, math.inf)
+    rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=0.0), 0.0)
+    rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=0.0), 4.0)
+    cmd = rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=0.0), -1.0)     # 4 m on, 1 m back
+    assert cmd.error_m == pytest.approx(0.2 + 3.0 * math.sin(yaw), abs=1e-3)
