@@ -10,8 +10,9 @@ metres back, moved along by what was driven. Which frames?
 1. Frames. Sequences along the built-in tour, a frame every 0.5 m (10 Hz at 5 m/s), the vehicle
    on a line parallel to the centre line (off it by `lateral`, not turned, so that the poses are
    ones a vehicle drives through): through each tight bend from 10 m before to 10 m after it, and
-   along plain stretches away from them with a boundary on both sides (no crossing or square). The LiDARs at full resolution through the pipeline, as
-   for `ares calibrate road` (ares/harness/road_betas.py).
+   along plain stretches away from them with a boundary on both sides (no crossing or square).
+   The LiDARs at full resolution through the pipeline, as for `ares calibrate road`
+   (ares/harness/road_betas.py).
 2. Reading. detect_road on each sequence in order (each frame's model the next one's previous),
    and for every candidate range of distances back one RoadReactiveControl fed the detections,
    the distance driven between frames and its curvature, exactly (the route's, along the
@@ -104,17 +105,16 @@ def run(seed: int = 0, plain: int = 3, laterals: tuple[float, ...] = (0.0, 0.3),
                   f"{len(frames)} frames", flush=True)
     report = {"seed": seed, "sequences": len(plan), "step_m": STEP_M, "groups": {}}
     for name, by_range in errors.items():
-        report["groups"][name] = {}
-        for label, pairs in by_range.items():
-            e = np.abs(np.array(pairs)) if pairs else np.zeros((0, 3))
-            report["groups"][name][label] = {
-                "frames": len(pairs),
-                "offset_p50_m": float(np.percentile(e[:, 0], 50)) if len(e) else None,
-                "offset_p95_m": float(np.percentile(e[:, 0], 95)) if len(e) else None,
-                "offset_max_m": float(e[:, 0].max()) if len(e) else None,
-                "heading_p95_deg": float(np.percentile(e[:, 1], 95)) if len(e) else None,
-                "curvature_p95": float(np.percentile(e[:, 2], 95)) if len(e) else None}
+        report["groups"][name] = {label: _figures(pairs) for label, pairs in by_range.items()}
     return report
+
+
+def _figures(errors: list[tuple[float, float, float]]) -> dict:
+    """Frames, and |error| p50/p95/max of the offset, p95 of the heading and of b (None without frames)."""
+    e = np.abs(np.array(errors)).reshape(-1, 3)
+    figure = (lambda column, q: float(np.percentile(e[:, column], q))) if len(e) else (lambda column, q: None)
+    return {"frames": len(e), "offset_p50_m": figure(0, 50), "offset_p95_m": figure(0, 95),
+            "offset_max_m": figure(0, 100), "heading_p95_deg": figure(1, 95), "curvature_p95": figure(2, 95)}
 
 
 def _mean_curvature(route: Route, s: float, length_m: float) -> float:
