@@ -251,6 +251,10 @@ class VehicleProfile(Params):
         """1/m/s, at least: the steering motor's wheel rate over the wheelbase (d tan δ / dt >= dδ/dt)."""
         return math.radians(self.actuators.steering.max_rate_deg_s) / self.steering_ratio / self.wheelbase_m
 
+    def curvature_of(self, steering_wheel_deg: float) -> float:
+        """1/m: the curvature a steering-wheel angle drives (kinematic: tan(wheel angle) / wheelbase)."""
+        return math.tan(math.radians(steering_wheel_deg) / self.steering_ratio) / self.wheelbase_m
+
     @property
     def front_bumper_m(self) -> float:
         """The front bumper ahead of the rear axle: the wheelbase and half the overhangs."""

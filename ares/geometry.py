@@ -1,5 +1,5 @@
-"""Plane geometry shared by the route and the path manager: angles, and the projection of a
-point onto the segments of a polyline.
+"""Plane geometry shared by the route, the path manager, perception and the controllers: angles,
+frames, a step along an arc, and the projection of a point onto the segments of a polyline.
 
 A segment runs from its start (ax, ay) along (ex, ey) to (ax + ex, ay + ey). The projection is
 given twice, for one segment on plain floats (a matcher refining two segments per pose pays
@@ -22,6 +22,21 @@ def vehicle_to_local(x: float, y: float, yaw: float, xv, yv):
     vehicle at (x, y) heading yaw."""
     c, s = math.cos(yaw), math.sin(yaw)
     return x + c * xv - s * yv, y + s * xv + c * yv
+
+
+def local_to_vehicle(x: float, y: float, yaw: float, xl, yl):
+    """Points of the local frame in the vehicle frame (the inverse of vehicle_to_local)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = xl - x, yl - y
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+def arc_step(x: float, y: float, yaw: float, ds: float, kappa: float) -> tuple[float, float, float]:
+    """The pose after ds metres along an arc of curvature kappa (exact for a constant kappa;
+    ds < 0 goes back along it)."""
+    dyaw = kappa * ds
+    chord = ds if abs(dyaw) < 1e-9 else 2.0 * math.sin(dyaw / 2.0) / kappa
+    return x + chord * math.cos(yaw + dyaw / 2.0), y + chord * math.sin(yaw + dyaw / 2.0), yaw + dyaw
 
 
 def wrap_angle(a: float) -> float:

@@ -40,6 +40,14 @@ or three. It is the turn of the road's direction from where the vehicle is (the 
 read) to curvature_lookahead_m ahead (the newest frame's direction there, near its first points),
 over that distance.
 
+A new frame is checked against the road remembered: where both saw the same stretch (its centre
+line 4-8 m ahead, the remembered frame's within its points), it must lie within `agree_m` of the
+newest remembered frame's, on the mean. One that does not is not followed (it is treated as a
+lost road): a detection grown from the near field inside a tight bend can point the road 48°
+wrong with some confidence, and it once steered the shuttle 1.3 m aside. Should `doubt_frames`
+frames in a row agree with one another but not with the memory, the memory was the wrong one
+and they replace it.
+
 When the detection is lost (grass verges hide an edge now and then), the remembered frames keep
 being read the same way for `memory_m` of travel past the last one. The command's speed is then
 0: the remembered road is good enough to steer a controlled stop by, not to drive on
@@ -51,12 +59,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 from numpy.polynomial import polynomial as poly
 from pydantic import model_validator
 
 from ares.config import Params, param
+from ares.geometry import arc_step, local_to_vehicle, vehicle_to_local
 
 SPACING_M = 0.1         # remembered frames lie at least this far apart (but the newest): bounded at standstill
+CHECK_AHEAD_M = (4.0, 5.0, 6.0, 7.0, 8.0)   # a new frame's centre line is checked here (within its points) ...
+SEEN_M = (4.0, 12.0)    # ... against a remembered frame's, where that one had points (the fit reaches 12 m)
+CHECK_MIN_POINTS = 3    # fewer shared points: the frames saw different stretches, nothing to check
 
 
 class RrcParams(Params):
@@ -82,7 +95,12 @@ class RrcParams(Params):
                                     "more (the road at the vehicle was then within their boundary points, "
                                     "which begin ~4 m ahead) ...", unit="m", ge=0)
     view_to_m: float = param(6.0, "... up to this far (docs/control.md, `ares calibrate rrc-view`: in the 12 m bend "
-                                  "the offset's p95 error fell from 1.45 m to 0.16 m)", unit="m", ge=0)
+                                  "the offset's p95 error fell from 1.45 m to 0.15 m)", unit="m", ge=0)
+    agree_m: float = param(1.0, "a new frame whose centre line lies farther than this (mean, 4-8 m ahead) from "
+                                "where the newest remembered frame saw the same road is not followed ...",
+                           unit="m", gt=0)
+    doubt_frames: int = param(5, "... unless this many frames in a row agree with one another: then it was the "
+                                 "remembered road that was wrong", ge=1)
 
     @model_validator(mode="after")
     def _view_range(self):
@@ -124,11 +142,7 @@ class RememberedRoad:
 
     def advance(self, ds: float, kappa: float) -> None:
         """Move the vehicle ds metres along an arc of curvature kappa (exact for a constant kappa)."""
-        dyaw = kappa * ds
-        chord = ds if abs(dyaw) < 1e-9 else 2.0 * math.sin(dyaw / 2.0) / kappa
-        self.x += chord * math.cos(self.yaw + dyaw / 2.0)
-        self.y += chord * math.sin(self.yaw + dyaw / 2.0)
-        self.yaw += dyaw
+        self.x, self.y, self.yaw = arc_step(self.x, self.y, self.yaw, ds, kappa)
         self.travelled_m += ds
 
     def view(self, confidence: float) -> RoadView:
@@ -141,11 +155,34 @@ class RememberedRoad:
         return RoadView(offset, heading, self.centre, confidence)
 
 
+def disagreement(new: RememberedRoad, old: RememberedRoad) -> float | None:
+    """How far (m, mean) the new frame's centre line 4-8 m ahead lies from the old frame's, where
+    the old one had points there; None where they share too few."""
+    xs = np.array(CHECK_AHEAD_M)
+    xv, yv = local_to_vehicle(new.x, new.y, new.yaw, xs, poly.polyval(xs, new.centre))     # the vehicle now
+    x_old, y_old = vehicle_to_local(old.x, old.y, old.yaw, xv, yv)                        # the old frame
+    shared = (x_old >= SEEN_M[0]) & (x_old <= SEEN_M[1])
+    if shared.sum() < CHECK_MIN_POINTS:
+        return None
+    return float(np.abs(y_old[shared] - poly.polyval(x_old[shared], old.centre)).mean())
+
+
+def agree(frame: RememberedRoad, remembered: list[RememberedRoad], agree_m: float) -> bool:
+    """Whether the frame agrees with the newest of the remembered frames that saw the same road
+    (True when none did)."""
+    for old in reversed(remembered):
+        apart = disagreement(frame, old)
+        if apart is not None:
+            return apart <= agree_m
+    return True
+
+
 class RoadReactiveControl:
     def __init__(self, params: RrcParams | None = None):
         self.p = params or RrcParams()
         self.integral = 0.0                     # ∫ e ds, m²
         self.seen: list[RememberedRoad] = []    # the confident frames of the last metres, oldest first
+        self.doubted: list[RememberedRoad] = [] # the frames in a row that disagreed with them, oldest first
 
     @property
     def memory(self) -> RememberedRoad | None:
@@ -155,6 +192,7 @@ class RoadReactiveControl:
     def reset(self) -> None:
         self.integral = 0.0
         self.seen = []
+        self.doubted = []
 
     def step(self, road: RoadView | None, travelled_m: float | None, driven_kappa: float = 0.0,
              since_frame_m: float = 0.0, driving: bool = True) -> RrcCommand | None:
@@ -168,14 +206,15 @@ class RoadReactiveControl:
         if unmeasured:
             self.seen = self.seen[-1:]
         travelled_m = travelled_m or 0.0                    # signed: backwards moves the frames back
-        for frame in self.seen:
+        for frame in self.seen + self.doubted:
             frame.advance(travelled_m, driven_kappa)
         keep = max(p.memory_m, p.view_to_m)
         self.seen = [frame for frame in self.seen if frame.travelled_m <= keep]
         if road is None or road.confidence < p.min_confidence or not all(
                 math.isfinite(v) for v in (road.lateral_offset_m, road.heading_rad, *road.centre)):
             return self._remembered()
-        self._remember(road, since_frame_m, driven_kappa)
+        if not self._remember(road, since_frame_m, driven_kappa):
+            return self._remembered()
         if unmeasured:
             self.seen = self.seen[-1:]
         offset, heading, b = self._at_vehicle()
@@ -185,15 +224,23 @@ class RoadReactiveControl:
         share = min(1.0, (road.confidence - p.min_confidence) / max(p.full_speed_confidence - p.min_confidence, 1e-9))
         return RrcCommand(p.max_speed_mps * max(share, 0.0), kappa, offset, b, heading_rad=heading)
 
-    def _remember(self, road: RoadView, since_frame_m: float, driven_kappa: float) -> None:
+    def _remember(self, road: RoadView, since_frame_m: float, driven_kappa: float) -> bool:
+        """Remember a new frame if it agrees with the road remembered; False: it is not followed."""
         newest = self.memory
-        if newest is not None and road.stamp is not None and newest.stamp == road.stamp:
-            return                                          # the same frame again (the loop outruns the LiDARs)
+        if road.stamp is not None and any(f.stamp == road.stamp for f in (newest, *self.doubted[-1:]) if f):
+            return not self.doubted                         # the same frame again (the loop outruns the LiDARs)
         frame = RememberedRoad(list(road.centre), stamp=road.stamp)
         frame.advance(since_frame_m, driven_kappa)          # the vehicle has moved on since the sweep
+        if not agree(frame, self.seen, self.p.agree_m):
+            self.doubted = self.doubted + [frame] if agree(frame, self.doubted, self.p.agree_m) else [frame]
+            if len(self.doubted) < self.p.doubt_frames:
+                return False
+            self.seen, self.doubted = self.doubted[:-1], []     # they agreed with one another: the memory was wrong
+        self.doubted = []
         if len(self.seen) >= 2 and self.seen[-2].travelled_m - self.seen[-1].travelled_m < SPACING_M:
             self.seen.pop()                                 # the newest so far lies too close to the one before
         self.seen.append(frame)
+        return True
 
     def _at_vehicle(self) -> tuple[float, float, float]:
         """Offset and heading where the vehicle is, as the frames seen view_from_m to view_to_m back

@@ -5,15 +5,14 @@ heading from perception/road, and the distance travelled (for its terms per metr
 drive-by-wire bridge's measured speed, never from the fused pose; each frame's road is
 remembered and moved by that speed and the steering, so that the offset and heading at the
 wheels are read from frames seen a few metres back (control/rrc.py). Without a fresh, confident
-detection it steers along the road last seen for a few metres (moved by the measured speed and
-steering), a candidate marked `stop_only` with v = 0; after that there is no candidate.
+detection, or with one that disagrees with the road seen, it steers along the road last seen for
+a few metres (moved by the measured speed and steering), a candidate marked `stop_only` with
+v = 0; after that there is no candidate.
 """
 from __future__ import annotations
 
-import math
-
 from ares.config import param
-from ares.messages import ControlCandidate, RoadDetection
+from ares.messages import ControlCandidate, EventLevel, RoadDetection
 from ares.node import Input, Node, Output
 from control.rrc import RoadReactiveControl, RoadView, RrcParams
 
@@ -49,27 +48,37 @@ class RrcNode(Node):
     def setup(self) -> None:
         self.rrc = RoadReactiveControl(RrcParams(**{k: getattr(self.params, k) for k in RrcParams.model_fields}))
         self._last: float | None = None
+        self._doubting = False
 
     def step(self, now: float) -> None:
         car = self.car.fresh(now)
         dt = 0.0 if self._last is None else max(now - self._last, 0.0)
         self._last = now
         travelled = car.speed_mps * dt if car is not None else None          # unknown: frames cannot be moved
-        driven_kappa = 0.0 if car is None else math.tan(
-            math.radians(car.steering_wheel_deg) / self.vehicle.steering_ratio) / self.vehicle.wheelbase_m
+        driven_kappa = 0.0 if car is None else self.vehicle.curvature_of(car.steering_wheel_deg)
         road = self.road.fresh(now)
         since_frame = car.speed_mps * max(now - road.t, 0.0) if car is not None and road is not None else 0.0
         status = self.control.fresh(now)
         driving = status is not None and status.controller == "rrc"
         cmd = self.rrc.step(road_view(road), travelled, driven_kappa, since_frame, driving)
+        self._say_doubts(road)
         if cmd is None:
             return
         if cmd.remembered:
             memory = self.rrc.memory
             self.candidate.put(ControlCandidate(
                 t=now, controller="rrc", v=0.0, kappa=cmd.kappa, cross_track_m=cmd.error_m, stop_only=True,
-                note=f"road lost: steering along the road seen {memory.travelled_m:.1f} m back"))
+                note=("road detection disagrees with the road seen" if self.rrc.doubted else "road lost")
+                + f": steering along the road seen {memory.travelled_m:.1f} m back"))
             return
         self.candidate.put(ControlCandidate(t=now, controller="rrc", v=cmd.v, kappa=cmd.kappa,
                                             cross_track_m=cmd.error_m, heading_error_rad=cmd.heading_rad,
                                             note=f"road confidence {road.confidence:.2f}"))
+
+    def _say_doubts(self, road: RoadDetection | None) -> None:
+        """An event when road detection starts to disagree with the road seen (once per spell)."""
+        doubting = bool(self.rrc.doubted)
+        if doubting and not self._doubting:
+            self.event("road_doubted", f"road detection (confidence {road.confidence:.2f}) disagrees with the road "
+                                       "seen: not followed", EventLevel.WARNING, confidence=round(road.confidence, 3))
+        self._doubting = doubting

@@ -134,6 +134,8 @@ class ControlSelector:
         if mode is Mode.RRC:
             if inputs.force_odometry and inputs.odometry is not None:
                 return False, "forced", "the path manager forces odometry control"
+            if candidate is None and inputs.rrc is not None:
+                return False, "stop_only", "the RRC's candidate only steers a stop (its road lost or in doubt)"
             if candidate is None:
                 return False, "no_candidate", "the RRC has no fresh candidate to drive by"
             if self._road_trusted(inputs, holding):

@@ -11,9 +11,9 @@ from collections import deque
 
 import numpy as np
 
-from ares.config import LIDAR_NAMES
+from ares.config import LIDAR_NAMES, param
 from ares.messages import EventLevel, LidarHealth, LidarStatus, OccupancyGrid, PointCloud, RoadBoundary, RoadDetection
-from ares.node import InputGroup, Node, Output
+from ares.node import Input, InputGroup, Node, Output
 from perception.lidar_pipeline import FrameResult, LidarPipeline, LidarPipelineParams, SensorSweep
 
 RATE_WINDOW_S = 1.0
@@ -42,14 +42,20 @@ def road_message(t: float, result: FrameResult, x_range: tuple[float, float]) ->
         width_m=float(road.width_m) if np.isfinite(road.width_m) else None)
 
 
+class LidarPerceptionParams(LidarPipelineParams):
+    car_timeout_s: float = param(0.5, "an older speed measurement is not used to move a lost road", unit="s", gt=0)
+
+
 class LidarPerception(Node):
     """Self-hit and ghost filters, heightmap ground removal, the occupancy grid and road detection
     on the three LiDARs (ARES §3.4–3.5)."""
     name = "lidar_perception"
-    Params = LidarPipelineParams
+    Params = LidarPerceptionParams
     sweeps = InputGroup({name: f"lidar/{name}/points" for name in LIDAR_NAMES}, max_age="max_age_s",
                         doc="each LiDAR's sweep, sensor frame")
     grid = Output("perception/grid", rate="rate_hz", doc="20 x 20 m at 0.2 m around the vehicle")
+    car = Input("dbw/car_state", max_age="car_timeout_s", doc="the measured speed and steering: a lost road is "
+                                                           "moved by them to guide the next frames")
     road = Output("perception/road", rate="rate_hz")
     status = Output("perception/lidar_status", rate="rate_hz", doc="per LiDAR: rate, points, road points")
 
@@ -79,10 +85,11 @@ class LidarPerception(Node):
         t = max(msg.t for msg in fresh.values())
         if t == self.last_t:
             return                  # nothing new since the last frame
+        travel = self._travel(self.last_t, t, now)
         self.last_t = t
         frame = [SensorSweep(name, np.stack([m.x, m.y, m.z], axis=1), m.ring)
                  for name, m in fresh.items() if m.t == t]
-        result = self.pipeline.process(frame)
+        result = self.pipeline.process(frame, travel)
         self._watch_counts(result.raw_points)
         g = self.pipeline.mapper.grid
         self.grid.put(OccupancyGrid(t=t, frame="vehicle", resolution_m=g.cell_m, origin_x=g.origin_x,
@@ -90,6 +97,14 @@ class LidarPerception(Node):
         road_params = self.params.road
         self.road.put(road_message(t, result, (road_params.x_min_m, road_params.x_max_m)))
         self.status.put(self._status(t, now, result))
+
+    def _travel(self, since: float | None, t: float, now: float) -> tuple[float, float] | None:
+        """Distance and curvature driven from the frame at `since` to this one at t (at the speed and
+        steering measured now: frames are 0.1 s apart), None without a fresh measurement."""
+        car = self.car.fresh(now)
+        if car is None or since is None:
+            return None
+        return car.speed_mps * (t - since), self.vehicle.curvature_of(car.steering_wheel_deg)
 
     def _watch_counts(self, counts: dict[str, int]) -> None:
         """A covered sensor's count falls to about zero (ARES §3.7): say so once, and once more

@@ -6,7 +6,17 @@
     → road detection per ring (eqs. 7–10, Algorithm 1, two-step least squares)
 
 The same pipeline serves the perception process, `ares perception scan FILE` and
-`ares bench perception`; it keeps the last road model (eq. 10 measures against it).
+`ares bench perception`; it keeps the last road model (eq. 10 measures against it, and its
+centre line guides the next frame's scan).
+
+Where a frame finds no road (a grass verge hides an edge now and then), the next frames are
+guided by the last road found, moved by what the vehicle has driven since (the measured speed and
+steering the caller passes; the paper's "taking into account the displacement"), for
+`lost_guide_m` of travel. Without it they start again from the near field, which does not find a
+tight bend: standing in the promenade's 12 m bend, 8 of 9 frames found nothing and the ninth a
+road 48° wrong, while guided by the road seen 3.5 m back all 9 found it, within 5 cm from 4 m
+ahead. Without a measured motion the lost road cannot be moved, and the next frame starts from
+the near field as before.
 """
 from __future__ import annotations
 
@@ -17,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ares.config import LidarMount, Params, VehicleProfile, param
+from ares.geometry import arc_step
 from perception.cloud_filters import BodyBox, CloudFilterParams, ghost_mask, self_hit_mask
 from perception.extrinsics import apply, pose_matrix
 from perception.heightmap import ground_mask
@@ -40,6 +51,9 @@ class LidarPipelineParams(Params):
                                  factory=GroundParams)
     grid: OccupancyParams = param(doc="the local occupancy grid (§3.5.2)", factory=OccupancyParams)
     road: RoadDetectionParams = param(doc="road detection (§3.4.2)", factory=RoadDetectionParams)
+    lost_guide_m: float = param(8.0, "after the road is lost, the last road found, moved by what was driven, "
+                                     "guides the frames for this distance travelled (then, or without a "
+                                     "measured motion, they start from the near field)", unit="m", ge=0)
 
 
 @dataclass
@@ -74,7 +88,9 @@ class LidarPipeline:
         self.min_range = np.array([m.datasheet().min_range_m for m in self.mounts.values()], dtype=np.float32)
         self.body = BodyBox.of(vehicle, vehicle.height_m or self.params.filters.self_hit.body_height_m)
         self.mapper = OccupancyMapper(self.params.grid, self.origins)
-        self.previous: RoadModel | None = None
+        self.previous: RoadModel | None = None     # the last frame's road model (None: it found none)
+        self.last_found: RoadModel | None = None
+        self.since_found: tuple[float, float, float, float] | None = None  # x, y, yaw, travelled in its frame
 
     def road_frame(self, sweeps: list[SensorSweep], lap=None) -> tuple[LidarFrame, dict[str, int], dict[str, int]]:
         """The sweeps in the vehicle frame, merged, self hits and ghosts filtered: the frame road
@@ -111,7 +127,9 @@ class LidarPipeline:
             lap("filters")
         return frame, raw, removed
 
-    def process(self, sweeps: list[SensorSweep]) -> FrameResult:
+    def process(self, sweeps: list[SensorSweep], travel: tuple[float, float] | None = None) -> FrameResult:
+        """One frame; `travel`: the distance (m, signed) and curvature (1/m) the vehicle drove since
+        the previous frame, None where not measured."""
         p = self.params
         ms: dict[str, float] = {}
         clock = time.perf_counter()
@@ -134,11 +152,33 @@ class LidarPipeline:
         cells = self.mapper.cells(points, ground, sensor_index)
         lap("grid")
 
-        road = detect_road(frame, p.road, self.previous)
-        self.previous = road.model if road.found else None     # lost: start again from the near field
+        road = detect_road(frame, p.road, self.guide(travel))
+        self.remember(road)
         lap("road")
         ms["total"] = round(sum(ms.values()), 3)
         ms["cpu"] = round((time.thread_time() - cpu) * 1e3, 3)
         road_points = {name: int(road.road_points_per_sensor[k]) if k < len(road.road_points_per_sensor) else 0
                        for k, name in enumerate(self.names)}
         return FrameResult(points, sensor_index.astype(np.int16), ground, cells, road, raw, road_points, removed, ms)
+
+    def guide(self, travel: tuple[float, float] | None) -> RoadModel | None:
+        """The model guiding this frame: the last frame's, or after a loss the last road found,
+        moved to where the vehicle now is."""
+        if self.since_found is not None:
+            if travel is None:
+                self.since_found = None                   # the lost road can no longer be placed
+            else:
+                x, y, yaw, travelled = self.since_found
+                ds, kappa = travel
+                self.since_found = (*arc_step(x, y, yaw, ds, kappa), travelled + abs(ds))
+        if self.previous is None and self.since_found is not None and self.since_found[3] <= self.params.lost_guide_m:
+            x, y, yaw, _ = self.since_found
+            return self.last_found.seen_from(x, y, yaw, (self.params.road.x_min_m, self.params.road.fit_x_max_m))
+        return self.previous
+
+    def remember(self, road: RoadResult) -> None:
+        if road.found:
+            self.previous = self.last_found = road.model
+            self.since_found = (0.0, 0.0, 0.0, 0.0)
+        else:
+            self.previous = None

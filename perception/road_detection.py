@@ -79,6 +79,7 @@ from pydantic import model_validator
 from scipy.special import expit
 
 from ares.config import Params, param
+from ares.geometry import local_to_vehicle
 
 poly = np.polynomial.polynomial          # coefficients lowest order first: y = c0 + c1 x + c2 x² ...
 GAP_M = 1.0                              # two points of a ring farther apart are not neighbours
@@ -91,6 +92,7 @@ SLANT_M = 0.3                            # a ring's slant across the road is tak
 MIN_SLANT = 0.3                          # ... and a span along it is at most 1 / this times the span across
 TIE_M2 = 1e-6                            # squared errors closer than this are equal (1 mm on one point)
 HEIGHT_CUT_M = 1.0                       # points this far above or below a ring's reference are not scanned
+MOVED_SAMPLES = 21                       # a boundary moved into another frame is fitted again to this many points
 BAND_MARGIN_M = 1.0                      # the walks see this far (+ a span and a run) beyond the last edges
 
 
@@ -194,6 +196,18 @@ class RoadModel:
             return None
         shift = sign * self.width_m / 2 * math.hypot(1.0, _slope(side))
         return poly.polyadd(side, [shift])
+
+    def seen_from(self, x: float, y: float, yaw: float, x_range: tuple[float, float]) -> RoadModel:
+        """The same road in the frame of a vehicle that stands at (x, y) heading yaw in this
+        model's frame: each boundary, sampled over x_range of this frame, moved into that one
+        and fitted again with its own order."""
+        def moved(coef: np.ndarray | None) -> np.ndarray | None:
+            if coef is None:
+                return None
+            xs = np.linspace(*x_range, MOVED_SAMPLES)
+            xv, yv = local_to_vehicle(x, y, yaw, xs, poly.polyval(xs, coef))
+            return poly.polyfit(xv, yv, len(coef) - 1)
+        return RoadModel(moved(self.left), moved(self.right), self.width_m)
 
 
 @dataclass(frozen=True)

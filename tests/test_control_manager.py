@@ -184,6 +184,23 @@ def test_the_rrc_node_steers_back_to_the_centre_and_remembers_a_lost_road_for_a_
     assert got == [] and 3.5 < t < 5.0                          # 8 m at 2 m/s, after the road's timeout
 
 
+def test_the_rrc_node_does_not_follow_a_frame_that_disagrees_with_the_road_seen_and_says_so(run_config):
+    h = RrcHarness(run_config)
+    events = h.bus.subscribe("events", queue=100)
+    t = 0.0
+    for _ in range(40):                                         # 4 m along the road, 0.1 m left of its centre
+        t += 0.1
+        assert not h.step(t, road(t, 0.9))[0].stop_only
+    for _ in range(3):                                          # standing: a frame sees the centre 3 m to the right
+        t += 0.1
+        got = h.step(t, road(t, 0.5, offset=3.0), speed=0.0)
+        assert got[0].stop_only and got[0].v == 0.0 and "disagrees with the road seen" in got[0].note
+    doubts = [e for _, e in events.drain() if e.kind == "road_doubted"]
+    assert len(doubts) == 1 and doubts[0].data["confidence"] == 0.5      # once for the spell
+    t += 0.1
+    assert not h.step(t, road(t, 0.9), speed=0.0)[0].stop_only          # the road seen again
+
+
 def test_the_rrc_integrates_its_offset_only_while_it_drives(run_config):
     """The RRC computes all the time; a reading a little off while the MPC drives must not fill its
     integral (it would steer the shuttle aside at the hand-over)."""

@@ -173,3 +173,7 @@ def test_switch_causes_are_short_codes():
     assert (d.mode, d.switched, d.cause) == (Mode.ODOMETRY, True, "forced")
     d = selector.step(4.1, Inputs(0.9, 0.9, False, None, None))
     assert (d.mode, d.switched, d.cause) == (Mode.STOP, True, "no_candidate")
+    selector = ControlSelector(P, start=Mode.RRC)
+    selector.step(0.0, Inputs(0.1, 0.9, False, ODO, RRC))
+    d = selector.step(0.1, Inputs(0.1, 0.9, False, ODO, RRC_REMEMBERED))
+    assert (d.mode, d.switched, d.cause) == (Mode.STOP, True, "stop_only") and "only steers a stop" in d.reason

@@ -10,7 +10,7 @@ import pytest
 from ares.clock import ManualClock
 from ares.config import load_vehicle
 from ares.membus import MemoryNetwork
-from ares.messages import PointCloud
+from ares.messages import CarState, DriveMode, PointCloud
 from ares.route import Route
 from ares.sim.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
 from ares.sim.params import SimParams
@@ -97,3 +97,27 @@ def test_a_covered_sensor_is_reported_blind_and_seeing_again(kerbed_street):
     assert kerbed_street.roads.drain()[-1][1].found          # the corner sensors still see the kerbs
     kerbed_street.frame()
     assert [e.kind for _, e in kerbed_street.events.drain()] == ["lidar_sees"]
+
+
+def test_a_lost_road_is_moved_by_the_measured_speed_and_steering_to_guide_the_next_frames():
+    from tests.conftest import free_port, make_run_config
+    bus = PerceptionOnTheBus(make_run_config(free_port()), s0=700.0)
+    car = bus.bus.publisher("dbw/car_state")
+
+    def drive(covered=()):
+        car.put(CarState(t=bus.clock.now(), mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
+                         setpoint_age_s=0.0, v_command=4.0, kappa_command=0.0, speed_mps=4.0, steering_wheel_deg=0.0))
+        bus.frame(covered)                                  # 0.4 m on, 0.1 s later
+
+    for _ in range(3):
+        drive()
+    assert bus.roads.drain()[-1][1].found and bus.node.pipeline.since_found[3] == 0.0
+    drive(covered=tuple(bus.sensors))                       # nothing seen: lost
+    assert not bus.roads.drain()[-1][1].found
+    assert bus.node.pipeline.since_found[3] == pytest.approx(0.4)     # the frames 0.1 s apart at 4 m/s
+    drive()
+    assert bus.roads.drain()[-1][1].found
+    bus.clock.set(bus.clock.now() + 1.0)                    # the speed goes stale: a lost road cannot be moved
+    bus.frame(covered=tuple(bus.sensors))
+    bus.frame(covered=tuple(bus.sensors))
+    assert bus.node.pipeline.since_found is None

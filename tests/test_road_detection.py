@@ -448,6 +448,33 @@ def test_road_model_centre():
     assert RoadModel(left, None, None).centre() is None and RoadModel(None, None, 6.0).centre() is None
 
 
+def test_a_road_model_seen_from_a_moved_vehicle():
+    slope = 0.1
+    model = RoadModel(np.array([3.0, slope]), np.array([-3.0, slope]), 6.0)
+    # 5 m on, 0.5 m left, turned along the road: the boundaries run straight ahead, 2.5 m / 3.5 m off
+    # along the road's normal (the vehicle is 0.5 − 5·0.1 = 0 m left of the centre, measured along y)
+    moved = model.seen_from(5.0, 0.5, math.atan(slope), (0.0, 12.0))
+    assert moved.left == pytest.approx([3.0 * math.cos(math.atan(slope)), 0.0], abs=1e-9)
+    assert moved.right == pytest.approx([-3.0 * math.cos(math.atan(slope)), 0.0], abs=1e-9)
+    assert moved.width_m == 6.0
+    assert RoadModel(np.array([3.0, 0.0]), None, 6.0).seen_from(1.0, 0.0, 0.0, (0.0, 12.0)).right is None
+
+
+@given(st.floats(-0.08, 0.08), st.floats(0.0, 4.0), st.floats(-0.3, 0.3), st.floats(-0.1, 0.1))
+def test_a_bent_road_moved_keeps_its_points(kappa, ahead, across, off_turn):
+    """A 12.5 m bend or gentler, the vehicle moved up to 4 m along it, 0.3 m aside and turned up to
+    6° off the road's turn: the boundary's points from 4 m ahead of the vehicle lie on the moved
+    boundary (a polynomial of the same order again) to within 5 cm, plenty for a guide."""
+    left = np.array([2.0, 0.0, kappa / 2])
+    turn = math.atan(kappa * ahead) + off_turn
+    moved = RoadModel(left, None, 4.0).seen_from(ahead, across, turn, (0.0, 12.0))
+    xs = np.linspace(ahead + 4.0, 12.0, 9)
+    c, s = math.cos(turn), math.sin(turn)
+    dx, dy = xs - ahead, poly.polyval(xs, left) - across
+    xv, yv = c * dx + s * dy, -s * dx + c * dy
+    assert np.abs(poly.polyval(xv, moved.left) - yv).max() < 0.05
+
+
 def test_parameters_are_checked():
     with pytest.raises(ValueError):
         RoadDetectionParams(window_m=0.0)
@@ -468,3 +495,38 @@ def test_a_frame_of_a_few_points_gives_no_road_and_no_error():
     for prior in (None, previous):
         result = detect_road(few, previous=prior)
         assert not result.found and result.confidence == 0.0
+
+
+# ---- the pipeline's guide after a loss ----------------------------------------------------------
+
+def test_a_lost_road_guides_the_next_frames_moved_by_what_was_driven():
+    from ares.config import load_vehicle
+    from perception.lidar_pipeline import LidarPipeline, LidarPipelineParams
+    pipeline = LidarPipeline(load_vehicle("ares_shuttle"), LidarPipelineParams(lost_guide_m=5.0))
+    road = detect_road(scan(pose=(0.0, 0.5, 0.0)))
+    assert pipeline.guide((0.0, 0.0)) is None                              # nothing seen yet: the near field
+    pipeline.remember(road)
+    assert pipeline.guide((0.3, 0.0)) is road.model                        # found: the last frame's model, as it is
+    pipeline.remember(detect_road(empty_frame()))                          # lost
+    guide = pipeline.guide((2.0, 0.0))                                     # 2 m on, straight (+0.3 from before)
+    assert guide.left == pytest.approx(road.model.left, abs=0.02) and guide.right is not None
+    for _ in range(600):                                                   # standing: it keeps guiding
+        guide = pipeline.guide((0.0, 0.0))
+    assert guide.left[0] == pytest.approx(poly.polyval(2.3, road.model.left), abs=0.02)
+    turned = pipeline.guide((1.0, 0.1))                                    # 1 m on a left 10 m arc: the road points right
+    assert turned.left[1] < -0.05
+    assert pipeline.guide((1.5, 0.0)) is not None                          # 4.8 m since the road was found
+    assert pipeline.guide((0.5, 0.0)) is None                              # 5.3 m > lost_guide_m
+    assert pipeline.guide((0.0, 0.0)) is None                              # ... for good, until a road is found
+
+
+def test_a_lost_road_is_not_moved_without_a_measured_motion():
+    from ares.config import load_vehicle
+    from perception.lidar_pipeline import LidarPipeline
+    pipeline = LidarPipeline(load_vehicle("ares_shuttle"))
+    pipeline.remember(detect_road(scan()))
+    pipeline.remember(detect_road(empty_frame()))
+    assert pipeline.guide((0.5, 0.0)) is not None
+    assert pipeline.guide(None) is None and pipeline.guide((0.0, 0.0)) is None
+    pipeline.remember(detect_road(scan()))                                 # found again
+    assert pipeline.guide(None) is not None                                # the last frame's model needs no move

@@ -7,9 +7,11 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from control.mpc import predict
-from control.rrc import RoadReactiveControl, RoadView, RrcParams
+from control.rrc import RememberedRoad, RoadReactiveControl, RoadView, RrcParams, agree, disagreement
 
 WHEELBASE = 3.0
 
@@ -201,3 +203,81 @@ def test_backing_up_moves_the_frames_back():
     rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=0.0), 4.0)
     cmd = rrc.step(RoadView(*dataclasses.astuple(view)[:4], stamp=0.0), -1.0)     # 4 m on, 1 m back
     assert cmd.error_m == pytest.approx(0.2 + 3.0 * math.sin(yaw), abs=1e-3)
+
+
+# ---- a new frame checked against the road remembered ---------------------------------------------
+
+def stamped(view: RoadView, stamp: float) -> RoadView:
+    return dataclasses.replace(view, stamp=stamp)
+
+
+def remembering_a_straight(rrc: RoadReactiveControl) -> float:
+    """5 m driven along a straight, 0.1 m left of its centre, a frame every 0.25 m; then standing.
+    The time of the last frame."""
+    view, _ = view_of(0.0, 0.1, 0.0, math.inf)
+    for k in range(21):
+        assert not rrc.step(stamped(view, k * 0.1), 0.25 if k else 0.0).remembered
+    return 2.0
+
+
+def test_a_frame_that_disagrees_with_the_road_remembered_is_not_followed():
+    rrc = RoadReactiveControl()
+    t = remembering_a_straight(rrc)
+    wrong = RoadView(0.0, 0.0, [-0.1, math.tan(math.radians(48.0))], 0.37)    # the road pointed 48° left
+    cmd = rrc.step(stamped(wrong, t + 1.0), 0.0)
+    assert cmd.remembered and cmd.v == 0.0 and cmd.error_m == pytest.approx(0.1, abs=1e-6)
+    assert rrc.step(stamped(wrong, t + 1.0), 0.0).remembered                      # seen again: still not followed
+    assert len(rrc.doubted) == 1
+    right, _ = view_of(0.0, 0.1, 0.0, math.inf)
+    cmd = rrc.step(stamped(right, t + 1.1), 0.0)
+    assert not cmd.remembered and cmd.v > 0 and rrc.doubted == []
+
+
+def test_frames_that_agree_with_one_another_replace_a_memory_they_disagree_with():
+    p = RrcParams()
+    rrc = RoadReactiveControl(p)
+    t = remembering_a_straight(rrc)
+    other, _ = view_of(0.0, 2.0, 0.0, math.inf)                                   # the centre 2 m to the right
+    for k in range(1, p.doubt_frames):
+        assert rrc.step(stamped(other, t + k * 0.1), 0.0).remembered
+    cmd = rrc.step(stamped(other, t + p.doubt_frames * 0.1), 0.0)
+    assert not cmd.remembered and cmd.error_m == pytest.approx(2.0, abs=1e-6)
+    assert all(f.centre == other.centre for f in rrc.seen) and rrc.doubted == []
+
+
+def test_frames_in_a_row_that_disagree_with_one_another_are_none_of_them_followed():
+    p = RrcParams()
+    rrc = RoadReactiveControl(p)
+    t = remembering_a_straight(rrc)
+    for k in range(3 * p.doubt_frames):
+        wild, _ = view_of(0.0, 2.0 * (-1) ** k, 0.0, math.inf)                  # 2 m right, 2 m left, ...
+        assert rrc.step(stamped(wild, t + (k + 1) * 0.1), 0.0).remembered
+    assert len(rrc.doubted) == 1
+
+
+@given(st.floats(12.0, 200.0), st.sampled_from([-1.0, 1.0]), st.floats(0.0, 4.0), st.floats(-0.5, 0.5),
+       st.floats(-10.0, 10.0), st.floats(-0.5, 0.5), st.floats(-10.0, 10.0))
+def test_frames_of_one_road_agree(radius, side, ahead, offset0, heading0, offset1, heading1):
+    """Two frames of one bend (12 m or gentler, either way, as quadratics), taken up to 4 m apart
+    from anywhere 0.5 m and 10° about its centre line, agree to well within agree_m."""
+    def frame_at(s, offset, heading_deg):
+        angle = s / radius                                          # along a left circle about (0, radius)
+        x, y = (radius - offset) * math.sin(angle), radius - (radius - offset) * math.cos(angle)
+        yaw = angle + math.radians(heading_deg)
+        view, _ = view_of(x, y, yaw, radius)
+        return RememberedRoad(list(view.centre), x, y, yaw) if side > 0 else \
+            RememberedRoad([-c for c in view.centre], x, -y, -yaw)
+    old, new = frame_at(0.0, offset0, heading0), frame_at(ahead, offset1, heading1)
+    # the old frame's vehicle has since moved to the new one: its pose in the old frame
+    dx, dy = new.x - old.x, new.y - old.y
+    c, s = math.cos(old.yaw), math.sin(old.yaw)
+    moved = RememberedRoad(old.centre, c * dx + s * dy, -s * dx + c * dy, new.yaw - old.yaw)
+    here = RememberedRoad(new.centre)
+    apart = disagreement(here, moved)
+    assert apart is not None and apart < 0.5 * RrcParams().agree_m
+
+
+def test_frames_that_saw_different_stretches_are_not_compared():
+    old, new = RememberedRoad([0.0], x=9.0), RememberedRoad([5.0])    # 9 m on: the old frame saw up to 3 m ahead
+    assert disagreement(new, old) is None and agree(new, [old], 1.0)
+    assert disagreement(new, RememberedRoad([0.0], x=2.0)) == pytest.approx(5.0)

@@ -26,3 +26,4 @@ def test_frames_seen_metres_back_read_the_road_before_a_tight_bend_far_better_th
     assert at_zero["offset_max_m"] > 0.5                    # measured 1.34 m: the fit bends towards the bend ahead
     assert behind["offset_max_m"] < 0.15                    # measured 0.009 m
     assert behind["heading_p95_deg"] < at_zero["heading_p95_deg"] / 3
+    assert at_zero["not_followed"] == behind["not_followed"] == 0    # every frame agrees with the road seen

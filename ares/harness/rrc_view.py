@@ -13,13 +13,15 @@ metres back, moved along by what was driven. Which frames?
    along plain stretches away from them with a boundary on both sides (no crossing or square).
    The LiDARs at full resolution through the pipeline, as for `ares calibrate road`
    (ares/harness/road_betas.py).
-2. Reading. detect_road on each sequence in order (each frame's model the next one's previous),
+2. Reading. detect_road on each sequence in order (each frame's model the next one's previous;
+   after a frame without a road, the last road found moved by the drive, as the pipeline does),
    and for every candidate range of distances back one RoadReactiveControl fed the detections,
    the distance driven between frames and its curvature, exactly (the route's, along the
    parallel line). Its command's e and heading are compared with the truth (lateral, 0).
 3. Figures per group of sequences and range: the offset's error p50, p95 and max, the heading's
    p95, and the p95 of the error of b, the curvature fed forward, against the route's mean
-   curvature over the look-ahead (frames where the road was found).
+   curvature over the look-ahead (frames where the road was found); and how many of those frames
+   the RRC did not follow, as disagreeing with the road it remembered (`agree_m`).
 """
 from __future__ import annotations
 
@@ -27,9 +29,11 @@ import math
 
 import numpy as np
 
+from ares.config import load_vehicle
 from ares.harness.road_betas import make_frames, tight_bends
 from ares.route import Route
 from control.rrc import RoadReactiveControl, RoadView, RrcParams
+from perception.lidar_pipeline import LidarPipeline
 from perception.road_detection import RoadDetectionParams, detect_road
 
 RANGES = ((0.0, 0.0), (2.0, 5.0), (3.0, 6.0), (4.0, 6.0), (4.0, 8.0))   # (view_from_m, view_to_m); 0-0: at x = 0
@@ -76,27 +80,34 @@ def run(seed: int = 0, plain: int = 3, laterals: tuple[float, ...] = (0.0, 0.3),
     route = Route.from_tour("default")
     plan = plan if plan is not None else sequences(route, plain, laterals)
     detection = RoadDetectionParams()
+    shuttle = load_vehicle("ares_shuttle")
     errors: dict[str, dict[str, list]] = {}
+    doubts: dict[str, dict[str, int]] = {}
     for n, seq in enumerate(plan):
         frames = make_frames(seed=seed, starts=[(seq["s0"], seq["lateral"], 0.0)],
                              frames_per_sequence=seq["frames"], step_m=STEP_M)
         readers = {r: RoadReactiveControl(RrcParams(view_from_m=r[0], view_to_m=r[1])) for r in ranges}
         group = errors.setdefault(seq["group"], {f"{a:g}-{b:g} m": [] for a, b in ranges})
-        previous, last_s, last_view = None, None, None
+        doubted = doubts.setdefault(seq["group"], {f"{a:g}-{b:g} m": 0 for a, b in ranges})
+        pipeline = LidarPipeline(shuttle)
+        last_s, last_view = None, None
         for f in frames:
-            result = detect_road(f.lidar, detection, previous)
-            previous = result.model if result.found else None
+            pieces = _driven(route, last_s, f.s, seq["lateral"]) if last_s is not None else [(0.0, 0.0)]
+            last_s = f.s
+            driven = sum(d for d, _ in pieces)
+            result = detect_road(f.lidar, detection, pipeline.guide(
+                (driven, sum(d * k for d, k in pieces) / driven if driven else 0.0)))
+            pipeline.remember(result)
             view = None
             if result.found:
                 view = RoadView(result.lateral_offset_m, result.heading_rad, list(result.model.centre()),
                                 result.confidence, stamp=f.s)
-            pieces = _driven(route, last_s, f.s, seq["lateral"]) if last_s is not None else [(0.0, 0.0)]
-            last_s = f.s
             for (a, b), rrc in readers.items():
                 for distance, kappa in pieces[:-1]:         # the loop between frames sees the last one again
                     rrc.step(last_view, distance, kappa)
                 cmd = rrc.step(view, *pieces[-1])
                 if view is not None and cmd is not None:
+                    doubted[f"{a:g}-{b:g} m"] += cmd.remembered
                     group[f"{a:g}-{b:g} m"].append((cmd.error_m - f.lateral_m, math.degrees(cmd.heading_rad) - f.yaw_deg,
                                                     cmd.feedforward - _mean_curvature(route, f.s, rrc.p.curvature_lookahead_m)))
             last_view = view
@@ -105,7 +116,8 @@ def run(seed: int = 0, plain: int = 3, laterals: tuple[float, ...] = (0.0, 0.3),
                   f"{len(frames)} frames", flush=True)
     report = {"seed": seed, "sequences": len(plan), "step_m": STEP_M, "groups": {}}
     for name, by_range in errors.items():
-        report["groups"][name] = {label: _figures(pairs) for label, pairs in by_range.items()}
+        report["groups"][name] = {label: {**_figures(pairs), "not_followed": doubts[name][label]}
+                                  for label, pairs in by_range.items()}
     return report
 
 
@@ -126,11 +138,12 @@ def table(report: dict) -> str:
     lines = [f"{report['sequences']} sequences, a frame every {report['step_m']} m, seed {report['seed']}; "
              "errors of the offset and heading the RRC reads, by where it reads them"]
     lines.append(f"{'':<34}{'read':<10}{'frames':>7}{'off p50':>9}{'off p95':>9}{'off max':>9}{'hdg p95':>9}"
-                 f"{'b p95':>9}")
+                 f"{'b p95':>9}{'doubted':>9}")
     for group, by_range in report["groups"].items():
         for label, f in by_range.items():
             if not f["frames"]:
                 continue
             lines.append(f"{group:<34}{label:<10}{f['frames']:>7}{f['offset_p50_m']:>8.3f}m{f['offset_p95_m']:>8.3f}m"
-                         f"{f['offset_max_m']:>8.3f}m{f['heading_p95_deg']:>8.1f}°{f['curvature_p95']:>7.3f}/m")
+                         f"{f['offset_max_m']:>8.3f}m{f['heading_p95_deg']:>8.1f}°{f['curvature_p95']:>7.3f}/m"
+                         f"{f['not_followed']:>9}")
     return "\n".join(lines)
