@@ -42,11 +42,13 @@ over that distance.
 
 A new frame is checked against the road remembered: where both saw the same stretch (its centre
 line 4-8 m ahead, the remembered frame's within its points), it must lie within `agree_m` of the
-newest remembered frame's, on the mean. One that does not is not followed (it is treated as a
-lost road): a detection grown from the near field inside a tight bend can point the road 48°
-wrong with some confidence, and it once steered the shuttle 1.3 m aside. Should `doubt_frames`
-frames in a row agree with one another but not with the memory, the memory was the wrong one
-and they replace it.
+newest remembered frame's, on the mean, across the road. One that does not is not followed (it
+is treated as a lost road): a detection grown from the near field inside a tight bend can point
+the road 48° wrong with some confidence, and it once steered the shuttle 1.3 m aside. Should
+`doubt_frames` frames in a row (no cycle without a followable road between them) agree with one
+another but not with the memory, the memory was the wrong one and they replace it, the integral
+starting again (`replaced`). Without that, a wrong memory would hold a standing shuttle for good:
+standing, the remembered frames never age.
 
 When the detection is lost (grass verges hide an edge now and then), the remembered frames keep
 being read the same way for `memory_m` of travel past the last one. The command's speed is then
@@ -99,8 +101,8 @@ class RrcParams(Params):
     agree_m: float = param(1.0, "a new frame whose centre line lies farther than this (mean, 4-8 m ahead) from "
                                 "where the newest remembered frame saw the same road is not followed ...",
                            unit="m", gt=0)
-    doubt_frames: int = param(5, "... unless this many frames in a row agree with one another: then it was the "
-                                 "remembered road that was wrong", ge=1)
+    doubt_frames: int = param(20, "... unless this many frames in a row (2 s of LiDAR frames) agree with one "
+                                  "another: then it was the remembered road that was wrong", ge=1)
 
     @model_validator(mode="after")
     def _view_range(self):
@@ -156,15 +158,18 @@ class RememberedRoad:
 
 
 def disagreement(new: RememberedRoad, old: RememberedRoad) -> float | None:
-    """How far (m, mean) the new frame's centre line 4-8 m ahead lies from the old frame's, where
-    the old one had points there; None where they share too few."""
+    """How far (m, mean, across the road) the new frame's centre line 4-8 m ahead lies from the old
+    frame's, where the old one had points there; None where they share too few."""
     xs = np.array(CHECK_AHEAD_M)
     xv, yv = local_to_vehicle(new.x, new.y, new.yaw, xs, poly.polyval(xs, new.centre))     # the vehicle now
     x_old, y_old = vehicle_to_local(old.x, old.y, old.yaw, xv, yv)                        # the old frame
     shared = (x_old >= SEEN_M[0]) & (x_old <= SEEN_M[1])
     if shared.sum() < CHECK_MIN_POINTS:
         return None
-    return float(np.abs(y_old[shared] - poly.polyval(x_old[shared], old.centre)).mean())
+    x_old, y_old = x_old[shared], y_old[shared]
+    slope = poly.polyval(x_old, poly.polyder(old.centre))
+    across = np.abs(y_old - poly.polyval(x_old, old.centre)) / np.sqrt(1.0 + slope * slope)    # not along y
+    return float(across.mean())
 
 
 def agree(frame: RememberedRoad, remembered: list[RememberedRoad], agree_m: float) -> bool:
@@ -183,6 +188,7 @@ class RoadReactiveControl:
         self.integral = 0.0                     # ∫ e ds, m²
         self.seen: list[RememberedRoad] = []    # the confident frames of the last metres, oldest first
         self.doubted: list[RememberedRoad] = [] # the frames in a row that disagreed with them, oldest first
+        self.replaced = False                   # this cycle's frames replaced the memory they disagreed with
 
     @property
     def memory(self) -> RememberedRoad | None:
@@ -202,9 +208,10 @@ class RoadReactiveControl:
         whether this controller's candidate is the one driving (else the integral stays at 0).
         None: nothing to follow, not even a road remembered."""
         p = self.p
+        self.replaced = False
         unmeasured = travelled_m is None
         if unmeasured:
-            self.seen = self.seen[-1:]
+            self.seen, self.doubted = self.seen[-1:], []
         travelled_m = travelled_m or 0.0                    # signed: backwards moves the frames back
         for frame in self.seen + self.doubted:
             frame.advance(travelled_m, driven_kappa)
@@ -212,9 +219,10 @@ class RoadReactiveControl:
         self.seen = [frame for frame in self.seen if frame.travelled_m <= keep]
         if road is None or road.confidence < p.min_confidence or not all(
                 math.isfinite(v) for v in (road.lateral_offset_m, road.heading_rad, *road.centre)):
+            self.doubted = []                               # doubts count in a row
             return self._remembered()
         if not self._remember(road, since_frame_m, driven_kappa):
-            return self._remembered()
+            return self._remembered(forget=False)           # the memory stays to check the next frames by
         if unmeasured:
             self.seen = self.seen[-1:]
         offset, heading, b = self._at_vehicle()
@@ -236,6 +244,7 @@ class RoadReactiveControl:
             if len(self.doubted) < self.p.doubt_frames:
                 return False
             self.seen, self.doubted = self.doubted[:-1], []     # they agreed with one another: the memory was wrong
+            self.integral, self.replaced = 0.0, True
         self.doubted = []
         if len(self.seen) >= 2 and self.seen[-2].travelled_m - self.seen[-1].travelled_m < SPACING_M:
             self.seen.pop()                                 # the newest so far lies too close to the one before
@@ -259,10 +268,13 @@ class RoadReactiveControl:
         b = math.remainder(road_yaw_ahead + heading, 2.0 * math.pi) / p.curvature_lookahead_m   # here: −heading
         return offset, heading, b
 
-    def _remembered(self) -> RrcCommand | None:
+    def _remembered(self, forget: bool = True) -> RrcCommand | None:
+        """A stop_only command along the road remembered; None beyond memory_m (then the memory is
+        forgotten, unless `forget` is False: a doubted frame must not clear what it is checked by)."""
         memory = self.memory
         if memory is None or self.p.memory_m <= 0 or memory.travelled_m > self.p.memory_m:
-            self.reset()
+            if forget:
+                self.reset()
             return None
         offset, heading, b = self._at_vehicle()
         return RrcCommand(0.0, self._law(offset, heading, b), offset, b, remembered=True, heading_rad=heading)

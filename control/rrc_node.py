@@ -17,6 +17,9 @@ from ares.node import Input, Node, Output
 from control.rrc import RoadReactiveControl, RoadView, RrcParams
 
 
+DOUBT_REPORT_S = 10.0       # road_doubted events come at most this often (each says how many spells since)
+
+
 class RrcNodeParams(RrcParams):
     rate_hz: float = param(20.0, "loop and candidate rate", unit="Hz", gt=0)
     road_timeout_s: float = param(0.35, "an older road detection is not followed (LiDARs sweep at 10 Hz)",
@@ -49,6 +52,8 @@ class RrcNode(Node):
         self.rrc = RoadReactiveControl(RrcParams(**{k: getattr(self.params, k) for k in RrcParams.model_fields}))
         self._last: float | None = None
         self._doubting = False
+        self._reported: float | None = None         # the last road_doubted event
+        self._spells = 0                            # spells of doubt since it
 
     def step(self, now: float) -> None:
         car = self.car.fresh(now)
@@ -61,7 +66,7 @@ class RrcNode(Node):
         status = self.control.fresh(now)
         driving = status is not None and status.controller == "rrc"
         cmd = self.rrc.step(road_view(road), travelled, driven_kappa, since_frame, driving)
-        self._say_doubts(road)
+        self._say_doubts(road, now)
         if cmd is None:
             return
         if cmd.remembered:
@@ -75,10 +80,21 @@ class RrcNode(Node):
                                             cross_track_m=cmd.error_m, heading_error_rad=cmd.heading_rad,
                                             note=f"road confidence {road.confidence:.2f}"))
 
-    def _say_doubts(self, road: RoadDetection | None) -> None:
-        """An event when road detection starts to disagree with the road seen (once per spell)."""
+    def _say_doubts(self, road: RoadDetection | None, now: float) -> None:
+        """An event when road detection starts to disagree with the road seen (a spell; at most one
+        every DOUBT_REPORT_S, counting the spells since), and one when frames that agree with one
+        another replace it."""
         doubting = bool(self.rrc.doubted)
         if doubting and not self._doubting:
-            self.event("road_doubted", f"road detection (confidence {road.confidence:.2f}) disagrees with the road "
-                                       "seen: not followed", EventLevel.WARNING, confidence=round(road.confidence, 3))
+            self._spells += 1
+            if self._reported is None or now - self._reported >= DOUBT_REPORT_S:
+                more = f" ({self._spells - 1} more spells since the last report)" if self._spells > 1 else ""
+                self.event("road_doubted", f"road detection (confidence {road.confidence:.2f}) disagrees with the "
+                                           f"road seen: not followed{more}", EventLevel.WARNING,
+                           confidence=round(road.confidence, 3), spells=self._spells)
+                self._reported, self._spells = now, 0
+        if self.rrc.replaced:
+            self.event("road_replaced", f"{self.rrc.p.doubt_frames} frames in a row agreed with one another, not "
+                                        "with the road seen: they replace it", EventLevel.WARNING,
+                       confidence=round(road.confidence, 3))
         self._doubting = doubting

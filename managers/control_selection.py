@@ -113,11 +113,14 @@ class ControlSelector:
         """Whether `mode` may drive (holding: it is in charge now, so the exit thresholds apply), the
         cause's short code and the sentence."""
         candidate = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc}.get(mode)
-        if candidate is not None and candidate.stop_only:
+        stop_only = candidate is not None and candidate.stop_only
+        if stop_only:
             candidate = None
         if self.p.pinned is not None and mode is not Mode.STOP:
             if mode is not self.p.pinned:
                 return False, "pinned", f"pinned to {self.p.pinned.value}"
+            if stop_only:
+                return False, "stop_only", f"the pinned {mode.value} controller's candidate only steers a stop"
             if candidate is None:
                 return False, "no_candidate", f"the pinned {mode.value} controller has no fresh candidate"
             return True, "pinned", f"pinned to {mode.value}"
@@ -134,7 +137,7 @@ class ControlSelector:
         if mode is Mode.RRC:
             if inputs.force_odometry and inputs.odometry is not None:
                 return False, "forced", "the path manager forces odometry control"
-            if candidate is None and inputs.rrc is not None:
+            if stop_only:
                 return False, "stop_only", "the RRC's candidate only steers a stop (its road lost or in doubt)"
             if candidate is None:
                 return False, "no_candidate", "the RRC has no fresh candidate to drive by"

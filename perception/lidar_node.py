@@ -19,6 +19,7 @@ from perception.lidar_pipeline import FrameResult, LidarPipeline, LidarPipelineP
 RATE_WINDOW_S = 1.0
 USUAL_FRAMES = 50           # a sensor's usual point count: the median of its last this many sweeps
 BLIND_SHARE = 0.05          # fewer points than this share of the usual: the sensor is blind (covered)
+TRAVEL_GAP_S = 0.35         # the speed measured now stands for the drive since the last frame only this long
 
 
 def boundary(coefficients, x_min: float, x_max: float, points: int = 0) -> RoadBoundary | None:
@@ -100,9 +101,10 @@ class LidarPerception(Node):
 
     def _travel(self, since: float | None, t: float, now: float) -> tuple[float, float] | None:
         """Distance and curvature driven from the frame at `since` to this one at t (at the speed and
-        steering measured now: frames are 0.1 s apart), None without a fresh measurement."""
+        steering measured now: frames are 0.1 s apart), None without a fresh measurement or across a
+        gap in the frames."""
         car = self.car.fresh(now)
-        if car is None or since is None:
+        if car is None or since is None or t - since > TRAVEL_GAP_S:
             return None
         return car.speed_mps * (t - since), self.vehicle.curvature_of(car.steering_wheel_deg)
 

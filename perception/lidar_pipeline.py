@@ -14,9 +14,10 @@ guided by the last road found, moved by what the vehicle has driven since (the m
 steering the caller passes; the paper's "taking into account the displacement"), for
 `lost_guide_m` of travel. Without it they start again from the near field, which does not find a
 tight bend: standing in the promenade's 12 m bend, 8 of 9 frames found nothing and the ninth a
-road 48° wrong, while guided by the road seen 3.5 m back all 9 found it, within 5 cm from 4 m
-ahead. Without a measured motion the lost road cannot be moved, and the next frame starts from
-the near field as before.
+road 48° wrong, while guided by the road seen 3.5 m back all 9 found it, within 8 cm from 4 m
+ahead (guided by the one seen 8 m back, a road 0.95 m off: docs/road_detection.md). Without a
+measured motion the lost road cannot be moved, and the next frame starts from the near field as
+before.
 """
 from __future__ import annotations
 
@@ -35,6 +36,8 @@ from perception.occupancy import OccupancyMapper, OccupancyParams
 from perception.road_detection import LidarFrame, RoadDetectionParams, RoadModel, RoadResult, detect_road
 
 RINGS_PER_SENSOR = 64       # ring ids are sensor index × 64 + laser: unique across the sensors
+GUIDE_FROM_M = 4.0          # a lost road is moved from where its fit had points (from ~4 m ahead), not the
+                            # stretch before them, which the fit extrapolates (metres off before a tight bend)
 
 
 class GroundParams(Params):
@@ -51,9 +54,10 @@ class LidarPipelineParams(Params):
                                  factory=GroundParams)
     grid: OccupancyParams = param(doc="the local occupancy grid (§3.5.2)", factory=OccupancyParams)
     road: RoadDetectionParams = param(doc="road detection (§3.4.2)", factory=RoadDetectionParams)
-    lost_guide_m: float = param(8.0, "after the road is lost, the last road found, moved by what was driven, "
-                                     "guides the frames for this distance travelled (then, or without a "
-                                     "measured motion, they start from the near field)", unit="m", ge=0)
+    lost_guide_m: float = param(5.0, "after the road is lost, the last road found, moved by what "
+                                                    "was driven, guides the frames for this distance travelled "
+                                                    "(then, or without a measured motion, they start from the near "
+                                                    "field; 0: never)", unit="m", ge=0)
 
 
 @dataclass
@@ -163,7 +167,8 @@ class LidarPipeline:
 
     def guide(self, travel: tuple[float, float] | None) -> RoadModel | None:
         """The model guiding this frame: the last frame's, or after a loss the last road found,
-        moved to where the vehicle now is."""
+        moved to where the vehicle now is. Once per frame: `travel` is what was driven since the
+        last one."""
         if self.since_found is not None:
             if travel is None:
                 self.since_found = None                   # the lost road can no longer be placed
@@ -171,9 +176,9 @@ class LidarPipeline:
                 x, y, yaw, travelled = self.since_found
                 ds, kappa = travel
                 self.since_found = (*arc_step(x, y, yaw, ds, kappa), travelled + abs(ds))
-        if self.previous is None and self.since_found is not None and self.since_found[3] <= self.params.lost_guide_m:
+        if self.previous is None and self.since_found is not None and self.since_found[3] < self.params.lost_guide_m:
             x, y, yaw, _ = self.since_found
-            return self.last_found.seen_from(x, y, yaw, (self.params.road.x_min_m, self.params.road.fit_x_max_m))
+            return self.last_found.seen_from(x, y, yaw, (GUIDE_FROM_M, self.params.road.fit_x_max_m))
         return self.previous
 
     def remember(self, road: RoadResult) -> None:

@@ -199,6 +199,15 @@ def test_the_rrc_node_does_not_follow_a_frame_that_disagrees_with_the_road_seen_
     assert len(doubts) == 1 and doubts[0].data["confidence"] == 0.5      # once for the spell
     t += 0.1
     assert not h.step(t, road(t, 0.9), speed=0.0)[0].stop_only          # the road seen again
+    for _ in range(30):                                                  # spells 0.2 s apart for 6 s, then 12 s on
+        t += 0.1
+        h.step(t, road(t, 0.5, offset=3.0), speed=0.0)
+        t += 0.1
+        h.step(t, road(t, 0.9), speed=0.0)
+    t += 12.0
+    h.step(t, road(t, 0.5, offset=3.0), speed=0.0)
+    doubts = [e for _, e in events.drain() if e.kind == "road_doubted"]
+    assert [e.data["spells"] for e in doubts] == [31]                   # not one event each: one, counting them
 
 
 def test_the_rrc_integrates_its_offset_only_while_it_drives(run_config):

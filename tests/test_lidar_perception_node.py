@@ -117,7 +117,14 @@ def test_a_lost_road_is_moved_by_the_measured_speed_and_steering_to_guide_the_ne
     assert bus.node.pipeline.since_found[3] == pytest.approx(0.4)     # the frames 0.1 s apart at 4 m/s
     drive()
     assert bus.roads.drain()[-1][1].found
+    drive(covered=tuple(bus.sensors))
+    assert bus.node.pipeline.since_found[3] == pytest.approx(0.4)
+    bus.clock.set(bus.clock.now() + 1.0)                    # a gap of a second in the frames: not moved across
+    drive(covered=tuple(bus.sensors))
+    assert bus.node.pipeline.since_found is None
+    drive()
+    drive(covered=tuple(bus.sensors))
+    assert bus.node.pipeline.since_found[3] == pytest.approx(0.4)
     bus.clock.set(bus.clock.now() + 1.0)                    # the speed goes stale: a lost road cannot be moved
-    bus.frame(covered=tuple(bus.sensors))
     bus.frame(covered=tuple(bus.sensors))
     assert bus.node.pipeline.since_found is None

@@ -503,21 +503,31 @@ def test_a_lost_road_guides_the_next_frames_moved_by_what_was_driven():
     from ares.config import load_vehicle
     from perception.lidar_pipeline import LidarPipeline, LidarPipelineParams
     pipeline = LidarPipeline(load_vehicle("ares_shuttle"), LidarPipelineParams(lost_guide_m=5.0))
-    road = detect_road(scan(pose=(0.0, 0.5, 0.0)))
-    assert pipeline.guide((0.0, 0.0)) is None                              # nothing seen yet: the near field
+    road = detect_road(scan(pose=(0.0, 0.5, 10.0)))                        # turned 10° left of the road
+    xs = np.linspace(4.0, 10.0, 7)
+
+    def left_at(model, x):
+        return poly.polyval(x, model.left)
+
+    assert road.found and pipeline.guide((0.0, 0.0)) is None               # nothing seen yet: the near field
     pipeline.remember(road)
     assert pipeline.guide((0.3, 0.0)) is road.model                        # found: the last frame's model, as it is
     pipeline.remember(detect_road(empty_frame()))                          # lost
-    guide = pipeline.guide((2.0, 0.0))                                     # 2 m on, straight (+0.3 from before)
-    assert guide.left == pytest.approx(road.model.left, abs=0.02) and guide.right is not None
+    guide = pipeline.guide((2.0, 0.0))                                     # 2 m on, straight (+0.3 before)
+    assert np.abs(left_at(guide, xs) - left_at(road.model, xs + 2.3)).max() < 0.02     # the road slants by
+    assert guide.right is not None                                                     # 0.8 m over 4.6 m
     for _ in range(600):                                                   # standing: it keeps guiding
         guide = pipeline.guide((0.0, 0.0))
-    assert guide.left[0] == pytest.approx(poly.polyval(2.3, road.model.left), abs=0.02)
-    turned = pipeline.guide((1.0, 0.1))                                    # 1 m on a left 10 m arc: the road points right
-    assert turned.left[1] < -0.05
+    assert np.abs(left_at(guide, xs) - left_at(road.model, xs + 2.3)).max() < 0.02
+    turned = pipeline.guide((1.0, 0.1))                                    # 1 m on a left 10 m arc
+    assert turned.left[1] < guide.left[1] - 0.05                           # ... the road points more right
     assert pipeline.guide((1.5, 0.0)) is not None                          # 4.8 m since the road was found
     assert pipeline.guide((0.5, 0.0)) is None                              # 5.3 m > lost_guide_m
     assert pipeline.guide((0.0, 0.0)) is None                              # ... for good, until a road is found
+    off = LidarPipeline(load_vehicle("ares_shuttle"), LidarPipelineParams(lost_guide_m=0.0))
+    off.remember(road)
+    off.remember(detect_road(empty_frame()))
+    assert off.guide((0.0, 0.0)) is None                                   # 0: never, not even standing
 
 
 def test_a_lost_road_is_not_moved_without_a_measured_motion():

@@ -107,7 +107,7 @@ def run(seed: int = 0, plain: int = 3, laterals: tuple[float, ...] = (0.0, 0.3),
                     rrc.step(last_view, distance, kappa)
                 cmd = rrc.step(view, *pieces[-1])
                 if view is not None and cmd is not None:
-                    doubted[f"{a:g}-{b:g} m"] += cmd.remembered
+                    doubted[f"{a:g}-{b:g} m"] += bool(rrc.doubted)
                     group[f"{a:g}-{b:g} m"].append((cmd.error_m - f.lateral_m, math.degrees(cmd.heading_rad) - f.yaw_deg,
                                                     cmd.feedforward - _mean_curvature(route, f.s, rrc.p.curvature_lookahead_m)))
             last_view = view
