@@ -20,6 +20,7 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
+from perception.lidar_pipeline import GUIDE_FROM_M
 from perception.road_detection import (BAND_MARGIN_M, GAP_M, HEIGHT_CUT_M, MIN_SLANT, SLANT_M, LidarFrame,
                                        RoadDetectionParams, RoadModel, ScoreWeights,
                                        boundary_distance_term, detect_road, fit_boundary, gradient_term,
@@ -464,15 +465,16 @@ def test_a_road_model_seen_from_a_moved_vehicle():
 def test_a_bent_road_moved_keeps_its_points(kappa, ahead, across, off_turn):
     """A 12.5 m bend or gentler, the vehicle moved up to 4 m along it, 0.3 m aside and turned up to
     6° off the road's turn: the boundary's points from 4 m ahead of the vehicle lie on the moved
-    boundary (a polynomial of the same order again) to within 5 cm, plenty for a guide."""
+    boundary (a polynomial of the same order again, fitted where the old one had points, as the
+    pipeline moves it) to within 3 cm (2 cm at worst on a grid), plenty for a guide."""
     left = np.array([2.0, 0.0, kappa / 2])
     turn = math.atan(kappa * ahead) + off_turn
-    moved = RoadModel(left, None, 4.0).seen_from(ahead, across, turn, (0.0, 12.0))
+    moved = RoadModel(left, None, 4.0).seen_from(ahead, across, turn, (GUIDE_FROM_M, 12.0))
     xs = np.linspace(ahead + 4.0, 12.0, 9)
     c, s = math.cos(turn), math.sin(turn)
     dx, dy = xs - ahead, poly.polyval(xs, left) - across
     xv, yv = c * dx + s * dy, -s * dx + c * dy
-    assert np.abs(poly.polyval(xv, moved.left) - yv).max() < 0.05
+    assert np.abs(poly.polyval(xv, moved.left) - yv).max() < 0.03
 
 
 def test_parameters_are_checked():
