@@ -18,7 +18,7 @@ record (never skipped, never written twice); a restarted recorder starts at the 
 
 Events are stored as they arrive, with time = clock.utc(event.t).
 
-Never blocking. The node's loop only builds documents and hands them to a writer thread
+Never blocking. The node's loop (blackbox.recorder_node) only builds documents and hands them to a writer thread
 through a bounded queue; the writer batches inserts. When an insert fails (StoreUnavailable or
 any other error), the batch goes to a disk spool (blackbox/spool.py) and the writer retries with
 a growing backoff; once the store answers, the spool is flushed in order and removed. Record
@@ -39,28 +39,39 @@ embedded store (for MongoDB: under data/), one file per vehicle,
 Vehicle time is the calendar time of stack time t: at `--speed 5` it runs ahead of the wall clock, and so do the
 record times of a simulated run.
 """
+
 from __future__ import annotations
 
-import collections
 import logging
 import math
 import queue
 import threading
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
 
-from ares import topics
-from ares.config import Params, param
-from ares.geodesy import LocalFrame
-from ares.messages import (AwarenessState, CarState, ControllerStatus, Event, EventLevel, MissionStatus, Pose, Position,
-                           ProcessHealth, SensorHealth, StoredEvent, SupervisorState, VehicleRecord)
-from ares.node import Input, InputGroup, Node
+from ares.core.config import Params, param
+from ares.core.geodesy import LocalFrame
+from ares.core.messages import (
+    AwarenessState,
+    CarState,
+    ControllerStatus,
+    Event,
+    EventLevel,
+    MissionStatus,
+    Pose,
+    Position,
+    ProcessHealth,
+    SensorHealth,
+    StoredEvent,
+    SupervisorState,
+    VehicleRecord,
+)
 from blackbox.spool import Item, Spool, split
-from blackbox.store import RecordStore, StoreSettings, StoreUnavailable, is_mongo
-from blackbox.stores import open_store
+from blackbox.store.open_store import open_store
+from blackbox.store.record_store import RecordStore, StoreSettings, StoreUnavailable, is_mongo
 
 log = logging.getLogger("blackbox")
 
@@ -70,35 +81,47 @@ SENSOR_TOPICS = {"gnss": "sensors/gnss", "imu": "sensors/imu", "can": "sensors/c
 class SensorMinimums(Params):
     """The slowest rate at which each sensor still counts as working (DESIGN §3: GNSS > 4 Hz,
     IMU > 30 Hz)."""
+
     gnss: float = param(4.0, "GNSS receiver (sensors/gnss)", unit="Hz", ge=0)
     imu: float = param(30.0, "IMU (sensors/imu)", unit="Hz", ge=0)
     can: float = param(10.0, "CAN bus (sensors/can)", unit="Hz", ge=0)
 
 
 class RecorderParams(Params):
-    rate_hz: float = param(5.0, "loop: a record is built as each whole second of stack time is crossed",
-                           unit="Hz", gt=0)
-    spool: str | None = param(None, "disk spool while the store is down; null: blackbox-spool-<vehicle_id>.sqlite "
-                                    "next to the embedded store's file (with MongoDB: under data/)")
-    spool_max_entries: int = param(1_000_000, "~8 days of records (691,200) plus events; beyond it the oldest go "
-                                              "first (FAULT event)", ge=1)
+    rate_hz: float = param(
+        5.0, "loop: a record is built as each whole second of stack time is crossed", unit="Hz", gt=0
+    )
+    spool: str | None = param(
+        None,
+        "disk spool while the store is down; null: blackbox-spool-<vehicle_id>.sqlite "
+        "next to the embedded store's file (with MongoDB: under data/)",
+    )
+    spool_max_entries: int = param(
+        1_000_000, "~8 days of records (691,200) plus events; beyond it the oldest go first (FAULT event)", ge=1
+    )
     queue_size: int = param(10000, "loop -> writer thread; fills only if a store call hangs for hours", ge=1)
     batch_max: int = param(500, "items per insert call", ge=1)
-    batch_wait_s: float = param(0.5, "the writer waits this long (wall) for a first item; the batch is what has "
-                                     "queued by then", unit="s", gt=0)
+    batch_wait_s: float = param(
+        0.5, "the writer waits this long (wall) for a first item; the batch is what has queued by then", unit="s", gt=0
+    )
     retry_min_s: float = param(0.5, "store down: retry after this (wall), doubling up to retry_max_s", unit="s", gt=0)
     retry_max_s: float = param(4.0, "longest wait between retries", unit="s", gt=0)
-    shutdown_flush_s: float = param(1.5, "SIGTERM: this long to write what is queued, the rest is spooled (the "
-                                         "supervisor waits 3 s)", unit="s", gt=0)
-    max_age_s: float = param(2.0, "an input older than this (stack s) is recorded as missing (null), not as current",
-                             unit="s", gt=0)
+    shutdown_flush_s: float = param(
+        1.5,
+        "SIGTERM: this long to write what is queued, the rest is spooled (the supervisor waits 3 s)",
+        unit="s",
+        gt=0,
+    )
+    max_age_s: float = param(
+        2.0, "an input older than this (stack s) is recorded as missing (null), not as current", unit="s", gt=0
+    )
     event_queue: int = param(4096, "events buffered between two loops", ge=1)
-    sensor_window_s: float = param(2.0, "sensor message rates are measured over this window (stack s)",
-                                   unit="s", gt=0)
+    sensor_window_s: float = param(2.0, "sensor message rates are measured over this window (stack s)", unit="s", gt=0)
     sensor_min_hz: SensorMinimums = param(doc="each sensor's minimum rate for `ok`", factory=SensorMinimums)
 
 
 # ---- where the store and the spool are --------------------------------------------------------
+
 
 def store_uri(settings: StoreSettings) -> str:
     """The configured store: a MongoDB URI as it is, a file path made absolute (against the working
@@ -124,20 +147,31 @@ def open_configured_store(settings: StoreSettings) -> RecordStore:
 
 # ---- one record from the latest values -------------------------------------------------------
 
+
 def position_of(pose: Pose, frame: LocalFrame) -> Position | None:
     """Local x, y (+ origin) -> UTM -> latitude/longitude; None if it has no valid projection."""
     easting, northing = frame.utm_of(pose.x, pose.y)
     try:
         lat, lon = frame.to_latlon(pose.x, pose.y)
-    except ValueError:          # a pose beyond what UTM can express
+    except ValueError:  # a pose beyond what UTM can express
         return None
-    return Position(x=pose.x, y=pose.y, z=pose.z, easting=easting, northing=northing, zone=frame.zone,
-                    hemisphere="N" if frame.northern else "S", lat=lat, lon=lon)
+    return Position(
+        x=pose.x,
+        y=pose.y,
+        z=pose.z,
+        easting=easting,
+        northing=northing,
+        zone=frame.zone,
+        hemisphere="N" if frame.northern else "S",
+        lat=lat,
+        lon=lon,
+    )
 
 
 @dataclass
 class Snapshot:
     """The latest usable value of each input when a record is built (None: missing or stale)."""
+
     pose: Pose | None = None
     car: CarState | None = None
     controller: ControllerStatus | None = None
@@ -148,23 +182,37 @@ class Snapshot:
     sensor_rates: dict[str, float] = field(default_factory=dict)
 
 
-def build_record(vehicle_id: str, time: datetime, k: int, snap: Snapshot, frame: LocalFrame,
-                 sensor_min_hz: Mapping[str, float], events: int) -> VehicleRecord:
+def build_record(
+    vehicle_id: str,
+    time: datetime,
+    k: int,
+    snap: Snapshot,
+    frame: LocalFrame,
+    sensor_min_hz: Mapping[str, float],
+    events: int,
+) -> VehicleRecord:
     return VehicleRecord(
-        vehicle_id=vehicle_id, time=time, t=float(k),
+        vehicle_id=vehicle_id,
+        time=time,
+        t=float(k),
         position=position_of(snap.pose, frame) if snap.pose is not None else None,
         speed_mps=snap.car.speed_mps if snap.car is not None else None,
         steering_wheel_deg=snap.car.steering_wheel_deg if snap.car is not None else None,
         mode=snap.car.mode if snap.car is not None else None,
         scores=dict(snap.scores),
         controller=snap.controller.controller if snap.controller is not None else None,
-        sensors={name: SensorHealth(rate_hz=round(rate, 2), ok=rate >= float(sensor_min_hz[name]))
-                 for name, rate in snap.sensor_rates.items()},
-        processes={p.name: ProcessHealth(state=p.state, restarts=p.restarts)
-                   for p in (snap.supervisor.processes if snap.supervisor is not None else [])},
+        sensors={
+            name: SensorHealth(rate_hz=round(rate, 2), ok=rate >= float(sensor_min_hz[name]))
+            for name, rate in snap.sensor_rates.items()
+        },
+        processes={
+            p.name: ProcessHealth(state=p.state, restarts=p.restarts)
+            for p in (snap.supervisor.processes if snap.supervisor is not None else [])
+        },
         awareness_level=snap.awareness.level if snap.awareness is not None else None,
         mission_state=mission_state(snap.mission),
-        events=events)
+        events=events,
+    )
 
 
 def mission_state(status: MissionStatus | None) -> str | None:
@@ -175,15 +223,25 @@ def mission_state(status: MissionStatus | None) -> str | None:
 
 
 def stored_event(vehicle_id: str, time: datetime, ev: Event) -> StoredEvent:
-    return StoredEvent(vehicle_id=vehicle_id, time=time, t=ev.t, source=ev.source,
-                       kind=ev.kind, level=ev.level, message=ev.message, data=dict(ev.data))
+    return StoredEvent(
+        vehicle_id=vehicle_id,
+        time=time,
+        t=ev.t,
+        source=ev.source,
+        kind=ev.kind,
+        level=ev.level,
+        message=ev.message,
+        data=dict(ev.data),
+    )
 
 
 # ---- the writer thread -----------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class Notice:
     """Something the writer wants published as an Event (by the node's own thread)."""
+
     kind: str
     message: str
     level: EventLevel
@@ -198,9 +256,17 @@ class StoreWriter:
     seconds (time.monotonic): it judges the store and the computer, not the simulated vehicle.
     """
 
-    def __init__(self, open_store_fn: Callable[[], RecordStore], spool: Spool, *, queue_size: int = 10000,
-                 batch_max: int = 500, batch_wait_s: float = 0.5, retry_min_s: float = 0.5,
-                 retry_max_s: float = 4.0):
+    def __init__(
+        self,
+        open_store_fn: Callable[[], RecordStore],
+        spool: Spool,
+        *,
+        queue_size: int = 10000,
+        batch_max: int = 500,
+        batch_wait_s: float = 0.5,
+        retry_min_s: float = 0.5,
+        retry_max_s: float = 4.0,
+    ):
         self._open_store = open_store_fn
         self.spool = spool
         self.batch_max = int(batch_max)
@@ -211,11 +277,11 @@ class StoreWriter:
         self.records_written = 0
         self.events_written = 0
         self._queue: queue.Queue[Item] = queue.Queue(maxsize=int(queue_size))
-        self._down_since: float | None = None   # monotonic time of the failure; None: healthy
+        self._down_since: float | None = None  # monotonic time of the failure; None: healthy
         self._last_error = ""
         self._retry_delay = self.retry_min_s
         self._retry_at = 0.0
-        self._inflight: list[Item] = []         # what the thread holds outside queue and spool
+        self._inflight: list[Item] = []  # what the thread holds outside queue and spool
         self._stopping = threading.Event()
         self._deadline = math.inf
         self._thread = threading.Thread(target=self._run, name="blackbox-writer", daemon=True)
@@ -265,7 +331,7 @@ class StoreWriter:
             self._inflight = items
             try:
                 self._write(items, stopping)
-            except Exception:       # a bug here must not end the black box: keep the items
+            except Exception:  # a bug here must not end the black box: keep the items
                 log.exception("writer error; spooling %d items", len(items))
                 self.spool.append(items)
             self._inflight = []
@@ -329,15 +395,24 @@ class StoreWriter:
             except (ValueError, TypeError) as item_exc:
                 if isinstance(item_exc, StoreUnavailable):
                     raise
-                self._notify("blackbox_rejected", f"the store refused a {type(item).__name__} at t={item.t}: "
-                             f"{item_exc!r}; dropped", EventLevel.FAULT, t=item.t, error=repr(item_exc)[:200])
+                self._notify(
+                    "blackbox_rejected",
+                    f"the store refused a {type(item).__name__} at t={item.t}: {item_exc!r}; dropped",
+                    EventLevel.FAULT,
+                    t=item.t,
+                    error=repr(item_exc)[:200],
+                )
 
     def _to_spool(self, items: list[Item]) -> None:
         dropped = self.spool.append(items)
         if dropped:
-            self._notify("blackbox_spool_overflow", f"black-box spool full ({self.spool.max_entries} entries): "
-                         f"dropped the {dropped} oldest", EventLevel.FAULT, dropped=dropped,
-                         dropped_total=self.spool.dropped_total)
+            self._notify(
+                "blackbox_spool_overflow",
+                f"black-box spool full ({self.spool.max_entries} entries): dropped the {dropped} oldest",
+                EventLevel.FAULT,
+                dropped=dropped,
+                dropped_total=self.spool.dropped_total,
+            )
 
     def _ensure_store(self) -> bool:
         if self.store is None:
@@ -371,8 +446,12 @@ class StoreWriter:
         if self._down_since is None:
             self._down_since = now
             self._retry_delay = self.retry_min_s
-            self._notify("blackbox_store_down", f"black-box store unavailable ({self._last_error}); "
-                         f"spooling to {self.spool.path}", EventLevel.WARNING, error=self._last_error)
+            self._notify(
+                "blackbox_store_down",
+                f"black-box store unavailable ({self._last_error}); spooling to {self.spool.path}",
+                EventLevel.WARNING,
+                error=self._last_error,
+            )
         else:
             self._retry_delay = min(self._retry_delay * 2.0, self.retry_max_s)
         self._retry_at = now + self._retry_delay
@@ -380,113 +459,23 @@ class StoreWriter:
     def _came_up(self, flushed: int) -> None:
         if self._down_since is not None:
             down_s = time.monotonic() - self._down_since
-            self._notify("blackbox_store_up", f"black-box store back after {down_s:.1f} s; "
-                         f"{flushed} spooled items written", EventLevel.INFO,
-                         down_s=round(down_s, 2), flushed=flushed)
+            self._notify(
+                "blackbox_store_up",
+                f"black-box store back after {down_s:.1f} s; {flushed} spooled items written",
+                EventLevel.INFO,
+                down_s=round(down_s, 2),
+                flushed=flushed,
+            )
         elif flushed:
-            self._notify("blackbox_spool_flushed", f"{flushed} items left in the spool by an earlier run "
-                         "written to the store", EventLevel.INFO, flushed=flushed)
+            self._notify(
+                "blackbox_spool_flushed",
+                f"{flushed} items left in the spool by an earlier run written to the store",
+                EventLevel.INFO,
+                flushed=flushed,
+            )
         self._down_since = None
         self._retry_delay = self.retry_min_s
         self._retry_at = 0.0
 
     def _notify(self, kind: str, message: str, level: EventLevel, **data) -> None:
         self.notices.put(Notice(kind, message, level, data))
-
-
-# ---- the node --------------------------------------------------------------------------------
-
-class Recorder(Node):
-    """The event register: a record of the vehicle's state per second, every event as it happens."""
-    name = "blackbox"
-    Params = RecorderParams
-    sections = {"blackbox_store": StoreSettings}
-    pose = Input("localization/pose", max_age="max_age_s", doc="position")
-    car = Input("dbw/car_state", max_age="max_age_s", doc="speed, steering, drive mode")
-    controller = Input("control/status", max_age="max_age_s", doc="the active controller")
-    supervisor = Input("supervisor/state", max_age="max_age_s", doc="process health")
-    awareness = Input("awareness/state", max_age="max_age_s", doc="the self-awareness level")
-    mission = Input("mission/status", max_age="max_age_s", doc="the mission's state or the POI action running")
-    scores = InputGroup(topics.score_topics(), max_age="max_age_s", doc="every manager's score")
-    sensors = InputGroup(SENSOR_TOPICS, doc="message rates -> sensor health")
-    events = Input("events", queue="event_queue", doc="recorded as they arrive")
-
-    def setup(self) -> None:
-        p = self.params
-        self.store_settings = self.shared["blackbox_store"]
-        self.vehicle_id = self.core.vehicle_id
-        self.frame = LocalFrame(self.core.origin_utm)
-        self.sensor_min_hz = p.sensor_min_hz.model_dump()
-        self.writer = StoreWriter(
-            lambda: open_configured_store(self.store_settings),
-            Spool(spool_path(p, self.store_settings, self.vehicle_id), p.spool_max_entries),
-            queue_size=p.queue_size, batch_max=p.batch_max, batch_wait_s=p.batch_wait_s,
-            retry_min_s=p.retry_min_s, retry_max_s=p.retry_max_s)
-        if self.writer.spool.pending:
-            self.log.info("%d items left in %s: flushing them first", len(self.writer.spool), self.writer.spool.path)
-        self.writer.start()
-
-        # the first second crossed from now on; a restart in the same run picks up from here
-        self.next_k = math.floor(self.clock.now()) + 1
-        self.event_counts: collections.Counter[int] = collections.Counter()
-        self.lost = 0
-        self._last_lost_event = -math.inf
-        self._events_overflowed = 0
-        self.log.info("recording %s to %s (spool %s)", self.vehicle_id, store_uri(self.store_settings),
-                      self.writer.spool.path)
-
-    def step(self, now: float) -> None:
-        if self.events.overflowed > self._events_overflowed:
-            lost = self.events.overflowed - self._events_overflowed
-            self._events_overflowed = self.events.overflowed
-            self.event("blackbox_events_lost", f"{lost} events arrived faster than they could be recorded "
-                       f"(event_queue {self.params.event_queue}): not stored", EventLevel.FAULT,
-                       lost=lost, lost_total=self._events_overflowed)
-        for _, ev in self.events.drain():
-            self._submit(stored_event(self.vehicle_id, self.clock.utc(ev.t), ev), now)
-            # the record of second k counts the events of [k - 1, k); one that comes after its
-            # record was written goes to the next one
-            self.event_counts[max(math.floor(ev.t) + 1, self.next_k)] += 1
-        while self.next_k <= now:
-            k = self.next_k
-            record = build_record(self.vehicle_id, self.clock.utc(k), k, self.snapshot(now), self.frame,
-                                  self.sensor_min_hz, self.event_counts.pop(k, 0))
-            self._submit(record, now)
-            self.next_k = k + 1
-        self._publish_notices()
-
-    def snapshot(self, now: float) -> Snapshot:
-        window = self.params.sensor_window_s
-        return Snapshot(
-            pose=self.pose.fresh(now), car=self.car.fresh(now), controller=self.controller.fresh(now),
-            supervisor=self.supervisor.fresh(now), awareness=self.awareness.fresh(now),
-            mission=self.mission.fresh(now),
-            scores={name: float(msg.score) for name, sub in self.scores.items() if (msg := sub.fresh(now)) is not None},
-            sensor_rates={name: sub.rate_hz(window, now) for name, sub in self.sensors.items()})
-
-    def _submit(self, item: Item, now: float) -> None:
-        if self.writer.submit(item):
-            return
-        # the writer is stuck (a store call that does not return) and its queue is full
-        self.lost += 1
-        if now - self._last_lost_event >= 10.0:
-            self._last_lost_event = now
-            self.event("blackbox_queue_overflow", f"black-box writer queue full: {self.lost} items lost so far",
-                       EventLevel.FAULT, lost=self.lost)
-
-    def _publish_notices(self) -> None:
-        while True:
-            try:
-                n = self.writer.notices.get_nowait()
-            except queue.Empty:
-                return
-            self.event(n.kind, n.message, n.level, **n.data)
-
-    def teardown(self) -> None:
-        writer = getattr(self, "writer", None)
-        if writer is None:
-            return
-        writer.close(self.params.shutdown_flush_s)
-        self._publish_notices()
-        self.log.info("stopped: %d records and %d events written, %d spooled, %d lost",
-                      writer.records_written, writer.events_written, len(writer.spool), self.lost)

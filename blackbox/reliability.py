@@ -34,16 +34,17 @@ Edge cases, in the returned figures (None is JSON null):
 Everything here is pure: the caller fetches records and events (in any batch size) and feeds
 them in time order.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from datetime import datetime, timedelta
-from typing import Iterable
 
 RUNNING_MODE = "AUTOMATIC"
 PROCESS_RUNNING = "running"
-RECORD_PERIOD_S = 1.0           # the black box writes one record per second of vehicle time
+RECORD_PERIOD_S = 1.0  # the black box writes one record per second of vehicle time
 
 
 @dataclass(frozen=True)
@@ -54,9 +55,9 @@ class ReliabilityFigures:
     mtbf_hours: float | None
     failure_rate_per_hour: float | None
     t_hours: float
-    reliability: float | None       # R(t_hours)
+    reliability: float | None  # R(t_hours)
     mttr_hours: float | None
-    availability: float | None      # fraction: 0.9704 is the paper's 97.04 %
+    availability: float | None  # fraction: 0.9704 is the paper's 97.04 %
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -79,9 +80,17 @@ def figures(operating_hours: float, failures: int, repair_hours: float, t_hours:
             availability = mtbf / (mtbf + mttr)
     elif operating_hours > 0:
         rate, reliability, availability = 0.0, 1.0, 1.0
-    return ReliabilityFigures(operating_hours=operating_hours, failures=failures, repair_hours=repair_hours,
-                              mtbf_hours=mtbf, failure_rate_per_hour=rate, t_hours=t_hours,
-                              reliability=reliability, mttr_hours=mttr, availability=availability)
+    return ReliabilityFigures(
+        operating_hours=operating_hours,
+        failures=failures,
+        repair_hours=repair_hours,
+        mtbf_hours=mtbf,
+        failure_rate_per_hour=rate,
+        t_hours=t_hours,
+        reliability=reliability,
+        mttr_hours=mttr,
+        availability=availability,
+    )
 
 
 def _text(value) -> str | None:
@@ -127,7 +136,7 @@ class Tally:
 
     def fault(self, time: datetime) -> None:
         if self._down_since is not None:
-            return                      # same outage
+            return  # same outage
         if self._last_up_time is not None and time - self._last_up_time <= self.max_gap:
             self.failures += 1
             self._down_since = time
@@ -142,8 +151,13 @@ class Tally:
         return figures(self.operating_s / 3600.0, self.failures, self.repair_s / 3600.0, t_hours)
 
 
-def tally_window(records: Iterable[dict], fault_times: Iterable[datetime], until: datetime,
-                 record_period_s: float = RECORD_PERIOD_S, max_gap_s: float = 2.0) -> Tally:
+def tally_window(
+    records: Iterable[dict],
+    fault_times: Iterable[datetime],
+    until: datetime,
+    record_period_s: float = RECORD_PERIOD_S,
+    max_gap_s: float = 2.0,
+) -> Tally:
     """Merge records (dicts with `time`, `mode`, `processes`, oldest first) and FAULT event times
     (oldest first) into a closed Tally."""
     tally = Tally(record_period_s, max_gap_s)

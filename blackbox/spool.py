@@ -19,14 +19,15 @@ inserts are idempotent per (vehicle, second).
 Thread-safe: the writer thread fills and flushes it; at shutdown the node's own thread may
 spool what the writer could not finish.
 """
+
 from __future__ import annotations
 
 import sqlite3
 import threading
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Iterable, Sequence
 
-from ares.messages import StoredEvent, VehicleRecord
+from ares.core.messages import StoredEvent, VehicleRecord
 
 Item = VehicleRecord | StoredEvent
 
@@ -51,7 +52,7 @@ class Spool:
         self._db: sqlite3.Connection | None = None
         self._count = 0
         self.dropped_total = 0
-        if self.path.exists():          # a leftover from an earlier run: count what waits
+        if self.path.exists():  # a leftover from an earlier run: count what waits
             self._open()
 
     # ---- file ---------------------------------------------------------------------------
@@ -59,8 +60,10 @@ class Spool:
         if self._db is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             db = sqlite3.connect(self.path, timeout=5.0, isolation_level=None, check_same_thread=False)
-            db.execute("CREATE TABLE IF NOT EXISTS spool ("
-                       "seq INTEGER PRIMARY KEY AUTOINCREMENT, kind TEXT NOT NULL, doc TEXT NOT NULL)")
+            db.execute(
+                "CREATE TABLE IF NOT EXISTS spool ("
+                "seq INTEGER PRIMARY KEY AUTOINCREMENT, kind TEXT NOT NULL, doc TEXT NOT NULL)"
+            )
             self._count = db.execute("SELECT COUNT(*) FROM spool").fetchone()[0]
             self._db = db
         return self._db
@@ -92,13 +95,12 @@ class Spool:
         with self._lock:
             db = self._open()
             dropped = 0
-            with db:                # one transaction: the batch is spooled whole or not at all
+            with db:  # one transaction: the batch is spooled whole or not at all
                 db.execute("BEGIN IMMEDIATE")
                 db.executemany("INSERT INTO spool (kind, doc) VALUES (?, ?)", rows)
                 over = self._count + len(rows) - self.max_entries
                 if over > 0:
-                    db.execute("DELETE FROM spool WHERE seq IN (SELECT seq FROM spool ORDER BY seq LIMIT ?)",
-                               (over,))
+                    db.execute("DELETE FROM spool WHERE seq IN (SELECT seq FROM spool ORDER BY seq LIMIT ?)", (over,))
                     dropped = over
             self._count += len(rows) - dropped
             self.dropped_total += dropped
@@ -151,4 +153,3 @@ def load_all(path: str | Path) -> list[Item]:
         return [_parse(k, d) for k, d in db.execute("SELECT kind, doc FROM spool ORDER BY seq")]
     finally:
         db.close()
-

@@ -20,22 +20,24 @@ and back, so that the board's measurements can be reported as (v, κ):
 
 S is the wheelbase, L the track, r the wheel radius. Everything is a plain function of floats;
 the vehicle parameters are passed in (or held by `SetpointConversion`, built from a vehicle
-profile of ares/config/vehicles/). Angles are radians unless a name says `_deg`; the paper's
+profile of ares/core/config/vehicles/). Angles are radians unless a name says `_deg`; the paper's
 board works in degrees (integer arithmetic on the STM32), hence the degree helpers.
 """
+
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from ares.config import VehicleProfile
+from ares.core.config import VehicleProfile
 
 # Steering-wheel turn per front-wheel turn, measured on the Techs4AgeCar (paper eq. 13).
 PAPER_STEERING_RATIO = 40.0
 
 
 # --- Equations (9)-(12): curvature, yaw rate, radius, wheel angles ---------------------------
+
 
 def angular_speed(v: float, kappa: float) -> float:
     """Yaw rate ω = v·κ (rad/s), eq. (9)."""
@@ -106,6 +108,7 @@ def inner_outer_wheel_angles(kappa: float, wheelbase_m: float, track_m: float) -
 
 # --- Equation (13): steering-wheel angle ------------------------------------------------------
 
+
 def steering_wheel_angle(wheel_angle_rad: float, steering_ratio: float = PAPER_STEERING_RATIO) -> float:
     """α = ratio · θ (rad), eq. (13)."""
     return steering_ratio * wheel_angle_rad
@@ -116,26 +119,31 @@ def steering_wheel_angle_deg(wheel_angle_rad: float, steering_ratio: float = PAP
     return math.degrees(steering_wheel_angle(wheel_angle_rad, steering_ratio))
 
 
-def steering_wheel_to_wheel_angle(steering_wheel_angle_rad: float,
-                                  steering_ratio: float = PAPER_STEERING_RATIO) -> float:
+def steering_wheel_to_wheel_angle(
+    steering_wheel_angle_rad: float, steering_ratio: float = PAPER_STEERING_RATIO
+) -> float:
     """θ = α / ratio (rad)."""
     return steering_wheel_angle_rad / steering_ratio
 
 
-def curvature_to_steering_wheel_angle(kappa: float, wheelbase_m: float,
-                                      steering_ratio: float = PAPER_STEERING_RATIO) -> float:
+def curvature_to_steering_wheel_angle(
+    kappa: float, wheelbase_m: float, steering_ratio: float = PAPER_STEERING_RATIO
+) -> float:
     """α = ratio · atan(κ·S) (rad), eq. (13) in one go (no limiting)."""
     return steering_wheel_angle(curvature_to_wheel_angle(kappa, wheelbase_m), steering_ratio)
 
 
-def steering_wheel_angle_to_curvature(steering_wheel_angle_rad: float, wheelbase_m: float,
-                                      steering_ratio: float = PAPER_STEERING_RATIO) -> float:
+def steering_wheel_angle_to_curvature(
+    steering_wheel_angle_rad: float, wheelbase_m: float, steering_ratio: float = PAPER_STEERING_RATIO
+) -> float:
     """κ = tan(α / ratio) / S: a measured steering-wheel angle reported as a curvature."""
     return wheel_angle_to_curvature(
-        steering_wheel_to_wheel_angle(steering_wheel_angle_rad, steering_ratio), wheelbase_m)
+        steering_wheel_to_wheel_angle(steering_wheel_angle_rad, steering_ratio), wheelbase_m
+    )
 
 
 # --- Equation (14): drive-wheel speed ---------------------------------------------------------
+
 
 def wheel_speed(v: float, wheel_angle_rad: float, wheel_radius_m: float) -> float:
     """Front drive-wheel speed ω_w = v / (cos θ · r) (rad/s), eq. (14).
@@ -151,18 +159,18 @@ def wheel_speed_deg(v: float, wheel_angle_rad: float, wheel_radius_m: float) -> 
     return math.degrees(wheel_speed(v, wheel_angle_rad, wheel_radius_m))
 
 
-def wheel_speed_to_linear_speed(wheel_speed_rad_s: float, wheel_angle_rad: float,
-                                wheel_radius_m: float) -> float:
+def wheel_speed_to_linear_speed(wheel_speed_rad_s: float, wheel_angle_rad: float, wheel_radius_m: float) -> float:
     """Inverse of eq. (14): v = ω_w · r · cos θ (m/s at the rear-axle centre)."""
     return wheel_speed_rad_s * wheel_radius_m * math.cos(wheel_angle_rad)
 
 
 # --- The bridge's conversion, bound to one vehicle ---------------------------------------------
 
+
 class SpeedCurvature(NamedTuple):
     """A motion in the navigation stack's terms."""
 
-    v: float      # m/s at the rear-axle centre
+    v: float  # m/s at the rear-axle centre
     kappa: float  # 1/m, positive = left
 
 
@@ -170,22 +178,33 @@ class SpeedCurvature(NamedTuple):
 class ActuatorSetpoint:
     """What the drive-by-wire board is asked for, in both units it may want."""
 
-    wheel_angle_rad: float            # θ after limiting to ±max_wheel_angle
-    steering_wheel_angle_rad: float   # α = ratio · θ
+    wheel_angle_rad: float  # θ after limiting to ±max_wheel_angle
+    steering_wheel_angle_rad: float  # α = ratio · θ
     steering_wheel_angle_deg: float
-    wheel_speed_rad_s: float          # ω_w = v / (cos θ · r), with the limited θ
+    wheel_speed_rad_s: float  # ω_w = v / (cos θ · r), with the limited θ
     wheel_speed_deg_s: float
-    angular_speed_rad_s: float        # ω = v · κ of the curvature actually commanded
-    wheel_angle_limited: bool         # True when the requested curvature was too tight
+    angular_speed_rad_s: float  # ω = v · κ of the curvature actually commanded
+    wheel_angle_limited: bool  # True when the requested curvature was too tight
 
 
 class SetpointConversion:
     """(v, κ) <-> (steering-wheel angle, wheel speed) for one vehicle."""
 
-    def __init__(self, wheelbase_m: float, track_m: float, wheel_radius_m: float, max_wheel_angle_rad: float,
-                 steering_ratio: float = PAPER_STEERING_RATIO):
-        for name, value in (("wheelbase_m", wheelbase_m), ("track_m", track_m), ("wheel_radius_m", wheel_radius_m),
-                            ("max_wheel_angle_rad", max_wheel_angle_rad), ("steering_ratio", steering_ratio)):
+    def __init__(
+        self,
+        wheelbase_m: float,
+        track_m: float,
+        wheel_radius_m: float,
+        max_wheel_angle_rad: float,
+        steering_ratio: float = PAPER_STEERING_RATIO,
+    ):
+        for name, value in (
+            ("wheelbase_m", wheelbase_m),
+            ("track_m", track_m),
+            ("wheel_radius_m", wheel_radius_m),
+            ("max_wheel_angle_rad", max_wheel_angle_rad),
+            ("steering_ratio", steering_ratio),
+        ):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
         if max_wheel_angle_rad >= math.pi / 2:
@@ -198,9 +217,14 @@ class SetpointConversion:
         self.max_wheel_angle_rad = float(max_wheel_angle_rad)
 
     @classmethod
-    def from_profile(cls, profile: VehicleProfile) -> "SetpointConversion":
-        return cls(profile.wheelbase_m, profile.track_m, profile.wheel_radius_m, profile.max_wheel_angle_rad,
-                   profile.steering_ratio)
+    def from_profile(cls, profile: VehicleProfile) -> SetpointConversion:
+        return cls(
+            profile.wheelbase_m,
+            profile.track_m,
+            profile.wheel_radius_m,
+            profile.max_wheel_angle_rad,
+            profile.steering_ratio,
+        )
 
     @property
     def max_curvature(self) -> float:
@@ -222,8 +246,7 @@ class SetpointConversion:
             wheel_angle_limited=theta != requested,
         )
 
-    def to_speed_curvature(self, steering_wheel_angle_rad: float,
-                           wheel_speed_rad_s: float) -> SpeedCurvature:
+    def to_speed_curvature(self, steering_wheel_angle_rad: float, wheel_speed_rad_s: float) -> SpeedCurvature:
         """The board's measurement -> (v, κ). Not limited: a measurement is reported as it is."""
         theta = steering_wheel_to_wheel_angle(steering_wheel_angle_rad, self.steering_ratio)
         return SpeedCurvature(
@@ -231,15 +254,13 @@ class SetpointConversion:
             kappa=wheel_angle_to_curvature(theta, self.wheelbase_m),
         )
 
-    def to_speed_curvature_deg(self, steering_wheel_angle_deg: float,
-                               wheel_speed_deg_s: float) -> SpeedCurvature:
+    def to_speed_curvature_deg(self, steering_wheel_angle_deg: float, wheel_speed_deg_s: float) -> SpeedCurvature:
         """Same as `to_speed_curvature` for a board reporting in degrees."""
-        return self.to_speed_curvature(math.radians(steering_wheel_angle_deg),
-                                       math.radians(wheel_speed_deg_s))
+        return self.to_speed_curvature(math.radians(steering_wheel_angle_deg), math.radians(wheel_speed_deg_s))
 
     def wheel_angles(self, kappa: float) -> tuple[float, float]:
         """(inner, outer) front wheel angles for κ after limiting, signed like the turn."""
-        theta = limit_wheel_angle(curvature_to_wheel_angle(kappa, self.wheelbase_m),
-                                  self.max_wheel_angle_rad)
-        return inner_outer_wheel_angles(wheel_angle_to_curvature(theta, self.wheelbase_m),
-                                        self.wheelbase_m, self.track_m)
+        theta = limit_wheel_angle(curvature_to_wheel_angle(kappa, self.wheelbase_m), self.max_wheel_angle_rad)
+        return inner_outer_wheel_angles(
+            wheel_angle_to_curvature(theta, self.wheelbase_m), self.wheelbase_m, self.track_m
+        )

@@ -1,62 +1,412 @@
-"""Drive-by-wire bridge (DBW paper §4): navigation setpoints in, actuator efforts out.
+"""The drive-by-wire bridge (DBW paper §4) without the bus: its decision core (modes, the setpoint
+watchdog and the command gate) and `BridgeLoop`, one period of the board: driver actions and
+setpoints into the mode machine, the gated command through Ackermann (control.ackermann) into the
+two inner PID loops at 10 Hz, the standstill brake. The node (control.dbw_bridge_node) wires it to
+the bus; the closed-loop harness drives the same class.
 
-The mode machine, watchdog and command gate live in control.dbw_logic; the equations in
-control.ackermann. `BridgeLoop` is one period of the board: driver actions and setpoints into the
-mode machine, the gated command through Ackermann into the two inner PID loops at 10 Hz, the
-standstill brake. The node wires it to the bus; the closed-loop harness drives the same class.
+Read next to Fig. 17 of the DBW paper (§4.3 and §4.6):
 
-The mode lives on the board (its hardware keeps it), this process is its software half: a
-restarted bridge process finds the mode where its predecessor left it (`dbw_bridge.json` beside
-the run's configuration stands for the board's memory), with the watchdog tripped until commands
-come again. A first start is always Manual: only a person's button arms the board.
+    MANUAL --BUTTON--> READY --SET_AUTOMATIC--> AUTOMATIC
+       ^                 |                          |
+       +-----BUTTON------+                          |
+       +-----BUTTON or any driver action -----------+   (driver action also from READY)
+
+* The vehicle starts in MANUAL: the human drives and the bridge does not touch the actuators.
+* The Auto/Manual button on the control panel is the hardware activation: MANUAL -> READY.
+  In READY the bridge drives the actuators but only with null setpoints (stand still, steering
+  wheel at 0), so a switched-on but idle stack cannot move the car.
+* The `set_automatic_mode` service is the software activation: READY -> AUTOMATIC. Asked in
+  MANUAL it is refused, since the button has to be pressed first.
+* Pressing the throttle or brake pedal or turning the steering wheel returns to MANUAL from
+  any mode: the driver can always take over.
+* In AUTOMATIC the last setpoint is passed on, unless none has arrived for
+  `setpoint_timeout_s` (1 s in the paper): then the bridge stops the car and centres the
+  steering until fresh setpoints arrive.
+
+No clock and no I/O here: every event carries its time t and `command(t)` is asked at a given
+t, so the same event sequence always gives the same commands.
 """
+
 from __future__ import annotations
 
-import json
 import math
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import asdict, dataclass
+from enum import Enum
 
-from ares.config import Params, VehicleProfile, param
-from ares.messages import (ActuatorCommand, CanFrame, CarState, DbwMeasure, DbwReference, DriveMode, EventLevel,
-                           ModeReply, PanelInput)
-from ares.node import Input, Node, Output, service
-from control.ackermann import ActuatorSetpoint, SetpointConversion
-from control.dbw_logic import Command, DbwCore, Event, Mode, Outcome
+from ares.core.config import Params, VehicleProfile, param
+from ares.core.messages import CanFrame, DriveMode
+from control.ackermann import ActuatorSetpoint, SetpointConversion, max_curvature
 from control.pid import PID
 
-PANEL_EVENTS = {
-    PanelInput.BUTTON: Event.button,
-    PanelInput.THROTTLE_PEDAL: Event.throttle_pedal,
-    PanelInput.BRAKE_PEDAL: Event.brake_pedal,
-    PanelInput.STEERING_WHEEL: Event.steering_wheel,
+
+class Mode(str, Enum):
+    MANUAL = "MANUAL"
+    READY = "READY"
+    AUTOMATIC = "AUTOMATIC"
+
+
+class EventKind(str, Enum):
+    BUTTON = "BUTTON"  # Auto/Manual button on the control panel
+    SET_AUTOMATIC = "SET_AUTOMATIC"  # set_automatic_mode service request
+    THROTTLE_PEDAL = "THROTTLE_PEDAL"  # driver actions ...
+    BRAKE_PEDAL = "BRAKE_PEDAL"
+    STEERING_WHEEL = "STEERING_WHEEL"
+    SETPOINT = "SETPOINT"  # (v, kappa) from the navigation stack
+    TICK = "TICK"  # time passes
+
+
+DRIVER_ACTIONS = frozenset({EventKind.THROTTLE_PEDAL, EventKind.BRAKE_PEDAL, EventKind.STEERING_WHEEL})
+
+# Fig. 17 as a table: (mode, event) -> next mode. Every pair is listed, so the tests can walk
+# all of them and nothing is left to a default branch.
+TRANSITIONS: dict[tuple[Mode, EventKind], Mode] = {
+    (Mode.MANUAL, EventKind.BUTTON): Mode.READY,
+    (Mode.MANUAL, EventKind.SET_AUTOMATIC): Mode.MANUAL,  # refused: button first
+    (Mode.MANUAL, EventKind.THROTTLE_PEDAL): Mode.MANUAL,
+    (Mode.MANUAL, EventKind.BRAKE_PEDAL): Mode.MANUAL,
+    (Mode.MANUAL, EventKind.STEERING_WHEEL): Mode.MANUAL,
+    (Mode.MANUAL, EventKind.SETPOINT): Mode.MANUAL,
+    (Mode.MANUAL, EventKind.TICK): Mode.MANUAL,
+    (Mode.READY, EventKind.BUTTON): Mode.MANUAL,
+    (Mode.READY, EventKind.SET_AUTOMATIC): Mode.AUTOMATIC,
+    (Mode.READY, EventKind.THROTTLE_PEDAL): Mode.MANUAL,
+    (Mode.READY, EventKind.BRAKE_PEDAL): Mode.MANUAL,
+    (Mode.READY, EventKind.STEERING_WHEEL): Mode.MANUAL,
+    (Mode.READY, EventKind.SETPOINT): Mode.READY,
+    (Mode.READY, EventKind.TICK): Mode.READY,
+    (Mode.AUTOMATIC, EventKind.BUTTON): Mode.MANUAL,
+    (Mode.AUTOMATIC, EventKind.SET_AUTOMATIC): Mode.AUTOMATIC,  # accepted, already there
+    (Mode.AUTOMATIC, EventKind.THROTTLE_PEDAL): Mode.MANUAL,
+    (Mode.AUTOMATIC, EventKind.BRAKE_PEDAL): Mode.MANUAL,
+    (Mode.AUTOMATIC, EventKind.STEERING_WHEEL): Mode.MANUAL,
+    (Mode.AUTOMATIC, EventKind.SETPOINT): Mode.AUTOMATIC,
+    (Mode.AUTOMATIC, EventKind.TICK): Mode.AUTOMATIC,
 }
+
+SET_AUTOMATIC_REFUSED_IN_MANUAL = (
+    "set_automatic_mode refused: the vehicle is in MANUAL; press the Auto/Manual button on "
+    "the control panel first (hardware activation) to reach READY"
+)
+
+# Reasons attached to mode changes, for the events the bridge publishes.
+_CHANGE_REASONS: dict[tuple[Mode, EventKind], str] = {
+    (Mode.MANUAL, EventKind.BUTTON): "Auto/Manual button pressed: hardware armed, waiting for set_automatic_mode",
+    (Mode.READY, EventKind.BUTTON): "Auto/Manual button pressed: back to manual driving",
+    (Mode.AUTOMATIC, EventKind.BUTTON): "Auto/Manual button pressed: back to manual driving",
+    (Mode.READY, EventKind.SET_AUTOMATIC): "set_automatic_mode accepted: autonomous driving",
+}
+
+
+def _change_reason(from_mode: Mode, kind: EventKind) -> str:
+    if kind in DRIVER_ACTIONS:
+        action = kind.value.lower().replace("_", " ")
+        return f"driver actuated the {action}: driver takes over"
+    return _CHANGE_REASONS[(from_mode, kind)]
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something that happened at time t (s, on the bridge's clock)."""
+
+    kind: EventKind
+    t: float
+    v: float | None = None  # SETPOINT only
+    kappa: float | None = None  # SETPOINT only
+
+    def __post_init__(self):
+        # A NaN or infinite time would silently break every age comparison below.
+        if not isinstance(self.t, (int, float)) or not math.isfinite(self.t):
+            raise ValueError(f"event time must be a finite number, got {self.t!r}")
+
+    @classmethod
+    def button(cls, t: float) -> Event:
+        return cls(EventKind.BUTTON, t)
+
+    @classmethod
+    def set_automatic(cls, t: float) -> Event:
+        return cls(EventKind.SET_AUTOMATIC, t)
+
+    @classmethod
+    def throttle_pedal(cls, t: float) -> Event:
+        return cls(EventKind.THROTTLE_PEDAL, t)
+
+    @classmethod
+    def brake_pedal(cls, t: float) -> Event:
+        return cls(EventKind.BRAKE_PEDAL, t)
+
+    @classmethod
+    def steering_wheel(cls, t: float) -> Event:
+        return cls(EventKind.STEERING_WHEEL, t)
+
+    @classmethod
+    def setpoint(cls, v: float, kappa: float, t: float) -> Event:
+        return cls(EventKind.SETPOINT, t, v, kappa)
+
+    @classmethod
+    def tick(cls, t: float) -> Event:
+        return cls(EventKind.TICK, t)
+
+
+@dataclass(frozen=True)
+class Transition:
+    """A mode change, as the bridge publishes it."""
+
+    from_mode: Mode
+    to_mode: Mode
+    event: EventKind
+    t: float
+    reason: str
+
+    def as_dict(self) -> dict:
+        return {
+            "from": self.from_mode.value,
+            "to": self.to_mode.value,
+            "event": self.event.value,
+            "t": self.t,
+            "reason": self.reason,
+        }
+
+
+@dataclass(frozen=True)
+class Command:
+    """What the bridge does at time t."""
+
+    t: float
+    mode: Mode
+    engaged: bool  # False: the human drives; True: the bridge drives the actuators
+    v: float  # m/s, within [0, max_speed]
+    kappa: float  # 1/m, within ±max_curvature
+    watchdog_tripped: bool  # AUTOMATIC without a setpoint for longer than the timeout
+    limited: bool  # the command gate had to clamp v or kappa
+    reason: str
+    setpoint_age_s: float | None  # age of the last valid setpoint, None if none yet
+
+    @property
+    def is_null(self) -> bool:
+        return self.v == 0.0 and self.kappa == 0.0
+
+    def as_dict(self) -> dict:
+        out = asdict(self)
+        out["mode"] = self.mode.value
+        return out
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """The answer to one event: accepted or not and why, the mode change if any, and the
+    command at the event's time."""
+
+    event: Event
+    accepted: bool
+    reason: str
+    transition: Transition | None
+    command: Command
+    watchdog_changed: bool  # the watchdog tripped or recovered with this event
+
+
+@dataclass(frozen=True)
+class DbwLimits:
+    """Vehicle limits that no command leaving the bridge may exceed."""
+
+    max_speed_mps: float
+    max_curvature: float  # 1/m, magnitude
+
+    def __post_init__(self):
+        for name in ("max_speed_mps", "max_curvature"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+
+    @classmethod
+    def from_profile(cls, profile: VehicleProfile) -> DbwLimits:
+        """From a vehicle profile: max_speed_mps, and the curvature the steering allows,
+        tan(max_wheel_angle_rad) / wheelbase_m."""
+        return cls(
+            max_speed_mps=profile.max_speed_mps,
+            max_curvature=max_curvature(profile.wheelbase_m, profile.max_wheel_angle_rad),
+        )
+
+
+def command_gate(v: float, kappa: float, limits: DbwLimits) -> tuple[float, float, bool]:
+    """Last check before anything leaves the bridge: v into [0, max_speed], κ into
+    ±max_curvature. A non-finite value (which should never get this far) becomes the null
+    setpoint. Returns (v, kappa, limited)."""
+    if not (math.isfinite(v) and math.isfinite(kappa)):
+        return 0.0, 0.0, True
+    gated_v = min(max(v, 0.0), limits.max_speed_mps)
+    gated_kappa = min(max(kappa, -limits.max_curvature), limits.max_curvature)
+    # +0.0 rather than -0.0, so a null setpoint always prints and compares the same way.
+    gated_v += 0.0
+    gated_kappa += 0.0
+    return gated_v, gated_kappa, (gated_v != v or gated_kappa != kappa)
+
+
+@dataclass(frozen=True)
+class _Setpoint:
+    v: float
+    kappa: float
+    t: float
+
+
+def setpoint_problem(v: object, kappa: object) -> str | None:
+    """Why a setpoint cannot be used, or None if it can."""
+    for name, value in (("v", v), ("kappa", kappa)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"setpoint rejected: {name} is not a number ({value!r})"
+        if not math.isfinite(value):
+            return f"setpoint rejected: {name} is not finite ({value!r})"
+    return None
+
+
+class DbwCore:
+    """The bridge's state machine. Feed it events with `handle`, ask `command(t)`."""
+
+    HISTORY_LENGTH = 100
+
+    def __init__(self, limits: DbwLimits, setpoint_timeout_s: float = 1.0):
+        if not (math.isfinite(setpoint_timeout_s) and setpoint_timeout_s > 0):
+            raise ValueError(f"setpoint_timeout_s must be positive, got {setpoint_timeout_s!r}")
+        self.limits = limits
+        self.setpoint_timeout_s = float(setpoint_timeout_s)
+        self.mode = Mode.MANUAL
+        # Last valid setpoint received in any mode: feeds the watchdog and diagnostics.
+        self.last_setpoint: _Setpoint | None = None
+        # Setpoint received since the switch to AUTOMATIC, the only one ever acted on; cleared
+        # on every mode change so a setpoint from before the switch is never used.
+        self._active_setpoint: _Setpoint | None = None
+        self.rejected_setpoints = 0
+        self.last_rejection: str | None = None
+        self.history: deque[Transition] = deque(maxlen=self.HISTORY_LENGTH)
+        self._watchdog_was_tripped = False
+
+    @classmethod
+    def from_profile(cls, profile: VehicleProfile, setpoint_timeout_s: float) -> DbwCore:
+        return cls(DbwLimits.from_profile(profile), setpoint_timeout_s)
+
+    # -- events ---------------------------------------------------------------------------
+
+    def handle(self, event: Event) -> Outcome:
+        from_mode = self.mode
+        to_mode = TRANSITIONS[(from_mode, event.kind)]
+        accepted, reason = True, ""
+
+        if event.kind is EventKind.SETPOINT:
+            accepted, reason = self._take_setpoint(event)
+        elif event.kind is EventKind.SET_AUTOMATIC:
+            accepted = to_mode is Mode.AUTOMATIC
+            if not accepted:
+                reason = SET_AUTOMATIC_REFUSED_IN_MANUAL
+            elif from_mode is Mode.AUTOMATIC:
+                reason = "set_automatic_mode accepted: already AUTOMATIC"
+        elif event.kind in DRIVER_ACTIONS and from_mode is Mode.MANUAL:
+            reason = "driver action in MANUAL: the driver already drives"
+
+        transition = None
+        if to_mode is not from_mode:
+            transition = Transition(from_mode, to_mode, event.kind, event.t, _change_reason(from_mode, event.kind))
+            self.mode = to_mode
+            self._active_setpoint = None
+            self.history.append(transition)
+            reason = transition.reason
+
+        command = self.command(event.t)
+        watchdog_changed = command.watchdog_tripped != self._watchdog_was_tripped
+        self._watchdog_was_tripped = command.watchdog_tripped
+        return Outcome(event, accepted, reason or "ok", transition, command, watchdog_changed)
+
+    def _take_setpoint(self, event: Event) -> tuple[bool, str]:
+        problem = setpoint_problem(event.v, event.kappa)
+        if problem is not None:
+            # A broken setpoint must not keep the watchdog quiet: it refreshes nothing.
+            self.rejected_setpoints += 1
+            self.last_rejection = problem
+            return False, problem
+        setpoint = _Setpoint(float(event.v), float(event.kappa), event.t)
+        self.last_setpoint = setpoint
+        if self.mode is Mode.AUTOMATIC:
+            self._active_setpoint = setpoint
+            return True, "ok"
+        return True, f"setpoint noted but not used in {self.mode.value}"
+
+    # -- output ---------------------------------------------------------------------------
+
+    def command(self, t: float) -> Command:
+        """What the bridge sends at time t. Does not change the state."""
+        age = None if self.last_setpoint is None else t - self.last_setpoint.t
+
+        if self.mode is Mode.MANUAL:
+            return self._null(t, age, engaged=False, reason="MANUAL: the driver drives")
+        if self.mode is Mode.READY:
+            return self._null(t, age, engaged=True, reason="READY: null setpoint until set_automatic_mode")
+
+        # AUTOMATIC. A negative age means the clock went backwards: trust nothing.
+        if age is None or not (0.0 <= age <= self.setpoint_timeout_s):
+            if age is None:
+                why = "no setpoint received"
+            elif age < 0.0:
+                why = f"last setpoint is from the future ({-age:.3f} s ahead): clock went back"
+            else:
+                why = f"no setpoint for {age:.3f} s"
+            return self._null(
+                t,
+                age,
+                engaged=True,
+                watchdog_tripped=True,
+                reason=f"watchdog: {why} (timeout {self.setpoint_timeout_s} s): stop and centre the steering",
+            )
+        if self._active_setpoint is None:
+            return self._null(t, age, engaged=True, reason="AUTOMATIC: waiting for a setpoint newer than the switch")
+
+        v, kappa, limited = command_gate(self._active_setpoint.v, self._active_setpoint.kappa, self.limits)
+        reason = "AUTOMATIC: setpoint limited to the vehicle" if limited else "AUTOMATIC"
+        return Command(t, self.mode, True, v, kappa, False, limited, reason, age)
+
+    def _null(
+        self, t: float, age: float | None, *, engaged: bool, reason: str, watchdog_tripped: bool = False
+    ) -> Command:
+        v, kappa, limited = command_gate(0.0, 0.0, self.limits)
+        return Command(t, self.mode, engaged, v, kappa, watchdog_tripped, limited, reason, age)
 
 
 class DbwBridgeParams(Params):
     rate_hz: float = param(10.0, "inner PID loops (DBW paper: 100 ms period)", unit="Hz", gt=0)
-    setpoint_timeout_s: float = param(0.5, "no command this long: stop and centre the steering (the DBW paper's "
-                                           "1 s was for a 10 Hz navigation setpoint; the movement manager sends at "
-                                           "50 Hz, and a dead one must be a stop begun within 1 s)", unit="s", gt=0)
+    setpoint_timeout_s: float = param(
+        0.5,
+        "no command this long: stop and centre the steering (the DBW paper's "
+        "1 s was for a 10 Hz navigation setpoint; the movement manager sends at "
+        "50 Hz, and a dead one must be a stop begun within 1 s)",
+        unit="s",
+        gt=0,
+    )
     standstill_speed_mps: float = param(0.3, "below this with a zero speed setpoint, hold the brake", unit="m/s", ge=0)
     standstill_brake_effort: float = param(0.5, "the brake held at standstill", ge=0, le=1)
-    pedal_pressed: float = param(0.05, "pedal travel that counts as the driver acting (filters sensor noise)",
-                                 ge=0, le=1)
-    brake_assist_deadband_mps: float = param(0.5, "measured speed this far above the command: the brake helps the "
-                                                  "speed loop (a limit that falls at once: an obstacle, a pause); "
-                                                  "smaller gaps, as a speed section's step, are the loop's alone",
-                                             unit="m/s", ge=0)
-    brake_assist_time_s: float = param(0.5, "... asking the deceleration that closes the gap beyond the deadband in "
-                                            "this time", unit="s", gt=0)
-    brake_assist_max_decel_mps2: float = param(3.0, "... at most (the full brake is for emergencies)", unit="m/s^2",
-                                               gt=0)
-    can_timeout_s: float = param(0.5, "older CAN readings leave the inner loops blind: engaged, the board brakes",
-                                 unit="s", gt=0)
+    pedal_pressed: float = param(
+        0.05, "pedal travel that counts as the driver acting (filters sensor noise)", ge=0, le=1
+    )
+    brake_assist_deadband_mps: float = param(
+        0.5,
+        "measured speed this far above the command: the brake helps the "
+        "speed loop (a limit that falls at once: an obstacle, a pause); "
+        "smaller gaps, as a speed section's step, are the loop's alone",
+        unit="m/s",
+        ge=0,
+    )
+    brake_assist_time_s: float = param(
+        0.5, "... asking the deceleration that closes the gap beyond the deadband in this time", unit="s", gt=0
+    )
+    brake_assist_max_decel_mps2: float = param(
+        3.0, "... at most (the full brake is for emergencies)", unit="m/s^2", gt=0
+    )
+    can_timeout_s: float = param(
+        0.5, "older CAN readings leave the inner loops blind: engaged, the board brakes", unit="s", gt=0
+    )
 
 
 @dataclass(frozen=True)
 class BridgeOutput:
-    command: Command                # what the mode machine and the gate let through
-    reference: ActuatorSetpoint     # the inner loops' references for that command
+    command: Command  # what the mode machine and the gate let through
+    reference: ActuatorSetpoint  # the inner loops' references for that command
     steer_effort: float
     drive_effort: float
 
@@ -73,10 +423,11 @@ class BridgeLoop:
         self.dt = 1.0 / params.rate_hz
         # the speed loop's PI, tuned for tracking (DBW paper), brakes at a fraction of 1 m/s^2 for
         # a speed 1 m/s too high: the brake's effort per m/s^2 for a gap it must close fast
-        self.brake_effort_per_mps2 = (profile.empty_mass_kg + 2 * profile.passenger_mass_kg) / \
-            profile.actuators.traction.max_brake_force_n
+        self.brake_effort_per_mps2 = (
+            profile.empty_mass_kg + 2 * profile.passenger_mass_kg
+        ) / profile.actuators.traction.max_brake_force_n
         self._was_engaged = False
-        self.emergency = False          # the movement manager's latched emergency stop: brake fully
+        self.emergency = False  # the movement manager's latched emergency stop: brake fully
 
     def handle(self, event: Event) -> Outcome:
         return self.core.handle(event)
@@ -110,8 +461,10 @@ class BridgeLoop:
             drive_effort = self.wheel_speed_pid.step(reference.wheel_speed_rad_s, can.wheel_speed_rad_s, self.dt)
             gap = can.speed_mps - cmd.v
             if gap > self.params.brake_assist_deadband_mps:
-                decel = min((gap - self.params.brake_assist_deadband_mps) / self.params.brake_assist_time_s,
-                            self.params.brake_assist_max_decel_mps2)
+                decel = min(
+                    (gap - self.params.brake_assist_deadband_mps) / self.params.brake_assist_time_s,
+                    self.params.brake_assist_max_decel_mps2,
+                )
                 drive_effort = min(drive_effort, -min(1.0, decel * self.brake_effort_per_mps2))
             if cmd.v == 0.0 and can.speed_mps < self.params.standstill_speed_mps:
                 # a PI loop alone creeps around zero on a slope; the board holds the brake
@@ -120,89 +473,3 @@ class BridgeLoop:
                 drive_effort = -1.0
         self._was_engaged = cmd.engaged and can is not None
         return BridgeOutput(cmd, reference, steer_effort, drive_effort)
-
-
-class DbwBridge(Node):
-    """Manual / Ready / Automatic modes, the setpoint watchdog, the command gate, the inner loops."""
-    name = "dbw_bridge"
-    Params = DbwBridgeParams
-    setpoints = Input("movement/command", queue=64, doc="(v, kappa, emergency) from the movement manager: the only "
-                                                        "source of commands")
-    panel = Input("vehicle/panel", queue=64, doc="button, pedals, steering wheel")
-    can = Input("sensors/can", max_age="can_timeout_s",
-                doc="measured steering-wheel angle and wheel speed, pedal positions")
-    actuators = Output("dbw/actuators", rate="rate_hz", doc="efforts to the steering motor and traction/brake")
-    reference = Output("dbw/reference", rate="rate_hz", doc="the inner loops' references")
-    measure = Output("dbw/measure", doc="when CAN readings have arrived")
-    car_state = Output("dbw/car_state", rate="rate_hz", doc="mode, watchdog, command and measured motion")
-
-    def setup(self) -> None:
-        self.board = BridgeLoop(self.vehicle, self.params)
-        self.kept = self.kept_state_path()
-        if self.restarted and self.kept is not None and self.kept.exists():
-            try:
-                mode = Mode(json.loads(self.kept.read_text())["mode"])
-            except (OSError, ValueError, KeyError, TypeError) as exc:
-                self.event("mode_change", f"the board's mode could not be read ({exc}): Manual", EventLevel.WARNING)
-            else:
-                self.board.core.mode = mode
-                self.event("mode_change", f"restarted: the board is still in {mode.value}", to=mode.value)
-
-    def _keep_mode(self) -> None:
-        if self.kept is not None:
-            tmp = self.kept.with_suffix(".tmp")
-            tmp.write_text(json.dumps({"mode": self.board.core.mode.value}))
-            tmp.replace(self.kept)
-
-    @service("set_automatic_mode")
-    def _set_automatic_mode(self, _request) -> ModeReply:
-        outcome = self._handle(Event.set_automatic(self.clock.now()))
-        return ModeReply(t=self.clock.now(), accepted=outcome.accepted, mode=DriveMode(self.board.core.mode.value),
-                         reason=outcome.reason)
-
-    def _handle(self, event: Event) -> Outcome:
-        return self._report(self.board.handle(event), event)
-
-    def _report(self, outcome: Outcome, event: Event) -> Outcome:
-        if outcome.transition is not None:
-            tr = outcome.transition
-            self.event("mode_change", f"{tr.from_mode.value} -> {tr.to_mode.value}: {tr.reason}",
-                       **{"from": tr.from_mode.value, "to": tr.to_mode.value, "cause": event.kind.value})
-            self._keep_mode()
-        if outcome.watchdog_changed:
-            cmd = outcome.command
-            if cmd.watchdog_tripped:
-                age = "ever" if cmd.setpoint_age_s is None else f"{cmd.setpoint_age_s:.2f} s"
-                self.event("watchdog", f"no setpoint for {age}: stopping, steering centred", EventLevel.FAULT)
-            else:
-                self.event("watchdog", "setpoints are back", EventLevel.INFO)
-        return outcome
-
-    def step(self, now: float) -> None:
-        for _, panel in self.panel.drain():
-            self._handle(PANEL_EVENTS[panel.input](now))
-        can = self.can.fresh(now)
-        for outcome in self.board.driver_actions_from_can(can, now):
-            self._report(outcome, outcome.event)
-        for _, sp in self.setpoints.drain():
-            # as old as its stamp says: a setpoint that arrives late must not keep the watchdog quiet
-            self._handle(Event.setpoint(sp.v, sp.kappa, sp.t))
-            self.board.emergency = sp.emergency
-        self._handle(Event.tick(now))
-        out = self.board.efforts(now, can)
-        cmd = out.command
-        self.actuators.put(ActuatorCommand(t=now, engaged=cmd.engaged, steer_effort=out.steer_effort,
-                                           drive_effort=out.drive_effort))
-        self.reference.put(DbwReference(t=now, steering_wheel_deg=out.reference.steering_wheel_angle_deg,
-                                        wheel_speed_deg_s=out.reference.wheel_speed_deg_s, v=cmd.v, kappa=cmd.kappa))
-        if can is not None:
-            wheel_speed_deg_s = math.degrees(can.wheel_speed_rad_s)
-            measured = self.board.conversion.to_speed_curvature_deg(can.steering_wheel_deg, wheel_speed_deg_s)
-            self.measure.put(DbwMeasure(t=now, steering_wheel_deg=can.steering_wheel_deg,
-                                        wheel_speed_deg_s=wheel_speed_deg_s, v=measured.v, kappa=measured.kappa))
-        self.car_state.put(CarState(
-            t=now, mode=DriveMode(self.board.core.mode.value), engaged=cmd.engaged,
-            watchdog_tripped=cmd.watchdog_tripped, setpoint_age_s=cmd.setpoint_age_s,
-            v_command=cmd.v, kappa_command=cmd.kappa, speed_mps=can.speed_mps if can else 0.0,
-            steering_wheel_deg=can.steering_wheel_deg if can else 0.0, reason=cmd.reason,
-            emergency=self.board.emergency))

@@ -49,6 +49,7 @@ runs over max_solve_ms is answered with the previous solution shifted instead, w
 after max_reused such answers in a row the controller asks for a hand-over (`handover`): the
 control manager then forwards its fallback.
 """
+
 from __future__ import annotations
 
 import math
@@ -58,66 +59,90 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ares.config import Params, VehicleProfile, param
+from ares.core.config import Params, VehicleProfile, param
 
 poly = np.polynomial.polynomial
 
 
 class MpcParams(Params):
     """The MPC's horizon, weights (eq. 13) and solver budget."""
+
     rate_hz: float = param(10.0, "solves per second", unit="Hz", gt=0)
     horizon_steps: int = param(12, "N: steps predicted", ge=2, le=60)
     step_s: float = param(0.15, "dt: the model's step", unit="s", gt=0)
-    w_cte: float = param(200.0, "eq. 13: weight of the cross-track error, up to w_cte_full_speed_mps (300 weaves "
-                                "the Techs4AgeCar off the campus road leaving its first roundabout)", unit="1/m^2", ge=0)
-    w_cte_full_speed_mps: float = param(4.0, "faster, w_cte falls as 1/v²: the same weight asks the same correction "
-                                             "in metres, which at twice the speed is a four times sharper turn, and "
-                                             "the actuators' lag does not shrink", unit="m/s", gt=0)
+    w_cte: float = param(
+        200.0,
+        "eq. 13: weight of the cross-track error, up to w_cte_full_speed_mps (300 weaves "
+        "the Techs4AgeCar off the campus road leaving its first roundabout)",
+        unit="1/m^2",
+        ge=0,
+    )
+    w_cte_full_speed_mps: float = param(
+        4.0,
+        "faster, w_cte falls as 1/v²: the same weight asks the same correction "
+        "in metres, which at twice the speed is a four times sharper turn, and "
+        "the actuators' lag does not shrink",
+        unit="m/s",
+        gt=0,
+    )
     w_epsi: float = param(200.0, "eq. 13: weight of the heading error", unit="1/rad^2", ge=0)
     w_v: float = param(1.0, "eq. 13: weight of the speed error", unit="s^2/m^2", ge=0)
     w_delta: float = param(1.0, "eq. 13: weight of the wheel angle", unit="1/rad^2", ge=0)
     w_accel: float = param(1.0, "eq. 13: weight of the acceleration", unit="s^4/m^2", ge=0)
-    w_delta_rate: float = param(1000.0, "eq. 13: weight of the change of wheel angle between steps (1000 rather "
-                                         "than 100: the stack's own latency, 0.1-0.2 s from pose to wheels, makes "
-                                         "100 oscillate; docs/mpc.md)", unit="1/rad^2", ge=0)
-    w_accel_rate: float = param(10.0, "eq. 13: weight of the change of acceleration between steps",
-                                unit="s^4/m^2", ge=0)
-    sqp_iterations: int = param(1, "Gauss-Newton steps per solve, from the shifted previous solution (1: the "
-                                   "real-time iteration)", ge=1, le=50)
+    w_delta_rate: float = param(
+        1000.0,
+        "eq. 13: weight of the change of wheel angle between steps (1000 rather "
+        "than 100: the stack's own latency, 0.1-0.2 s from pose to wheels, makes "
+        "100 oscillate; docs/mpc.md)",
+        unit="1/rad^2",
+        ge=0,
+    )
+    w_accel_rate: float = param(
+        10.0, "eq. 13: weight of the change of acceleration between steps", unit="s^4/m^2", ge=0
+    )
+    sqp_iterations: int = param(
+        1, "Gauss-Newton steps per solve, from the shifted previous solution (1: the real-time iteration)", ge=1, le=50
+    )
     first_iterations: int = param(8, "... and for a solve without a previous solution", ge=1, le=50)
     compensate_dead_time: bool = param(True, "solve from the state the actuators' dead time ahead")
-    max_solve_ms: float = param(60.0, "a solve taking longer counts as failed (its answer would be late)",
-                                unit="ms", gt=0)
-    max_reused: int = param(3, "failed solves in a row answered with the previous solution, shifted; one more "
-                               "and the MPC asks for a hand-over", ge=0)
+    max_solve_ms: float = param(
+        60.0, "a solve taking longer counts as failed (its answer would be late)", unit="ms", gt=0
+    )
+    max_reused: int = param(
+        3,
+        "failed solves in a row answered with the previous solution, shifted; one more "
+        "and the MPC asks for a hand-over",
+        ge=0,
+    )
 
 
 @dataclass(frozen=True)
 class VehicleState:
     """Where the vehicle is (any planar frame: the path's poses must be in the same one)."""
+
     x: float
     y: float
     yaw: float
     v: float
-    delta: float = 0.0          # front wheel angle now, rad
-    accel: float = 0.0          # the acceleration last commanded, m/s²
+    delta: float = 0.0  # front wheel angle now, rad
+    accel: float = 0.0  # the acceleration last commanded, m/s²
 
 
 @dataclass(frozen=True)
 class MpcCommand:
-    ok: bool                    # a fresh solve (False: reused, or nothing to give)
-    handover: bool              # too many failures in a row: the fallback should drive
-    delta: float                # wheel angle to command, rad
-    accel: float                # acceleration to command, m/s²
-    v: float                    # speed to command: one step ahead, m/s
-    kappa: float                # curvature to command: tan(δ) / L, 1/m
-    predicted_x: np.ndarray     # (N + 1,) the predicted trajectory, in the state's frame
+    ok: bool  # a fresh solve (False: reused, or nothing to give)
+    handover: bool  # too many failures in a row: the fallback should drive
+    delta: float  # wheel angle to command, rad
+    accel: float  # acceleration to command, m/s²
+    v: float  # speed to command: one step ahead, m/s
+    kappa: float  # curvature to command: tan(δ) / L, 1/m
+    predicted_x: np.ndarray  # (N + 1,) the predicted trajectory, in the state's frame
     predicted_y: np.ndarray
-    cte: float                  # cross-track error now (from the fitted path), + vehicle right of it
-    epsi: float                 # heading error now, rad
+    cte: float  # cross-track error now (from the fitted path), + vehicle right of it
+    epsi: float  # heading error now, rad
     solve_ms: float
-    status: str                 # the solver's return status, or why nothing was solved
-    reused: int                 # previous solutions reused in a row
+    status: str  # the solver's return status, or why nothing was solved
+    reused: int  # previous solutions reused in a row
 
 
 def predict(x, y, yaw, v, delta, accel, dt: float, wheelbase: float, steps: int = 1):
@@ -129,8 +154,7 @@ def predict(x, y, yaw, v, delta, accel, dt: float, wheelbase: float, steps: int 
         # step's start, every step would end outside the arc, and the plan, believing the vehicle
         # wider than it is, would settle it inside every bend (2 cm in the tour's 30 m bends)
         heading = yaw + 0.5 * turn
-        x, y, yaw, v = (x + v * trig.cos(heading) * dt, y + v * trig.sin(heading) * dt,
-                        yaw + turn, v + accel * dt)
+        x, y, yaw, v = (x + v * trig.cos(heading) * dt, y + v * trig.sin(heading) * dt, yaw + turn, v + accel * dt)
     return x, y, yaw, v
 
 
@@ -144,7 +168,7 @@ class Mpc:
         self.max_accel, self.max_decel = vehicle.max_accel_mps2, vehicle.max_decel_mps2
         self.max_speed = vehicle.max_speed_mps
         steering = vehicle.actuators.steering
-        self.wheel_rate = wheel_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio    # rad/s
+        self.wheel_rate = wheel_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio  # rad/s
         self.max_delta_step = wheel_rate * p.step_s
         # between two solves the wheels turn only a cycle's worth: a first step asking for more would
         # be cut short by the actuator, and the next solve would
@@ -152,11 +176,11 @@ class Mpc:
         self.max_first_step = wheel_rate * min(p.step_s, 1.0 / p.rate_hz)
         self.steer_dead_s = steering.dead_time_s
         self.traction_dead_s = vehicle.actuators.traction.dead_time_s
-        self.failures = 0                       # failed solves since start (counted for the status)
-        self.reused = 0                         # ... in a row
-        self._previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None   # (X, U, start) of the last good solve
-        self._sent_delta: float | None = None   # the wheel angle last commanded
-        self._limit_here = math.inf             # the path's speed limit where the vehicle is (last solve)
+        self.failures = 0  # failed solves since start (counted for the status)
+        self.reused = 0  # ... in a row
+        self._previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (X, U, start) of the last good solve
+        self._sent_delta: float | None = None  # the wheel angle last commanded
+        self._limit_here = math.inf  # the path's speed limit where the vehicle is (last solve)
         self._build()
 
     # ---- the problem (once) -------------------------------------------------------------------
@@ -167,7 +191,7 @@ class Mpc:
         U = ca.SX.sym("U", 2 * n)
         P = ca.SX.sym("P", 1 + 4 * n)
         delta, accel = U[:n], U[n:]
-        xr, yr, psir, vref = P[1:1 + n], P[1 + n:1 + 2 * n], P[1 + 2 * n:1 + 3 * n], P[1 + 3 * n:]
+        xr, yr, psir, vref = P[1 : 1 + n], P[1 + n : 1 + 2 * n], P[1 + 2 * n : 1 + 3 * n], P[1 + 3 * n :]
         x, y, yaw, v = ca.SX(0), ca.SX(0), ca.SX(0), P[0]
         states, residuals = [ca.vertcat(x, y, yaw, v)], []
         root_w_cte = math.sqrt(p.w_cte) * ca.fmin(1.0, p.w_cte_full_speed_mps / ca.fmax(P[0], 1e-3))
@@ -175,10 +199,13 @@ class Mpc:
             x, y, yaw, v = predict(x, y, yaw, v, delta[t], accel[t], dt, wb)
             states.append(ca.vertcat(x, y, yaw, v))
             cte = -ca.sin(psir[t]) * (x - xr[t]) + ca.cos(psir[t]) * (y - yr[t])
-            residuals += [root_w_cte * cte, math.sqrt(p.w_epsi) * (yaw - psir[t]),
-                          math.sqrt(p.w_v) * (v - vref[t])]
-        residuals += [math.sqrt(p.w_delta) * delta, math.sqrt(p.w_accel) * accel,
-                      math.sqrt(p.w_delta_rate) * ca.diff(delta), math.sqrt(p.w_accel_rate) * ca.diff(accel)]
+            residuals += [root_w_cte * cte, math.sqrt(p.w_epsi) * (yaw - psir[t]), math.sqrt(p.w_v) * (v - vref[t])]
+        residuals += [
+            math.sqrt(p.w_delta) * delta,
+            math.sqrt(p.w_accel) * accel,
+            math.sqrt(p.w_delta_rate) * ca.diff(delta),
+            math.sqrt(p.w_accel_rate) * ca.diff(accel),
+        ]
         r = ca.vertcat(*residuals)
         J = ca.jacobian(r, U)
         self._gauss_newton = ca.Function("gauss_newton", [U, P], [J.T @ J, J.T @ r, 0.5 * ca.sumsqr(r)])
@@ -191,22 +218,34 @@ class Mpc:
         A[n:, n:] = dt * np.tril(np.ones((n, n)))
         self._lbu = np.r_[np.full(n, -self.max_delta), np.full(n, -self.max_decel)]
         self._ubu = np.r_[np.full(n, self.max_delta), np.full(n, self.max_accel)]
-        qp = ca.conic("mpc_qp", "daqp", {"h": ca.Sparsity.dense(2 * n, 2 * n), "a": ca.Sparsity.dense(2 * n, 2 * n)},
-                      {"error_on_fail": False})
+        qp = ca.conic(
+            "mpc_qp",
+            "daqp",
+            {"h": ca.Sparsity.dense(2 * n, 2 * n), "a": ca.Sparsity.dense(2 * n, 2 * n)},
+            {"error_on_fail": False},
+        )
         # one Gauss-Newton step as one compiled call (the QP data, the QP, the step, the new rollout):
         # from Python, each call costs more than the arithmetic in it
         U0, P0 = ca.MX.sym("U", 2 * n), ca.MX.sym("P", 1 + 4 * n)
         lba, uba = ca.MX.sym("lba", 2 * n), ca.MX.sym("uba", 2 * n)
         H, g, _ = self._gauss_newton(U0, P0)
         Adm = ca.DM(A)
-        step = qp(h=H, g=g, a=Adm, lbx=ca.DM(self._lbu) - U0, ubx=ca.DM(self._ubu) - U0,
-                  lba=lba - ca.mtimes(Adm, U0), uba=uba - ca.mtimes(Adm, U0))["x"]
+        step = qp(
+            h=H,
+            g=g,
+            a=Adm,
+            lbx=ca.DM(self._lbu) - U0,
+            ubx=ca.DM(self._ubu) - U0,
+            lba=lba - ca.mtimes(Adm, U0),
+            uba=uba - ca.mtimes(Adm, U0),
+        )["x"]
         U1 = ca.fmin(ca.fmax(U0 + step, ca.DM(self._lbu)), ca.DM(self._ubu))
         self._step = ca.Function("gauss_newton_step", [U0, P0, lba, uba], [U1, self._rollout(U1, P0)])
 
     # ---- each cycle ---------------------------------------------------------------------------
-    def solve(self, state: VehicleState, path_x, path_y, path_speed, latency_s: float = 0.0,
-              delta_age_s: float = 0.0) -> MpcCommand:
+    def solve(
+        self, state: VehicleState, path_x, path_y, path_speed, latency_s: float = 0.0, delta_age_s: float = 0.0
+    ) -> MpcCommand:
         """One cycle: the path ahead (poses in the state's frame, from near the vehicle onwards, and
         the speed limit at each) → the command to send now. `latency_s`: how much later than the
         state's time the command reaches the actuators (the state's age, the processes between);
@@ -245,7 +284,9 @@ class Mpc:
         self._limit_here = path.speed_at_vehicle()
         return self._command(state, X, U.reshape(2, n), (cte, epsi), True, solve_ms, status, start)
 
-    def _after_dead_time(self, state: VehicleState, latency_s: float, delta_age_s: float = 0.0) -> tuple[np.ndarray, float]:
+    def _after_dead_time(
+        self, state: VehicleState, latency_s: float, delta_age_s: float = 0.0
+    ) -> tuple[np.ndarray, float]:
         """(x, y, ψ, v) and δ when a command sent now starts to act: the last commands run meanwhile."""
         if not self.params.compensate_dead_time:
             return np.array([state.x, state.y, state.yaw, state.v]), state.delta
@@ -258,6 +299,7 @@ class Mpc:
 
         def turned(delta: float, seconds: float) -> float:
             return delta + float(np.clip(target - delta, -self.wheel_rate * seconds, self.wheel_rate * seconds))
+
         delta = turned(state.delta, delta_age_s)
         for _ in range(steps):
             delta = turned(delta, ahead / steps)
@@ -279,10 +321,23 @@ class Mpc:
         self.reused += 1
         solve_ms = (time.perf_counter() - started) * 1e3
         if self._previous is None or self.reused > min(self.params.max_reused, self.params.horizon_steps - 1):
-            return MpcCommand(False, True, state.delta, -self.max_decel, 0.0, math.tan(state.delta) / self.wheelbase,
-                              np.zeros(0), np.zeros(0), math.nan, math.nan, solve_ms, why, self.reused)
+            return MpcCommand(
+                False,
+                True,
+                state.delta,
+                -self.max_decel,
+                0.0,
+                math.tan(state.delta) / self.wheelbase,
+                np.zeros(0),
+                np.zeros(0),
+                math.nan,
+                math.nan,
+                solve_ms,
+                why,
+                self.reused,
+            )
         X, U, start = self._previous
-        k = self.reused                         # steps since that solution was made
+        k = self.reused  # steps since that solution was made
         shifted_U = np.c_[U[:, k:], np.repeat(U[:, -1:], k, axis=1)]
         shifted_X = np.c_[X[:, k:], np.repeat(X[:, -1:], k, axis=1)]
         return self._command(state, shifted_X, shifted_U, None, False, solve_ms, why, start)
@@ -296,20 +351,33 @@ class Mpc:
         px, py = start[0] + c * X[0] - s * X[1], start[1] + s * X[0] + c * X[1]
         cte, epsi = errors if errors is not None else (math.nan, math.nan)
         self._sent_delta = delta
-        return MpcCommand(ok, False, delta, accel, v, math.tan(delta) / self.wheelbase, np.asarray(px),
-                          np.asarray(py), cte, epsi, solve_ms, status, self.reused)
+        return MpcCommand(
+            ok,
+            False,
+            delta,
+            accel,
+            v,
+            math.tan(delta) / self.wheelbase,
+            np.asarray(px),
+            np.asarray(py),
+            cte,
+            epsi,
+            solve_ms,
+            status,
+            self.reused,
+        )
 
 
 class _Polyline:
     """The path ahead in the solve's frame: arc length, headings (unwrapped), speed limits."""
 
     def __init__(self, x: np.ndarray, y: np.ndarray, speed: np.ndarray):
-        keep = np.r_[True, np.hypot(np.diff(x), np.diff(y)) > 1e-6]     # repeated poses carry no heading
+        keep = np.r_[True, np.hypot(np.diff(x), np.diff(y)) > 1e-6]  # repeated poses carry no heading
         self.x, self.y, self.speed = x[keep], y[keep], speed[keep]
         self.dx, self.dy = np.diff(self.x), np.diff(self.y)
         self.seg = np.hypot(self.dx, self.dy)
         self.s = np.r_[0.0, np.cumsum(self.seg)]
-        self.yaw = np.unwrap(np.arctan2(self.dy, self.dx))     # per segment
+        self.yaw = np.unwrap(np.arctan2(self.dy, self.dx))  # per segment
         # the heading in the solve's frame lies near 0 where the vehicle is: unwrap around it
         k, self.s_vehicle = self._project(np.zeros(1), np.zeros(1))
         self.k_vehicle = int(k[0])
@@ -331,8 +399,14 @@ class _Polyline:
         k = np.clip(np.searchsorted(self.s, s_at, side="right") - 1, 0, len(self.yaw) - 1)
         beyond = s_at - self.s[k]
         yaw = self.yaw[k]
-        return np.concatenate([self.x[k] + beyond * np.cos(yaw), self.y[k] + beyond * np.sin(yaw), yaw,
-                               np.interp(s_at, self.s, self.speed)])
+        return np.concatenate(
+            [
+                self.x[k] + beyond * np.cos(yaw),
+                self.y[k] + beyond * np.sin(yaw),
+                yaw,
+                np.interp(s_at, self.s, self.speed),
+            ]
+        )
 
     def speed_at_vehicle(self) -> float:
         return float(np.interp(self.s_vehicle[0], self.s, self.speed))

@@ -21,27 +21,40 @@ any offset, and the MPC takes over again once moving (`StallGuard`).
 Without a fresh pose and path there is no candidate: the control manager must never forward a
 command computed from stale data.
 """
+
 from __future__ import annotations
 
 import math
 
-from ares.config import param
-from ares.messages import ControlCandidate, PredictedTrajectory
-from ares.node import Input, Node, Output
+from ares.core.config import param
+from ares.core.messages import ControlCandidate, PredictedTrajectory
+from ares.core.node import Input, Node, Output
 from control.mpc import Mpc, MpcParams, VehicleState
 
 
 class MpcNodeParams(MpcParams):
     input_timeout_s: float = param(1.0, "an older pose or path match: no candidate", unit="s", gt=0)
-    max_heading_sigma_rad: float = param(0.05, "above this (start-up: the magnetometer's guess) follow the path's "
-                                               "curvature ...", unit="rad", gt=0)
-    creep_speed_mps: float = param(1.0, "... no faster than this, until yaw from poses has fixed the heading",
-                                   unit="m/s", gt=0)
-    stall_handover_s: float = param(2.0, "a plan that keeps the standing shuttle standing while the path asks it "
-                                         "to move this long: hand over (pure pursuit starts it)", unit="s", gt=0)
-    pipeline_latency_s: float = param(0.1, "from this process's step to the wheels' actuators, beyond the pose's "
-                                           "age: the control manager's step (20 Hz) and the bridge's (10 Hz); the MPC "
-                                           "solves from the state predicted that far ahead", unit="s", ge=0)
+    max_heading_sigma_rad: float = param(
+        0.05, "above this (start-up: the magnetometer's guess) follow the path's curvature ...", unit="rad", gt=0
+    )
+    creep_speed_mps: float = param(
+        1.0, "... no faster than this, until yaw from poses has fixed the heading", unit="m/s", gt=0
+    )
+    stall_handover_s: float = param(
+        2.0,
+        "a plan that keeps the standing shuttle standing while the path asks it "
+        "to move this long: hand over (pure pursuit starts it)",
+        unit="s",
+        gt=0,
+    )
+    pipeline_latency_s: float = param(
+        0.1,
+        "from this process's step to the wheels' actuators, beyond the pose's "
+        "age: the control manager's step (20 Hz) and the bridge's (10 Hz); the MPC "
+        "solves from the state predicted that far ahead",
+        unit="s",
+        ge=0,
+    )
 
 
 class StallGuard:
@@ -62,6 +75,7 @@ class StallGuard:
 
 class MpcNode(Node):
     """Model predictive control (ARES eqs. 11-13) on the path ahead: a candidate for the control manager."""
+
     name = "mpc"
     Params = MpcNodeParams
     pose = Input("localization/pose", max_age="input_timeout_s", doc="x, y, yaw, v of the rear axle")
@@ -81,26 +95,54 @@ class MpcNode(Node):
         if pose is None or match is None or not match.ahead_x:
             return
         if math.sqrt(max(pose.var_yaw, 0.0)) > self.params.max_heading_sigma_rad:
-            kappa = max(-self.max_kappa, min(self.max_kappa, match.ahead_curvature[0] if match.ahead_curvature
-                                             else 0.0))
-            self.candidate.put(ControlCandidate(t=now, controller="mpc", v=min(match.ahead_speed[0],
-                                                                                 self.params.creep_speed_mps),
-                                                kappa=kappa, cross_track_m=match.xte,
-                                                heading_error_rad=match.heading_error,
-                                                note="creeping: heading uncertain"))
+            kappa = max(
+                -self.max_kappa, min(self.max_kappa, match.ahead_curvature[0] if match.ahead_curvature else 0.0)
+            )
+            self.candidate.put(
+                ControlCandidate(
+                    t=now,
+                    controller="mpc",
+                    v=min(match.ahead_speed[0], self.params.creep_speed_mps),
+                    kappa=kappa,
+                    cross_track_m=match.xte,
+                    heading_error_rad=match.heading_error,
+                    note="creeping: heading uncertain",
+                )
+            )
             return
         delta = math.radians(car.steering_wheel_deg) / self.vehicle.steering_ratio if car is not None else 0.0
         state = VehicleState(pose.x, pose.y, pose.yaw, pose.v, delta, self._accel)
-        cmd = self.mpc.solve(state, match.ahead_x, match.ahead_y, match.ahead_speed,
-                             latency_s=max(now - pose.t, 0.0) + self.params.pipeline_latency_s,
-                             delta_age_s=max(pose.t - car.t, 0.0) if car is not None else 0.0)
+        cmd = self.mpc.solve(
+            state,
+            match.ahead_x,
+            match.ahead_y,
+            match.ahead_speed,
+            latency_s=max(now - pose.t, 0.0) + self.params.pipeline_latency_s,
+            delta_age_s=max(pose.t - car.t, 0.0) if car is not None else 0.0,
+        )
         self._accel = cmd.accel
         stalled = self.stall.stalled(now, cmd.v, pose.v, max(match.ahead_speed[:20], default=0.0))
-        self.candidate.put(ControlCandidate(
-            t=now, controller="mpc", v=cmd.v, kappa=cmd.kappa, fresh=cmd.ok, handover=cmd.handover or stalled,
-            solve_ms=round(cmd.solve_ms, 3), cross_track_m=-cmd.cte if math.isfinite(cmd.cte) else match.xte,
-            heading_error_rad=cmd.epsi if math.isfinite(cmd.epsi) else match.heading_error,
-            note="stalled: standing although the path asks to move" if stalled else cmd.status))
+        self.candidate.put(
+            ControlCandidate(
+                t=now,
+                controller="mpc",
+                v=cmd.v,
+                kappa=cmd.kappa,
+                fresh=cmd.ok,
+                handover=cmd.handover or stalled,
+                solve_ms=round(cmd.solve_ms, 3),
+                cross_track_m=-cmd.cte if math.isfinite(cmd.cte) else match.xte,
+                heading_error_rad=cmd.epsi if math.isfinite(cmd.epsi) else match.heading_error,
+                note="stalled: standing although the path asks to move" if stalled else cmd.status,
+            )
+        )
         if len(cmd.predicted_x):
-            self.trajectory.put(PredictedTrajectory(t=now, controller="mpc", x=cmd.predicted_x.tolist(),
-                                                    y=cmd.predicted_y.tolist(), step_s=self.params.step_s))
+            self.trajectory.put(
+                PredictedTrajectory(
+                    t=now,
+                    controller="mpc",
+                    x=cmd.predicted_x.tolist(),
+                    y=cmd.predicted_y.tolist(),
+                    step_s=self.params.step_s,
+                )
+            )

@@ -21,18 +21,26 @@ Two additions a real board needs and the paper's equations leave out:
 The integral is kept in effort units (Ki already multiplied in, as in eq. 6), so changing Ki
 on the fly does not make the output jump.
 """
+
 from __future__ import annotations
 
 import math
 
-from ares.config import PidGains
+from ares.core.config import PidGains
 
 
 class PID:
-    def __init__(self, kp: float, ki: float = 0.0, kd: float = 0.0, *,
-                 out_min: float = -1.0, out_max: float = 1.0,
-                 integral_limit: float | None = None,
-                 derivative_on_measurement: bool = True):
+    def __init__(
+        self,
+        kp: float,
+        ki: float = 0.0,
+        kd: float = 0.0,
+        *,
+        out_min: float = -1.0,
+        out_max: float = 1.0,
+        integral_limit: float | None = None,
+        derivative_on_measurement: bool = True,
+    ):
         if out_min >= out_max:
             raise ValueError(f"PID: out_min ({out_min}) must be below out_max ({out_max})")
         self.kp = float(kp)
@@ -41,16 +49,22 @@ class PID:
         self.out_min = float(out_min)
         self.out_max = float(out_max)
         # By default the integral alone may use the whole output range, no more.
-        self.integral_limit = (max(abs(out_min), abs(out_max)) if integral_limit is None
-                               else abs(float(integral_limit)))
+        self.integral_limit = max(abs(out_min), abs(out_max)) if integral_limit is None else abs(float(integral_limit))
         self.derivative_on_measurement = derivative_on_measurement
         self.reset()
 
     @classmethod
-    def from_gains(cls, gains: PidGains) -> "PID":
+    def from_gains(cls, gains: PidGains) -> PID:
         """From a `dbw_pid.<loop>` block of a vehicle profile."""
-        return cls(gains.kp, gains.ki, gains.kd, out_min=gains.out_min, out_max=gains.out_max,
-                   integral_limit=gains.integral_limit, derivative_on_measurement=gains.derivative_on_measurement)
+        return cls(
+            gains.kp,
+            gains.ki,
+            gains.kd,
+            out_min=gains.out_min,
+            out_max=gains.out_max,
+            integral_limit=gains.integral_limit,
+            derivative_on_measurement=gains.derivative_on_measurement,
+        )
 
     def reset(self) -> None:
         """Forget the past: used when the board enters automatic mode or stops after a timeout."""
@@ -63,10 +77,10 @@ class PID:
         """One controller period: the effort to hold until the next call."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"PID.step: dt must be a positive number, got {dt!r}")
-        error = reference - measurement                                   # (4)
-        proportional = self.kp * error                                    # (5)
+        error = reference - measurement  # (4)
+        proportional = self.kp * error  # (5)
 
-        derivative = 0.0                                                  # (7)
+        derivative = 0.0  # (7)
         if self.kd:
             if self.derivative_on_measurement:
                 if self._prev_measurement is not None:
@@ -76,9 +90,9 @@ class PID:
         self._prev_error = error
         self._prev_measurement = measurement
 
-        candidate = self.integral + self.ki * error * dt                  # (6)
+        candidate = self.integral + self.ki * error * dt  # (6)
         candidate = min(max(candidate, -self.integral_limit), self.integral_limit)
-        unclamped = proportional + candidate + derivative                 # (8)
+        unclamped = proportional + candidate + derivative  # (8)
         # Clamping anti-windup: keep the new integral unless the output saturates and the
         # integral step pushes it further the same way.
         pushes_up = unclamped > self.out_max and candidate > self.integral

@@ -18,31 +18,42 @@ has to take out again at speed. So while the pose's heading is uncertain (sigma 
 controller.max_heading_sigma_rad) the controller follows the path's own curvature at no more
 than controller.creep_speed_mps, and pursues the goal point once the heading is known.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
-from ares.config import Params, VehicleProfile, param
-from ares.messages import ControlCandidate
-from ares.node import Input, Node, Output
+from ares.core.config import Params, VehicleProfile, param
 
 
 class ControllerParams(Params):
     rate_hz: float = param(20.0, "loop and setpoint rate", unit="Hz", gt=0)
     lookahead_min_m: float = param(1.0, "shortest lookahead", unit="m", gt=0)
-    lookahead_gain_s: float = param(1.1, "lookahead = min + gain * speed: short in slow, tight curves; long enough "
-                                         "at speed that the rate-limited steering (350 deg/s at the steering wheel) "
-                                         "keeps up", unit="s", ge=0)
+    lookahead_gain_s: float = param(
+        1.1,
+        "lookahead = min + gain * speed: short in slow, tight curves; long enough "
+        "at speed that the rate-limited steering (350 deg/s at the steering wheel) "
+        "keeps up",
+        unit="s",
+        ge=0,
+    )
     lookahead_max_m: float = param(5.0, "longest lookahead", unit="m", gt=0)
-    max_heading_sigma_rad: float = param(0.05, "above this (start-up: the magnetometer's guess) follow the path's "
-                                               "curvature ...", unit="rad", gt=0)
-    creep_speed_mps: float = param(1.0, "... no faster than this, until yaw from poses has fixed the heading",
-                                   unit="m/s", gt=0)
-    input_timeout_s: float = param(1.0, "an older pose or path match: no setpoint (the bridge's watchdog stops). At "
-                                        "--speed 5, 1 s of vehicle time is 0.2 s of wall time: less would read a "
-                                        "busy machine as a dead localization", unit="s", gt=0)
+    max_heading_sigma_rad: float = param(
+        0.05, "above this (start-up: the magnetometer's guess) follow the path's curvature ...", unit="rad", gt=0
+    )
+    creep_speed_mps: float = param(
+        1.0, "... no faster than this, until yaw from poses has fixed the heading", unit="m/s", gt=0
+    )
+    input_timeout_s: float = param(
+        1.0,
+        "an older pose or path match: no setpoint (the bridge's watchdog stops). At "
+        "--speed 5, 1 s of vehicle time is 0.2 s of wall time: less would read a "
+        "busy machine as a dead localization",
+        unit="s",
+        gt=0,
+    )
     finish_distance_m: float = param(0.5, "an open route is finished this close to its end", unit="m", gt=0)
 
 
@@ -83,10 +94,19 @@ class PurePursuit:
     def lookahead(self, v: float) -> float:
         return min(max(self.lookahead_min + self.lookahead_gain * abs(v), self.lookahead_min), self.lookahead_max)
 
-    def command(self, x: float, y: float, yaw: float, v: float, ahead_x: Sequence[float],
-                ahead_y: Sequence[float], ahead_speed: Sequence[float],
-                distance_to_end_m: float | None = None, heading_sigma: float = 0.0,
-                ahead_curvature: Sequence[float] = ()) -> PursuitCommand:
+    def command(
+        self,
+        x: float,
+        y: float,
+        yaw: float,
+        v: float,
+        ahead_x: Sequence[float],
+        ahead_y: Sequence[float],
+        ahead_speed: Sequence[float],
+        distance_to_end_m: float | None = None,
+        heading_sigma: float = 0.0,
+        ahead_curvature: Sequence[float] = (),
+    ) -> PursuitCommand:
         """Setpoint for a vehicle at (x, y, yaw) moving at v, following the ahead poses
         (the first one is the vehicle's match on the route)."""
         lookahead = self.lookahead(v)
@@ -95,8 +115,12 @@ class PurePursuit:
             return PursuitCommand(0.0, 0.0, lookahead, finished)
         if heading_sigma > self.max_heading_sigma:
             path_kappa = float(ahead_curvature[0]) if len(ahead_curvature) else 0.0
-            return PursuitCommand(min(float(ahead_speed[0]), self.creep_speed),
-                                  max(-self.max_kappa, min(self.max_kappa, path_kappa)), lookahead, finished)
+            return PursuitCommand(
+                min(float(ahead_speed[0]), self.creep_speed),
+                max(-self.max_kappa, min(self.max_kappa, path_kappa)),
+                lookahead,
+                finished,
+            )
         gx, gy = goal_point(ahead_x, ahead_y, lookahead)
         dx, dy = gx - x, gy - y
         distance = math.hypot(dx, dy)
@@ -106,31 +130,3 @@ class PurePursuit:
         kappa = 2.0 * math.sin(alpha) / distance
         kappa = max(-self.max_kappa, min(self.max_kappa, kappa))
         return PursuitCommand(float(ahead_speed[0]), kappa, lookahead, finished)
-
-
-class PurePursuitNode(Node):
-    """Pure pursuit on the path manager's path ahead, at the speed limits it carries: a candidate
-    for the control manager (with odometry_controller: pure_pursuit, the one it trusts)."""
-    name = "pure_pursuit"
-    Params = ControllerParams
-    pose = Input("localization/pose", max_age="input_timeout_s", doc="x, y, yaw, v of the rear axle")
-    path = Input("path/match", max_age="input_timeout_s", doc="the match and the poses ahead with speed limits")
-    candidate = Output("control/candidate/pure_pursuit", rate="rate_hz", doc="(v, kappa); silent without fresh "
-                                                                               "inputs")
-
-    def setup(self) -> None:
-        self.pursuit = PurePursuit(self.params, self.vehicle)
-
-    def step(self, now: float) -> None:
-        pose, match = self.pose.fresh(now), self.path.fresh(now)
-        if pose is None or match is None:
-            return  # stay silent: the control manager must not forward a command from stale data
-        heading_sigma = math.sqrt(max(pose.var_yaw, 0.0))
-        cmd = self.pursuit.command(pose.x, pose.y, pose.yaw, pose.v, match.ahead_x, match.ahead_y,
-                                   match.ahead_speed, match.distance_to_end_m, heading_sigma=heading_sigma,
-                                   ahead_curvature=match.ahead_curvature)
-        note = "creeping: heading uncertain" if heading_sigma > self.pursuit.max_heading_sigma else \
-            f"lookahead {cmd.lookahead_m:.2f} m"
-        self.candidate.put(ControlCandidate(t=now, controller="pure_pursuit", v=cmd.v, kappa=cmd.kappa,
-                                            cross_track_m=match.xte, heading_error_rad=match.heading_error,
-                                            note=note))

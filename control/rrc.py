@@ -56,6 +56,7 @@ being read the same way for `memory_m` of travel past the last one. The command'
 (`remembered`; the control manager only steers its stop with it). Beyond `memory_m` there is no
 candidate, and the integral starts again from zero.
 """
+
 from __future__ import annotations
 
 import math
@@ -65,44 +66,85 @@ import numpy as np
 from numpy.polynomial import polynomial as poly
 from pydantic import model_validator
 
-from ares.config import Params, param
-from ares.geometry import arc_step, local_to_vehicle, vehicle_to_local
+from ares.core.config import Params, param
+from ares.core.geometry import arc_step, local_to_vehicle, vehicle_to_local
 
-SPACING_M = 0.1         # remembered frames lie at least this far apart (but the newest): bounded at standstill
-CHECK_AHEAD_M = (4.0, 5.0, 6.0, 7.0, 8.0)   # a new frame's centre line is checked here (within its points) ...
-SEEN_M = (4.0, 12.0)    # ... against a remembered frame's, where that one had points (the fit reaches 12 m)
-CHECK_MIN_POINTS = 3    # fewer shared points: the frames saw different stretches, nothing to check
+SPACING_M = 0.1  # remembered frames lie at least this far apart (but the newest): bounded at standstill
+CHECK_AHEAD_M = (4.0, 5.0, 6.0, 7.0, 8.0)  # a new frame's centre line is checked here (within its points) ...
+SEEN_M = (4.0, 12.0)  # ... against a remembered frame's, where that one had points (the fit reaches 12 m)
+CHECK_MIN_POINTS = 3  # fewer shared points: the frames saw different stretches, nothing to check
 
 
 class RrcParams(Params):
     """Road Reactive Control (ARES §3.6.2)."""
-    kp: float = param(0.0625, "per metre of offset from the centre (λ², λ = 0.25 /m: a lateral error settles "
-                              "in ~20 m)", unit="1/m^2", ge=0)
+
+    kp: float = param(
+        0.0625,
+        "per metre of offset from the centre (λ², λ = 0.25 /m: a lateral error settles in ~20 m)",
+        unit="1/m^2",
+        ge=0,
+    )
     ki: float = param(0.002, "per metre·metre of offset travelled", unit="1/m^3", ge=0)
     kd: float = param(0.45, "per unit of de/ds = sin(heading to the road) (2ζλ, ζ = 0.9)", unit="1/m", ge=0)
     integral_limit_m2: float = param(5.0, "bound on ∫e ds (anti-windup)", unit="m^2", gt=0)
-    curvature_lookahead_m: float = param(5.0, "the road's curvature fed forward is its mean over this distance "
-                                              "ahead: the turn of its direction from the vehicle to there, there "
-                                              "as the newest frame sees it (from ~4 m ahead: within its points)",
-                                         unit="m", gt=0)
+    curvature_lookahead_m: float = param(
+        5.0,
+        "the road's curvature fed forward is its mean over this distance "
+        "ahead: the turn of its direction from the vehicle to there, there "
+        "as the newest frame sees it (from ~4 m ahead: within its points)",
+        unit="m",
+        gt=0,
+    )
     max_speed_mps: float = param(2.5, "the RRC's own speed cap", unit="m/s", gt=0)
-    min_confidence: float = param(0.03, "below this the detection is not followed (docs/control_manager.md: grass "
-                                        "verges give right detections at 0.1-0.3)", ge=0, le=1)
-    full_speed_confidence: float = param(0.25, "from this confidence the RRC drives at its cap; below, slower in "
-                                               "proportion down to 0 at min_confidence", ge=0, le=1)
+    min_confidence: float = param(
+        0.03,
+        "below this the detection is not followed (docs/control_manager.md: grass "
+        "verges give right detections at 0.1-0.3)",
+        ge=0,
+        le=1,
+    )
+    full_speed_confidence: float = param(
+        0.25,
+        "from this confidence the RRC drives at its cap; below, slower in proportion down to 0 at min_confidence",
+        ge=0,
+        le=1,
+    )
     max_kappa: float = param(0.25, "largest curvature commanded", unit="1/m", gt=0)
-    memory_m: float = param(8.0, "a lost road is steered along, remembered, for this distance travelled (a "
-                                 "controlled stop from the cap speed takes ~4 m)", unit="m", ge=0)
-    view_from_m: float = param(3.0, "the offset and heading are read from the frames seen this far back or "
-                                    "more (the road at the vehicle was then within their boundary points, "
-                                    "which begin ~4 m ahead) ...", unit="m", ge=0)
-    view_to_m: float = param(6.0, "... up to this far (docs/control.md, `ares calibrate rrc-view`: in the 12 m bend "
-                                  "the offset's p95 error fell from 1.45 m to 0.15 m)", unit="m", ge=0)
-    agree_m: float = param(1.0, "a new frame whose centre line lies farther than this (mean, 4-8 m ahead) from "
-                                "where the newest remembered frame saw the same road is not followed ...",
-                           unit="m", gt=0)
-    doubt_frames: int = param(20, "... unless this many frames in a row (2 s of LiDAR frames) agree with one "
-                                  "another: then it was the remembered road that was wrong", ge=1)
+    memory_m: float = param(
+        8.0,
+        "a lost road is steered along, remembered, for this distance travelled (a "
+        "controlled stop from the cap speed takes ~4 m)",
+        unit="m",
+        ge=0,
+    )
+    view_from_m: float = param(
+        3.0,
+        "the offset and heading are read from the frames seen this far back or "
+        "more (the road at the vehicle was then within their boundary points, "
+        "which begin ~4 m ahead) ...",
+        unit="m",
+        ge=0,
+    )
+    view_to_m: float = param(
+        6.0,
+        "... up to this far (docs/control.md, `ares calibrate rrc-view`: in the 12 m bend "
+        "the offset's p95 error fell from 1.45 m to 0.15 m)",
+        unit="m",
+        ge=0,
+    )
+    agree_m: float = param(
+        1.0,
+        "a new frame whose centre line lies farther than this (mean, 4-8 m ahead) from "
+        "where the newest remembered frame saw the same road is not followed ...",
+        unit="m",
+        gt=0,
+    )
+    doubt_frames: int = param(
+        20,
+        "... unless this many frames in a row (2 s of LiDAR frames) agree with one "
+        "another: then it was the remembered road that was wrong",
+        ge=1,
+    )
 
     @model_validator(mode="after")
     def _view_range(self):
@@ -114,27 +156,29 @@ class RrcParams(Params):
 @dataclass(frozen=True)
 class RoadView:
     """What road detection says of one frame (perception/road), in the vehicle frame."""
-    lateral_offset_m: float         # + when the vehicle is left of the centre line
-    heading_rad: float              # + when the vehicle points left of the road
-    centre: list[float]             # centre line y = c0 + c1 x + c2 x² ..., lowest order first
+
+    lateral_offset_m: float  # + when the vehicle is left of the centre line
+    heading_rad: float  # + when the vehicle points left of the road
+    centre: list[float]  # centre line y = c0 + c1 x + c2 x² ..., lowest order first
     confidence: float
-    stamp: float | None = None      # the frame's time: a view seen again is not a new frame (None: always new)
+    stamp: float | None = None  # the frame's time: a view seen again is not a new frame (None: always new)
 
 
 @dataclass(frozen=True)
 class RrcCommand:
     v: float
     kappa: float
-    error_m: float                  # eq. 15
-    feedforward: float              # b
-    remembered: bool = False        # steering along the road last seen: for a controlled stop only (v = 0)
-    heading_rad: float = 0.0        # the heading to the road the law used
+    error_m: float  # eq. 15
+    feedforward: float  # b
+    remembered: bool = False  # steering along the road last seen: for a controlled stop only (v = 0)
+    heading_rad: float = 0.0  # the heading to the road the law used
 
 
 @dataclass
 class RememberedRoad:
     """The last road seen (its centre line in the vehicle frame of then) and the vehicle's pose in
     that frame since, moved by what was driven."""
+
     centre: list[float]
     x: float = 0.0
     y: float = 0.0
@@ -161,14 +205,14 @@ def disagreement(new: RememberedRoad, old: RememberedRoad) -> float | None:
     """How far (m, mean, across the road) the new frame's centre line 4-8 m ahead lies from the old
     frame's, where the old one had points there; None where they share too few."""
     xs = np.array(CHECK_AHEAD_M)
-    xv, yv = local_to_vehicle(new.x, new.y, new.yaw, xs, poly.polyval(xs, new.centre))     # the vehicle now
-    x_old, y_old = vehicle_to_local(old.x, old.y, old.yaw, xv, yv)                        # the old frame
+    xv, yv = local_to_vehicle(new.x, new.y, new.yaw, xs, poly.polyval(xs, new.centre))  # the vehicle now
+    x_old, y_old = vehicle_to_local(old.x, old.y, old.yaw, xv, yv)  # the old frame
     shared = (x_old >= SEEN_M[0]) & (x_old <= SEEN_M[1])
     if shared.sum() < CHECK_MIN_POINTS:
         return None
     x_old, y_old = x_old[shared], y_old[shared]
     slope = poly.polyval(x_old, poly.polyder(old.centre))
-    across = np.abs(y_old - poly.polyval(x_old, old.centre)) / np.sqrt(1.0 + slope * slope)    # not along y
+    across = np.abs(y_old - poly.polyval(x_old, old.centre)) / np.sqrt(1.0 + slope * slope)  # not along y
     return float(across.mean())
 
 
@@ -185,10 +229,10 @@ def agree(frame: RememberedRoad, remembered: list[RememberedRoad], agree_m: floa
 class RoadReactiveControl:
     def __init__(self, params: RrcParams | None = None):
         self.p = params or RrcParams()
-        self.integral = 0.0                     # ∫ e ds, m²
-        self.seen: list[RememberedRoad] = []    # the confident frames of the last metres, oldest first
-        self.doubted: list[RememberedRoad] = [] # the frames in a row that disagreed with them, oldest first
-        self.replaced = False                   # this cycle's frames replaced the memory they disagreed with
+        self.integral = 0.0  # ∫ e ds, m²
+        self.seen: list[RememberedRoad] = []  # the confident frames of the last metres, oldest first
+        self.doubted: list[RememberedRoad] = []  # the frames in a row that disagreed with them, oldest first
+        self.replaced = False  # this cycle's frames replaced the memory they disagreed with
 
     @property
     def memory(self) -> RememberedRoad | None:
@@ -200,8 +244,14 @@ class RoadReactiveControl:
         self.seen = []
         self.doubted = []
 
-    def step(self, road: RoadView | None, travelled_m: float | None, driven_kappa: float = 0.0,
-             since_frame_m: float = 0.0, driving: bool = True) -> RrcCommand | None:
+    def step(
+        self,
+        road: RoadView | None,
+        travelled_m: float | None,
+        driven_kappa: float = 0.0,
+        since_frame_m: float = 0.0,
+        driving: bool = True,
+    ) -> RrcCommand | None:
         """One cycle: `travelled_m` since the last one (signed, + forwards), at the measured curvature
         `driven_kappa` (None: not measured, so the frames cannot be moved and only the newest is kept);
         `since_frame_m` driven since `road`'s frame was taken (perception's latency); `driving`:
@@ -212,22 +262,28 @@ class RoadReactiveControl:
         unmeasured = travelled_m is None
         if unmeasured:
             self.seen, self.doubted = self.seen[-1:], []
-        travelled_m = travelled_m or 0.0                    # signed: backwards moves the frames back
+        travelled_m = travelled_m or 0.0  # signed: backwards moves the frames back
         for frame in self.seen + self.doubted:
             frame.advance(travelled_m, driven_kappa)
         keep = max(p.memory_m, p.view_to_m)
         self.seen = [frame for frame in self.seen if frame.travelled_m <= keep]
-        if road is None or road.confidence < p.min_confidence or not all(
-                math.isfinite(v) for v in (road.lateral_offset_m, road.heading_rad, *road.centre)):
-            self.doubted = []                               # doubts count in a row
+        if (
+            road is None
+            or road.confidence < p.min_confidence
+            or not all(math.isfinite(v) for v in (road.lateral_offset_m, road.heading_rad, *road.centre))
+        ):
+            self.doubted = []  # doubts count in a row
             return self._remembered()
         if not self._remember(road, since_frame_m, driven_kappa):
-            return self._remembered(forget=False)           # the memory stays to check the next frames by
+            return self._remembered(forget=False)  # the memory stays to check the next frames by
         if unmeasured:
             self.seen = self.seen[-1:]
         offset, heading, b = self._at_vehicle()
-        self.integral = max(-p.integral_limit_m2, min(p.integral_limit_m2,
-                                                      self.integral + offset * abs(travelled_m))) if driving else 0.0
+        self.integral = (
+            max(-p.integral_limit_m2, min(p.integral_limit_m2, self.integral + offset * abs(travelled_m)))
+            if driving
+            else 0.0
+        )
         kappa = self._law(offset, heading, b)
         share = min(1.0, (road.confidence - p.min_confidence) / max(p.full_speed_confidence - p.min_confidence, 1e-9))
         return RrcCommand(p.max_speed_mps * max(share, 0.0), kappa, offset, b, heading_rad=heading)
@@ -236,18 +292,18 @@ class RoadReactiveControl:
         """Remember a new frame if it agrees with the road remembered; False: it is not followed."""
         newest = self.memory
         if road.stamp is not None and any(f.stamp == road.stamp for f in (newest, *self.doubted[-1:]) if f):
-            return not self.doubted                         # the same frame again (the loop outruns the LiDARs)
+            return not self.doubted  # the same frame again (the loop outruns the LiDARs)
         frame = RememberedRoad(list(road.centre), stamp=road.stamp)
-        frame.advance(since_frame_m, driven_kappa)          # the vehicle has moved on since the sweep
+        frame.advance(since_frame_m, driven_kappa)  # the vehicle has moved on since the sweep
         if not agree(frame, self.seen, self.p.agree_m):
             self.doubted = self.doubted + [frame] if agree(frame, self.doubted, self.p.agree_m) else [frame]
             if len(self.doubted) < self.p.doubt_frames:
                 return False
-            self.seen, self.doubted = self.doubted[:-1], []     # they agreed with one another: the memory was wrong
+            self.seen, self.doubted = self.doubted[:-1], []  # they agreed with one another: the memory was wrong
             self.integral, self.replaced = 0.0, True
         self.doubted = []
         if len(self.seen) >= 2 and self.seen[-2].travelled_m - self.seen[-1].travelled_m < SPACING_M:
-            self.seen.pop()                                 # the newest so far lies too close to the one before
+            self.seen.pop()  # the newest so far lies too close to the one before
         self.seen.append(frame)
         return True
 
@@ -264,8 +320,8 @@ class RoadReactiveControl:
         heading = sum(v.heading_rad for v in views) / len(views)
         newest = self.seen[-1]
         ahead = newest.x + p.curvature_lookahead_m
-        road_yaw_ahead = math.atan(poly.polyval(ahead, poly.polyder(newest.centre))) - newest.yaw   # vehicle frame
-        b = math.remainder(road_yaw_ahead + heading, 2.0 * math.pi) / p.curvature_lookahead_m   # here: −heading
+        road_yaw_ahead = math.atan(poly.polyval(ahead, poly.polyder(newest.centre))) - newest.yaw  # vehicle frame
+        b = math.remainder(road_yaw_ahead + heading, 2.0 * math.pi) / p.curvature_lookahead_m  # here: −heading
         return offset, heading, b
 
     def _remembered(self, forget: bool = True) -> RrcCommand | None:
@@ -284,4 +340,3 @@ class RoadReactiveControl:
         p = self.p
         kappa = -(p.kp * offset + p.ki * self.integral + p.kd * math.sin(heading)) + b
         return max(-p.max_kappa, min(p.max_kappa, kappa))
-

@@ -1,128 +1,201 @@
-"""Control manager: which controller's candidate reaches the drive-by-wire bridge (ARES §3.6, §4).
+"""Which controller reaches the wheels (ARES paper §3.6, §4: the control manager).
 
-Every controller computes all the time and publishes its candidate on its own topic: the MPC,
-road reactive control and pure pursuit. This process is the only publisher of control/setpoint.
-managers/control_selection.py decides, each cycle, in a fixed order of trust: the odometry
-controller where the path manager forces it or while the odometry score deserves it; the RRC
-while road detection is confident; otherwise a controlled stop. Hysteresis, a minimum dwell and a
-curvature ramp at the steering's rate make the switches few and bumpless.
+Every controller computes all the time; this decides whose candidate is forwarded, in a fixed
+order of trust:
 
-The odometry controller is `odometry_controller` (the MPC by default); when its candidate is
-missing or it asks for a hand-over (a solver that keeps failing), the other odometry controller
-(pure pursuit) stands in for it under the same trust. `pinned` (`ares run --controller`) lets one
-controller drive alone, for comparisons.
+  1. ODOMETRY (the MPC, or pure pursuit if so configured) where the path manager forces it: at
+     intersections and road openings there is no road to follow, whatever the odometry score;
+  2. ODOMETRY while the odometry score deserves it;
+  3. RRC (road reactive control) when the score does not, but road detection is confident;
+  4. STOP: nothing deserves trust, a controlled stop is asked for.
 
-The forwarded speed never exceeds the speed manager's limit where the vehicle is (when fresh).
-Every switch is an event (kind `controller_switch`, with from, to and cause), which the black box
-keeps; control/status says who is in charge and why, every cycle.
+A mode is *acceptable* while its candidate is fresh (and, for the MPC, not asking for a hand-over)
+and its trust holds. Trust has hysteresis: a mode is entered at `enter` and kept down to `exit`,
+so a score hovering at one threshold does not toggle. The mode in charge keeps charge for at least
+`min_dwell_s`, unless it stops being acceptable: a better mode waits out the dwell, a failing one
+is left at once (a stale candidate is never forwarded). ODOMETRY forced by the path manager
+counts as a failing RRC: the road's model ends at the crossing.
 
-Thresholds (docs/control_manager.md): the odometry score is ~1 with RTK and falls below 0.3
-within 1.4 s of losing it (docs/odometry_score.md), so odometry is trusted from 0.8 and kept down
-to 0.5; road detection's confidence is trusted from 0.6 and kept down to 0.4.
+A switch between candidates that disagree is a ramp, not a jump (bumpless transfer): from the
+curvature forwarded so far to the new candidate's, no faster than the steering can follow
+(`max_kappa_rate`, from the steering motor's rate). Once caught up, the candidate passes through
+unchanged: the controller in charge already commands no faster than the steering turns (the
+MPC's model has the rate), and a ramp on top would only delay it (at 25 km/h, by enough to make
+the MPC weave). In STOP the speed ramps down at `stop_decel_mps2`, and the curvature goes, at the
+steering's rate, to the RRC's while it has a candidate (the road seen, however faintly, or
+remembered for a few metres after it was lost: `stop_only`), else it is held. A held curvature rolls
+the shuttle off a bend's line (0.5 m over the 6 m of a stop from 2.5 m/s, measured on grass).
+A `stop_only` candidate never drives.
+
+`pinned` (for comparisons, `ares run --controller`) takes the order of trust away: the pinned
+mode drives whenever its candidate is fresh, whatever the score or the road, and STOP otherwise
+(holding the curvature: a comparison shows the pinned controller alone).
+
+Each decision carries a short `cause` beside its sentence (score_low, road_ok, forced, ...): the
+lap figures count switches by cause, the sentence is for people.
 """
+
 from __future__ import annotations
 
-from typing import Literal
-
-from ares.config import Params, param
-from ares.messages import ControlCandidate, ControllerStatus, Setpoint
-from ares.node import Input, Node, Output
-from managers.control_selection import Candidate, ControlSelector, Inputs, Mode, SelectionParams
-
-ODOMETRY_CONTROLLERS = ("mpc", "pure_pursuit")
-CONTROLLERS = ("mpc", "rrc", "pure_pursuit")
+from dataclasses import dataclass
+from enum import Enum
 
 
-class ControlManagerParams(Params):
-    rate_hz: float = param(50.0, "loop and setpoint rate: a candidate waits at most one period here on its way to "
-                                 "the bridge (at 25 km/h, 20 Hz's extra 50 ms made both controllers weave)",
-                           unit="Hz", gt=0)
-    odometry_controller: Literal["mpc", "pure_pursuit"] = param(
-        "mpc", "the controller trusted while the odometry deserves it; the other stands in for it")
-    pinned: Literal["mpc", "rrc", "pure_pursuit"] | None = param(
-        None, "only this controller drives (comparisons: ares run --controller); null: the order of trust")
-    candidate_max_age_s: float = param(0.5, "an older candidate is never forwarded (the MPC solves at 10 Hz; at "
-                                            "--speed 5 this is 0.1 s of wall time)", unit="s", gt=0)
-    input_timeout_s: float = param(1.0, "an older odometry score, road detection or path match counts as missing",
-                                   unit="s", gt=0)
-    score_enter: float = param(0.8, "odometry score from which the odometry controller is trusted", ge=0, le=1)
-    score_exit: float = param(0.5, "... and below which it loses the trust", ge=0, le=1)
-    road_enter: float = param(0.15, "road detection confidence from which the RRC is trusted", ge=0, le=1)
-    road_exit: float = param(0.04, "... and below which it loses the trust", ge=0, le=1)
-    min_dwell_s: float = param(1.0, "least time a controller stays in charge before a better one may take over",
-                               unit="s", ge=0)
-    steering_rate_share: float = param(1.0, "the curvature ramps at this share of the steering motor's rate",
-                                       gt=0, le=1)
-    stop_decel_mps2: float = param(1.0, "a controlled stop's deceleration", unit="m/s^2", gt=0)
-    finish_distance_m: float = param(0.5, "an open route is finished this close to its end", unit="m", gt=0)
+class Mode(str, Enum):
+    ODOMETRY = "odometry"
+    RRC = "rrc"
+    STOP = "stop"
 
 
-class ControlManager(Node):
-    """Forwards the candidate that deserves trust: the MPC, road reactive control, or a controlled stop."""
-    name = "control_manager"
-    Params = ControlManagerParams
-    mpc = Input("control/candidate/mpc", max_age="candidate_max_age_s", doc="the MPC's (v, kappa)")
-    rrc = Input("control/candidate/rrc", max_age="candidate_max_age_s", doc="road reactive control's (v, kappa)")
-    pure_pursuit = Input("control/candidate/pure_pursuit", max_age="candidate_max_age_s",
-                         doc="pure pursuit's (v, kappa)")
-    score = Input("odometry/score", max_age="input_timeout_s", doc="trust in the pose (eq. 6)")
-    road = Input("perception/road", max_age="input_timeout_s", doc="road detection's confidence")
-    match = Input("path/match", max_age="input_timeout_s", doc="forced odometry zones; the errors; the route's end")
-    limits = Input("speed/limits", max_age="input_timeout_s", doc="the speed limit where the vehicle is")
-    setpoint = Output("control/setpoint", rate="rate_hz", doc="(v, kappa) to the drive-by-wire bridge")
-    status = Output("control/status", rate="rate_hz", doc="who is in charge, why, and the errors")
+@dataclass(frozen=True)
+class SelectionParams:
+    score_enter: float  # odometry score to hand control to odometry
+    score_exit: float  # ... and below which odometry loses it
+    road_enter: float  # road-detection confidence to hand control to the RRC
+    road_exit: float
+    min_dwell_s: float  # least time in charge before a better mode may take over
+    max_kappa_rate: float  # 1/m per s: the steering's speed, as curvature
+    stop_decel_mps2: float  # a controlled stop's deceleration
+    pinned: Mode | None = None  # only this mode drives (comparisons); STOP when its candidate is missing
 
-    def setup(self) -> None:
-        p, vehicle = self.params, self.vehicle
-        pinned = None if p.pinned is None else (Mode.RRC if p.pinned == "rrc" else Mode.ODOMETRY)
-        self.selector = ControlSelector(SelectionParams(
-            score_enter=p.score_enter, score_exit=p.score_exit, road_enter=p.road_enter, road_exit=p.road_exit,
-            min_dwell_s=p.min_dwell_s, max_kappa_rate=vehicle.max_curvature_rate * p.steering_rate_share,
-            stop_decel_mps2=p.stop_decel_mps2, pinned=pinned))
-        primary = p.pinned if p.pinned in ODOMETRY_CONTROLLERS else p.odometry_controller
-        # pinned: no stand-in (a comparison must show the pinned controller alone)
-        self.odometry_order = [primary] if p.pinned else [primary, *(c for c in ODOMETRY_CONTROLLERS if c != primary)]
-        self.in_charge = "stop"
-        self.switches = 0
+    def __post_init__(self):
+        if not (0 <= self.score_exit <= self.score_enter and 0 <= self.road_exit <= self.road_enter):
+            raise ValueError("each exit threshold must lie at or below its enter threshold")
 
-    def _odometry_candidate(self, now: float) -> tuple[str, ControlCandidate] | None:
-        for name in self.odometry_order:
-            cand = getattr(self, name).fresh(now)
-            if cand is not None and not cand.handover:
-                return name, cand
-        return None
 
-    def step(self, now: float) -> None:
-        score, road, match, limits = (self.score.fresh(now), self.road.fresh(now), self.match.fresh(now),
-                                      self.limits.fresh(now))
-        odometry = self._odometry_candidate(now)
-        rrc = self.rrc.fresh(now)
-        decision = self.selector.step(now, Inputs(
-            odometry_score=None if score is None else score.score,
-            road_confidence=None if road is None or not road.found else road.confidence,
-            force_odometry=bool(match is not None and match.force_odometry),
-            odometry=None if odometry is None else Candidate(odometry[1].v, odometry[1].kappa),
-            rrc=None if rrc is None else Candidate(rrc.v, rrc.kappa, rrc.stop_only)))
-        controller = {Mode.ODOMETRY: odometry[0] if odometry else "stop", Mode.RRC: "rrc"}.get(decision.mode, "stop")
-        if controller != self.in_charge:
-            cause = decision.cause if decision.switched else "stand_in"
-            reason = decision.reason if decision.switched else \
-                f"{self.in_charge} has no fresh candidate or hands over: {controller} stands in"
-            self.switches += 1
-            self.event("controller_switch", f"{self.in_charge} -> {controller}: {reason}",
-                       **{"from": self.in_charge, "to": controller, "cause": cause, "reason": reason})
-            self.in_charge = controller
-        v = decision.v
-        if limits is not None:
-            v = min(v, limits.limit_mps)
-        finished = bool(match is not None and match.distance_to_end_m is not None
-                        and match.distance_to_end_m < self.params.finish_distance_m)
-        if finished:
-            v = 0.0
-        self.setpoint.put(Setpoint(t=now, v=v, kappa=decision.kappa, source=controller))
-        self.status.put(ControllerStatus(
-            t=now, controller=controller, mode=decision.mode.value, reason=decision.reason,
-            s=None if match is None else match.s, xte=None if match is None else match.xte,
-            heading_error=None if match is None else match.heading_error, target_speed=v,
-            odometry_score=None if score is None else score.score,
-            road_confidence=None if road is None else road.confidence, finished=finished))
+@dataclass(frozen=True)
+class Candidate:
+    v: float
+    kappa: float
+    stop_only: bool = False  # only to steer a controlled stop by
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """One cycle's view; None where the input is missing or stale."""
+
+    odometry_score: float | None
+    road_confidence: float | None
+    force_odometry: bool
+    odometry: Candidate | None  # the odometry controller's candidate (None: stale, or it hands over)
+    rrc: Candidate | None
+
+
+@dataclass(frozen=True)
+class Decision:
+    mode: Mode
+    v: float
+    kappa: float
+    switched: bool
+    reason: str
+    cause: str  # short code of the reason (a switch's: why the mode in charge failed, or
+    # why a better one took over)
+
+
+class ControlSelector:
+    def __init__(self, params: SelectionParams, start: Mode = Mode.STOP):
+        self.p = params
+        self.mode = start
+        self.since: float | None = None  # when the mode in charge took it
+        self.v = 0.0
+        self.kappa = 0.0
+        self.catching_up = False  # after a switch, until the curvature has caught up
+        self.last_t: float | None = None
+
+    # ---- trust ----------------------------------------------------------------------------------
+    def _odometry_trusted(self, inputs: Inputs, holding: bool) -> bool:
+        score = inputs.odometry_score
+        return score is not None and score >= (self.p.score_exit if holding else self.p.score_enter)
+
+    def _road_trusted(self, inputs: Inputs, holding: bool) -> bool:
+        conf = inputs.road_confidence
+        return conf is not None and conf >= (self.p.road_exit if holding else self.p.road_enter)
+
+    def acceptable(self, mode: Mode, inputs: Inputs, holding: bool) -> tuple[bool, str, str]:
+        """Whether `mode` may drive (holding: it is in charge now, so the exit thresholds apply), the
+        cause's short code and the sentence."""
+        candidate = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc}.get(mode)
+        stop_only = candidate is not None and candidate.stop_only
+        if stop_only:
+            candidate = None
+        if self.p.pinned is not None and mode is not Mode.STOP:
+            if mode is not self.p.pinned:
+                return False, "pinned", f"pinned to {self.p.pinned.value}"
+            if stop_only:
+                return False, "stop_only", f"the pinned {mode.value} controller's candidate only steers a stop"
+            if candidate is None:
+                return False, "no_candidate", f"the pinned {mode.value} controller has no fresh candidate"
+            return True, "pinned", f"pinned to {mode.value}"
+        if mode is Mode.ODOMETRY:
+            if candidate is None:
+                return False, "no_candidate", "the odometry controller has no fresh candidate"
+            if inputs.force_odometry:
+                return True, "forced", "the path manager forces odometry control (intersection or road opening)"
+            if self._odometry_trusted(inputs, holding):
+                return True, "score_ok", f"odometry score {inputs.odometry_score:.2f}"
+            if inputs.odometry_score is None:
+                return False, "no_score", "no odometry score"
+            return False, "score_low", f"odometry score {inputs.odometry_score:.2f} too low"
+        if mode is Mode.RRC:
+            if inputs.force_odometry and inputs.odometry is not None:
+                return False, "forced", "the path manager forces odometry control"
+            if stop_only:
+                return False, "stop_only", "the RRC's candidate only steers a stop (its road lost or in doubt)"
+            if candidate is None:
+                return False, "no_candidate", "the RRC has no fresh candidate to drive by"
+            if self._road_trusted(inputs, holding):
+                return True, "road_ok", f"road confidence {inputs.road_confidence:.2f}"
+            if inputs.road_confidence is None:
+                return False, "no_road", "no road detection"
+            return False, "road_low", f"road confidence {inputs.road_confidence:.2f} too low"
+        return True, "stop", "in a controlled stop"
+
+    def wanted(self, inputs: Inputs) -> tuple[Mode, str, str]:
+        """The most trusted acceptable mode, in the fixed order, with its cause and sentence."""
+        reasons = []
+        for mode in (Mode.ODOMETRY, Mode.RRC):
+            ok, cause, why = self.acceptable(mode, inputs, holding=mode is self.mode)
+            if ok:
+                return mode, cause, why
+            reasons.append(why)
+        return Mode.STOP, "nothing_trusted", "nothing deserves trust: " + "; ".join(reasons)
+
+    # ---- each cycle -----------------------------------------------------------------------------
+    def step(self, t: float, inputs: Inputs) -> Decision:
+        first = self.last_t is None
+        dt = 0.0 if first else max(0.0, t - self.last_t)
+        self.last_t = t
+        if self.since is None:
+            self.since = t
+        want, cause, reason = self.wanted(inputs)
+        switched = False
+        if want is not self.mode:
+            current_ok, current_cause, current_why = self.acceptable(self.mode, inputs, holding=True)
+            if not current_ok or t - self.since >= self.p.min_dwell_s:
+                if not current_ok:
+                    reason, cause = f"{current_why}; {reason}", current_cause  # why it was left
+                self.mode, self.since, switched = want, t, True
+            else:
+                cause = current_cause
+                reason = f"{current_why}; {want.value} is wanted once {self.p.min_dwell_s:g} s in charge have passed"
+        target = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc}.get(self.mode)
+        if target is None:  # STOP: slow down, steer along the road or hold
+            self.v = max(0.0, self.v - self.p.stop_decel_mps2 * dt)
+            steer_by = inputs.rrc if self.p.pinned is None else None
+            kappa_target = self.kappa if steer_by is None else steer_by.kappa
+            self.catching_up = True  # a stop's curvature always moves at the steering's rate
+        else:
+            self.v, kappa_target = target.v, target.kappa
+        if switched:
+            self.catching_up = True
+        if first or not self.catching_up:
+            self.kappa = kappa_target
+        elif abs(kappa_target - self.kappa) <= self.p.max_kappa_rate * dt:
+            self.kappa, self.catching_up = kappa_target, False
+        else:
+            self.kappa += _clip(kappa_target - self.kappa, self.p.max_kappa_rate * dt)
+        return Decision(self.mode, self.v, self.kappa, switched, reason, cause)
+
+
+def _clip(value: float, limit: float) -> float:
+    return max(-limit, min(limit, value))

@@ -1,313 +1,317 @@
-"""Mission manager: the passenger tour as an action over Zenoh (ARES §3.3).
+"""The mission's state machine (ARES §3.3, §4), without a bus: a goal of points of interest, each
+run through its actions, doors and ramp driven and watched, and the speed limit the mission sets.
 
-| action part | how                                                                             |
-|-------------|---------------------------------------------------------------------------------|
-| goal        | service `mission/goal`: POI names in order, every POI of the route ahead, or a   |
-|             | drive (round without stopping); accepted with a goal id, or refused with why;    |
-|             | a new goal pre-empts the one that runs                                           |
-| feedback    | `mission/status`: state, POI, action, distance, expected arrival, limit          |
-| result      | `mission/status.result` and a `mission_result` event when a goal ends            |
-| control     | services `mission/pause`, `mission/resume`, `mission/cancel`                     |
-| body        | service `mission/body`: an operator's doors and ramp, standing, no POI running   |
+A goal is an ordered list of POIs, each with the actions the tour gives it, among the paper's:
 
-Each step the state machine (managers/mission_machine.py) gets the distance to the POI's stop
-point along the route, the speed and the body's sensors, and gives the body's demands
-(`body/command`) and the mission's speed limit, which the movement gate applies. The limit falls
-no faster than `pause_decel_mps2` from the speed the shuttle has (a pause is a stop, not a brake).
+| action        | what the mission does                                  | done when                          |
+|---------------|--------------------------------------------------------|------------------------------------|
+| STOP          | limit 0 at the POI (the approach limit brought it)     | standing (speed <= stopped_mps)    |
+| FULL_STOP     | holds                                                  | standing for full_stop_s           |
+| OPENING_DOORS | opens the doors                                        | the doors' sensor says open        |
+| TAKEOFF_RAMP  | deploys the ramp (doors open)                          | the ramp's sensor says deployed    |
+| PICKUP_RAMP   | stows the ramp once nobody is on it                    | the ramp's sensor says stowed      |
+| CLOSING_DOORS | closes the doors once the entrance is clear; re-opens  | the doors' sensor says closed      |
+|               | them if someone steps in while they close              |                                    |
+| START_MEDIA   | starts the on-board media                              | at once                            |
+| NEXT_POI      | sets off for the next POI (the POI's last action)      | at once                            |
 
-A restarted mission manager goes on where its predecessor was: the mission is written to
-`mission_manager.json` beside the run's configuration at every change, and read back on a restart.
-At a first start it sets itself the goal `autostart` names (the tour, a drive, or none).
+The doors and the ramp move only once the shuttle has stood `settle_s` (0.5 s): the speed read at
+the standing threshold may still be the end of a roll (tests/test_mission_stack.py once saw the doors opening at
+0.05 m/s of true speed).
+
+A goal may also be a *drive*: no POI, round the route without stopping (runs about something
+else than passengers: comparisons, tests); its limit is none while the body is ready to move.
+
+Mission states: IDLE (no goal), DRIVING (to the next POI), AT_POI (running its actions), PAUSED
+(holding where it is; resume goes back), SUCCEEDED (the last POI done), CANCELED. A new goal while
+one runs pre-empts it (the old one ends CANCELED with that reason), but never while the doors are
+open or the ramp is out: the shuttle must be ready to move before anything else is asked of it.
+
+The mission's speed limit, which the movement gate applies:
+- DRIVING: sqrt(2 · approach_decel · d), with d the distance to the POI's stop point. Anything
+  further away is no limit (inf).
+- Every other state: 0. Nothing moves without a mission, and never with a door open or the ramp
+  out (`ready_to_move`).
 """
+
 from __future__ import annotations
 
-import json
 import math
-from typing import Literal
+from dataclasses import dataclass, field
+from enum import Enum
 
-from ares.config import param
-from ares.messages import (BodyCommand, BodyRequest, BodyState, CarState, EventLevel, MissionGoal, MissionReply, MissionRequest,
-                           MissionStatus, PathMatch, PoiProgress, SpeedLimits)
-from ares.node import Input, Node, Output, service
-from ares.route import load_route
-from managers.mission_machine import (Body, Mission, MissionParams, MissionState, PoiGoal, body_request_refusal,
-                                      ready_to_move)
+from ares.core.config import Params, param
 
-class MissionManagerParams(MissionParams):
-    rate_hz: float = param(10.0, "steps per second", unit="Hz", gt=0)
-    autostart: Literal["tour", "drive", "none"] = param(
-        "tour", "the goal set at a first start: tour (every POI of the route), drive (round without stopping) or "
-                "none (wait for `ares mission start`)")
-    pause_decel_mps2: float = param(3.0, "the mission's limit falls no faster than this from the speed the shuttle "
-                                         "has: a pause stands the shuttle within 2 s of the operator's click (from "
-                                         "3.5 m/s: 1.2 s braking after ~0.6 s for the request to reach the wheels "
-                                         "and the brake to bite; docs/pages.md); firm, at the bridge's brake-assist "
-                                         "limit", unit="m/s^2", gt=0)
-    path_timeout_s: float = param(1.0, "an older path match counts as missing (where the POIs are is unknown)",
-                                  unit="s", gt=0)
-    body_timeout_s: float = param(1.0, "an older body state counts as missing (doors and ramp unknown: limit 0)",
-                                  unit="s", gt=0)
-    save_period_s: float = param(2.0, "the mission (and where along the route the shuttle is) is kept for a restart "
-                                      "at every change and at least this often", unit="s", gt=0)
-    eta_min_speed_mps: float = param(1.0, "the expected arrival counts on at least this speed", unit="m/s", gt=0)
+ACTIONS = (
+    "STOP",
+    "FULL_STOP",
+    "OPENING_DOORS",
+    "TAKEOFF_RAMP",
+    "PICKUP_RAMP",
+    "CLOSING_DOORS",
+    "START_MEDIA",
+    "NEXT_POI",
+)
 
 
-class MissionManager(Node):
-    """Goals of points of interest, each POI's actions, the doors and ramp, and the mission's limit."""
-    name = "mission_manager"
-    Params = MissionManagerParams
-    match = Input("path/match", max_age="path_timeout_s", doc="where the shuttle is on its route")
-    car = Input("dbw/car_state", max_age="path_timeout_s", doc="the measured speed")
-    speed = Input("speed/limits", max_age="path_timeout_s", doc="the speed limit: for the expected arrival")
-    body = Input("body/state", max_age="body_timeout_s", doc="doors, ramp and the entrance")
-    status = Output("mission/status", rate="rate_hz", doc="feedback; the mission's speed limit for the movement gate")
-    body_command = Output("body/command", doc="doors, ramp, media: sent while an action asks for them")
+class MissionState(str, Enum):
+    IDLE = "IDLE"
+    DRIVING = "DRIVING"
+    AT_POI = "AT_POI"
+    PAUSED = "PAUSED"
+    SUCCEEDED = "SUCCEEDED"
+    CANCELED = "CANCELED"
 
-    def setup(self) -> None:
-        self.route = load_route(self.core)
-        self.mission = Mission(params=self.params)
-        self.goal_id = 0
-        self.kind = "none"
-        self.targets: list[float] = []       # each POI's stop point as progress along the route (laps unwrapped)
-        self.repeat = False                  # a tour of a closed route goes round again after its last POI
-        self._limit = 0.0
-        self._last_step: float | None = None
-        self._ended_reported = True
-        # the mission's own odometer along the route (laps unwrapped): the path manager's lap count
-        # starts again when it restarts, which would move every POI a lap away
-        self.progress: float | None = None
-        self._last_s: float | None = None
-        self._saved_at = -math.inf
-        self.state_path = self.kept_state_path()
-        if self.restarted and self._restore():
-            self.event("mission", f"restarted: going on with goal {self.goal_id} ({self.mission.state.value} "
-                                  f"at {self.mission.current_name()})")
-        self._autostart_pending = not self.restarted and self.params.autostart != "none"
 
-    # ---- where things are ------------------------------------------------------------------------
-    def _follow(self, match: PathMatch | None) -> None:
-        """Move the odometer on to the match (the short way round a closed route)."""
-        if match is None:
-            return
-        if not self.route.closed or self.progress is None:
-            self.progress = match.s
-        elif self._last_s is not None:
-            self.progress += self.route.step_between(self._last_s, match.s)
-        self._last_s = match.s
+ACTIVE = (MissionState.DRIVING, MissionState.AT_POI, MissionState.PAUSED)
 
-    def _progress(self, match: PathMatch) -> float:
-        return self.progress if self.progress is not None else match.s
 
-    def _body(self, now: float) -> Body | None:
-        b: BodyState | None = self.body.fresh(now)
-        return None if b is None else Body(doors=b.doors, ramp=b.ramp, entrance_clear=b.entrance_clear)
+class MissionParams(Params):
+    reach_m: float = param(0.5, "a POI is reached this close to its stop point", unit="m", gt=0)
+    stopped_mps: float = param(0.05, "standing", unit="m/s", gt=0)
+    settle_s: float = param(
+        0.5,
+        "doors and ramp move only after standing this long: a speed read at the standing "
+        "threshold may still be the last of a roll (the parking brake holds it after)",
+        unit="s",
+        ge=0,
+    )
+    full_stop_s: float = param(2.0, "FULL_STOP: standing this long", unit="s", ge=0)
+    approach_decel_mps2: float = param(0.5, "the approach to a POI's stop point", unit="m/s^2", gt=0)
 
-    def _plan(self, names: list[str] | None, progress: float) -> tuple[list[PoiGoal], list[float]] | str:
-        """The goal's POIs and where each stop point lies ahead, or why not."""
-        known = {p.name: p for p in self.route.pois}
-        if names is None:
-            ordered = sorted(self.route.pois, key=lambda p: (p.s - progress) % self.route.length) \
-                if self.route.closed else [p for p in self.route.pois if p.s >= progress - self.params.reach_m]
-            if not ordered:
-                return f"refused: '{self.route.name}' has no POI ahead"
-        else:
-            unknown = [n for n in names if n not in known]
-            if unknown:
-                return f"refused: unknown POIs {unknown} (on '{self.route.name}': {', '.join(known) or 'none'})"
-            ordered = [known[n] for n in names]
-        pois, targets, last = [], [], progress - self.params.reach_m
-        for poi in ordered:
-            if self.route.closed:
-                target = poi.s + math.ceil((last - poi.s) / self.route.length) * self.route.length
-                if target <= last and targets:
-                    target += self.route.length
-            else:
-                target = poi.s
-                if target < last:
-                    return f"refused: {poi.name} is behind the shuttle on an open route"
-            pois.append(PoiGoal(poi.name, target, tuple(poi.actions)))
-            targets.append(target)
-            last = target
-        return pois, targets
 
-    # ---- the action's services ------------------------------------------------------------------
-    @service("mission/goal")
-    def _goal(self, request: MissionGoal) -> MissionReply:
-        return self._set_goal(request.pois, request.drive, request.operator, repeat=request.repeat)
+@dataclass(frozen=True)
+class PoiGoal:
+    name: str
+    s: float  # along the route, where to stop
+    actions: tuple[str, ...]
 
-    def _set_goal(self, names: list[str] | None, drive: bool, operator: str, repeat: bool = False) -> MissionReply:
-        now = self.clock.now()
-        match, body = self.match.fresh(now), self._body(now)
-        if match is None or body is None:
-            return self._reply(False, "refused: where the shuttle is or its doors' state is not known yet")
-        if drive:
-            pois, targets = [], []
-        else:
-            planned = self._plan(names, self._progress(match))
-            if isinstance(planned, str):
-                return self._reply(False, planned, operator)
-            pois, targets = planned
-        previous = self.mission.state
-        accepted, reason = self.mission.goal(pois, body, drive=drive)
-        if accepted:
-            if previous in (MissionState.DRIVING, MissionState.AT_POI, MissionState.PAUSED):
-                self._report_end(f"goal {self.goal_id} pre-empted by goal {self.goal_id + 1}")
-            self.goal_id += 1
-            self.kind = "drive" if drive else "tour"
-            self.targets = targets
-            self.repeat = repeat and self.route.closed and not drive
-            self._ended_reported = False
-            self._save()
-        return self._reply(accepted, reason, operator)
 
-    @service("mission/pause")
-    def _pause(self, request: MissionRequest) -> MissionReply:
-        return self._reply(*self.mission.pause(), request.operator)
+@dataclass(frozen=True)
+class Body:
+    """What the body's sensors say now."""
 
-    @service("mission/resume")
-    def _resume(self, request: MissionRequest) -> MissionReply:
-        return self._reply(*self.mission.resume(self._body(self.clock.now())), request.operator)
+    doors: str = "closed"  # closed, opening, open, closing
+    ramp: str = "stowed"  # stowed, deploying, deployed, stowing
+    entrance_clear: bool = True  # nobody in the doorway or on the ramp
 
-    @service("mission/cancel")
-    def _cancel(self, request: MissionRequest) -> MissionReply:
-        body = self._body(self.clock.now())
-        if body is None:
-            return self._reply(False, "refused: the doors' state is not known", request.operator)
-        return self._reply(*self.mission.cancel(body), request.operator)
 
-    @service("mission/body")
-    def _body_request(self, request: BodyRequest) -> MissionReply:
-        """The operator's doors and ramp (managers/mission_machine.body_request_refusal decides)."""
-        now = self.clock.now()
-        body, car = self._body(now), self.car.fresh(now)
-        if body is None or car is None:
-            refusal = "refused: the body's or the speed's state is not known"
-        else:
-            m = self.mission
-            # paused amid a POI's actions counts as at the POI: its actions own the doors and the ramp
-            state = MissionState.AT_POI if m.state is MissionState.PAUSED and m.paused_from is MissionState.AT_POI \
-                else m.state
-            refusal = body_request_refusal(state, abs(car.speed_mps) <= self.params.stopped_mps, body,
-                                           request.doors, request.ramp)
-        if refusal is not None:
-            return self._reply(False, refusal, request.operator)
-        self.body_command.put(BodyCommand(t=now, doors=request.doors, ramp=request.ramp))
-        asked = " and ".join(f"{what} {how}" for what, how in (("doors", request.doors), ("ramp", request.ramp)) if how)
-        return self._reply(True, f"{asked}: asked of the body", request.operator)
+@dataclass(frozen=True)
+class Commands:
+    """What the mission asks of the body this step (None: leave it as it is)."""
 
-    def _reply(self, accepted: bool, reason: str, operator: str = "") -> MissionReply:
-        if operator:
-            self.event("mission_command", f"{operator}: {reason}", EventLevel.INFO if accepted else EventLevel.WARNING,
-                       operator=operator, accepted=accepted, goal_id=self.goal_id)
-        if accepted:
-            self._save()
-        return MissionReply(t=self.clock.now(), accepted=accepted, reason=reason, goal_id=self.goal_id,
-                            state=self.mission.state.value)
+    doors: str | None = None  # "open" or "close"
+    ramp: str | None = None  # "deploy" or "stow"
+    media: bool = False  # start the media now
+
+
+@dataclass
+class Mission:
+    params: MissionParams = field(default_factory=MissionParams)
+    state: MissionState = MissionState.IDLE
+    pois: list[PoiGoal] = field(default_factory=list)
+    index: int = 0  # the POI driven to or at
+    action: int = 0  # its action running (AT_POI)
+    result: str = ""  # why the last goal ended
+    done: list[tuple[str, str]] = field(default_factory=list)  # (POI, action) done, in order
+    drive: bool = False  # a drive goal: no POI, no stop
+    _paused_from: MissionState | None = None
+    _standing_since: float | None = None
+
+    # ---- the action interface: goal, cancel, pause, resume ------------------------------------
+    def goal(self, pois: list[PoiGoal], body: Body, drive: bool = False) -> tuple[bool, str]:
+        if not pois and not drive:
+            return False, "refused: a goal needs at least one POI (or to be a drive)"
+        if pois and drive:
+            return False, "refused: a drive goal has no POIs"
+        bad = [a for poi in pois for a in poi.actions if a not in ACTIONS]
+        if bad:
+            return False, f"refused: unknown actions {sorted(set(bad))} (known: {', '.join(ACTIONS)})"
+        if not ready_to_move(body):
+            return False, "refused: the doors must be closed and the ramp stowed first"
+        if self.state in ACTIVE:
+            self.result = f"pre-empted by a new goal at {self.current_name()}"
+        self.pois, self.index, self.action, self.done, self.drive = list(pois), 0, 0, [], drive
+        self.state, self._paused_from, self._standing_since = MissionState.DRIVING, None, None
+        return True, "accepted: a drive, no stops" if drive else f"accepted: {len(pois)} POIs, first {pois[0].name}"
+
+    def cancel(self, body: Body) -> tuple[bool, str]:
+        if self.state not in ACTIVE:
+            return False, f"nothing to cancel ({self.state.value})"
+        if not ready_to_move(body):
+            return False, "refused: the doors must be closed and the ramp stowed first"
+        self.state, self.result = MissionState.CANCELED, f"canceled at {self.current_name()}"
+        return True, self.result
+
+    def pause(self) -> tuple[bool, str]:
+        if self.state not in (MissionState.DRIVING, MissionState.AT_POI):
+            return False, f"nothing to pause ({self.state.value})"
+        self._paused_from, self.state = self.state, MissionState.PAUSED
+        return True, f"paused at {self.current_name()}"
+
+    @property
+    def paused_from(self) -> MissionState | None:
+        return self._paused_from
+
+    def resume(self, body: Body | None = None) -> tuple[bool, str]:
+        if self.state is not MissionState.PAUSED or self._paused_from is None:
+            return False, f"nothing to resume ({self.state.value})"
+        if self._paused_from is MissionState.DRIVING and (body is None or not ready_to_move(body)):
+            # (a POI's actions close what they opened themselves; a drive does not)
+            return (
+                False,
+                "refused: close the doors and stow the ramp first"
+                if body is not None
+                else "refused: the doors' state is not known",
+            )
+        self.state, self._paused_from = self._paused_from, None
+        return True, f"resumed: {self.state.value}"
 
     # ---- each step ------------------------------------------------------------------------------
-    def step(self, now: float) -> None:
-        dt = 0.0 if self._last_step is None else max(now - self._last_step, 0.0)
-        self._last_step = now
-        match: PathMatch | None = self.match.fresh(now)
-        self._follow(match)
-        car: CarState | None = self.car.fresh(now)
-        body = self._body(now)
-        if self._autostart_pending and match is not None and body is not None:
-            self._autostart_pending = False
-            # the tour: every POI, round and round (a route without POIs is driven without stopping)
-            drive = self.params.autostart == "drive" or not self.route.pois
-            reply = self._set_goal(None, drive, operator="", repeat=True)
-            self.event("mission", f"autostart ({self.params.autostart}): {reply.reason}",
-                       EventLevel.INFO if reply.accepted else EventLevel.WARNING)
-        m = self.mission
-        distance = None
-        if match is not None and m.index < len(self.targets):
-            distance = self.targets[m.index] - self._progress(match)
-        speed = car.speed_mps if car is not None else None
-        before = (m.state, m.index, m.action, len(m.done))
-        if body is not None and speed is not None:
-            asked = m.step(now, distance, speed, body)
-            if asked.doors or asked.ramp or asked.media:
-                self.body_command.put(BodyCommand(t=now, doors=asked.doors, ramp=asked.ramp, media=asked.media))
-        for poi, action in m.done[before[3]:]:
-            self.event("poi_action", f"{poi}: {action}", poi=poi, action=action, goal_id=self.goal_id)
-        if (m.state, m.index, m.action, len(m.done)) != before or now - self._saved_at >= self.params.save_period_s:
-            self._save()
-            self._saved_at = now
-        if m.state is MissionState.SUCCEEDED and self.repeat and match is not None and body is not None:
-            self._next_round(match, body)
-        if m.state in (MissionState.SUCCEEDED, MissionState.CANCELED) and not self._ended_reported:
-            self._report_end(m.result)
-        # the limit: nothing moves without the body's state or where the POI is; it falls gently
-        wanted = 0.0 if body is None else m.limit_mps(distance, body)
-        if wanted >= self._limit:
-            self._limit = wanted
+    def step(self, now: float, distance_m: float | None, speed_mps: float, body: Body) -> Commands:
+        """Advance with the distance to the current POI's stop point (None: unknown), the speed and
+        the body's sensors; returns what the body must do."""
+        standing = speed_mps <= self.params.stopped_mps
+        self._standing_since = (self._standing_since if self._standing_since is not None else now) if standing else None
+        if self.drive:
+            return Commands()
+        if self.state is MissionState.DRIVING and distance_m is not None and distance_m <= self.params.reach_m:
+            self.state, self.action = MissionState.AT_POI, 0
+        if self.state is not MissionState.AT_POI:
+            return Commands()
+        poi = self.pois[self.index]
+        commands = Commands()
+        while self.action < len(poi.actions):
+            name = poi.actions[self.action]
+            finished, asked = self._run(name, now, standing, body)
+            # actions finished in one step add up (START_MEDIA then NEXT_POI: the media still start)
+            commands = Commands(
+                asked.doors or commands.doors, asked.ramp or commands.ramp, asked.media or commands.media
+            )
+            if not finished:
+                return commands
+            self.done.append((poi.name, name))
+            self.action += 1
+            if name == "NEXT_POI":
+                break
+        # every action of this POI done: the next one, or the goal reached
+        self.index += 1
+        self.action = 0
+        if self.index >= len(self.pois):
+            self.state, self.result = MissionState.SUCCEEDED, f"every POI done, last {poi.name}"
         else:
-            from_speed = min(self._limit, speed if speed is not None else 0.0)
-            self._limit = max(wanted, from_speed - self.params.pause_decel_mps2 * dt)
-        self._publish(now, distance, body, speed)
+            self.state = MissionState.DRIVING
+        return commands
 
-    def _next_round(self, match: PathMatch, body: Body) -> None:
-        """A repeating tour: the route's POIs again, from the one after the last served."""
-        planned = self._plan(None, max(self._progress(match), self.targets[-1] + self.params.reach_m))
-        if isinstance(planned, str):
-            return
-        accepted, reason = self.mission.goal(planned[0], body)
-        if accepted:
-            self.targets = planned[1]
-            self.event("mission", f"goal {self.goal_id}: round again: {reason}", goal_id=self.goal_id)
-            self._save()
+    def _run(self, name: str, now: float, standing: bool, body: Body) -> tuple[bool, Commands]:
+        """(finished, commands) of one action."""
+        if name == "STOP":
+            return standing, Commands()
+        if name == "FULL_STOP":
+            return (
+                standing and self._standing_since is not None and now - self._standing_since >= self.params.full_stop_s,
+                Commands(),
+            )
+        settled = standing and self._standing_since is not None and now - self._standing_since >= self.params.settle_s
+        if name in ("OPENING_DOORS", "TAKEOFF_RAMP", "PICKUP_RAMP", "CLOSING_DOORS") and not settled:
+            return False, Commands()  # doors and ramp move only with the shuttle standing, settled
+        if name == "OPENING_DOORS":
+            return body.doors == "open", Commands(doors=None if body.doors == "open" else "open")
+        if name == "TAKEOFF_RAMP":
+            if body.doors != "open":
+                return False, Commands(doors="open")
+            return body.ramp == "deployed", Commands(ramp=None if body.ramp == "deployed" else "deploy")
+        if name == "PICKUP_RAMP":
+            if body.ramp == "stowed":
+                return True, Commands()
+            if not body.entrance_clear:
+                return False, Commands(ramp="deploy" if body.ramp == "stowing" else None)  # someone on it
+            return False, Commands(ramp="stow")
+        if name == "CLOSING_DOORS":
+            if body.ramp != "stowed":
+                return False, Commands(ramp="stow" if body.entrance_clear else None)
+            if not body.entrance_clear:
+                # passengers boarding: wait, and re-open doors that were closing on them
+                return False, Commands(doors="open" if body.doors == "closing" else None)
+            return body.doors == "closed", Commands(doors=None if body.doors == "closed" else "close")
+        if name == "START_MEDIA":
+            return True, Commands(media=True)
+        return True, Commands()  # NEXT_POI
 
-    def _report_end(self, result: str) -> None:
-        self._ended_reported = True
-        self.event("mission_result", f"goal {self.goal_id}: {self.mission.state.value}: {result}",
-                   goal_id=self.goal_id, state=self.mission.state.value, result=result)
-        self._save()
+    # ---- what the mission says --------------------------------------------------------------------
+    def limit_mps(self, distance_m: float | None, body: Body) -> float:
+        if not ready_to_move(body) or self.state is not MissionState.DRIVING:
+            return 0.0
+        if self.drive:
+            return math.inf
+        if distance_m is None:
+            return 0.0  # where the POI is is unknown: do not run past it
+        return math.sqrt(2.0 * self.params.approach_decel_mps2 * max(distance_m - self.params.reach_m / 2, 0.0))
 
-    def _publish(self, now: float, distance: float | None, body: Body | None, speed: float | None) -> None:
-        m = self.mission
-        eta = None
-        if distance is not None and m.state is MissionState.DRIVING and not m.drive:
-            limits: SpeedLimits | None = self.speed.fresh(now)
-            cruise = max(limits.limit_mps if limits is not None else 0.0, speed or 0.0, self.params.eta_min_speed_mps)
-            eta = now + max(distance, 0.0) / cruise
-        progress = [PoiProgress(name=p.name) for p in m.pois]
-        i = 0
-        for name, action in m.done:             # in order, POI by POI (a POI may come twice in a goal)
-            while i < len(m.pois) and (m.pois[i].name != name or len(progress[i].done) >= len(m.pois[i].actions)):
-                i += 1
-            if i < len(m.pois):
-                progress[i].done.append(action)
-        self.status.put(MissionStatus(
-            t=now, goal_id=self.goal_id, state=m.state.value, kind=self.kind,
-            poi=m.current_name() if m.pois and m.index < len(m.pois) else None, action=m.current_action(),
-            distance_m=None if distance is None or m.drive else round(distance, 2), eta_s=eta,
-            limit_mps=self._limit if math.isfinite(self._limit) else None,
-            ready_to_move=body is not None and ready_to_move(body), pois=progress, result=m.result))
+    # ---- a restarted mission manager goes on where its predecessor was -------------------------
+    def snapshot(self) -> dict:
+        return {
+            "state": self.state.value,
+            "pois": [[p.name, p.s, list(p.actions)] for p in self.pois],
+            "index": self.index,
+            "action": self.action,
+            "result": self.result,
+            "done": [list(d) for d in self.done],
+            "drive": self.drive,
+            "paused_from": self._paused_from.value if self._paused_from else None,
+        }
 
-    # ---- a restart goes on ----------------------------------------------------------------------
-    def _save(self) -> None:
-        if self.state_path is None:
-            return
-        snap = {"goal_id": self.goal_id, "kind": self.kind, "targets": self.targets, "repeat": self.repeat,
-                "progress": self.progress, "last_s": self._last_s,
-                "ended_reported": self._ended_reported, "mission": self.mission.snapshot()}
-        tmp = self.state_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(snap))
-        tmp.replace(self.state_path)            # atomic: a kill mid-write leaves the previous one
+    @classmethod
+    def restore(cls, snap: dict, params: MissionParams) -> Mission:
+        m = cls(
+            params=params,
+            state=MissionState(snap["state"]),
+            pois=[PoiGoal(name, float(s), tuple(actions)) for name, s, actions in snap["pois"]],
+            index=int(snap["index"]),
+            action=int(snap["action"]),
+            result=str(snap["result"]),
+            done=[(a, b) for a, b in snap["done"]],
+            drive=bool(snap["drive"]),
+        )
+        m._paused_from = MissionState(snap["paused_from"]) if snap["paused_from"] else None
+        return m
 
-    def _restore(self) -> bool:
-        if self.state_path is None or not self.state_path.exists():
-            return False
-        try:
-            snap = json.loads(self.state_path.read_text())
-            self.mission = Mission.restore(snap["mission"], self.mission.params)
-            self.goal_id, self.kind, self.targets = int(snap["goal_id"]), snap["kind"], list(snap["targets"])
-            self.repeat = bool(snap["repeat"])
-            self.progress, self._last_s = snap["progress"], snap["last_s"]
-            self._ended_reported = bool(snap["ended_reported"])
-            return True
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            self.event("mission", f"could not read the mission left by the last run of this process ({exc}): "
-                                  "starting without a goal", EventLevel.WARNING)
-            return False
+    def current_name(self) -> str:
+        return self.pois[self.index].name if self.pois and self.index < len(self.pois) else "-"
+
+    def current_action(self) -> str | None:
+        if self.state is not MissionState.AT_POI and not (
+            self.state is MissionState.PAUSED and self._paused_from is MissionState.AT_POI
+        ):
+            return None
+        poi = self.pois[self.index]
+        return poi.actions[self.action] if self.action < len(poi.actions) else None
+
+
+def ready_to_move(body: Body) -> bool:
+    return body.doors == "closed" and body.ramp == "stowed"
+
+
+def body_request_refusal(
+    state: MissionState, standing: bool, body: Body, doors: str | None, ramp: str | None
+) -> str | None:
+    """Why an operator's demand to the doors or the ramp is refused, or None to pass it on.
+    `state`: the mission's, or while paused the state it was paused from. Only standing, and
+    never while the mission drives or is amid a POI's actions (they would undo it, or drive off
+    with the doors open); and by the body's interlocks: the ramp under open doors and stowed only
+    with nobody on it, the doors closed over a stowed ramp and an empty entrance."""
+    if doors is None and ramp is None:
+        return "refused: nothing asked of the doors or the ramp"
+    if not standing:
+        return "refused: the shuttle is moving"
+    if state is MissionState.DRIVING:
+        return "refused: the mission is DRIVING (pause it first)"
+    if state is MissionState.AT_POI:  # running, or paused amid, a POI's actions: they own the body
+        return "refused: a POI's actions run the doors and the ramp (cancel the mission first)"
+    if ramp == "deploy" and (body.doors != "open" or doors == "close"):
+        return "refused: the ramp deploys only under open doors"
+    if ramp == "stow" and not body.entrance_clear:
+        return "refused: someone is on the ramp or in the doorway"
+    if doors == "close" and (body.ramp != "stowed" or ramp == "deploy" or not body.entrance_clear):
+        return "refused: the doors close only over a stowed ramp and an empty entrance"
+    return None

@@ -1,152 +1,150 @@
-"""Movement manager: nothing moves unless every manager allows it (ARES §3.7).
+"""The movement gate: the last word on every command before the drive-by-wire bridge (ARES §3.7).
 
-The only process whose command reaches the drive-by-wire bridge (movement/command, a
-single-publisher topic the bridge alone reads), and so the only one besides the bridge that can
-command an emergency stop. Each cycle managers/movement_gate.py turns the control manager's
-(v, κ), the speed limits and the awareness level into that command:
+Nothing moves unless every manager allows it. Each cycle the gate takes the control manager's
+(v, κ), the speed limits of the managers that set one (speed, obstacle, mission) and the awareness
+level, and gives the one command the bridge accepts:
 
-| input              | safe value when missing or stale            |
-|--------------------|---------------------------------------------|
-| control/setpoint   | a controlled stop, the wheels held          |
-| speed/limits       | a controlled stop                           |
-| obstacle/state     | a controlled stop (with the LiDARs on)      |
-| awareness/state    | a controlled stop (as level 2)              |
-| mission/status     | a controlled stop (nothing moves without a mission) |
-| body/state         | a controlled stop (doors and ramp unknown)  |
+1. **Level 1** (critical) latches an emergency stop: speed 0 at once, the bridge brakes fully. It
+   stays latched, whatever happens next, until a person re-arms it (`rearm`), and a re-arm is
+   refused while level 1 lasts.
+2. **Level 2** (low), or an input gone missing or stale (its safe value), is a controlled stop: a
+   limit falling from the speed now at `stop_decel_mps2` to 0, held while the cause lasts; when
+   it clears, the shuttle goes on by itself.
+3. The **lowest limit** applies at once: the command is never above an active limit.
+4. Below the limits, the speed follows the control manager's within the vehicle's acceleration,
+   deceleration and jerk, and the curvature within the steering motor's rate (a final limit:
+   Autoware's vehicle command gate).
 
-Doors not closed or the ramp not stowed is a limit of 0 (`body`), whatever the mission says: the
-gate keeps that rule itself, so no fault of the mission manager can move the shuttle with a door
-open.
-
-Level 1 latches an emergency stop until an operator re-arms it (`movement/rearm`, which the REST
-API offers to the operator role only; refused while level 1 lasts). The latch survives a restart
-of this process: the bridge keeps braking and says so in its car state, and a movement manager
-that starts sends nothing until it has read the bridge's state, latching again if the bridge is in
-an emergency stop (an operator must still re-arm). Every latch, re-arm and
-controlled stop is an event, so the black box keeps them with their causes and the operator's name.
+The order of trust is fixed: emergency stop, then controlled stop, then limits, then comfort.
+Plain code without a bus, so that every state × event can be tested (tests/test_movement_gate.py).
 """
+
 from __future__ import annotations
 
 import math
-
-from ares.config import Params, param
-from ares.messages import (AwarenessState, BodyState, EventLevel, MissionStatus, MovementCommand, MovementStatus,
-                           RearmReply, RearmRequest, Setpoint, SpeedLimits)
-from ares.node import Input, Node, Output, service
-from managers.movement_gate import GateInputs, GateLimits, Level, MovementGate
+from dataclasses import dataclass, field
+from enum import IntEnum
 
 
-class MovementParams(Params):
-    rate_hz: float = param(50.0, "commands per second to the bridge (the control manager's rate: no waiting here)",
-                           unit="Hz", gt=0)
-    command_timeout_s: float = param(0.3, "an older control manager's command counts as missing", unit="s", gt=0)
-    limit_timeout_s: float = param(1.0, "an older speed limit counts as missing", unit="s", gt=0)
-    obstacle_timeout_s: float = param(0.5, "an older obstacle verdict counts as missing (it comes at 10 Hz)", unit="s",
-                                      gt=0)
-    mission_timeout_s: float = param(0.5, "an older mission status counts as missing (it comes at 10 Hz)", unit="s",
-                                     gt=0)
-    body_timeout_s: float = param(0.5, "an older body state counts as missing (it comes at 10 Hz)", unit="s", gt=0)
-    awareness_timeout_s: float = param(0.5, "an older awareness level counts as missing (it comes at 10 Hz)",
-                                       unit="s", gt=0)
-    stop_decel_mps2: float = param(1.0, "a controlled stop's deceleration", unit="m/s^2", gt=0)
-    max_jerk_mps3: float = param(2.0, "how fast an acceleration or deceleration may build up (comfort: 0.9-2 "
-                                      "m/s^3 for standing passengers)", unit="m/s^3", gt=0)
-    kappa_rate_factor: float = param(5.0, "the curvature may change this many times faster than the steering motor "
-                                          "turns: a bound against a runaway command that leaves the controllers "
-                                          "alone (the MPC's steps come at 10 Hz, this gate's at 50)", ge=1)
+class Level(IntEnum):
+    """Awareness levels (ARES §3.7): 1 critical, 2 low; 0 nominal."""
+
+    NOMINAL = 0
+    CRITICAL = 1
+    LOW = 2
 
 
-class MovementManager(Node):
-    """The command gate: the control manager's (v, kappa) under every limit, or a stop."""
-    name = "movement_manager"
-    Params = MovementParams
-    setpoint = Input("control/setpoint", max_age="command_timeout_s", doc="the control manager's (v, kappa)")
-    speed = Input("speed/limits", max_age="limit_timeout_s", doc="the speed manager's limit where the vehicle is")
-    obstacle = Input("obstacle/state", max_age="obstacle_timeout_s", doc="the obstacle manager's limit (with LiDARs)")
-    mission = Input("mission/status", max_age="mission_timeout_s", doc="the mission manager's limit")
-    body = Input("body/state", max_age="body_timeout_s", doc="doors closed and ramp stowed, or a limit of 0")
-    awareness = Input("awareness/state", max_age="awareness_timeout_s", doc="level 0, 1 (critical) or 2 (low)")
-    car = Input("dbw/car_state", max_age="command_timeout_s", doc="at start: is the bridge in an emergency stop?")
-    command = Output("movement/command", rate="rate_hz", doc="(v, kappa, emergency) to the drive-by-wire bridge")
-    status = Output("movement/status", rate="rate_hz", doc="the active limit, a latched stop, why")
+@dataclass(frozen=True)
+class GateLimits:
+    """The vehicle's figures the gate enforces."""
 
-    def setup(self) -> None:
-        p, vehicle = self.params, self.vehicle
-        self.gate = MovementGate(GateLimits(
-            max_accel_mps2=vehicle.max_accel_mps2, max_decel_mps2=vehicle.max_decel_mps2,
-            max_jerk_mps3=p.max_jerk_mps3, max_kappa=vehicle.max_curvature,
-            max_kappa_rate=vehicle.max_curvature_rate * p.kappa_rate_factor, stop_decel_mps2=p.stop_decel_mps2))
-        self._last_step: float | None = None
-        self._was_stopping = False
-        self._level: Level | None = Level.NOMINAL
-        # without LiDARs (simulation runs about something else) there is no grid and no obstacle manager
-        self.obstacle_required = bool(self.core.lidars)
-        self._synced = False                # the bridge's emergency state read (at start)
-        self._started = self.clock.now()
+    max_accel_mps2: float
+    max_decel_mps2: float  # the largest deceleration a command may ask for (not the emergency brake)
+    max_jerk_mps3: float
+    max_kappa: float  # 1/m: tan(largest wheel angle) / wheelbase
+    max_kappa_rate: float  # 1/m/s: the steering motor's rate
+    stop_decel_mps2: float  # a controlled stop
 
-    @staticmethod
-    def _level_of(state: AwarenessState | None) -> tuple[Level | None, str]:
-        if state is None:
-            return None, ""
-        return Level(state.level), "; ".join(state.causes)
 
-    @service("movement/rearm")
-    def _rearm(self, request: RearmRequest) -> RearmReply:
-        accepted, reason = self.gate.rearm(self._level)
-        self.event("rearm", f"re-arm by {request.operator}: {reason}", EventLevel.INFO if accepted else EventLevel.WARNING,
-                   operator=request.operator, accepted=accepted)
-        return RearmReply(t=self.clock.now(), accepted=accepted, reason=reason)
+@dataclass(frozen=True)
+class GateInputs:
+    """One cycle's inputs; None is an input missing or stale."""
 
-    def _sync_with_the_bridge(self, now: float) -> bool:
-        """Whether commands may go out: not before the bridge's state is known (a restarted
-        movement manager must not clear the emergency stop its predecessor latched), unless the
-        bridge stays silent for a second (it is not there to brake anyway)."""
-        if self._synced:
-            return True
-        car = self.car.fresh(now)
-        if car is None and now - self._started < 1.0:
-            return False
-        self._synced = True
-        if car is not None and car.emergency:
-            self.gate.latch("emergency stop in force when the movement manager started")
-            self.event("emergency_stop", f"emergency stop: {self.gate.latch_cause}", EventLevel.FAULT,
-                       cause=self.gate.latch_cause)
-        return True
+    command: tuple[float, float] | None  # (v, κ) from the control manager
+    limits: dict[str, float | None] = field(default_factory=dict)  # manager -> its speed limit, m/s
+    level: Level | None = Level.NOMINAL  # the awareness level
+    level_cause: str = ""
 
-    def step(self, now: float) -> None:
-        dt = 1.0 / self.params.rate_hz if self._last_step is None else max(now - self._last_step, 0.0)
-        self._last_step = now
-        if not self._sync_with_the_bridge(now):
-            return
-        sp: Setpoint | None = self.setpoint.fresh(now)
-        speed: SpeedLimits | None = self.speed.fresh(now)
-        self._level, cause = self._level_of(self.awareness.fresh(now))
-        mission: MissionStatus | None = self.mission.fresh(now)
-        body: BodyState | None = self.body.fresh(now)
-        limits = {"speed": None if speed is None else speed.limit_mps,
-                  "mission": None if mission is None else (math.inf if mission.limit_mps is None else mission.limit_mps),
-                  "body": None if body is None else (math.inf if body.doors == "closed" and body.ramp == "stowed"
-                                                     else 0.0)}
-        if self.obstacle_required:
-            obstacle = self.obstacle.fresh(now)
-            limits["obstacle"] = None if obstacle is None else obstacle.limit_mps
-        was_latched = self.gate.latched
-        out = self.gate.step(dt, GateInputs(command=None if sp is None else (sp.v, sp.kappa), limits=limits,
-                                            level=self._level, level_cause=cause))
-        if self.gate.latched and not was_latched:
-            self.event("emergency_stop", f"emergency stop: {self.gate.latch_cause}", EventLevel.FAULT,
-                       cause=self.gate.latch_cause)
-        if out.stopping != self._was_stopping:
-            self._was_stopping = out.stopping
-            if out.stopping:
-                self.event("controlled_stop", out.reason, EventLevel.WARNING)
-            else:
-                self.event("controlled_stop", "cleared: moving on", EventLevel.INFO)
-        source = "emergency" if out.emergency else ("stop" if out.stopping or sp is None else sp.source)
-        self.command.put(MovementCommand(t=now, v=out.v, kappa=out.kappa, emergency=out.emergency, source=source))
-        self.status.put(MovementStatus(
-            t=now, level=None if self._level is None else int(self._level), latched=self.gate.latched,
-            latch_cause=self.gate.latch_cause, stopping=out.stopping,
-            limit_mps=out.limit_mps if math.isfinite(out.limit_mps) else None, limited_by=out.limited_by,
-            limits={k: v for k, v in limits.items() if v is None or math.isfinite(v)}, v=out.v, kappa=out.kappa,
-            reason=out.reason))
+
+@dataclass(frozen=True)
+class GateOutput:
+    v: float
+    kappa: float
+    emergency: bool  # the bridge brakes fully
+    stopping: bool  # a controlled stop is under way (level 2, or something missing)
+    limit_mps: float  # the lowest active limit (inf: none)
+    limited_by: str  # which: a manager's name, "stop", "emergency", or "" (none active)
+    reason: str
+
+
+class MovementGate:
+    def __init__(self, limits: GateLimits):
+        self.limits = limits
+        self.latched = False
+        self.latch_cause = ""
+        self.v = 0.0  # the last command given
+        self.accel = 0.0  # ... and its rate of change
+        self.kappa = 0.0
+        self._stop_limit: float | None = None  # the controlled stop's falling limit, while one runs
+
+    def latch(self, cause: str) -> None:
+        """An emergency stop from outside the levels (one already in force at start-up)."""
+        self.latched, self.latch_cause = True, cause
+
+    def rearm(self, level: Level | None) -> tuple[bool, str]:
+        """A person's re-arm: clears a latched emergency stop unless its cause is still there."""
+        if not self.latched:
+            return False, "nothing to re-arm: no emergency stop is latched"
+        if level == Level.CRITICAL:
+            return False, f"refused: level 1 persists ({self.latch_cause})"
+        cause, self.latched, self.latch_cause = self.latch_cause, False, ""
+        return True, f"re-armed after: {cause}"
+
+    def step(self, dt: float, inputs: GateInputs) -> GateOutput:
+        lim = self.limits
+        if inputs.level == Level.CRITICAL and not self.latched:
+            self.latch(inputs.level_cause or "level 1")
+        if self.latched:
+            self.v, self.accel, self._stop_limit = 0.0, 0.0, None
+            return GateOutput(
+                0.0,
+                self.kappa,
+                True,
+                False,
+                0.0,
+                "emergency",
+                f"emergency stop latched ({self.latch_cause}): waiting for a re-arm",
+            )
+
+        # what calls for a controlled stop: level 2 and every missing input (their safe value)
+        causes = []
+        if inputs.level is None:
+            causes.append("awareness level missing")
+        elif inputs.level == Level.LOW:
+            causes.append(f"level 2: {inputs.level_cause}" if inputs.level_cause else "level 2")
+        if inputs.command is None:
+            causes.append("no command from the control manager")
+        causes += [f"{name} limit missing" for name, value in inputs.limits.items() if value is None]
+        if causes:
+            start = self.v if self._stop_limit is None else self._stop_limit
+            self._stop_limit = max(0.0, start - lim.stop_decel_mps2 * dt)
+        else:
+            self._stop_limit = None
+
+        active = {name: max(0.0, value) for name, value in inputs.limits.items() if value is not None}
+        if self._stop_limit is not None:
+            active["stop"] = self._stop_limit
+        limited_by, limit = min(active.items(), key=lambda item: item[1], default=("", math.inf))
+
+        v_wanted, kappa_wanted = inputs.command if inputs.command is not None else (0.0, self.kappa)
+        v_wanted = min(max(v_wanted, 0.0), limit)
+        # comfort below the limits: an acceleration (or deceleration) builds up within the jerk and
+        # is let go at once; the speed never goes past what is wanted
+        accel_wanted = (v_wanted - self.v) / dt if dt > 0 else 0.0
+        lowest = max(-lim.max_decel_mps2, min(self.accel, 0.0) - lim.max_jerk_mps3 * dt)
+        highest = min(lim.max_accel_mps2, max(self.accel, 0.0) + lim.max_jerk_mps3 * dt)
+        v = max(0.0, self.v + min(max(accel_wanted, lowest), highest) * dt)
+        v = min(v, limit)  # a limit applies at once
+        self.accel = (v - self.v) / dt if dt > 0 else 0.0
+        self.v = v
+        kappa_wanted = min(max(kappa_wanted, -lim.max_kappa), lim.max_kappa)
+        step = lim.max_kappa_rate * dt
+        self.kappa = min(max(kappa_wanted, self.kappa - step), self.kappa + step)
+
+        if causes:
+            reason = "stopping: " + "; ".join(causes)
+        elif limited_by and v_wanted >= limit:
+            reason = f"limited by {limited_by} ({limit:.2f} m/s)"
+        else:
+            reason = "following the control manager"
+        return GateOutput(v, self.kappa, False, bool(causes), limit, limited_by if math.isfinite(limit) else "", reason)

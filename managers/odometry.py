@@ -1,4 +1,4 @@
-"""Odometry manager: how far the pose estimate can be trusted (ARES paper §3.1.2, eq. 6).
+"""The odometry score: how far the pose estimate can be trusted (ARES paper §3.1.2, eq. 6).
 
     score(t) = 1 − a / (1 + exp(−b·(cov(t) − c)))                                   (eq. 6)
 
@@ -10,22 +10,22 @@ and an error ellipse stretched across the road counts fully.
 With a = 1 the score falls from 1 (cov ≪ c) through 0.5 (cov = c) to 0 (cov ≫ c); b sets how
 sharp the step is. The paper chose a, b, c "from experimental analysis where the covariance
 starts rising due to ... DGPS lost signal, 4G lost signal"; `ares calibrate odometry`
-(ares/harness/odometry_score.py) repeats that experiment in simulation (docs/odometry_score.md).
+(ares/tools/harness/odometry_score.py) repeats that experiment in simulation (docs/odometry_score.md).
 
 A pose older than stale_after_s — or none at all — gets score 0 (no trust): a localization
 that stopped talking is no better than one that is lost. The message then carries the last
 pose's covariance (0 before the first pose) and the pose's age (for no pose at all: the time
 since this manager started).
 """
+
 from __future__ import annotations
 
 import math
 
 from scipy.special import expit
 
-from ares.config import Params, param
-from ares.messages import OdometryScore, Pose
-from ares.node import Input, Node, Output
+from ares.core.config import Params, param
+from ares.core.messages import Pose
 
 
 def score(cov: float, a: float, b: float, c: float) -> float:
@@ -44,8 +44,9 @@ def pose_covariance(pose: Pose) -> float:
 
 class OdometryParams(Params):
     rate_hz: float = param(20.0, "loop and publishing rate", unit="Hz", gt=0)
-    stale_after_s: float = param(1.0, "an older pose (or none) scores 0, as path_manager.pose_timeout_s",
-                                 unit="s", gt=0)
+    stale_after_s: float = param(
+        1.0, "an older pose (or none) scores 0, as path_manager.pose_timeout_s", unit="s", gt=0
+    )
     # From the simulated experiment of docs/odometry_score.md: covariance with RTK p99.9 3.1e-4 m²,
     # inside RTK-loss zones (after 2 s) p0.1 2.4e-3 m²; c between them, moved up from their
     # geometric mean (8.6e-4) so that a fix or two arriving late on a loaded machine does not read
@@ -63,7 +64,7 @@ class OdometryScorer:
         self.stale_after_s = float(stale_after_s)
 
     @classmethod
-    def from_params(cls, params: OdometryParams) -> "OdometryScorer":
+    def from_params(cls, params: OdometryParams) -> OdometryScorer:
         return cls(params.a, params.b, params.c, params.stale_after_s)
 
     def __call__(self, cov: float) -> float:
@@ -77,22 +78,3 @@ class OdometryScorer:
         if not pose_age_s <= self.stale_after_s:
             return 0.0, cov
         return self(cov), cov
-
-
-class OdometryManager(Node):
-    """Scores the fused pose's covariance: the odometry score of ARES eq. 6."""
-    name = "odometry_manager"
-    Params = OdometryParams
-    pose = Input("localization/pose", doc="the fused pose and its covariance")
-    score = Output("odometry/score", rate="rate_hz", doc="eq. 6; 0 when the pose is stale or missing")
-
-    def setup(self) -> None:
-        self.scorer = OdometryScorer.from_params(self.params)
-        self.started = self.clock.now()
-
-    def step(self, now: float) -> None:
-        pose = self.pose.latest
-        # age from the pose's own stamp: a pose delivered late is as old as it says
-        age = max(self.pose.age(now) if pose is not None else now - self.started, 0.0)
-        value, cov = self.scorer.assess(pose, age)
-        self.score.put(OdometryScore(t=now, score=value, covariance=cov, pose_age_s=age))

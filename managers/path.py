@@ -1,4 +1,4 @@
-"""Path manager: where the vehicle is on its route, and the path ahead (ARES §3.2).
+"""The path manager's match: where the vehicle is on its route, and the path ahead (ARES §3.2).
 
 path/match carries the segment index, s, lap, signed cross-track and heading errors, the zones
 at s, force_odometry (inside an intersection or road opening the path manager forces odometry
@@ -23,12 +23,13 @@ match says so (search "wide"; the node raises a path_rematch event). Progress is
 it starts at the first match's s, so the lap count goes up each time the start line (s = 0)
 is crossed; after a wide match it moves by the short way round from the last progress.
 
-PathIndex and PathTracker do the work without the bus (tests, benches); PathManager is the
-process around them.
+PathIndex and PathTracker do the work without the bus (tests, benches); managers.path_node is
+the process around them.
 
 A stale pose (older than path_manager.pose_timeout_s) is not matched: nothing is published,
 so the controller goes quiet and the drive-by-wire watchdog stops the vehicle.
 """
+
 from __future__ import annotations
 
 import math
@@ -38,12 +39,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ares.config import Params, param
-from ares.geometry import project_on_segment, signed_distance, wrap_angle
-from ares.messages import EventLevel, PathMatch
-from ares.node import Input, Node, Output
-from ares.route import Route, load_route
-from managers.speed_profile import SpeedProfileParams, speed_limits
+from ares.core.config import Params, param
+from ares.core.geometry import project_on_segment, signed_distance, wrap_angle
+from ares.core.messages import PathMatch
+from ares.core.route import Route
 
 # The tracked search takes the poses whose s lies within this much more than the hint's window,
 # then applies the window test itself: rounding at the window's edges cannot drop a pose
@@ -52,43 +51,53 @@ WINDOW_SLACK_M = 1e-6
 
 class PathManagerParams(Params):
     """KD-tree match of the pose to the route, path ahead (ARES §3.2)."""
+
     rate_hz: float = param(20.0, "loop and publishing rate", unit="Hz", gt=0)
-    pose_timeout_s: float = param(1.0, "an older pose is not matched: nothing is published (1 s of vehicle time is "
-                                       "0.2 s of wall time at --speed 5: a busy machine, not a dead localization)",
-                                  unit="s", gt=0)
+    pose_timeout_s: float = param(
+        1.0,
+        "an older pose is not matched: nothing is published (1 s of vehicle time is "
+        "0.2 s of wall time at --speed 5: a busy machine, not a dead localization)",
+        unit="s",
+        gt=0,
+    )
     radius_m: float = param(5.0, "search radius r around the vehicle", unit="m", gt=0)
-    max_heading_error_rad: float = param(1.0, "path poses facing further from the vehicle's yaw are unreachable "
-                                              "(hairpins)", unit="rad", gt=0)
-    max_heading_sigma_rad: float = param(0.5, "a pose whose heading is less certain than this is matched by "
-                                              "position only", unit="rad", gt=0)
-    window_behind_m: float = param(5.0, "once tracking, only poses this far behind the last match ...",
-                                   unit="m", ge=0)
-    window_ahead_m: float = param(15.0, "... or this far ahead qualify: never the other pass of a crossing or a "
-                                        "later lap", unit="m", gt=0)
-    fallback_radius_m: float = param(50.0, "nothing qualifies (start-up, a pose jump): search this wide, without "
-                                           "the window", unit="m", gt=0)
+    max_heading_error_rad: float = param(
+        1.0, "path poses facing further from the vehicle's yaw are unreachable (hairpins)", unit="rad", gt=0
+    )
+    max_heading_sigma_rad: float = param(
+        0.5, "a pose whose heading is less certain than this is matched by position only", unit="rad", gt=0
+    )
+    window_behind_m: float = param(5.0, "once tracking, only poses this far behind the last match ...", unit="m", ge=0)
+    window_ahead_m: float = param(
+        15.0, "... or this far ahead qualify: never the other pass of a crossing or a later lap", unit="m", gt=0
+    )
+    fallback_radius_m: float = param(
+        50.0, "nothing qualifies (start-up, a pose jump): search this wide, without the window", unit="m", gt=0
+    )
     ahead_length_m: float = param(30.0, "path sent ahead of the match", unit="m", gt=0)
     ahead_step_m: float = param(0.5, "spacing of the poses ahead", unit="m", gt=0)
-    force_odometry_zones: list[str] = param(doc="DESIGN §3: odometry control is forced in these zones",
-                                            factory=lambda: ["intersection", "road_opening"])
+    force_odometry_zones: list[str] = param(
+        doc="DESIGN §3: odometry control is forced in these zones", factory=lambda: ["intersection", "road_opening"]
+    )
 
 
 @dataclass(frozen=True)
 class Match:
-    index: int              # route segment the vehicle is on (from sample index to index + 1)
-    s: float                # continuous arc length: [0, length) on a closed route; on an open
-                            # one it may leave [0, length] before the start / past the end
-    progress: float         # unwrapped s (laps included): the hint for the next match
-    lap: int                # progress // length on a closed route, 0 on an open one
-    xte: float              # signed cross-track error, m, positive when left of the path
-    heading_error: float    # vehicle yaw minus path yaw, rad in [-pi, pi)
-    search: str             # "tracked": in the hint's window; "nearest": no hint yet;
-                            # "wide": nothing qualified, found by the wider fallback search
+    index: int  # route segment the vehicle is on (from sample index to index + 1)
+    s: float  # continuous arc length: [0, length) on a closed route; on an open
+    # one it may leave [0, length] before the start / past the end
+    progress: float  # unwrapped s (laps included): the hint for the next match
+    lap: int  # progress // length on a closed route, 0 on an open one
+    xte: float  # signed cross-track error, m, positive when left of the path
+    heading_error: float  # vehicle yaw minus path yaw, rad in [-pi, pi)
+    search: str  # "tracked": in the hint's window; "nearest": no hint yet;
+    # "wide": nothing qualified, found by the wider fallback search
 
 
 @dataclass(frozen=True)
 class Ahead:
     """Route poses from a starting s, every step metres (numpy arrays of equal length)."""
+
     x: np.ndarray
     y: np.ndarray
     yaw: np.ndarray
@@ -104,9 +113,17 @@ class PathIndex:
     them from there.
     """
 
-    def __init__(self, route: Route, speed_limit: np.ndarray | None = None, *, radius_m: float = 5.0,
-                 fallback_radius_m: float = 50.0, max_heading_error_rad: float = 1.0,
-                 window_behind_m: float = 5.0, window_ahead_m: float = 15.0):
+    def __init__(
+        self,
+        route: Route,
+        speed_limit: np.ndarray | None = None,
+        *,
+        radius_m: float = 5.0,
+        fallback_radius_m: float = 50.0,
+        max_heading_error_rad: float = 1.0,
+        window_behind_m: float = 5.0,
+        window_ahead_m: float = 15.0,
+    ):
         self.route = route
         self.closed = route.closed
         self.length = route.length
@@ -118,7 +135,7 @@ class PathIndex:
         self.window_ahead_m = float(window_ahead_m)
         self.tree = cKDTree(np.column_stack([route.x, route.y]))
         if speed_limit is None:
-            speed_limit = np.zeros(self.n)     # no profile given: nothing ahead may be driven
+            speed_limit = np.zeros(self.n)  # no profile given: nothing ahead may be driven
         if len(speed_limit) != self.n:
             raise ValueError(f"speed limit has {len(speed_limit)} values for {self.n} route poses")
         self.speed_limit = np.asarray(speed_limit, dtype=float)
@@ -142,14 +159,21 @@ class PathIndex:
         self._kd_order[self.tree.indices] = np.arange(self.n)
 
     @classmethod
-    def from_params(cls, route: Route, params: "PathManagerParams", speed_limit: np.ndarray | None = None) -> "PathIndex":
-        return cls(route, speed_limit, radius_m=params.radius_m, fallback_radius_m=params.fallback_radius_m,
-                   max_heading_error_rad=params.max_heading_error_rad,
-                   window_behind_m=params.window_behind_m, window_ahead_m=params.window_ahead_m)
+    def from_params(cls, route: Route, params: PathManagerParams, speed_limit: np.ndarray | None = None) -> PathIndex:
+        return cls(
+            route,
+            speed_limit,
+            radius_m=params.radius_m,
+            fallback_radius_m=params.fallback_radius_m,
+            max_heading_error_rad=params.max_heading_error_rad,
+            window_behind_m=params.window_behind_m,
+            window_ahead_m=params.window_ahead_m,
+        )
 
     # ---- matching ---------------------------------------------------------------------------
-    def match(self, x: float, y: float, yaw: float | None, s_hint: float | None = None,
-              radius: float | None = None) -> Match | None:
+    def match(
+        self, x: float, y: float, yaw: float | None, s_hint: float | None = None, radius: float | None = None
+    ) -> Match | None:
         """The nearest reachable path pose within `radius` (default radius_m) of (x, y).
 
         `s_hint` is the last match's progress (unwrapped s). Without a match within the hint's
@@ -190,8 +214,9 @@ class PathIndex:
             begin, end = bisect_left(self._s, first), bisect_right(self._s, last)
         return self._nearest_reachable(self._pose_numbers[begin:end], x, y, yaw, hint, r * r)
 
-    def _nearest_reachable(self, poses: np.ndarray, x: float, y: float, yaw: float | None, hint: float | None,
-                           r2: float) -> int | None:
+    def _nearest_reachable(
+        self, poses: np.ndarray, x: float, y: float, yaw: float | None, hint: float | None, r2: float
+    ) -> int | None:
         """The nearest of `poses` (pose numbers) within sqrt(r2) of (x, y) that is reachable."""
         dx = self.route.x[poses] - x
         dy = self.route.y[poses] - y
@@ -209,13 +234,13 @@ class PathIndex:
         """Pose i faces within the heading limit of `yaw` and, given a (wrapped) hint, lies within
         the hint's window. Without a heading (not known yet: a standing vehicle's first fix) any
         pose faces right."""
-        if yaw is not None:     # heading agreement as a dot product of unit vectors: cos(dyaw) > cos(limit)
+        if yaw is not None:  # heading agreement as a dot product of unit vectors: cos(dyaw) > cos(limit)
             if self._cos_yaw[i] * math.cos(yaw) + self._sin_yaw[i] * math.sin(yaw) <= self.cos_heading_limit:
                 return False
         if hint is None:
             return True
         ds = self._s[i] - hint
-        if self.closed:     # signed along-route step, the short way round the loop
+        if self.closed:  # signed along-route step, the short way round the loop
             ds = (ds + 0.5 * self.length) % self.length - 0.5 * self.length
         return -self.window_behind_m <= ds <= self.window_ahead_m
 
@@ -228,8 +253,16 @@ class PathIndex:
             segments = tuple(k for k in (i - 1, i) if 0 <= k <= n - 2)
         best = None
         for k in segments:
-            t, d2 = project_on_segment(x, y, self._x[k], self._y[k], self._ex[k], self._ey[k],
-                                       extend_back=not closed and k == 0, extend_ahead=not closed and k == n - 2)
+            t, d2 = project_on_segment(
+                x,
+                y,
+                self._x[k],
+                self._y[k],
+                self._ex[k],
+                self._ey[k],
+                extend_back=not closed and k == 0,
+                extend_ahead=not closed and k == n - 2,
+            )
             if best is None or d2 < best[0]:
                 best = d2, k, t
         d2, k, t = best
@@ -243,8 +276,15 @@ class PathIndex:
         else:
             progress = s_hint + self._step(self._wrap(s_hint), s)
         lap = int(progress // self.length) if closed else 0
-        return Match(index=k, s=s, progress=progress, lap=lap, xte=xte,
-                     heading_error=0.0 if yaw is None else wrap_angle(yaw - self._yaw[k]), search=search)
+        return Match(
+            index=k,
+            s=s,
+            progress=progress,
+            lap=lap,
+            xte=xte,
+            heading_error=0.0 if yaw is None else wrap_angle(yaw - self._yaw[k]),
+            search=search,
+        )
 
     def _wrap(self, s: float) -> float:
         return s % self.length if self.closed else s
@@ -270,7 +310,7 @@ class PathIndex:
             nxt = (idx + 1) % self.n
         else:
             end = float(route.s[-1])
-            sq = np.clip(s0, 0.0, end) + step_m * np.arange(count)   # from the start or the end if outside
+            sq = np.clip(s0, 0.0, end) + step_m * np.arange(count)  # from the start or the end if outside
             reaches_end = sq[-1] >= end
             sq = sq[sq < end - 1e-9]
             if reaches_end or len(sq) == 0:
@@ -280,8 +320,14 @@ class PathIndex:
         seg = self._seg_len[idx]
         f = np.where(seg > 0.0, (sq - route.s[idx]) / np.where(seg > 0.0, seg, 1.0), 0.0)
         lerp = lambda a: a[idx] + f * (a[nxt] - a[idx])  # noqa: E731
-        return Ahead(x=lerp(route.x), y=lerp(route.y), yaw=route.yaw[idx].copy(),
-                     curvature=lerp(route.curvature), speed=lerp(self.speed_limit), s=sq)
+        return Ahead(
+            x=lerp(route.x),
+            y=lerp(route.y),
+            yaw=route.yaw[idx].copy(),
+            curvature=lerp(route.curvature),
+            speed=lerp(self.speed_limit),
+            s=sq,
+        )
 
 
 def zone_kinds_at(route: Route, s: float) -> list[str]:
@@ -293,72 +339,41 @@ class PathTracker:
     """The path manager's work without the bus: successive poses in, PathMatch messages out.
     It keeps the last matched progress as the hint of the next match."""
 
-    def __init__(self, route: Route, params: "PathManagerParams", speed_limit: np.ndarray | None = None):
+    def __init__(self, route: Route, params: PathManagerParams, speed_limit: np.ndarray | None = None):
         self.route = route
         self.index = PathIndex.from_params(route, params, speed_limit)
         self.ahead_length_m = params.ahead_length_m
         self.ahead_step_m = params.ahead_step_m
         self.force_odometry_zones = frozenset(params.force_odometry_zones)
-        self.max_heading_var = params.max_heading_sigma_rad ** 2
-        self.progress: float | None = None     # last matched progress: the next query's hint
+        self.max_heading_var = params.max_heading_sigma_rad**2
+        self.progress: float | None = None  # last matched progress: the next query's hint
 
-    def update(self, now: float, x: float, y: float, yaw: float,
-               var_yaw: float = 0.0) -> tuple[Match | None, PathMatch | None]:
+    def update(
+        self, now: float, x: float, y: float, yaw: float, var_yaw: float = 0.0
+    ) -> tuple[Match | None, PathMatch | None]:
         # until the vehicle has moved, the UKF's heading may be a guess (no magnetometer reading
         # before the first fix): then match by position, or the vehicle would never set off
         yaw_known = var_yaw <= self.max_heading_var
         m = self.index.match(x, y, yaw if yaw_known else None, self.progress)
         if m is None:
-            return None, None       # keep the hint: the vehicle may come back to where it was
+            return None, None  # keep the hint: the vehicle may come back to where it was
         self.progress = m.progress
         zones = zone_kinds_at(self.route, m.s)
         ahead = self.index.ahead(m.index, self.ahead_length_m, self.ahead_step_m, s=m.s)
         return m, PathMatch(
-            t=now, index=m.index, s=m.s, lap=m.lap, xte=m.xte, heading_error=m.heading_error,
-            zones=zones, force_odometry=not self.force_odometry_zones.isdisjoint(zones),
+            t=now,
+            index=m.index,
+            s=m.s,
+            lap=m.lap,
+            xte=m.xte,
+            heading_error=m.heading_error,
+            zones=zones,
+            force_odometry=not self.force_odometry_zones.isdisjoint(zones),
             distance_to_end_m=None if self.route.closed else max(self.route.length - m.s, 0.0),
-            ahead_x=ahead.x.tolist(), ahead_y=ahead.y.tolist(), ahead_yaw=ahead.yaw.tolist(),
-            ahead_curvature=ahead.curvature.tolist(), ahead_speed=ahead.speed.tolist(),
-            ahead_s=ahead.s.tolist())
-
-
-class PathManager(Node):
-    """KD-tree match of the pose to the route; the path ahead with its speed limits."""
-    name = "path_manager"
-    Params = PathManagerParams
-    sections = {"speed_profile": SpeedProfileParams}
-    pose = Input("localization/pose", max_age="pose_timeout_s", doc="the fused pose: x, y, yaw and its variance")
-    match = Output("path/match", rate="rate_hz", doc="silent while the pose is stale")
-
-    def setup(self) -> None:
-        route = load_route(self.core)
-        # the speed limits belong to the speed manager once it exists; until then they are
-        # computed here, once
-        limits = speed_limits(route, self.shared["speed_profile"], self.vehicle)
-        self.tracker = PathTracker(route, self.params, limits)
-        self._lost = False
-        self.log.info("route %s: %d poses, %.1f m, %s", route.name, len(route), route.length,
-                      "closed" if route.closed else "open")
-
-    def step(self, now: float) -> None:
-        pose = self.pose.fresh(now)
-        if pose is None:
-            return  # nothing fresh to match: stay silent, the controller must not act on old news
-        previous = self.tracker.progress
-        m, msg = self.tracker.update(now, pose.x, pose.y, pose.yaw, pose.var_yaw)
-        if m is None:
-            if not self._lost:      # say it once, not at every step
-                self._lost = True
-                self.event("path_lost", f"no reachable path pose within {self.tracker.index.fallback_radius_m:g} m "
-                           f"of ({pose.x:.1f}, {pose.y:.1f}) heading {pose.yaw:.2f} rad",
-                           EventLevel.WARNING, x=pose.x, y=pose.y, yaw=pose.yaw)
-            return
-        self._lost = False
-        if m.search == "wide":
-            # at start-up this only means the vehicle was placed off its path; while tracking
-            # it means the pose jumped or the vehicle left its path: worth a warning
-            before = "no previous match" if previous is None else f"last progress {previous:.1f} m"
-            self.event("path_rematch", f"matched by the wide search at s={m.s:.1f} m ({before})",
-                       EventLevel.INFO if previous is None else EventLevel.WARNING,
-                       s=m.s, previous_progress=previous)
-        self.match.put(msg)
+            ahead_x=ahead.x.tolist(),
+            ahead_y=ahead.y.tolist(),
+            ahead_yaw=ahead.yaw.tolist(),
+            ahead_curvature=ahead.curvature.tolist(),
+            ahead_speed=ahead.speed.tolist(),
+            ahead_s=ahead.s.tolist(),
+        )

@@ -25,6 +25,7 @@ radius_m/√3, a hair less: two points in one voxel are within radius_m of each 
 sharing its voxel with `min_neighbours` others is no ghost. Only the rest (2 % of them, at the edges
 of the rings) get the exact count from a cKDTree. The result is the rule above, exactly.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,11 +34,12 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ares.config import Params, VehicleProfile, param
+from ares.core.config import Params, VehicleProfile, param
 
 
 class BodyBox(NamedTuple):
     """The vehicle's shape as an axis-aligned box in the vehicle frame, metres."""
+
     x_min: float
     x_max: float
     y_min: float
@@ -46,39 +48,55 @@ class BodyBox(NamedTuple):
     z_max: float
 
     @classmethod
-    def of(cls, profile: VehicleProfile, height_m: float) -> "BodyBox":
+    def of(cls, profile: VehicleProfile, height_m: float) -> BodyBox:
         """The body around the rear-axle centre: the overhangs are equal, (length - wheelbase)/2."""
         rear = (profile.length_m - profile.wheelbase_m) / 2.0
         half_width = profile.width_m / 2.0
         return cls(-rear, profile.length_m - rear, -half_width, half_width, 0.0, height_m)
 
-    def grown(self, margin_m: float) -> "BodyBox":
+    def grown(self, margin_m: float) -> BodyBox:
         m = margin_m
         return BodyBox(self.x_min - m, self.x_max + m, self.y_min - m, self.y_max + m, self.z_min - m, self.z_max + m)
 
     def contains(self, points: np.ndarray) -> np.ndarray:
         x, y, z = points[:, 0], points[:, 1], points[:, 2]
-        return ((x >= self.x_min) & (x <= self.x_max) & (y >= self.y_min) & (y <= self.y_max)
-                & (z >= self.z_min) & (z <= self.z_max))
+        return (
+            (x >= self.x_min)
+            & (x <= self.x_max)
+            & (y >= self.y_min)
+            & (y <= self.y_max)
+            & (z >= self.z_min)
+            & (z <= self.z_max)
+        )
 
 
 class SelfHitParams(Params):
     body_height_m: float = param(2.6, "top of the body's box (the roof; the roof LiDAR sits above it)", unit="m", gt=0)
-    margin_m: float = param(0.15, "the box is grown by this on every side but the road's: range noise, mirrors, "
-                                  "the corner sensors' housings", unit="m", ge=0)
+    margin_m: float = param(
+        0.15,
+        "the box is grown by this on every side but the road's: range noise, mirrors, the corner sensors' housings",
+        unit="m",
+        ge=0,
+    )
 
 
 class GhostParams(Params):
     near_field_m: float = param(4.0, "points this close to the body's box (on any side) are checked", unit="m", ge=0)
-    radius_m: float = param(0.15, "neighbours are counted within this distance (0.3 let a ghost 0.2-0.3 m above a "
-                                  "dense patch of road count the road as its neighbours, and the obstacle manager "
-                                  "stopped for it in half the frames)", unit="m", gt=0)
+    radius_m: float = param(
+        0.15,
+        "neighbours are counted within this distance (0.3 let a ghost 0.2-0.3 m above a "
+        "dense patch of road count the road as its neighbours, and the obstacle manager "
+        "stopped for it in half the frames)",
+        unit="m",
+        gt=0,
+    )
     min_neighbours: int = param(3, "a near-field point with fewer neighbours than this is a ghost", ge=1)
     min_range_m: float = param(0.5, "returns closer to their own sensor than this are dropped", unit="m", ge=0)
 
 
 class CloudFilterParams(Params):
     """The filters of ARES §3.5.1, run on the merged cloud in the vehicle frame."""
+
     self_hit: SelfHitParams = param(doc="the filter with the shape of the platform", factory=SelfHitParams)
     ghost: GhostParams = param(doc="the near-field filter of isolated false points", factory=GhostParams)
 
@@ -89,16 +107,23 @@ def self_hit_mask(points: np.ndarray, body: BodyBox, margin_m: float) -> np.ndar
     return body.grown(margin_m)._replace(z_min=body.z_min).contains(points)
 
 
-def ghost_mask(points: np.ndarray, sensor_index: np.ndarray, sensor_origins: np.ndarray, body: BodyBox,
-               near_field_m: float = 4.0, radius_m: float = 0.3, min_neighbours: int = 3,
-               min_range_m: float | np.ndarray = 0.5) -> np.ndarray:
+def ghost_mask(
+    points: np.ndarray,
+    sensor_index: np.ndarray,
+    sensor_origins: np.ndarray,
+    body: BodyBox,
+    near_field_m: float = 4.0,
+    radius_m: float = 0.3,
+    min_neighbours: int = 3,
+    min_range_m: float | np.ndarray = 0.5,
+) -> np.ndarray:
     """True for the ghost points of an (N, ≥3) vehicle-frame cloud (the rule in the module's
     docstring); sensor_index[i] is the row of sensor_origins (S × 3) that point i came from;
     min_range_m is one for all sensors or one per sensor (their datasheets differ)."""
     xyz = np.asarray(points)[:, :3]
     origins = np.asarray(sensor_origins, dtype=np.float32)
     squared = np.zeros(len(xyz), dtype=np.float32)
-    for axis in range(3):                      # column by column: no (N, 3) temporaries
+    for axis in range(3):  # column by column: no (N, 3) temporaries
         d = xyz[:, axis] - origins[sensor_index, axis]
         squared += d * d
     limit = np.broadcast_to(np.asarray(min_range_m, dtype=np.float32), (len(origins),))
@@ -106,15 +131,16 @@ def ghost_mask(points: np.ndarray, sensor_index: np.ndarray, sensor_origins: np.
     pool = np.flatnonzero(body.grown(near_field_m + radius_m).contains(xyz) & ~ghost)
     judged = body.grown(near_field_m).contains(xyz[pool])
     if judged.any():
-        isolated = _isolated(xyz[pool].astype(np.float64), judged, body.grown(near_field_m + radius_m),
-                             radius_m, min_neighbours)
+        isolated = _isolated(
+            xyz[pool].astype(np.float64), judged, body.grown(near_field_m + radius_m), radius_m, min_neighbours
+        )
         ghost[pool[isolated]] = True
     return ghost
 
 
 def _isolated(pool: np.ndarray, judged: np.ndarray, box: BodyBox, radius_m: float, k: int) -> np.ndarray:
     """Which of the `judged` pool points have fewer than k others within radius_m in the pool."""
-    side = radius_m / math.sqrt(3.0) * (1.0 - 1e-9)        # under rounding too, a voxel's diagonal < r
+    side = radius_m / math.sqrt(3.0) * (1.0 - 1e-9)  # under rounding too, a voxel's diagonal < r
     # one spare voxel on each side: a point the float32 box test let in by a rounding error
     # still gets a voxel of its own (clipping it into the edge voxel could bring a mate > r away)
     lower = np.array([box.x_min, box.y_min, box.z_min]) - side
@@ -126,20 +152,29 @@ def _isolated(pool: np.ndarray, judged: np.ndarray, box: BodyBox, radius_m: floa
     isolated = np.zeros(len(pool), dtype=bool)
     if len(candidates):
         # k + 1 nearest (the candidate itself among them) up to just past r: "within" includes r
-        tree = cKDTree(pool, balanced_tree=False, compact_nodes=False)     # built 2x faster, same answers
+        tree = cKDTree(pool, balanced_tree=False, compact_nodes=False)  # built 2x faster, same answers
         distances, _ = tree.query(pool[candidates], k=k + 1, distance_upper_bound=np.nextafter(radius_m, np.inf))
         isolated[candidates] = ~np.isfinite(distances[:, k])
     return isolated
 
 
-def keep_mask(points: np.ndarray, sensor_index: np.ndarray, sensor_origins: np.ndarray, body: BodyBox,
-              params: CloudFilterParams) -> np.ndarray:
+def keep_mask(
+    points: np.ndarray, sensor_index: np.ndarray, sensor_origins: np.ndarray, body: BodyBox, params: CloudFilterParams
+) -> np.ndarray:
     """True for the points that survive both filters. Ghosts are judged after the self hits are
     gone, so that the dense patch of a bumper does not vouch for a ghost beside it."""
     keep = ~self_hit_mask(points, body, params.self_hit.margin_m)
     index = np.flatnonzero(keep)
     g = params.ghost
-    ghost = ghost_mask(points[index], sensor_index[index], sensor_origins, body, g.near_field_m, g.radius_m,
-                       g.min_neighbours, g.min_range_m)
+    ghost = ghost_mask(
+        points[index],
+        sensor_index[index],
+        sensor_origins,
+        body,
+        g.near_field_m,
+        g.radius_m,
+        g.min_neighbours,
+        g.min_range_m,
+    )
     keep[index[ghost]] = False
     return keep

@@ -6,6 +6,7 @@ roll about the new x, so R = Rz(yaw) · Ry(pitch) · Rx(roll). With z up, a posi
 the sensor's x axis down: (cos p, 0, -sin p). The 4 × 4 matrix maps sensor coordinates to
 vehicle coordinates: p_vehicle = R · p_sensor + t.
 """
+
 from __future__ import annotations
 
 import math
@@ -13,18 +14,19 @@ import math
 import numpy as np
 
 
-
 def pose_matrix(x: float, y: float, z: float, roll: float, pitch: float, yaw: float) -> np.ndarray:
     """The 4 × 4 homogeneous matrix of a pose (metres, radians, ZYX), sensor -> parent frame."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr, x],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr, y],
-        [-sp, cp * sr, cp * cr, z],
-        [0.0, 0.0, 0.0, 1.0],
-    ])
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr, x],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr, y],
+            [-sp, cp * sr, cp * cr, z],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def inverse(matrix: np.ndarray) -> np.ndarray:

@@ -32,6 +32,7 @@ under 0.1 % of the cells; bins between two firings may stay empty at a finer ste
 sensors', which costs nothing, as their neighbours' centre lines, centimetres away, cross the
 same cells.
 """
+
 from __future__ import annotations
 
 import math
@@ -44,9 +45,9 @@ from perception.grid_geometry import Grid
 def _centre_lines(grid: Grid, ox: float, oy: float, bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(bin, cell, entry range) of every cell each bin's centre line crosses, from (ox, oy)."""
     step = 2.0 * math.pi / bins
-    theta = -math.pi + (np.arange(bins) + 0.5) * step      # bins % 4 == 0: never along a grid line
+    theta = -math.pi + (np.arange(bins) + 0.5) * step  # bins % 4 == 0: never along a grid line
     c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
-    tx = (grid.origin_x + np.arange(grid.cols + 1) * grid.cell_m - ox) / c     # crossings of x = const
+    tx = (grid.origin_x + np.arange(grid.cols + 1) * grid.cell_m - ox) / c  # crossings of x = const
     ty = (grid.origin_y + np.arange(grid.rows + 1) * grid.cell_m - oy) / s
     t_in = np.maximum.reduce([np.zeros_like(c), np.minimum(tx[:, :1], tx[:, -1:]), np.minimum(ty[:, :1], ty[:, -1:])])
     t_out = np.minimum(np.maximum(tx[:, :1], tx[:, -1:]), np.maximum(ty[:, :1], ty[:, -1:]))
@@ -84,8 +85,9 @@ class FreeSpaceTracer:
         self.pair_cell = np.concatenate(cells).astype(np.intp)
         self.pair_entry = np.concatenate(entries).astype(np.float32)
 
-    def free(self, x: np.ndarray, y: np.ndarray, sensor_index: np.ndarray, returns: np.ndarray,
-             occupied: np.ndarray) -> np.ndarray:
+    def free(
+        self, x: np.ndarray, y: np.ndarray, sensor_index: np.ndarray, returns: np.ndarray, occupied: np.ndarray
+    ) -> np.ndarray:
         """Flat boolean array of the grid's free cells. x, y: the points in the grid's frame;
         sensor_index: each point's sensor (row of origins_xy); returns: which points' rays count
         (a point high above the band of obstacles only skimmed over the cells); occupied: the

@@ -1,6 +1,7 @@
 """Where the cells of a local grid lie: cells[row, col], row along y, col along x, cell (0, 0)'s
-corner at (origin_x, origin_y), as in ares.messages.OccupancyGrid. A cell's flat index is
+corner at (origin_x, origin_y), as in ares.core.messages.OccupancyGrid. A cell's flat index is
 row * cols + col, the order of the cells array's memory."""
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -12,11 +13,11 @@ class Grid(NamedTuple):
     origin_x: float
     origin_y: float
     cell_m: float
-    cols: int          # along x
-    rows: int          # along y
+    cols: int  # along x
+    rows: int  # along y
 
     @classmethod
-    def centred(cls, centre_x: float, centre_y: float, width_m: float, height_m: float, cell_m: float) -> "Grid":
+    def centred(cls, centre_x: float, centre_y: float, width_m: float, height_m: float, cell_m: float) -> Grid:
         """width_m along x, height_m along y, both rounded to whole cells."""
         if cell_m <= 0 or width_m <= 0 or height_m <= 0:
             raise ValueError("the grid's size and its cells must be positive")

@@ -11,6 +11,7 @@ whatever comes next to judge.
 
     i = W/2 + ⌊x/δ⌋,  j = H/2 + ⌊y/δ⌋,  W = w/δ,  H = h/δ
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -25,8 +26,9 @@ def cell_indices(points: np.ndarray, width_m: float, height_m: float, cell_m: fl
     return i * rows + j, inside
 
 
-def ground_mask(points: np.ndarray, width_m: float = 20.0, height_m: float = 20.0, cell_m: float = 0.2,
-                threshold_m: float = 0.15) -> np.ndarray:
+def ground_mask(
+    points: np.ndarray, width_m: float = 20.0, height_m: float = 20.0, cell_m: float = 0.2, threshold_m: float = 0.15
+) -> np.ndarray:
     """True for the points of an N × 3 (or wider) cloud that are ground (Algorithm 2)."""
     if cell_m <= 0 or width_m <= 0 or height_m <= 0:
         raise ValueError("the grid's size and its cells must be positive")

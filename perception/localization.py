@@ -1,4 +1,4 @@
-"""Localization node: GNSS, IMU gyro and wheel odometry fused by a UKF (ARES paper §3.1).
+"""Localization: GNSS, IMU gyro and wheel odometry fused by a UKF (ARES paper §3.1).
 
 Inputs:   gnss/fix (GnssFix: local x, y, z, variances, rtk) · sensors/imu (Imu: the gyro's
           yaw rate and the pitch are used; the magnetometer yaw only as the first guess of
@@ -9,7 +9,7 @@ Outputs:  localization/pose (Pose of the rear-axle centre with its covariance, e
           stays silent and the bridge's watchdog keeps the vehicle stopped)
 Params:   LocalizationParams below; the vehicle profile (wheelbase_m, k_cg, steering_ratio).
 
-Pipeline (the `Localizer` class, also used in-process by ares.harness.closed_loop):
+Pipeline (the `Localizer` class, also used in-process by ares.tools.harness.closed_loop):
 
   * every message is applied at its own stack time `t`, in time order: messages are held
     back `hold_back_s` so that a GNSS fix, which reaches this node later than the raw
@@ -25,47 +25,64 @@ Pipeline (the `Localizer` class, also used in-process by ares.harness.closed_loo
     applied for `max_extrapolation_s`, nothing is published: a pose from nowhere is worse
     than none (it goes stale, the odometry score drops to 0, the controller stops).
 """
+
 from __future__ import annotations
 
 import heapq
 import itertools
 import math
+
 import numpy as np
 
-from ares.config import Params, VehicleProfile, param
-from ares.geometry import wrap_angle
-from ares.messages import CanFrame, GnssFix, Imu, Pose
-from ares.node import Input, Node, Output
-from perception.ukf import V, W, YAW, GnssUpdateParams, PoseUKF, ProcessNoise, SigmaPointParams, correlated_inflation
+from ares.core.config import Params, VehicleProfile, param
+from ares.core.geometry import wrap_angle
+from ares.core.messages import CanFrame, GnssFix, Imu, Pose
+from perception.ukf import YAW, GnssUpdateParams, PoseUKF, ProcessNoise, SigmaPointParams, V, W, correlated_inflation
 from perception.wheel_odometry import WheelOdometry
 from perception.yaw_from_poses import PoseFix, YawFromPoses, YawFromPosesParams
 
 KINDS = ("gnss", "imu", "can")
-UNKNOWN_Z_VAR_M2 = 1.0e6     # the altitude before any fix has given one: the first that does takes over
+UNKNOWN_Z_VAR_M2 = 1.0e6  # the altitude before any fix has given one: the first that does takes over
 
 
 class InitialHeading(Params):
-    yaw_sigma_rad: float = param(0.3, "first heading = the IMU's magnetometer yaw (offset and all), until the "
-                                      "vehicle moves", unit="rad", gt=0)
+    yaw_sigma_rad: float = param(
+        0.3, "first heading = the IMU's magnetometer yaw (offset and all), until the vehicle moves", unit="rad", gt=0
+    )
     yaw_sigma_no_imu_rad: float = param(1.5, "no IMU at the first fix: heading 0, this uncertain", unit="rad", gt=0)
 
 
 class SensorVariances(Params):
     gyro_var: float = param(4.0e-6, "IMU z rate: 0.002 rad/s white noise", unit="(rad/s)^2", gt=0)
     wheel_speed_var: float = param(1.0e-4, "CAN rear-axle speed", unit="(m/s)^2", gt=0)
-    wheel_yaw_rate_var: float = param(1.0e-4, "eq. 5 yaw rate: kept above the gyro's, tyres slip and the shuttle "
-                                              "steers both axles", unit="(rad/s)^2", gt=0)
+    wheel_yaw_rate_var: float = param(
+        1.0e-4,
+        "eq. 5 yaw rate: kept above the gyro's, tyres slip and the shuttle steers both axles",
+        unit="(rad/s)^2",
+        gt=0,
+    )
 
 
 class LocalizationParams(Params):
     """UKF fusion of GNSS, pose yaw, gyro and wheel odometry."""
+
     rate_hz: float = param(50.0, "a pose is published every loop, from the first GNSS fix on", unit="Hz", gt=0)
-    hold_back_s: float = param(0.05, "messages are applied this late, in time order: a fix (parsed by the gnss "
-                                     "node) is not overtaken by raw sensors", unit="s", ge=0)
-    max_late_s: float = param(0.5, "a message later than this behind the filter is dropped (later ones: applied "
-                                   "at the filter's time)", unit="s", gt=0)
-    max_extrapolation_s: float = param(1.0, "no sensor message applied for this long: publish nothing (the pose "
-                                            "goes stale)", unit="s", gt=0)
+    hold_back_s: float = param(
+        0.05,
+        "messages are applied this late, in time order: a fix (parsed by the gnss "
+        "node) is not overtaken by raw sensors",
+        unit="s",
+        ge=0,
+    )
+    max_late_s: float = param(
+        0.5,
+        "a message later than this behind the filter is dropped (later ones: applied at the filter's time)",
+        unit="s",
+        gt=0,
+    )
+    max_extrapolation_s: float = param(
+        1.0, "no sensor message applied for this long: publish nothing (the pose goes stale)", unit="s", gt=0
+    )
     max_buffer: int = param(4000, "messages held for time ordering at most", ge=1)
     initial: InitialHeading = param(doc="the heading before the vehicle has moved", factory=InitialHeading)
     yaw_from_poses: YawFromPosesParams = param(doc="ARES eqs. 1-2", factory=YawFromPosesParams)
@@ -110,15 +127,15 @@ class Localizer:
     def __init__(self, params: LocalizationParams, vehicle_profile: VehicleProfile):
         self.params = params
         self.ukf = PoseUKF(params.sigma_points, params.process_noise, params.gnss)
-        self._yaw_guess_pending = False      # initialised before any IMU message: heading unknown
+        self._yaw_guess_pending = False  # initialised before any IMU message: heading unknown
         self.yaw_poses = YawFromPoses.from_params(params.yaw_from_poses)
         self.use_float_yaw = params.yaw_from_poses.use_without_rtk
         self.wheels = WheelOdometry.from_profile(vehicle_profile)
         self.gyro_var = params.sensors.gyro_var
         self.wheel_speed_var = params.sensors.wheel_speed_var
         self.wheel_yaw_rate_var = params.sensors.wheel_yaw_rate_var
-        self.init_yaw_var_imu = params.initial.yaw_sigma_rad ** 2
-        self.init_yaw_var_none = params.initial.yaw_sigma_no_imu_rad ** 2
+        self.init_yaw_var_imu = params.initial.yaw_sigma_rad**2
+        self.init_yaw_var_none = params.initial.yaw_sigma_no_imu_rad**2
         self.hold_back_s = params.hold_back_s
         self.max_late_s = params.max_late_s
         self.max_extrapolation_s = params.max_extrapolation_s
@@ -226,7 +243,9 @@ class Localizer:
         self.ukf.update_wheel(t, reading.v, reading.yaw_rate, self.wheel_speed_var, self.wheel_yaw_rate_var)
 
     def _initialize(self, fix: GnssFix) -> None:
-        yaw, yaw_var = (self.imu_yaw, self.init_yaw_var_imu) if self.imu_yaw is not None else (0.0, self.init_yaw_var_none)
+        yaw, yaw_var = (
+            (self.imu_yaw, self.init_yaw_var_imu) if self.imu_yaw is not None else (0.0, self.init_yaw_var_none)
+        )
         v, v_var = (self.can_speed, 0.01) if self.can_speed is not None else (0.0, 1.0)
         w, w_var = (self.gyro_rate, 0.01) if self.gyro_rate is not None else (0.0, 0.1)
         self.ukf.initialize(fix.t, fix.x, fix.y, yaw, v, w, (fix.var_x, fix.var_y, yaw_var, v_var, w_var))
@@ -259,8 +278,9 @@ class Localizer:
         if fix.z is not None and fix.var_z is not None:
             self._altitude_update(fix)
         # Yaw from this fix and the last one d metres behind it (eqs. 1-2).
-        m = self.yaw_poses.add(PoseFix(fix.t, fix.x, fix.y, fix.var_x, fix.var_y, fix.rtk, heading_at_fix),
-                               float(f.x[V]))
+        m = self.yaw_poses.add(
+            PoseFix(fix.t, fix.x, fix.y, fix.var_x, fix.var_y, fix.rtk, heading_at_fix), float(f.x[V])
+        )
         if m is not None and (fix.rtk or self.use_float_yaw):
             self.counts["yaw"] += 1
             f.update_yaw(t, m.yaw + f.x[W] * late, m.variance)
@@ -290,39 +310,20 @@ class Localizer:
         z = self.altitude.z + x[V] * math.tan(-self.pitch) * max(now - self.altitude.t, 0.0)
         pos = P[:2, :2]
         std = math.sqrt(max(float(np.linalg.eigvalsh(pos)[-1]), 0.0))
-        return Pose(t=now, x=float(x[0]), y=float(x[1]), z=float(z),
-                    yaw=float(wrap_angle(x[YAW])),
-                    v=float(x[V]), yaw_rate=float(x[W]),
-                    cov_xx=float(P[0, 0]), cov_xy=float(P[0, 1]), cov_yy=float(P[1, 1]),
-                    var_yaw=float(P[YAW, YAW]), var_v=float(P[V, V]), position_std_m=std,
-                    rtk=self.last_fix_rtk,
-                    gnss_age_s=None if self.last_fix_t is None else max(now - self.last_fix_t, 0.0))
-
-
-class LocalizationNode(Node):
-    """GNSS, gyro and wheel odometry fused by a UKF into the pose of the rear-axle centre."""
-    name = "localization"
-    Params = LocalizationParams
-    fixes = Input("gnss/fix", queue="queues", doc="validated GNSS fixes")
-    imu = Input("sensors/imu", queue="queues", doc="gyro yaw rate and pitch; the magnetometer only at start")
-    can = Input("sensors/can", queue="queues", doc="rear-axle speed and steering-wheel angle")
-    poses = Output("localization/pose", rate="rate_hz", doc="every loop from the first fix on")
-
-    def setup(self) -> None:
-        self.localizer = Localizer(self.params, self.vehicle)
-        self._announced = False
-
-    def step(self, now: float) -> None:
-        loc = self.localizer
-        for kind, sub in (("gnss", self.fixes), ("imu", self.imu), ("can", self.can)):
-            for _, msg in sub.drain():
-                loc.push(kind, msg)
-        loc.process_until(now - loc.hold_back_s)
-        pose = loc.pose(now)
-        if pose is None:
-            return
-        if not self._announced:
-            self._announced = True
-            self.event("localization", f"initialised at the first GNSS fix ({'RTK' if pose.rtk else 'no RTK'})",
-                       x=pose.x, y=pose.y)
-        self.poses.put(pose)
+        return Pose(
+            t=now,
+            x=float(x[0]),
+            y=float(x[1]),
+            z=float(z),
+            yaw=float(wrap_angle(x[YAW])),
+            v=float(x[V]),
+            yaw_rate=float(x[W]),
+            cov_xx=float(P[0, 0]),
+            cov_xy=float(P[0, 1]),
+            cov_yy=float(P[1, 1]),
+            var_yaw=float(P[YAW, YAW]),
+            var_v=float(P[V, V]),
+            position_std_m=std,
+            rtk=self.last_fix_rtk,
+            gnss_age_s=None if self.last_fix_t is None else max(now - self.last_fix_t, 0.0),
+        )

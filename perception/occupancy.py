@@ -28,13 +28,14 @@ ray stops at the first occupied cell, returns above the band clear nothing. Each
 its own rays; a cell is free if any sensor saw through it, and occupied wins over free.
 Unknown: the rest — behind obstacles, outside every ray fan, never seen.
 """
+
 from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import minimum_filter
 
-from ares.config import Params, param
-from ares.messages import OccupancyGrid
+from ares.core.config import Params, param
+from ares.core.messages import OccupancyGrid
 from perception.free_space import FreeSpaceTracer
 from perception.grid_geometry import Grid
 
@@ -43,21 +44,36 @@ FREE, OCCUPIED, UNKNOWN = 0, 100, 255
 
 class OccupancyParams(Params):
     """The local occupancy grid around the vehicle (ARES §3.5.2)."""
+
     width_m: float = param(20.0, "extent along x (the paper's: twice the 10 m ACC range)", unit="m", gt=0)
     height_m: float = param(20.0, "extent along y", unit="m", gt=0)
     cell_m: float = param(0.2, "cell size", unit="m", gt=0)
-    centre_x_m: float = param(1.4, "the grid's centre ahead of the rear-axle centre: the ARES shuttle's "
-                                   "body centre (length/2 minus the rear overhang, (length - wheelbase)/2)",
-                              unit="m")
+    centre_x_m: float = param(
+        1.4,
+        "the grid's centre ahead of the rear-axle centre: the ARES shuttle's "
+        "body centre (length/2 minus the rear overhang, (length - wheelbase)/2)",
+        unit="m",
+    )
     centre_y_m: float = param(0.0, "the grid's centre, left of the rear-axle centre", unit="m")
     min_height_m: float = param(0.2, "lower bound of obstacles above the local ground", unit="m", ge=0)
     max_height_m: float = param(3.2, "upper bound: higher points (branches, signs) are passed under", unit="m", gt=0)
-    ground_radius_m: float = param(1.0, "the local ground is the mean height of the ground points this close "
-                                        "(square window)", unit="m", ge=0)
-    floor_window_m: float = param(0.4, "a ground point this much above the lowest return within this distance is "
-                                       "an obstacle's top (see the module's docstring)", unit="m", ge=0)
-    azimuth_step_rad: float = param(0.005, "rays are traced in azimuth bins this wide around each sensor "
-                                           "(no finer than the LiDARs' own step)", unit="rad", gt=0, le=0.1)
+    ground_radius_m: float = param(
+        1.0, "the local ground is the mean height of the ground points this close (square window)", unit="m", ge=0
+    )
+    floor_window_m: float = param(
+        0.4,
+        "a ground point this much above the lowest return within this distance is "
+        "an obstacle's top (see the module's docstring)",
+        unit="m",
+        ge=0,
+    )
+    azimuth_step_rad: float = param(
+        0.005,
+        "rays are traced in azimuth bins this wide around each sensor (no finer than the LiDARs' own step)",
+        unit="rad",
+        gt=0,
+        le=0.1,
+    )
 
 
 def local_ground(grid: Grid, cells: np.ndarray, z: np.ndarray, radius_cells: int) -> np.ndarray:
@@ -65,13 +81,20 @@ def local_ground(grid: Grid, cells: np.ndarray, z: np.ndarray, radius_cells: int
     (flat cell index `cells`, height `z`) in the (2k+1)² cells around it, 0 where there are none."""
     shape = (grid.rows, grid.cols)
     table = []
-    for weights in (z, None):                           # summed-area tables of heights and counts
+    for weights in (z, None):  # summed-area tables of heights and counts
         per_cell = np.bincount(cells, weights=weights, minlength=grid.size).astype(np.float64).reshape(shape)
         table.append(np.pad(per_cell.cumsum(0).cumsum(1), ((1, 0), (1, 0))))
     rows_lo, rows_hi = _window(grid.rows, radius_cells)
     cols_lo, cols_hi = _window(grid.cols, radius_cells)
-    sums, counts = ((t[np.ix_(rows_hi, cols_hi)] - t[np.ix_(rows_lo, cols_hi)] - t[np.ix_(rows_hi, cols_lo)]
-                     + t[np.ix_(rows_lo, cols_lo)]) for t in table)
+    sums, counts = (
+        (
+            t[np.ix_(rows_hi, cols_hi)]
+            - t[np.ix_(rows_lo, cols_hi)]
+            - t[np.ix_(rows_hi, cols_lo)]
+            + t[np.ix_(rows_lo, cols_lo)]
+        )
+        for t in table
+    )
     return np.divide(sums, counts, out=np.zeros(shape), where=counts > 0).reshape(-1)
 
 
@@ -86,8 +109,7 @@ class OccupancyMapper:
 
     def __init__(self, params: OccupancyParams, sensor_origins: np.ndarray):
         self.params = params
-        self.grid = Grid.centred(params.centre_x_m, params.centre_y_m, params.width_m, params.height_m,
-                                 params.cell_m)
+        self.grid = Grid.centred(params.centre_x_m, params.centre_y_m, params.width_m, params.height_m, params.cell_m)
         self.tracer = FreeSpaceTracer(self.grid, np.asarray(sensor_origins)[:, :2], params.azimuth_step_rad)
         self.radius_cells = int(round(params.ground_radius_m / params.cell_m))
         self.floor_cells = int(round(params.floor_window_m / params.cell_m))
@@ -120,12 +142,20 @@ class OccupancyMapper:
             return np.zeros(0, dtype=bool)
         lowest = np.full(self.grid.size, np.inf, dtype=np.float32)
         np.minimum.at(lowest, all_cells, all_z.astype(np.float32))
-        floor = minimum_filter(lowest.reshape(self.grid.rows, self.grid.cols), size=2 * self.floor_cells + 1,
-                               mode="nearest").reshape(-1)[cells]
+        floor = minimum_filter(
+            lowest.reshape(self.grid.rows, self.grid.cols), size=2 * self.floor_cells + 1, mode="nearest"
+        ).reshape(-1)[cells]
         rise = z - floor
         return (rise >= self.params.min_height_m) & (rise <= self.params.max_height_m)
 
-    def message(self, t: float, points: np.ndarray, ground: np.ndarray, sensor_index: np.ndarray,
-                frame: str = "vehicle") -> OccupancyGrid:
-        return OccupancyGrid(t=t, frame=frame, resolution_m=self.grid.cell_m, origin_x=self.grid.origin_x,
-                             origin_y=self.grid.origin_y, cells=self.cells(points, ground, sensor_index))
+    def message(
+        self, t: float, points: np.ndarray, ground: np.ndarray, sensor_index: np.ndarray, frame: str = "vehicle"
+    ) -> OccupancyGrid:
+        return OccupancyGrid(
+            t=t,
+            frame=frame,
+            resolution_m=self.grid.cell_m,
+            origin_x=self.grid.origin_x,
+            origin_y=self.grid.origin_y,
+            cells=self.cells(points, ground, sensor_index),
+        )

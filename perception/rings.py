@@ -25,16 +25,17 @@ Two ways, tried in this order (`recover_rings`):
 
 A scan whose file carries a ring field (a driver's .pcd or .ply) needs neither.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from ares.config import LidarModel
+from ares.core.config import LidarModel
 
-MONOTONIC_SHARE = 0.9       # of the steps between adjacent segments' median elevations
-MIN_RUN = 8                 # fewer points after a cut join the segment before: jitter, not a laser
+MONOTONIC_SHARE = 0.9  # of the steps between adjacent segments' median elevations
+MIN_RUN = 8  # fewer points after a cut join the segment before: jitter, not a laser
 
 
 def elevation(points: np.ndarray) -> np.ndarray:
@@ -57,19 +58,19 @@ def rings_from_order(points: np.ndarray, lasers: int) -> np.ndarray | None:
         return None
     azimuth = np.arctan2(points[:, 1].astype(np.float64), points[:, 0].astype(np.float64))
     step = np.diff(azimuth)
-    step = (step + math.pi) % (2 * math.pi) - math.pi          # wrapped to [−π, π)
+    step = (step + math.pi) % (2 * math.pi) - math.pi  # wrapped to [−π, π)
     spin = np.sign(np.median(step))
     if spin == 0:
         return None
-    turned = (spin * azimuth) % (2 * math.pi)                 # how far round from the forward cut
+    turned = (spin * azimuth) % (2 * math.pi)  # how far round from the forward cut
     cuts = np.flatnonzero(np.diff(turned) < -math.pi) + 1
-    cuts = cuts[np.diff(np.r_[cuts, len(points)]) >= MIN_RUN]   # a few points jittering across the cut
+    cuts = cuts[np.diff(np.r_[cuts, len(points)]) >= MIN_RUN]  # a few points jittering across the cut
     count = len(cuts) + 1
     if not lasers // 2 <= count <= lasers:
         return None
     segment = np.zeros(len(points), dtype=np.int64)
     segment[cuts] = 1
-    segment = np.cumsum(segment)                              # segments are runs of the file's order
+    segment = np.cumsum(segment)  # segments are runs of the file's order
     medians = np.array([np.median(run) for run in np.split(elevation(points), cuts)])
     steps = np.diff(medians)
     if max((steps > 0).mean(), (steps < 0).mean()) < MONOTONIC_SHARE:

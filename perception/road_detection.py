@@ -69,6 +69,7 @@ and an open area (which must give no boundary), on straights and bends, the vehi
 centre line and turned. docs/road_detection.md tells how (`ares calibrate road`), with the
 figures, and why each β has its value.
 """
+
 from __future__ import annotations
 
 import math
@@ -78,30 +79,29 @@ import numpy as np
 from pydantic import model_validator
 from scipy.special import expit
 
-from ares.config import Params, param
-from ares.geometry import local_to_vehicle
+from ares.core.config import Params, param
+from ares.core.geometry import local_to_vehicle
 
-poly = np.polynomial.polynomial          # coefficients lowest order first: y = c0 + c1 x + c2 x² ...
-GAP_M = 1.0                              # two points of a ring farther apart are not neighbours
-DROP_M = 0.3                             # a ring's next return this much lower: the ground falls away
-ROI_MARGIN_M = 0.5                       # a ring ending this close to the ROI's border was cut by it
-TURN_MARGIN = 0.05                       # ... or this close (rad) to a quarter turn from its reference
-LOWER_RING_MARGIN = 0.005                # rad: where a ring's returns stop, the ring below returns this far beyond
-HINGE_MIN_M = 0.02                       # a stop this far off the road's line is a kink or a step to place
-SLANT_M = 0.3                            # a ring's slant across the road is taken over this much of it
-MIN_SLANT = 0.3                          # ... and a span along it is at most 1 / this times the span across
-TIE_M2 = 1e-6                            # squared errors closer than this are equal (1 mm on one point)
-HEIGHT_CUT_M = 1.0                       # points this far above or below a ring's reference are not scanned
-MOVED_SAMPLES = 21                       # a boundary moved into another frame is fitted again to this many points
-BAND_MARGIN_M = 1.0                      # the walks see this far (+ a span and a run) beyond the last edges
+poly = np.polynomial.polynomial  # coefficients lowest order first: y = c0 + c1 x + c2 x² ...
+GAP_M = 1.0  # two points of a ring farther apart are not neighbours
+DROP_M = 0.3  # a ring's next return this much lower: the ground falls away
+ROI_MARGIN_M = 0.5  # a ring ending this close to the ROI's border was cut by it
+TURN_MARGIN = 0.05  # ... or this close (rad) to a quarter turn from its reference
+LOWER_RING_MARGIN = 0.005  # rad: where a ring's returns stop, the ring below returns this far beyond
+HINGE_MIN_M = 0.02  # a stop this far off the road's line is a kink or a step to place
+SLANT_M = 0.3  # a ring's slant across the road is taken over this much of it
+MIN_SLANT = 0.3  # ... and a span along it is at most 1 / this times the span across
+TIE_M2 = 1e-6  # squared errors closer than this are equal (1 mm on one point)
+HEIGHT_CUT_M = 1.0  # points this far above or below a ring's reference are not scanned
+MOVED_SAMPLES = 21  # a boundary moved into another frame is fitted again to this many points
+BAND_MARGIN_M = 1.0  # the walks see this far (+ a span and a run) beyond the last edges
 
 
 class ScoreWeights(Params):
     """β of eqs. 7-10; Pr = 1/(1 + exp(β0·(β1 + ∇ + σ + d̂))): the bracket < 0 means road."""
-    beta0: float = param(8.0, "eq. 7: sharpness of the sigmoid (moves no boundary: only the bracket's sign "
-                              "does)", gt=0)
-    beta1: float = param(-1.0, "eq. 7: bias; a flat point scores 1/(1 + exp(β0·β1)); −1 sets the scale of the "
-                               "other β")
+
+    beta0: float = param(8.0, "eq. 7: sharpness of the sigmoid (moves no boundary: only the bracket's sign does)", gt=0)
+    beta1: float = param(-1.0, "eq. 7: bias; a flat point scores 1/(1 + exp(β0·β1)); −1 sets the scale of the other β")
     beta2: float = param(0.0, "eq. 8: constant of the gradient term (adds to β1)")
     beta3: float = param(8.0, "eq. 8: per unit of height gradient ∇ij (m/m, + rising away from the road)")
     beta4: float = param(5.0, "eq. 8: per ∇ij²")
@@ -109,54 +109,96 @@ class ScoreWeights(Params):
     beta6: float = param(0.0, "eq. 9: constant of the relative-height term (adds to β1)")
     beta7: float = param(15.0, "eq. 9: per metre of relative height σij (above the road's trend)", unit="1/m")
     beta8: float = param(3.0, "eq. 9: per √σij (weighs small steps up)", unit="1/sqrt(m)")
-    beta9: float = param(0.1, "eq. 10: constant of the previous-boundary term (when there is one): a tracked "
-                              "frame stops a little sooner")
-    beta10: float = param(0.05, "eq. 10: per metre beyond the previous frame's boundary; small, so that on "
-                                "its own it never makes flat ground in the ROI non-road (it tips borderline "
-                                "points, it does not invent a boundary where the verge has gone)", unit="1/m")
+    beta9: float = param(
+        0.1, "eq. 10: constant of the previous-boundary term (when there is one): a tracked frame stops a little sooner"
+    )
+    beta10: float = param(
+        0.05,
+        "eq. 10: per metre beyond the previous frame's boundary; small, so that on "
+        "its own it never makes flat ground in the ROI non-road (it tips borderline "
+        "points, it does not invent a boundary where the verge has gone)",
+        unit="1/m",
+    )
 
 
 class RoadDetectionParams(Params):
     """Road boundaries from LiDAR rings (ARES §3.4.2)."""
+
     x_min_m: float = param(0.0, "region of interest: nearest x", unit="m")
     x_max_m: float = param(25.0, "region of interest: farthest x", unit="m", gt=0)
     half_width_m: float = param(12.0, "region of interest: largest |y|", unit="m", gt=0)
-    gradient_span_m: float = param(0.4, "S: a point is compared with the road-side window that ends this far "
-                                        "behind it along its ring", unit="m", gt=0)
-    window_m: float = param(0.6, "W: that window's length along the ring (its straight line is the road's "
-                                 "trend)", unit="m", gt=0)
-    run_m: float = param(0.15, "points in a row scoring < 0.5 over this length along the ring (at least two) "
-                               "end the road", unit="m", gt=0)
-    reference_max_offset_m: float = param(1.0, "a ring is used only if it passes this close to the guide centre "
-                                               "line ahead of its sensor", unit="m", gt=0)
-    bootstrap_range_m: float = param(7.0, "no previous centre line: the first guess comes from boundaries up to "
-                                           "this x, where y = 0 is still on the road, the next from twice as far",
-                                     unit="m", gt=0)
+    gradient_span_m: float = param(
+        0.4,
+        "S: a point is compared with the road-side window that ends this far behind it along its ring",
+        unit="m",
+        gt=0,
+    )
+    window_m: float = param(
+        0.6, "W: that window's length along the ring (its straight line is the road's trend)", unit="m", gt=0
+    )
+    run_m: float = param(
+        0.15,
+        "points in a row scoring < 0.5 over this length along the ring (at least two) end the road",
+        unit="m",
+        gt=0,
+    )
+    reference_max_offset_m: float = param(
+        1.0, "a ring is used only if it passes this close to the guide centre line ahead of its sensor", unit="m", gt=0
+    )
+    bootstrap_range_m: float = param(
+        7.0,
+        "no previous centre line: the first guess comes from boundaries up to "
+        "this x, where y = 0 is still on the road, the next from twice as far",
+        unit="m",
+        gt=0,
+    )
     weights: ScoreWeights = param(doc="β of eqs. 7-10", factory=ScoreWeights)
-    poly_order: int = param(2, "highest order of each boundary's polynomial y = f(x); x = 0 lies ~4 m behind "
-                               "the nearest boundary point, and a cubic extrapolates the points' cm of scatter "
-                               "into degrees of heading there", ge=1, le=4)
-    order_f: float = param(8.0, "a boundary's polynomial takes the next order only if that lowers the residual "
-                                "sum of squares by more than this F statistic (on straight roads the quadratic "
-                                "term would fit the points' scatter)", gt=0)
-    fit_x_max_m: float = param(12.0, "boundary points up to this x are fitted: farther, a 30 m bend no longer "
-                                     "looks like a parabola (its heading at x = 0 comes out ~2° off at 15 m)",
-                               unit="m", gt=0)
-    rough_blocks: int = param(6, "the rough draft may leave out one or two adjacent of this many stretches of x "
-                                 "(equal counts of points)", ge=3)
-    outlier_mad: float = param(2.5, "refit without points farther than this many MADs (scaled to σ) from the "
-                                    "median residual of the rough fit", gt=0)
+    poly_order: int = param(
+        2,
+        "highest order of each boundary's polynomial y = f(x); x = 0 lies ~4 m behind "
+        "the nearest boundary point, and a cubic extrapolates the points' cm of scatter "
+        "into degrees of heading there",
+        ge=1,
+        le=4,
+    )
+    order_f: float = param(
+        8.0,
+        "a boundary's polynomial takes the next order only if that lowers the residual "
+        "sum of squares by more than this F statistic (on straight roads the quadratic "
+        "term would fit the points' scatter)",
+        gt=0,
+    )
+    fit_x_max_m: float = param(
+        12.0,
+        "boundary points up to this x are fitted: farther, a 30 m bend no longer "
+        "looks like a parabola (its heading at x = 0 comes out ~2° off at 15 m)",
+        unit="m",
+        gt=0,
+    )
+    rough_blocks: int = param(
+        6,
+        "the rough draft may leave out one or two adjacent of this many stretches of x (equal counts of points)",
+        ge=3,
+    )
+    outlier_mad: float = param(
+        2.5,
+        "refit without points farther than this many MADs (scaled to σ) from the median residual of the rough fit",
+        gt=0,
+    )
     outlier_floor_m: float = param(0.15, "... but never closer than this", unit="m", ge=0)
     min_points: int = param(5, "fewest boundary points (rings) a side's fit needs, after the outliers", ge=2)
-    min_span_m: float = param(3.0, "... and the least x they must span: points bunched at one x give no "
-                                   "direction, and a parabola through them swings wildly away from them",
-                              unit="m", ge=0)
+    min_span_m: float = param(
+        3.0,
+        "... and the least x they must span: points bunched at one x give no "
+        "direction, and a parabola through them swings wildly away from them",
+        unit="m",
+        ge=0,
+    )
     full_support_points: int = param(10, "a side supported by this many rings has full support", ge=1)
     residual_scale_m: float = param(0.10, "confidence × exp(−rms residual / this)", unit="m", gt=0)
     min_width_m: float = param(2.5, "narrowest plausible road", unit="m", gt=0)
     max_width_m: float = param(12.0, "widest plausible road", unit="m", gt=0)
-    width_tolerance_m: float = param(1.0, "confidence falls to 0 this far outside the plausible widths", unit="m",
-                                     gt=0)
+    width_tolerance_m: float = param(1.0, "confidence falls to 0 this far outside the plausible widths", unit="m", gt=0)
 
     @model_validator(mode="after")
     def _consistent(self):
@@ -170,10 +212,11 @@ class RoadDetectionParams(Params):
 @dataclass(frozen=True)
 class LidarFrame:
     """One frame of all LiDARs in the vehicle frame."""
-    points: np.ndarray          # (N, 3) x, y, z (m)
-    ring_id: np.ndarray         # (N,) int >= 0, one per (sensor, laser), e.g. sensor·64 + laser
-    azimuth: np.ndarray         # (N,) rad, atan2(y, x) in the point's own sensor's frame
-    sensor_index: np.ndarray    # (N,) int, row of sensor_origins
+
+    points: np.ndarray  # (N, 3) x, y, z (m)
+    ring_id: np.ndarray  # (N,) int >= 0, one per (sensor, laser), e.g. sensor·64 + laser
+    azimuth: np.ndarray  # (N,) rad, atan2(y, x) in the point's own sensor's frame
+    sensor_index: np.ndarray  # (N,) int, row of sensor_origins
     sensor_origins: np.ndarray  # (S, 3) each sensor's origin in the vehicle frame (m)
 
 
@@ -182,6 +225,7 @@ class RoadModel:
     """The road in the vehicle frame: each boundary y = f(x) as polynomial coefficients, lowest
     order first (None: not seen), and the width (m, across the road at x = 0) that stands in
     for a missing side."""
+
     left: np.ndarray | None
     right: np.ndarray | None
     width_m: float | None
@@ -201,41 +245,45 @@ class RoadModel:
         """The same road in the frame of a vehicle that stands at (x, y) heading yaw in this
         model's frame: each boundary, sampled over x_range of this frame, moved into that one
         and fitted again with its own order."""
+
         def moved(coef: np.ndarray | None) -> np.ndarray | None:
             if coef is None:
                 return None
             xs = np.linspace(*x_range, MOVED_SAMPLES)
             xv, yv = local_to_vehicle(x, y, yaw, xs, poly.polyval(xs, coef))
             return poly.polyfit(xv, yv, len(coef) - 1)
+
         return RoadModel(moved(self.left), moved(self.right), self.width_m)
 
 
 @dataclass(frozen=True)
 class BoundaryFit:
     """The two-step least-squares fit of one side."""
-    coef: np.ndarray            # the refit, lowest order first
-    rough: np.ndarray           # the rough draft
-    inliers: np.ndarray         # (n,) bool: the points the refit used
-    rms_m: float                # residual RMS of the refit over its points
+
+    coef: np.ndarray  # the refit, lowest order first
+    rough: np.ndarray  # the rough draft
+    inliers: np.ndarray  # (n,) bool: the points the refit used
+    rms_m: float  # residual RMS of the refit over its points
 
 
 @dataclass(frozen=True)
 class RoadResult:
-    found: bool                         # a centre line with confidence > 0
-    confidence: float                   # [0, 1], see road_confidence
-    lateral_offset_m: float             # vehicle from the centre line, across the road; + = vehicle left of it
-    heading_rad: float                  # vehicle's heading relative to the road; + = turned left of it
-    width_m: float                      # across the road at x = 0 (NaN if unknown)
-    model: RoadModel                    # pass it back as `previous` with the next frame
-    left_points: np.ndarray             # (n, 2) x, y of the left boundary, one per ring
-    right_points: np.ndarray            # (n, 2) the same on the right
+    found: bool  # a centre line with confidence > 0
+    confidence: float  # [0, 1], see road_confidence
+    lateral_offset_m: float  # vehicle from the centre line, across the road; + = vehicle left of it
+    heading_rad: float  # vehicle's heading relative to the road; + = turned left of it
+    width_m: float  # across the road at x = 0 (NaN if unknown)
+    model: RoadModel  # pass it back as `previous` with the next frame
+    left_points: np.ndarray  # (n, 2) x, y of the left boundary, one per ring
+    right_points: np.ndarray  # (n, 2) the same on the right
     left_fit: BoundaryFit | None
     right_fit: BoundaryFit | None
     road_points_per_sensor: np.ndarray  # (S,) points scored Pr >= 0.5, per sensor
-    scores: np.ndarray                  # (N,) Pr of each point of the frame, NaN if not scored
+    scores: np.ndarray  # (N,) Pr of each point of the frame, NaN if not scored
 
 
 # ---- Algorithm 1 -----------------------------------------------------------------------------
+
 
 def ieee_remainder(x, y):
     """C's and IEEE 754's remainder (Python's math.remainder), vectorised: x − n·y with n = x/y
@@ -257,17 +305,18 @@ def normalized_azimuth_subtraction(theta_ij, theta_s):
     that is all the detector uses. Farther away across ±π the middle branches fold by π instead
     of 2π (with C's truncating fmod for mod, the second branch would give Δ + 2π)."""
     d = np.asarray(np.subtract(theta_s, theta_ij, dtype=float))
-    out = d.copy()                              # −π <= Δ <= π, most points: Δ itself
+    out = d.copy()  # −π <= Δ <= π, most points: Δ itself
     b = d < -1.5 * np.pi
     out[b] = ieee_remainder(d[b], np.pi)
     b = (d >= -1.5 * np.pi) & (d < -np.pi)
     out[b] = np.pi + np.mod(d[b], np.pi)
     b = d > np.pi
     out[b] = ieee_remainder(d[b], np.pi)
-    return out[()]                              # a scalar for scalars
+    return out[()]  # a scalar for scalars
 
 
 # ---- eqs. 7-10 -------------------------------------------------------------------------------
+
 
 def gradient_term(g, w: ScoreWeights):
     """Eq. 8: β2 + β3∇ + β4∇² + β5∇³ of the height gradient ∇ij (m/m)."""
@@ -297,13 +346,14 @@ def road_score(g, s, d, w: ScoreWeights):
 
 # ---- first iteration: score the rings, find one boundary point per ring and side -------------
 
+
 @dataclass(frozen=True)
 class _Scan:
-    left: np.ndarray            # (n, 2) boundary points
+    left: np.ndarray  # (n, 2) boundary points
     right: np.ndarray
     road_per_sensor: np.ndarray
-    index: np.ndarray           # frame index of each scored point
-    score: np.ndarray           # its Pr
+    index: np.ndarray  # frame index of each scored point
+    score: np.ndarray  # its Pr
 
 
 def _sums(prefix: np.ndarray, lo, hi):
@@ -311,8 +361,14 @@ def _sums(prefix: np.ndarray, lo, hi):
     return prefix[..., hi + 1] - prefix[..., lo]
 
 
-def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.ndarray | None,
-          previous: RoadModel | None, x_max: float) -> _Scan:
+def _scan(
+    frame: LidarFrame,
+    idx: np.ndarray,
+    p: RoadDetectionParams,
+    guide: np.ndarray | None,
+    previous: RoadModel | None,
+    x_max: float,
+) -> _Scan:
     n_sensors = len(frame.sensor_origins)
     empty = np.zeros((0, 2))
     if len(idx) == 0:
@@ -324,11 +380,11 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     if guide is None:
         across = np.abs(y)
     else:
-        g = guide.astype(np.float32)                 # in the points' float32: mm do not matter here
+        g = guide.astype(np.float32)  # in the points' float32: mm do not matter here
         across = np.abs(y - poly.polyval(x, g)) / np.hypot(np.float32(1.0), poly.polyval(x, poly.polyder(g)))
     band = 0.5 * p.max_width_m
     if previous is not None and previous.left is not None and previous.right is not None:
-        band = min(band, 0.5 * previous.width_m)      # a width only one side saw may be stale
+        band = min(band, 0.5 * previous.width_m)  # a width only one side saw may be stale
     band += BAND_MARGIN_M + p.gradient_span_m + p.run_m
     inside_band = across <= band
     idx, across = idx[inside_band], across[inside_band]
@@ -363,12 +419,14 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     aim[sl[is_ref]] = np.arctan2(z[is_ref] - origin[:, 2], reach[sl[is_ref]])
     reach[best > p.reference_max_offset_m] = -np.inf
     lowest_first = np.lexsort((aim, sensor[first]))
-    ring_below = np.full(len(first), -1)                 # the ring aimed next lower, of the same sensor
+    ring_below = np.full(len(first), -1)  # the ring aimed next lower, of the same sensor
     same = sensor[first][lowest_first[1:]] == sensor[first][lowest_first[:-1]]
     ring_below[lowest_first[1:]] = np.where(same, lowest_first[:-1], -1)
-    by_sensor = reach[lowest_first] + 1e4 * sensor[first][lowest_first]   # the running maximum restarts per sensor
+    by_sensor = reach[lowest_first] + 1e4 * sensor[first][lowest_first]  # the running maximum restarts per sensor
     road_ring = np.zeros(len(first), dtype=bool)
-    road_ring[lowest_first] = np.isfinite(by_sensor) & (by_sensor > np.r_[-np.inf, np.maximum.accumulate(by_sensor)[:-1]])
+    road_ring[lowest_first] = np.isfinite(by_sensor) & (
+        by_sensor > np.r_[-np.inf, np.maximum.accumulate(by_sensor)[:-1]]
+    )
     # Only the points within a quarter turn of the reference (|θs − θ| below π/2, or above 3π/2
     # across ±π), where Algorithm 1 is exact: farther across ±π it folds by π, and a point
     # behind the sensor would land among the points ahead. u: azimuth from the reference,
@@ -377,8 +435,9 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     # foot of a wall or the lip of a drop before them.
     ts = theta_s[sl]
     turn = np.abs(ts - az)
-    keep = np.flatnonzero(((turn < np.pi / 2) | (turn > 1.5 * np.pi)) & road_ring[sl]
-                          & (np.abs(z - z_ref[sl]) <= HEIGHT_CUT_M))
+    keep = np.flatnonzero(
+        ((turn < np.pi / 2) | (turn > 1.5 * np.pi)) & road_ring[sl] & (np.abs(z - z_ref[sl]) <= HEIGHT_CUT_M)
+    )
     u = -normalized_azimuth_subtraction(az[keep], ts[keep])
     # Each ring from its right end to its left end: by u within the rings (already grouped, so
     # the keys come in runs a stable merge sort takes as they are).
@@ -403,7 +462,7 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     rho = np.hypot(x - origin[:, 0], y - origin[:, 1])
     new_ring = np.r_[True, sl[1:] != sl[:-1]]
     old_sl = sl
-    sl = np.cumsum(new_ring) - 1                        # rings left, numbered again
+    sl = np.cumsum(new_ring) - 1  # rings left, numbered again
     dt = np.abs(np.diff(u, prepend=u[0])) * rho
     dt[new_ring] = 0.0
     step = np.hypot(np.diff(x, prepend=x[0]), np.diff(y, prepend=y[0]))
@@ -411,11 +470,10 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     piece = np.cumsum(new_piece)
     T = np.cumsum(dt)
     ring_start = np.flatnonzero(new_ring)
-    t = T - np.repeat(T[ring_start], np.diff(np.r_[ring_start, n]))      # from the ring's right end
+    t = T - np.repeat(T[ring_start], np.diff(np.r_[ring_start, n]))  # from the ring's right end
     rings = len(ring_start)
     ring_end = np.r_[ring_start[1:] - 1, n - 1]
-    spacing = np.bincount(sl, np.where(new_piece, 0.0, dt), rings) / np.maximum(
-        np.bincount(sl, ~new_piece, rings), 1)
+    spacing = np.bincount(sl, np.where(new_piece, 0.0, dt), rings) / np.maximum(np.bincount(sl, ~new_piece, rings), 1)
     spacing = np.maximum(spacing, 1e-3)
     # A verge is a profile across the road: where a ring crosses the edge at a slant (the corner
     # sensors' rings near the vehicle run almost along it), a span across the road is a longer
@@ -428,29 +486,29 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     slant = np.clip(slant, MIN_SLANT, 1.0)
     reach_s = np.ceil(p.gradient_span_m / (spacing[sl] * slant)).astype(np.int64)
     reach_w = np.maximum(2, np.ceil(p.window_m / (spacing[sl] * slant))).astype(np.int64)
-    m = np.maximum(2, np.ceil(p.run_m / spacing)).astype(np.int64)[sl]     # points in a run
+    m = np.maximum(2, np.ceil(p.run_m / spacing)).astype(np.int64)[sl]  # points in a run
 
     # The road-side window of each point: the points from gradient_span_m to gradient_span_m +
     # window_m behind it (towards θs), and the straight line fitted to their heights along t:
     # the road's trend there.
     # It stays on the point's side of the reference: near the reference it is shorter, down to
     # half its length; closer in, the point is taken as road.
-    reference = np.flatnonzero(u == 0)[sl]               # one per ring (θs is one of its azimuths)
+    reference = np.flatnonzero(u == 0)[sl]  # one per ring (θs is one of its azimuths)
     near = at - outward * reach_s
     far = near - outward * reach_w
     far = np.where(left, np.maximum(far, reference), np.minimum(far, reference))
     lo, hi = np.clip(np.minimum(near, far), 0, n - 1), np.clip(np.maximum(near, far), 0, n - 1)
-    valid = ((outward * (near - far) >= reach_w // 2) & (piece[lo] == piece) & (piece[hi] == piece) & (u != 0))
+    valid = (outward * (near - far) >= reach_w // 2) & (piece[lo] == piece) & (piece[hi] == piece) & (u != 0)
     prefix = np.zeros((5, n + 1))
     for row, values in enumerate((t, t * t, z, t * z, z * z)):
         np.cumsum(values, out=prefix[row, 1:])
     count = hi - lo + 1
     st, stt, sz, stz = (prefix[row, hi + 1] - prefix[row, lo] for row in range(4))
     mean_t, mean_z = st / count, sz / count
-    slope = (stz / count - mean_t * mean_z) / np.maximum(stt / count - mean_t ** 2, 1e-9)
+    slope = (stz / count - mean_t * mean_z) / np.maximum(stt / count - mean_t**2, 1e-9)
     distance = np.maximum(np.abs(t - mean_t), 1e-3)
-    gradient = (z - mean_z) / distance                          # ∇: + rising away from the road
-    sigma = np.maximum(z - mean_z - slope * (t - mean_t), 0.0)   # σ: height above the road's trend
+    gradient = (z - mean_z) / distance  # ∇: + rising away from the road
+    sigma = np.maximum(z - mean_z - slope * (t - mean_t), 0.0)  # σ: height above the road's trend
     beyond = None
     if previous is not None and (previous.left is not None or previous.right is not None):
         beyond = np.full(n, np.nan)
@@ -469,18 +527,18 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
     start = np.clip(np.where(left, at, at - m + 1), 0, np.maximum(n - m, 0))
     end = np.minimum(start + m, n)
     stop = (nonroad[end] - nonroad[start] == m) & (piece[start] == piece) & (piece[end - 1] == piece)
-    last_road = np.maximum.accumulate(np.where(road, at, -1))              # the nearest road point at or
-    next_road = np.minimum.accumulate(np.where(road, at, n)[::-1])[::-1]   # before / after each point
+    last_road = np.maximum.accumulate(np.where(road, at, -1))  # the nearest road point at or
+    next_road = np.minimum.accumulate(np.where(road, at, n)[::-1])[::-1]  # before / after each point
 
     # Per ring and side, the first stop outwards in the reference's piece (beyond a gap nothing is
     # known) ...
     reference_piece = np.zeros(rings, dtype=piece.dtype)
     reference_piece[sl[u == 0]] = piece[u == 0]
     ring_theta = ts[ring_start]
-    renumbered = np.full(len(ring_below) + 1, -1)        # old ring numbers to new (−1: gone, or none)
+    renumbered = np.full(len(ring_below) + 1, -1)  # old ring numbers to new (−1: gone, or none)
     renumbered[old_sl[ring_start]] = np.arange(rings)
     lower = renumbered[ring_below[old_sl[ring_start]]]  # the ring below, of the same sensor (or −1)
-    piece_first = np.flatnonzero(new_piece)             # piece k starts at piece_first[k - 1]
+    piece_first = np.flatnonzero(new_piece)  # piece k starts at piece_first[k - 1]
     piece_last = np.r_[piece_first[1:] - 1, n - 1]
     boundaries = []
     for side, sign in ((left, 1), (right, -1)):
@@ -499,9 +557,13 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
         nxt = ends + sign
         in_ring = (nxt >= 0) & (nxt < n)
         in_ring[in_ring] = sl[nxt[in_ring]] == sl[ends[in_ring]]
-        inside = ((x[ends] > p.x_min_m + ROI_MARGIN_M) & (x[ends] < x_max - ROI_MARGIN_M)
-                  & (np.abs(y[ends]) < p.half_width_m - ROI_MARGIN_M) & (np.abs(u[ends]) < np.pi / 2 - TURN_MARGIN)
-                  & (across[ends] < band - ROI_MARGIN_M))
+        inside = (
+            (x[ends] > p.x_min_m + ROI_MARGIN_M)
+            & (x[ends] < x_max - ROI_MARGIN_M)
+            & (np.abs(y[ends]) < p.half_width_m - ROI_MARGIN_M)
+            & (np.abs(u[ends]) < np.pi / 2 - TURN_MARGIN)
+            & (across[ends] < band - ROI_MARGIN_M)
+        )
         # Where a ring's returns stop, the ring below it (same sensor, nearer ground) must still
         # return beyond that azimuth: the ground fell away, not the view. Where the lowest rings
         # all stop at one azimuth, the vehicle's own body blocks them (the roof sensor's, at
@@ -509,8 +571,10 @@ def _scan(frame: LidarFrame, idx: np.ndarray, p: RoadDetectionParams, guide: np.
         k = sl[ends]
         j = lower[k]
         extent = np.where(sign > 0, u[ring_end], u[ring_start])[np.maximum(j, 0)]
-        farther = sign * ieee_remainder(ring_theta[np.maximum(j, 0)] + extent - ring_theta[k] - u[ends],
-                                        2 * np.pi) > LOWER_RING_MARGIN
+        farther = (
+            sign * ieee_remainder(ring_theta[np.maximum(j, 0)] + extent - ring_theta[k] - u[ends], 2 * np.pi)
+            > LOWER_RING_MARGIN
+        )
         inside &= (j >= 0) & farther
         nxt = np.clip(nxt, 0, n - 1)
         drop = np.where(in_ring, z[nxt] < z[ends] - DROP_M, inside)
@@ -539,10 +603,13 @@ def _hinge(stops, sign, reach_s, t, z, prefix, mean_t, mean_z, slope, piece, pie
         return stops
     reach = reach_s[stops]
     k = np.arange(1, reach.max() + 1)
-    c = stops[:, None] - sign * k[None, :]                                  # candidates, (b, K)
-    window_end = stops - sign * reach                                       # the road's line reaches here
-    segment_end = np.where(sign > 0, np.minimum(stops + reach, piece_last[piece[stops] - 1]),
-                           np.maximum(stops - reach, piece_first[piece[stops] - 1]))
+    c = stops[:, None] - sign * k[None, :]  # candidates, (b, K)
+    window_end = stops - sign * reach  # the road's line reaches here
+    segment_end = np.where(
+        sign > 0,
+        np.minimum(stops + reach, piece_last[piece[stops] - 1]),
+        np.maximum(stops - reach, piece_first[piece[stops] - 1]),
+    )
     ok = (k[None, :] <= reach[:, None]) & (sign * (c - window_end[:, None]) >= 0)
     c = np.where(ok, c, stops[:, None] - sign)
     # ρ = z − a − b·t with the stop's line; sums of ρ, ρ², ρt, t, t² over index ranges from the
@@ -566,8 +633,8 @@ def _hinge(stops, sign, reach_s, t, z, prefix, mean_t, mean_z, slope, piece, pie
     road_rr = np.where(sign * (c - w) >= 1, road_rr, 0.0)
     verge_lo, verge_hi = np.minimum(c + sign, e), np.maximum(c + sign, e)
     n_v, s_r, s_rr, s_rt, s_t, s_tt = sums(verge_lo, verge_hi)
-    var_t = np.maximum(s_tt - s_t ** 2 / n_v, 1e-12)
-    verge_rr = s_rr - s_r ** 2 / n_v - (s_rt - s_r * s_t / n_v) ** 2 / var_t
+    var_t = np.maximum(s_tt - s_t**2 / n_v, 1e-12)
+    verge_rr = s_rr - s_r**2 / n_v - (s_rt - s_r * s_t / n_v) ** 2 / var_t
     error = np.where(ok & (n_v >= 2), road_rr + np.maximum(verge_rr, 0.0), np.inf)
     # The least error; of equal ones (no kink: a stop eq. 10 made on flat ground) the candidate
     # nearest the stop, which then stays where it was.
@@ -581,6 +648,7 @@ def _hinge(stops, sign, reach_s, t, z, prefix, mean_t, mean_z, slope, piece, pie
 
 
 # ---- second iteration: the road model --------------------------------------------------------
+
 
 def fit_boundary(x: np.ndarray, y: np.ndarray, p: RoadDetectionParams) -> BoundaryFit | None:
     """y = f(x) in two steps (the paper's "rough draft", then "filter ... and extract the outliers").
@@ -597,15 +665,18 @@ def fit_boundary(x: np.ndarray, y: np.ndarray, p: RoadDetectionParams) -> Bounda
     n = len(x)
     if n < p.min_points or np.ptp(x) < p.min_span_m:
         return None
-    block = np.argsort(np.argsort(x)) * p.rough_blocks // n          # stretch of x of each point
-    keeps = np.array([np.ones(n, dtype=bool)] + [(block < a) | (block >= a + w)
-                                                 for w in (1, 2) for a in range(p.rough_blocks - w + 1)])
+    block = np.argsort(np.argsort(x)) * p.rough_blocks // n  # stretch of x of each point
+    keeps = np.array(
+        [np.ones(n, dtype=bool)]
+        + [(block < a) | (block >= a + w) for w in (1, 2) for a in range(p.rough_blocks - w + 1)]
+    )
     keeps = keeps[keeps.sum(axis=1) > p.poly_order].astype(float)
     # All drafts at once, by their normal equations (Vᵀ K V) c = Vᵀ K y, K = the points kept.
     V = np.vander(x, p.poly_order + 1, increasing=True)
-    drafts = np.einsum("cij,cj->ci", np.linalg.pinv(np.einsum("cn,ni,nj->cij", keeps, V, V)),
-                       np.einsum("cn,ni,n->ci", keeps, V, y))
-    cap = (2 * p.outlier_floor_m) ** 2                 # a point far off costs the same however far
+    drafts = np.einsum(
+        "cij,cj->ci", np.linalg.pinv(np.einsum("cn,ni,nj->cij", keeps, V, V)), np.einsum("cn,ni,n->ci", keeps, V, y)
+    )
+    cap = (2 * p.outlier_floor_m) ** 2  # a point far off costs the same however far
     rough = drafts[np.argmin(np.minimum((y[:, None] - V @ drafts.T) ** 2, cap).sum(axis=0))]
     residual = y - V @ rough
     deviation = np.abs(residual - np.median(residual))
@@ -615,7 +686,7 @@ def fit_boundary(x: np.ndarray, y: np.ndarray, p: RoadDetectionParams) -> Bounda
     xi, yi = x[inliers], y[inliers]
     coef = poly.polyfit(xi, yi, 1)
     rss = float(np.sum((yi - poly.polyval(xi, coef)) ** 2))
-    for order in range(2, p.poly_order + 1):        # a higher order only where the points call for it
+    for order in range(2, p.poly_order + 1):  # a higher order only where the points call for it
         higher = poly.polyfit(xi, yi, order)
         rss_higher = float(np.sum((yi - poly.polyval(xi, higher)) ** 2))
         dof = len(xi) - order - 1
@@ -626,25 +697,27 @@ def fit_boundary(x: np.ndarray, y: np.ndarray, p: RoadDetectionParams) -> Bounda
     return BoundaryFit(coef, rough, inliers, rms)
 
 
-def road_confidence(left: BoundaryFit | None, right: BoundaryFit | None, width_m: float,
-                    p: RoadDetectionParams) -> float:
+def road_confidence(
+    left: BoundaryFit | None, right: BoundaryFit | None, width_m: float, p: RoadDetectionParams
+) -> float:
     """support × fit × width, each in [0, 1]:
-         support = mean over the two sides of min(1, rings used / full_support_points)
-                   (a missing side counts 0, so one side alone gives at most 0.5);
-         fit     = exp(−rms / residual_scale_m), rms of the refits' residuals over both sides;
-         width   = 1 inside [min_width_m, max_width_m], falling linearly to 0 at
-                   width_tolerance_m outside (0 if the width is unknown)."""
+    support = mean over the two sides of min(1, rings used / full_support_points)
+              (a missing side counts 0, so one side alone gives at most 0.5);
+    fit     = exp(−rms / residual_scale_m), rms of the refits' residuals over both sides;
+    width   = 1 inside [min_width_m, max_width_m], falling linearly to 0 at
+              width_tolerance_m outside (0 if the width is unknown)."""
     fits = [f for f in (left, right) if f is not None]
     if not fits or not math.isfinite(width_m):
         return 0.0
     support = sum(min(1.0, f.inliers.sum() / p.full_support_points) for f in fits) / 2
-    squares = sum(f.rms_m ** 2 * f.inliers.sum() for f in fits) / sum(f.inliers.sum() for f in fits)
+    squares = sum(f.rms_m**2 * f.inliers.sum() for f in fits) / sum(f.inliers.sum() for f in fits)
     outside = max(p.min_width_m - width_m, width_m - p.max_width_m, 0.0)
     return support * math.exp(-math.sqrt(squares) / p.residual_scale_m) * max(0.0, 1 - outside / p.width_tolerance_m)
 
 
-def fit_parallel(left_xy: np.ndarray, left: BoundaryFit, right_xy: np.ndarray, right: BoundaryFit,
-                 p: RoadDetectionParams) -> tuple[BoundaryFit, BoundaryFit]:
+def fit_parallel(
+    left_xy: np.ndarray, left: BoundaryFit, right_xy: np.ndarray, right: BoundaryFit, p: RoadDetectionParams
+) -> tuple[BoundaryFit, BoundaryFit]:
     """Both sides refitted at once with one slope at x = 0, each keeping its own offset and higher
     terms: a road's two edges run parallel beside the vehicle (in a bend too: concentric arcs
     have one tangent direction there), so a side with sharp edges steadies the heading of a
@@ -656,20 +729,22 @@ def fit_parallel(left_xy: np.ndarray, left: BoundaryFit, right_xy: np.ndarray, r
     design = np.zeros((nl + nr, 3 + (ol - 1) + (orr - 1)))
     design[:nl, 0], design[nl:, 1], design[:, 2] = 1.0, 1.0, np.r_[xl, xr]
     for k in range(2, ol + 1):
-        design[:nl, 3 + k - 2] = xl ** k
+        design[:nl, 3 + k - 2] = xl**k
     for k in range(2, orr + 1):
-        design[nl:, 3 + ol - 1 + k - 2] = xr ** k
+        design[nl:, 3 + ol - 1 + k - 2] = xr**k
     solution = np.linalg.lstsq(design, np.r_[yl, yr], rcond=None)[0]
-    coef_l = np.r_[solution[0], solution[2], solution[3:3 + ol - 1]]
-    coef_r = np.r_[solution[1], solution[2], solution[3 + ol - 1:]]
+    coef_l = np.r_[solution[0], solution[2], solution[3 : 3 + ol - 1]]
+    coef_r = np.r_[solution[1], solution[2], solution[3 + ol - 1 :]]
     rss_l = float(np.sum((yl - poly.polyval(xl, coef_l)) ** 2))
     rss_r = float(np.sum((yr - poly.polyval(xr, coef_r)) ** 2))
-    separate = left.rms_m ** 2 * nl + right.rms_m ** 2 * nr
+    separate = left.rms_m**2 * nl + right.rms_m**2 * nr
     dof = nl + nr - (ol + 1) - (orr + 1)
     if dof <= 0 or (rss_l + rss_r - separate) * dof > p.order_f * max(separate, 1e-12):
         return left, right
-    return (BoundaryFit(coef_l, left.rough, left.inliers, math.sqrt(rss_l / nl)),
-            BoundaryFit(coef_r, right.rough, right.inliers, math.sqrt(rss_r / nr)))
+    return (
+        BoundaryFit(coef_l, left.rough, left.inliers, math.sqrt(rss_l / nl)),
+        BoundaryFit(coef_r, right.rough, right.inliers, math.sqrt(rss_r / nr)),
+    )
 
 
 def _model(scan: _Scan, p: RoadDetectionParams, previous: RoadModel | None):
@@ -681,12 +756,16 @@ def _model(scan: _Scan, p: RoadDetectionParams, previous: RoadModel | None):
     if left is not None and right is not None:
         centre_slope = (_slope(left.coef) + _slope(right.coef)) / 2
         width = float(left.coef[0] - right.coef[0]) / math.hypot(1.0, centre_slope)
-    return RoadModel(left.coef if left is not None else None, right.coef if right is not None else None,
-                     width), left, right
+    return (
+        RoadModel(left.coef if left is not None else None, right.coef if right is not None else None, width),
+        left,
+        right,
+    )
 
 
-def detect_road(frame: LidarFrame, params: RoadDetectionParams | None = None,
-                previous: RoadModel | None = None) -> RoadResult:
+def detect_road(
+    frame: LidarFrame, params: RoadDetectionParams | None = None, previous: RoadModel | None = None
+) -> RoadResult:
     """The road in one frame; `previous` is the last frame's model (its centre line guides the
     reference points and its boundaries give eq. 10's Δ̂). Without one, or where it led to no
     road, the guide is grown from the near field (see _bootstrap_guide)."""
@@ -703,22 +782,24 @@ def detect_road(frame: LidarFrame, params: RoadDetectionParams | None = None,
     return result
 
 
-def _bootstrap_guide(frame: LidarFrame, roi: np.ndarray, p: RoadDetectionParams,
-                     previous: RoadModel | None) -> np.ndarray | None:
+def _bootstrap_guide(
+    frame: LidarFrame, roi: np.ndarray, p: RoadDetectionParams, previous: RoadModel | None
+) -> np.ndarray | None:
     """A centre line grown from the near field: the rings up to bootstrap_range_m, whose references
     are taken nearest y = 0 (still on the road there even in the tour's tightest bend), give a
     first centre line; with it as the guide, the rings up to twice as far give the next."""
     x = frame.points[roi, 0]
     guide = None
     for reach, order in ((p.bootstrap_range_m, 1), (2 * p.bootstrap_range_m, p.poly_order)):
-        q = p.model_copy(update={"poly_order": order})     # a straight first guess: it is extrapolated far
+        q = p.model_copy(update={"poly_order": order})  # a straight first guess: it is extrapolated far
         centre = _model(_scan(frame, roi[x <= reach], q, guide, None, reach), q, previous)[0].centre()
         guide = centre if centre is not None else guide
     return guide
 
 
-def _detect(frame: LidarFrame, roi: np.ndarray, p: RoadDetectionParams, guide: np.ndarray | None,
-            previous: RoadModel | None) -> RoadResult:
+def _detect(
+    frame: LidarFrame, roi: np.ndarray, p: RoadDetectionParams, guide: np.ndarray | None, previous: RoadModel | None
+) -> RoadResult:
     scan = _scan(frame, roi, p, guide, previous, p.x_max_m)
     model, left, right = _model(scan, p, previous)
     centre = model.centre()
@@ -734,11 +815,22 @@ def _detect(frame: LidarFrame, roi: np.ndarray, p: RoadDetectionParams, guide: n
         offset = -float(centre[0]) * math.cos(heading)
     scores = np.full(len(frame.points), np.nan, dtype=np.float32)
     scores[scan.index] = scan.score
-    return RoadResult(confidence > 0, confidence, offset, heading, width, model, scan.left, scan.right,
-                      left, right, scan.road_per_sensor, scores)
+    return RoadResult(
+        confidence > 0,
+        confidence,
+        offset,
+        heading,
+        width,
+        model,
+        scan.left,
+        scan.right,
+        left,
+        right,
+        scan.road_per_sensor,
+        scores,
+    )
 
 
 def _slope(coef: np.ndarray) -> float:
     """dy/dx at x = 0."""
     return float(coef[1]) if len(coef) > 1 else 0.0
-

@@ -10,6 +10,7 @@ Points with a NaN or an infinite coordinate (a PCD of an organised cloud marks t
 returned nothing so) are dropped and counted. The order of the other points is kept: it is the
 order the sensor fired them in, which perception/rings.py can use.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -17,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-KITTI_RECORD_BYTES = 16            # 4 × float32
-KITTI_SENSOR_HEIGHT_M = 1.73       # KITTI's Velodyne above the road (its recording platform's set-up)
+KITTI_RECORD_BYTES = 16  # 4 × float32
+KITTI_SENSOR_HEIGHT_M = 1.73  # KITTI's Velodyne above the road (its recording platform's set-up)
 OPEN3D_SUFFIXES = (".pcd", ".ply")
 SUFFIXES = (".bin",) + OPEN3D_SUFFIXES
 
@@ -29,10 +30,10 @@ class ScanFileError(ValueError):
 
 @dataclass
 class Scan:
-    points: np.ndarray              # (n, 3) float32, sensor frame, in the file's order
-    intensity: np.ndarray | None    # (n,) as stored (KITTI: 0..1), None if the file has none
-    ring: np.ndarray | None         # (n,) the file's own ring field, None if it has none
-    dropped: int                    # points with a NaN or infinite coordinate, left out
+    points: np.ndarray  # (n, 3) float32, sensor frame, in the file's order
+    intensity: np.ndarray | None  # (n,) as stored (KITTI: 0..1), None if the file has none
+    ring: np.ndarray | None  # (n,) the file's own ring field, None if it has none
+    dropped: int  # points with a NaN or infinite coordinate, left out
 
 
 def read_scan(path: str | Path) -> Scan:
@@ -43,8 +44,9 @@ def read_scan(path: str | Path) -> Scan:
     if not path.is_file():
         raise ScanFileError(f"{path}: not a file")
     if suffix not in SUFFIXES:
-        raise ScanFileError(f"{path}: unknown extension {path.suffix or '(none)'!r}; expected a KITTI .bin, "
-                            f"a .pcd or a .ply")
+        raise ScanFileError(
+            f"{path}: unknown extension {path.suffix or '(none)'!r}; expected a KITTI .bin, a .pcd or a .ply"
+        )
     points, intensity, ring = _read_kitti(path) if suffix == ".bin" else _read_open3d(path)
     finite = np.isfinite(points).all(axis=1)
     dropped = int(len(points) - finite.sum())
@@ -61,14 +63,17 @@ def read_scan(path: str | Path) -> Scan:
 def _read_kitti(path: Path):
     size = path.stat().st_size
     if size % KITTI_RECORD_BYTES:
-        raise ScanFileError(f"{path}: {size} bytes is not a whole number of KITTI points (16 bytes each: "
-                            f"float32 x, y, z, intensity); truncated, or not a KITTI Velodyne file")
+        raise ScanFileError(
+            f"{path}: {size} bytes is not a whole number of KITTI points (16 bytes each: "
+            f"float32 x, y, z, intensity); truncated, or not a KITTI Velodyne file"
+        )
     records = np.fromfile(path, dtype="<f4").reshape(-1, 4)
     return records[:, :3], records[:, 3].copy(), None
 
 
 def _read_open3d(path: Path):
     import open3d as o3d
+
     # open3d reports an unreadable file as a warning on stdout and an empty cloud: silence it
     # (stdout carries the command's JSON) and say so ourselves.
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
@@ -76,8 +81,9 @@ def _read_open3d(path: Path):
     if "positions" not in cloud.point or len(cloud.point.positions) == 0:
         raise ScanFileError(f"{path}: no points (an empty cloud, or a file open3d cannot read)")
     points = cloud.point.positions.numpy().astype(np.float32, copy=False)
-    fields = {name: cloud.point[name].numpy().reshape(len(points), -1)[:, 0] for name in cloud.point
-              if name != "positions"}
+    fields = {
+        name: cloud.point[name].numpy().reshape(len(points), -1)[:, 0] for name in cloud.point if name != "positions"
+    }
     intensity = fields.get("intensity")
     ring = fields.get("ring")
     if ring is not None:

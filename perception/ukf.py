@@ -53,17 +53,18 @@ vectorised equivalents (process sigmas through fx as one array operation, the cr
 variance as one matrix product), and the unscented transform is passed in (filterpy's
 `UT=` argument) as a vectorised one. `ukf_step_benchmark(n)` times one predict + one update.
 """
+
 from __future__ import annotations
 
 import math
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from ares.config import Params, param
-from ares.geometry import wrap_angle
+from ares.core.config import Params, param
+from ares.core.geometry import wrap_angle
 
 X, Y, YAW, V, W = range(5)
 DIM = 5
@@ -74,6 +75,7 @@ CHI2_2DOF = {0.99: 9.21, 0.999: 13.82, 0.9999: 18.42}
 
 class SigmaPointParams(Params):
     """Merwe's scaled sigma points; the defaults spread them sqrt(5) sigma, no negative weights."""
+
     alpha: float = param(1.0, "spread of the sigma points", gt=0)
     beta: float = param(2.0, "prior knowledge of the distribution (2: Gaussian)", ge=0)
     kappa: float = param(0.0, "secondary scaling")
@@ -81,16 +83,22 @@ class SigmaPointParams(Params):
 
 class ProcessNoise(Params):
     """Random-walk rates of the UKF's Q = diag(...) * dt."""
-    pos_m2_per_s: float = param(1.0e-3, "what the kinematic model misses (slip, bumps): the position covariance "
-                                        "grows this fast without RTK", unit="m^2/s", gt=0)
+
+    pos_m2_per_s: float = param(
+        1.0e-3,
+        "what the kinematic model misses (slip, bumps): the position covariance grows this fast without RTK",
+        unit="m^2/s",
+        gt=0,
+    )
     yaw_rad2_per_s: float = param(1.0e-6, "heading random walk", unit="rad^2/s", gt=0)
     speed_m2_s3: float = param(0.5, "speed changes (accelerations ~0.7 m/s^2 over a second)", unit="m^2/s^3", gt=0)
     yaw_rate_rad2_s3: float = param(0.05, "yaw-rate changes (entering a curve)", unit="rad^2/s^3", gt=0)
 
 
 class GnssUpdateParams(Params):
-    float_correlation_s: float = param(40.0, "uncorrected fixes wander with this time constant: "
-                                             "R *= 1 + 2 tau / interval", unit="s", gt=0)
+    float_correlation_s: float = param(
+        40.0, "uncorrected fixes wander with this time constant: R *= 1 + 2 tau / interval", unit="s", gt=0
+    )
     gate_chi2: float = param(CHI2_2DOF[0.999], "Mahalanobis gate for uncorrected fixes: chi-square(2) 99.9 %", gt=0)
     min_var_m2: float = param(1.0e-6, "floor on a fix's variance", unit="m^2", gt=0)
 
@@ -104,9 +112,8 @@ def correlated_inflation(interval_s: float | None, correlation_s: float, default
     return 1.0 + 2.0 * correlation_s / dt
 
 
-
-
 # ---- residuals and the unscented transform (vectorised: rows are sigma points) -------------
+
 
 def residual_state(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     d = np.subtract(a, b)
@@ -125,8 +132,14 @@ def add_state(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
     return out
 
 
-def unscented_transform(sigmas: np.ndarray, Wm: np.ndarray, Wc: np.ndarray, noise_cov: np.ndarray,
-                        mean_fn=None, residual_fn: Callable = np.subtract) -> tuple[np.ndarray, np.ndarray]:
+def unscented_transform(
+    sigmas: np.ndarray,
+    Wm: np.ndarray,
+    Wc: np.ndarray,
+    noise_cov: np.ndarray,
+    mean_fn=None,
+    residual_fn: Callable = np.subtract,
+) -> tuple[np.ndarray, np.ndarray]:
     """Mean and covariance of transformed sigma points, angles handled by residual_fn.
 
     The mean is the central sigma point plus the weighted mean of the (wrapped) differences
@@ -135,7 +148,7 @@ def unscented_transform(sigmas: np.ndarray, Wm: np.ndarray, Wc: np.ndarray, nois
     """
     ref = sigmas[0]
     mean = ref + Wm @ residual_fn(sigmas, ref)
-    mean = residual_fn(mean, np.zeros_like(mean))     # wraps the angles of the mean into [-π, π)
+    mean = residual_fn(mean, np.zeros_like(mean))  # wraps the angles of the mean into [-π, π)
     dev = residual_fn(sigmas, mean)
     cov = (dev.T * Wc) @ dev + noise_cov
     return mean, cov
@@ -196,13 +209,31 @@ class PoseUKF:
     time; a measurement older than `t` (it arrived late) is applied at `t`.
     """
 
-    def __init__(self, sigma_points: SigmaPointParams = SigmaPointParams(),
-                 process_noise: ProcessNoise = ProcessNoise(), gnss: GnssUpdateParams = GnssUpdateParams()):
-        points = MerweScaledSigmaPoints(DIM, alpha=sigma_points.alpha, beta=sigma_points.beta,
-                                        kappa=sigma_points.kappa, sqrt_method=_cholesky_upper, subtract=np.subtract)
-        self.ukf = _VectorisedUKF(dim_x=DIM, dim_z=2, dt=0.02, hx=_h_position, fx=process_model,
-                                  points=points, sqrt_fn=_cholesky_upper, residual_x=residual_state,
-                                  state_add=add_state)
+    def __init__(
+        self,
+        sigma_points: SigmaPointParams = SigmaPointParams(),
+        process_noise: ProcessNoise = ProcessNoise(),
+        gnss: GnssUpdateParams = GnssUpdateParams(),
+    ):
+        points = MerweScaledSigmaPoints(
+            DIM,
+            alpha=sigma_points.alpha,
+            beta=sigma_points.beta,
+            kappa=sigma_points.kappa,
+            sqrt_method=_cholesky_upper,
+            subtract=np.subtract,
+        )
+        self.ukf = _VectorisedUKF(
+            dim_x=DIM,
+            dim_z=2,
+            dt=0.02,
+            hx=_h_position,
+            fx=process_model,
+            points=points,
+            sqrt_fn=_cholesky_upper,
+            residual_x=residual_state,
+            state_add=add_state,
+        )
         q = process_noise
         self.q_rate = np.diag([q.pos_m2_per_s, q.pos_m2_per_s, q.yaw_rad2_per_s, q.speed_m2_s3, q.yaw_rate_rad2_s3])
         self.float_correlation_s = gnss.float_correlation_s
@@ -222,6 +253,7 @@ class PoseUKF:
     def _ut(residual_fn):
         def ut(sigmas, Wm, Wc, noise_cov, mean_fn=None, _residual=None):
             return unscented_transform(sigmas, Wm, Wc, noise_cov, None, residual_fn)
+
         return ut
 
     # ---- state ----------------------------------------------------------------------------
@@ -237,8 +269,16 @@ class PoseUKF:
     def P(self) -> np.ndarray:
         return self.ukf.P
 
-    def initialize(self, t: float, x: float, y: float, yaw: float, v: float = 0.0, yaw_rate: float = 0.0,
-                   variances: tuple[float, float, float, float, float] = (1.0, 1.0, 1.0, 1.0, 0.1)) -> None:
+    def initialize(
+        self,
+        t: float,
+        x: float,
+        y: float,
+        yaw: float,
+        v: float = 0.0,
+        yaw_rate: float = 0.0,
+        variances: tuple[float, float, float, float, float] = (1.0, 1.0, 1.0, 1.0, 0.1),
+    ) -> None:
         self.ukf.x = np.array([x, y, wrap_angle(yaw), v, yaw_rate], dtype=float)
         self.ukf.P = np.diag(np.asarray(variances, dtype=float))
         self.t = float(t)
@@ -297,7 +337,7 @@ class PoseUKF:
             R = R * correlated_inflation(interval, self.float_correlation_s)
             self._last_float_fix_t = t
             self.predict_to(t)
-            innovation = np.array([x, y]) - self.ukf.x[:2]     # h is linear: exact from x, P
+            innovation = np.array([x, y]) - self.ukf.x[:2]  # h is linear: exact from x, P
             S = self.ukf.P[:2, :2] + R
             if float(innovation @ np.linalg.solve(S, innovation)) > self.gate_chi2:
                 self.rejected_fixes += 1
@@ -314,11 +354,11 @@ class PoseUKF:
         self._update(t, np.array([yaw_rate]), np.array([[variance]]), _h_yaw_rate, self.ut_plain, np.subtract)
 
     def update_wheel(self, t: float, v: float, yaw_rate: float, var_v: float, var_yaw_rate: float) -> None:
-        self._update(t, np.array([v, yaw_rate]), np.diag([var_v, var_yaw_rate]), _h_wheel, self.ut_plain,
-                     np.subtract)
+        self._update(t, np.array([v, yaw_rate]), np.diag([var_v, var_yaw_rate]), _h_wheel, self.ut_plain, np.subtract)
 
 
 # ---- benchmark -------------------------------------------------------------------------------
+
 
 def ukf_step_benchmark(n: int = 2000, seed: int = 0) -> list[float]:
     """Wall seconds of each of n (predict + update) steps, cycling through the measurement
@@ -349,6 +389,9 @@ def ukf_step_benchmark(n: int = 2000, seed: int = 0) -> list[float]:
 
 if __name__ == "__main__":
     import statistics
+
     samples = ukf_step_benchmark(5000)
-    print(f"UKF predict + update: median {statistics.median(samples) * 1e3:.3f} ms, "
-          f"p99 {sorted(samples)[int(0.99 * len(samples))] * 1e3:.3f} ms over {len(samples)} steps")
+    print(
+        f"UKF predict + update: median {statistics.median(samples) * 1e3:.3f} ms, "
+        f"p99 {sorted(samples)[int(0.99 * len(samples))] * 1e3:.3f} ms over {len(samples)} steps"
+    )

@@ -28,13 +28,14 @@ increments and speed are considered"), as a measurement of the state's v and ψ�
 `WheelOdometry.integrate` accumulates eqs. 3-5 into a dead-reckoned pose, for tests and
 diagnostics.
 """
+
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
-from ares.config import VehicleProfile
-from ares.geometry import wrap_angle
+from ares.core.config import VehicleProfile
+from ares.core.geometry import wrap_angle
 
 
 def slip_angle(delta: float, k_cg: float) -> float:
@@ -42,22 +43,23 @@ def slip_angle(delta: float, k_cg: float) -> float:
     return math.atan(k_cg * math.tan(delta))
 
 
-def increments(v: float, yaw: float, delta: float, dt: float, k_cg: float,
-               wheelbase_m: float) -> tuple[float, float, float]:
+def increments(
+    v: float, yaw: float, delta: float, dt: float, k_cg: float, wheelbase_m: float
+) -> tuple[float, float, float]:
     """(ΔX, ΔY, Δψ) of eqs. 3-5; v is the speed of the reference point (at k_cg)."""
     beta = slip_angle(delta, k_cg)
-    dx = v * math.cos(yaw + beta) * dt                                   # (3)
-    dy = v * math.sin(yaw + beta) * dt                                   # (4)
-    dyaw = v * math.cos(beta) * math.tan(delta) / wheelbase_m * dt       # (5)
+    dx = v * math.cos(yaw + beta) * dt  # (3)
+    dy = v * math.sin(yaw + beta) * dt  # (4)
+    dyaw = v * math.cos(beta) * math.tan(delta) / wheelbase_m * dt  # (5)
     return dx, dy, dyaw
 
 
 @dataclass(frozen=True)
 class WheelReading:
     t: float
-    v: float            # horizontal speed of the rear-axle centre, m/s
-    delta: float        # front wheel angle, rad
-    yaw_rate: float     # eq. 5 / ΔT, rad/s
+    v: float  # horizontal speed of the rear-axle centre, m/s
+    delta: float  # front wheel angle, rad
+    yaw_rate: float  # eq. 5 / ΔT, rad/s
 
 
 class WheelOdometry:
@@ -70,7 +72,7 @@ class WheelOdometry:
         self._t: float | None = None
 
     @classmethod
-    def from_profile(cls, profile: VehicleProfile) -> "WheelOdometry":
+    def from_profile(cls, profile: VehicleProfile) -> WheelOdometry:
         return cls(profile.wheelbase_m, profile.k_cg, profile.steering_ratio)
 
     def wheel_angle(self, steering_wheel_deg: float) -> float:
@@ -86,7 +88,7 @@ class WheelOdometry:
         delta = self.wheel_angle(steering_wheel_deg)
         v_rear = speed_mps * math.cos(pitch)
         v_ref = self.reference_speed(v_rear, delta)
-        _, _, dyaw = increments(v_ref, 0.0, delta, 1.0, self.k_cg, self.wheelbase_m)   # Δψ per second
+        _, _, dyaw = increments(v_ref, 0.0, delta, 1.0, self.k_cg, self.wheelbase_m)  # Δψ per second
         return WheelReading(t, v_rear, delta, dyaw)
 
     # ---- dead reckoning ------------------------------------------------------------------
@@ -95,8 +97,9 @@ class WheelOdometry:
         self.x, self.y, self.yaw = float(x), float(y), float(yaw)
         self._t = None
 
-    def integrate(self, t: float, speed_mps: float, steering_wheel_deg: float,
-                  pitch: float = 0.0) -> tuple[float, float, float]:
+    def integrate(
+        self, t: float, speed_mps: float, steering_wheel_deg: float, pitch: float = 0.0
+    ) -> tuple[float, float, float]:
         """Accumulate eqs. 3-5 from the previous frame to this one (the frame's speed and
         steering held over the interval, heading at its midpoint); returns (x, y, yaw)."""
         if self._t is not None and t > self._t:

@@ -36,16 +36,15 @@ A measurement is only emitted when it means something:
 Parameters (config `localization.yaw_from_poses`): distance_m (d), min_speed_mps,
 max_chord_s.
 """
+
 from __future__ import annotations
 
 import math
 from collections import deque
 from dataclasses import dataclass
 
-from ares.config import Params, param
-from ares.geometry import wrap_angle
-
-
+from ares.core.config import Params, param
+from ares.core.geometry import wrap_angle
 
 
 def chord_yaw(dx: float, dy: float) -> float:
@@ -59,8 +58,7 @@ def yaw_from_poses(x_prev: float, y_prev: float, x: float, y: float, heading_cha
     return wrap_angle(chord_yaw(x - x_prev, y - y_prev) + 0.5 * heading_change)
 
 
-def yaw_variance(dx: float, dy: float, var_x_prev: float, var_y_prev: float,
-                 var_x: float, var_y: float) -> float:
+def yaw_variance(dx: float, dy: float, var_x_prev: float, var_y_prev: float, var_x: float, var_y: float) -> float:
     """Eq. 2 (variance, rad²) in its well-conditioned form; the σ of the paper are variances."""
     r2 = dx * dx + dy * dy
     if r2 <= 0.0:
@@ -71,41 +69,51 @@ def yaw_variance(dx: float, dy: float, var_x_prev: float, var_y_prev: float,
 @dataclass(frozen=True)
 class PoseFix:
     """One position as this module needs it: time, local x/y, their variances, its quality."""
+
     t: float
     x: float
     y: float
     var_x: float
     var_y: float
     rtk: bool
-    heading: float          # the caller's integrated heading (e.g. ∫ gyro) at time t, rad
+    heading: float  # the caller's integrated heading (e.g. ∫ gyro) at time t, rad
 
 
 @dataclass(frozen=True)
 class YawMeasurement:
-    t: float                # time of the current fix: the yaw is the heading then
+    t: float  # time of the current fix: the yaw is the heading then
     yaw: float
-    variance: float         # rad²
+    variance: float  # rad²
     chord_m: float
     chord_s: float
 
 
 class YawFromPosesParams(Params):
     """ARES eqs. 1-2."""
-    distance_m: float = param(1.5, "d: chord length; sigma_yaw ~ 0.007 m * 2 / d = 0.5 deg per measurement with RTK",
-                              unit="m", gt=0)
+
+    distance_m: float = param(
+        1.5, "d: chord length; sigma_yaw ~ 0.007 m * 2 / d = 0.5 deg per measurement with RTK", unit="m", gt=0
+    )
     min_speed_mps: float = param(0.5, "only while moving", unit="m/s", ge=0)
     max_chord_s: float = param(5.0, "a chord covered more slowly than this is not used", unit="s", gt=0)
-    use_without_rtk: bool = param(False, "chords between uncorrected fixes: eq. 2 gives ~0.5 rad, they add only "
-                                         "correlated noise")
-    heading_change_var_per_s: float = param(1.0e-6, "uncertainty of the yaw-rate correction over the chord, "
-                                                    "per second of chord", unit="rad^2/s", ge=0)
+    use_without_rtk: bool = param(
+        False, "chords between uncorrected fixes: eq. 2 gives ~0.5 rad, they add only correlated noise"
+    )
+    heading_change_var_per_s: float = param(
+        1.0e-6, "uncertainty of the yaw-rate correction over the chord, per second of chord", unit="rad^2/s", ge=0
+    )
 
 
 class YawFromPoses:
     """Keeps the recent fixes and turns each new one into a yaw measurement when it can."""
 
-    def __init__(self, distance_m: float = 1.5, min_speed_mps: float = 0.5, max_chord_s: float = 5.0,
-                 heading_change_var_per_s: float = 1e-6):
+    def __init__(
+        self,
+        distance_m: float = 1.5,
+        min_speed_mps: float = 0.5,
+        max_chord_s: float = 5.0,
+        heading_change_var_per_s: float = 1e-6,
+    ):
         if distance_m <= 0:
             raise ValueError("yaw_from_poses: distance_m must be positive")
         self.distance_m = float(distance_m)
@@ -116,7 +124,7 @@ class YawFromPoses:
         self._fixes: deque[PoseFix] = deque()
 
     @classmethod
-    def from_params(cls, params: "YawFromPosesParams") -> "YawFromPoses":
+    def from_params(cls, params: YawFromPosesParams) -> YawFromPoses:
         return cls(params.distance_m, params.min_speed_mps, params.max_chord_s, params.heading_change_var_per_s)
 
     def reset(self) -> None:
@@ -151,11 +159,13 @@ class YawFromPoses:
                 dx, dy = fix.x - p.x, fix.y - p.y
                 turned = wrap_angle(fix.heading - p.heading)
                 yaw = yaw_from_poses(p.x, p.y, fix.x, fix.y, turned)
-                if speed_mps < 0:       # reversing: the chord points backwards
+                if speed_mps < 0:  # reversing: the chord points backwards
                     yaw = wrap_angle(yaw + math.pi)
                 chord_s = fix.t - p.t
-                var = (yaw_variance(dx, dy, p.var_x, p.var_y, fix.var_x, fix.var_y)
-                       + 0.25 * self.heading_change_var_per_s * chord_s)
+                var = (
+                    yaw_variance(dx, dy, p.var_x, p.var_y, fix.var_x, fix.var_y)
+                    + 0.25 * self.heading_change_var_per_s * chord_s
+                )
                 measurement = YawMeasurement(fix.t, yaw, var, math.hypot(dx, dy), chord_s)
         fixes.append(fix)
         return measurement

@@ -1,13 +1,15 @@
-"""Shared fixtures for tests that use a real Zenoh bus.
+"""Shared fixtures (what test modules share besides fixtures is in tests/helpers/).
 
 - `port`: a free TCP port, so tests never collide with each other or a stack on 7447;
-- `run_config`: the validated stack defaults (ares.run_config) with the bus pointed at that
-  port (override more with the `make_run_config(port, overrides)` helper);
+- `run_config`: the validated stack defaults (ares.app.run_config) with the bus pointed at that
+  port (override more with tests.helpers.stack.make_run_config(port, overrides));
 - `run_config_path`: that config written to a file, as ARES_RUN_CONFIG expects;
 - `child_env`: the environment a node subprocess needs (ARES_RUN_CONFIG, PYTHONPATH, ...);
-- `router`: an embedded router subprocess (`python -m ares.router`) listening on the port;
-- `spawn_node`: start `python -m <module>` as a node process; killed at teardown.
+- `router`: an embedded router subprocess (`python -m ares.app.embedded_router`) listening on the port;
+- `spawn_node`: start `python -m <module>` as a node process; killed at teardown;
+- `store`: an embedded black-box store on a temporary file (the REST API's tests).
 """
+
 from __future__ import annotations
 
 import os
@@ -17,23 +19,15 @@ from pathlib import Path
 
 import pytest
 
-from ares import config, run_config as stack_config
-from ares.localhost import free_port, stop_process, wait_for_port  # noqa: F401  (tests import them from here)
-
 REPO = Path(__file__).resolve().parents[1]
-# test modules import these helpers as `tests.conftest`: the repository root must be importable,
-# under `pytest` too
+# the test modules import tests.helpers: the repository root must be importable under `pytest` too
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-
-LIGHT_LIDARS = REPO / "tests" / "light_lidars.yaml"    # the perception run casts fewer LiDAR rays
-NO_LIDARS = REPO / "tests" / "no_lidars.yaml"          # the others run without the LiDARs
-
-
-def make_run_config(port: int, overrides: dict | None = None) -> dict:
-    base = config.deep_merge({"bus": {"router": f"tcp/127.0.0.1:{port}"}}, config.load_yaml(NO_LIDARS))
-    return stack_config.build(overrides=config.deep_merge(base, overrides or {}))
+from ares.core import config  # noqa: E402
+from ares.core.localhost import free_port, stop_process, wait_for_port  # noqa: E402
+from tests.helpers.api import open_test_store  # noqa: E402
+from tests.helpers.stack import make_run_config  # noqa: E402
 
 
 @pytest.fixture
@@ -69,10 +63,17 @@ def spawn_node(child_env, tmp_path):
     def spawn(target: str, name: str, **extra_env: str) -> subprocess.Popen:
         env = {**child_env, "ARES_PROCESS_NAME": name, **extra_env}
         # a node class ("module:Class") runs as the supervisor runs it; anything else is a module
-        command = ["-m", "ares.launch", target] if ":" in target else ["-m", target]
+        command = ["-m", "ares.core.launch", target] if ":" in target else ["-m", target]
         with (tmp_path / f"{name}.log").open("ab") as out:
-            proc = subprocess.Popen([sys.executable, *command], env=env, cwd=REPO, stdin=subprocess.DEVNULL,
-                                    stdout=out, stderr=subprocess.STDOUT, process_group=0)
+            proc = subprocess.Popen(
+                [sys.executable, *command],
+                env=env,
+                cwd=REPO,
+                stdin=subprocess.DEVNULL,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                process_group=0,
+            )
         procs.append(proc)
         return proc
 
@@ -84,7 +85,7 @@ def spawn_node(child_env, tmp_path):
 @pytest.fixture
 def router(run_config, spawn_node, port) -> dict:
     """An embedded router subprocess on `port`; yields the run config that points at it."""
-    proc = spawn_node("ares.router", "router")
+    proc = spawn_node("ares.app.embedded_router", "router")
     try:
         wait_for_port(port)
     except TimeoutError:
@@ -92,3 +93,10 @@ def router(run_config, spawn_node, port) -> dict:
         raise
     yield run_config
     stop_process(proc, group=True)
+
+
+@pytest.fixture
+def store(tmp_path: Path):
+    s = open_test_store(tmp_path / "blackbox.sqlite")
+    yield s
+    s.close()

@@ -3,18 +3,25 @@
 Expected numbers were worked out by hand for the Techs4AgeCar (Table 1 of the paper):
 S = 2.36 m, L = 1.315 m, r = 0.28 m, steering ratio 40, max wheel angle 20° (0.349 rad).
 """
+
 import math
 
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
-from ares import config
-from ares.config import ConfigError, VehicleProfile
+from ares.core import config
+from ares.core.config import ConfigError, VehicleProfile
 from control import ackermann as ack
 
 S, L, R_WHEEL = 2.36, 1.315, 0.28
-TECHS4AGECAR = {"wheelbase_m": S, "track_m": L, "wheel_radius_m": R_WHEEL,
-                "steering_ratio": 40, "max_wheel_angle_rad": 0.349}
+TECHS4AGECAR = {
+    "wheelbase_m": S,
+    "track_m": L,
+    "wheel_radius_m": R_WHEEL,
+    "steering_ratio": 40,
+    "max_wheel_angle_rad": 0.349,
+}
 
 # Turning radius 5 m (the car's figure in Table 1): κ = 1/5 = 0.2 1/m.
 #   θ  = atan(2.36 / 5)               = atan(0.472)   = 0.44100 rad = 25.267°
@@ -36,9 +43,10 @@ wheel_angles = st.floats(min_value=-1.4, max_value=1.4, allow_nan=False)
 
 # --- eq. (9) and R = 1/κ ---------------------------------------------------------------------
 
+
 def test_angular_speed_is_v_times_kappa():
-    assert ack.angular_speed(2.0, KAPPA_5M) == pytest.approx(0.4)      # 2 m/s on a 5 m circle
-    assert ack.angular_speed(2.0, -KAPPA_5M) == pytest.approx(-0.4)    # right turn
+    assert ack.angular_speed(2.0, KAPPA_5M) == pytest.approx(0.4)  # 2 m/s on a 5 m circle
+    assert ack.angular_speed(2.0, -KAPPA_5M) == pytest.approx(-0.4)  # right turn
     assert ack.angular_speed(3.0, 0.0) == 0.0
 
 
@@ -51,6 +59,7 @@ def test_turning_radius_is_inverse_curvature_and_straight_is_infinite():
 
 
 # --- eq. (10)-(12) ---------------------------------------------------------------------------
+
 
 def test_front_wheel_angle_for_5m_turn():
     assert ack.curvature_to_wheel_angle(KAPPA_5M, S) == pytest.approx(THETA_5M, abs=1e-5)
@@ -113,11 +122,11 @@ def test_wheel_angles_match_paper_radius_form(kappa):
 
 # --- eq. (13) --------------------------------------------------------------------------------
 
+
 def test_steering_wheel_angle_is_40_times_wheel_angle():
     assert ack.steering_wheel_angle(THETA_5M) == pytest.approx(40 * THETA_5M)
     assert ack.curvature_to_steering_wheel_angle(KAPPA_5M, S) == pytest.approx(ALPHA_5M, abs=1e-3)
-    assert ack.steering_wheel_angle_deg(ack.curvature_to_wheel_angle(KAPPA_5M, S)) == \
-        pytest.approx(1010.69, abs=1e-2)
+    assert ack.steering_wheel_angle_deg(ack.curvature_to_wheel_angle(KAPPA_5M, S)) == pytest.approx(1010.69, abs=1e-2)
     assert ack.steering_wheel_angle(0.349, steering_ratio=16) == pytest.approx(5.584)
 
 
@@ -142,6 +151,7 @@ def test_round_trip_wheel_angle_curvature_wheel_angle(theta):
 
 
 # --- eq. (14) --------------------------------------------------------------------------------
+
 
 def test_wheel_speed_for_5m_turn_at_2mps():
     theta = ack.curvature_to_wheel_angle(KAPPA_5M, S)
@@ -170,16 +180,26 @@ def test_steered_front_wheels_turn_at_least_as_fast_as_straight(v, theta):
 
 # --- limits ----------------------------------------------------------------------------------
 
+
 def test_max_curvature_from_max_wheel_angle():
     # tan(0.349) / 2.36 = 0.36389 / 2.36 = 0.15419 1/m: a 6.49 m minimum radius.
     assert ack.max_curvature(S, 0.349) == pytest.approx(0.15419, abs=1e-5)
     assert ack.max_curvature(S, -0.349) == pytest.approx(0.15419, abs=1e-5)
 
 
-@pytest.mark.parametrize("theta, expected", [
-    (0.0, 0.0), (0.2, 0.2), (-0.2, -0.2), (0.349, 0.349), (0.5, 0.349), (-0.5, -0.349),
-    (10.0, 0.349), (-math.inf, -0.349),
-])
+@pytest.mark.parametrize(
+    "theta, expected",
+    [
+        (0.0, 0.0),
+        (0.2, 0.2),
+        (-0.2, -0.2),
+        (0.349, 0.349),
+        (0.5, 0.349),
+        (-0.5, -0.349),
+        (10.0, 0.349),
+        (-math.inf, -0.349),
+    ],
+)
 def test_limit_wheel_angle(theta, expected):
     assert ack.limit_wheel_angle(theta, 0.349) == expected
 
@@ -193,6 +213,7 @@ def test_limit_wheel_angle_never_exceeds_and_keeps_sign(theta, limit):
 
 
 # --- SetpointConversion ----------------------------------------------------------------------
+
 
 def techs4agecar() -> ack.SetpointConversion:
     return ack.SetpointConversion(**TECHS4AGECAR)
@@ -215,7 +236,7 @@ def test_conversion_within_limits_follows_equations():
 def test_conversion_clamps_a_too_tight_turn_to_the_max_wheel_angle():
     conv = techs4agecar()
     for sign in (1, -1):
-        out = conv.to_actuators(2.0, sign * KAPPA_5M)   # 25.3° asked, 20° allowed
+        out = conv.to_actuators(2.0, sign * KAPPA_5M)  # 25.3° asked, 20° allowed
         assert out.wheel_angle_limited
         assert out.wheel_angle_rad == pytest.approx(sign * 0.349)
         assert out.steering_wheel_angle_rad == pytest.approx(sign * 40 * 0.349)
@@ -241,8 +262,7 @@ def test_conversion_measurement_back_to_speed_and_curvature():
     assert in_degrees.kappa == pytest.approx(measured.kappa)
 
 
-@given(st.floats(min_value=0.0, max_value=10.0),
-       st.floats(min_value=-0.15, max_value=0.15))
+@given(st.floats(min_value=0.0, max_value=10.0), st.floats(min_value=-0.15, max_value=0.15))
 def test_conversion_round_trip_within_limits(v, kappa):
     conv = techs4agecar()
     out = conv.to_actuators(v, kappa)
@@ -271,16 +291,23 @@ def test_conversion_wheel_angles_for_a_feasible_turn():
     assert (inner, outer) == pytest.approx((expected_inner, expected_outer))
 
 
-@pytest.mark.parametrize("name", [
-    "techs4agecar",
-    "ares_shuttle",
-])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "techs4agecar",
+        "ares_shuttle",
+    ],
+)
 def test_conversion_reads_the_shipped_vehicle_profiles(name):
     profile = config.load_vehicle(name)
     conv = ack.SetpointConversion.from_profile(profile)
     assert conv.max_curvature == pytest.approx(math.tan(profile.max_wheel_angle_rad) / profile.wheelbase_m)
-    assert (conv.wheelbase_m, conv.track_m, conv.wheel_radius_m, conv.steering_ratio) == \
-        (profile.wheelbase_m, profile.track_m, profile.wheel_radius_m, profile.steering_ratio)
+    assert (conv.wheelbase_m, conv.track_m, conv.wheel_radius_m, conv.steering_ratio) == (
+        profile.wheelbase_m,
+        profile.track_m,
+        profile.wheel_radius_m,
+        profile.steering_ratio,
+    )
 
 
 def test_conversion_steering_ratio_defaults_to_the_papers_40():
@@ -288,14 +315,17 @@ def test_conversion_steering_ratio_defaults_to_the_papers_40():
     assert ack.SetpointConversion(**without_ratio).steering_ratio == 40.0
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"track_m": -1.0}, "track_m"),
-    ({"wheel_radius_m": 0}, "wheel_radius_m"),
-    ({"wheelbase_m": math.inf}, "wheelbase_m"),
-    ({"steering_ratio": -40.0}, "steering_ratio"),
-    ({"max_wheel_angle_rad": math.nan}, "max_wheel_angle_rad"),
-    ({"max_wheel_angle_rad": 1.6}, "below pi/2"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"track_m": -1.0}, "track_m"),
+        ({"wheel_radius_m": 0}, "wheel_radius_m"),
+        ({"wheelbase_m": math.inf}, "wheelbase_m"),
+        ({"steering_ratio": -40.0}, "steering_ratio"),
+        ({"max_wheel_angle_rad": math.nan}, "max_wheel_angle_rad"),
+        ({"max_wheel_angle_rad": 1.6}, "below pi/2"),
+    ],
+)
 def test_conversion_rejects_bad_geometry(change, message):
     with pytest.raises(ValueError, match=message):
         ack.SetpointConversion(**{**TECHS4AGECAR, **change})
@@ -305,14 +335,17 @@ def shuttle_profile_data() -> dict:
     return config.load_vehicle("ares_shuttle").model_dump()
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"wheelbase_m": None}, "wheelbase_m: Input should be a valid number"),
-    ({"track_m": -1.0}, "track_m: Input should be greater than 0"),
-    ({"wheel_radius_m": 0}, "wheel_radius_m: Input should be greater than 0"),
-    ({"steering_ratio": "forty"}, "steering_ratio: Input should be a valid number"),
-    ({"max_wheel_angle_rad": math.nan}, "max_wheel_angle_rad: Input should be a finite number"),
-    ({"max_wheel_angle_rad": 1.6}, "max_wheel_angle_rad: Input should be less than 1.5"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"wheelbase_m": None}, "wheelbase_m: Input should be a valid number"),
+        ({"track_m": -1.0}, "track_m: Input should be greater than 0"),
+        ({"wheel_radius_m": 0}, "wheel_radius_m: Input should be greater than 0"),
+        ({"steering_ratio": "forty"}, "steering_ratio: Input should be a valid number"),
+        ({"max_wheel_angle_rad": math.nan}, "max_wheel_angle_rad: Input should be a finite number"),
+        ({"max_wheel_angle_rad": 1.6}, "max_wheel_angle_rad: Input should be less than 1.5"),
+    ],
+)
 def test_a_profile_with_bad_geometry_is_refused_naming_the_key(change, message):
     # the conversion takes typed numbers: a profile that would break it never gets that far
     with pytest.raises(ConfigError, match=message):

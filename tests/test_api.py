@@ -3,100 +3,37 @@
 The helpers at the top (seed, settings, clients) are reused by test_api_security.py and
 test_api_schema.py.
 """
+
 from __future__ import annotations
 
 import csv
 import io
 import json
 import time
-from datetime import datetime, timedelta, timezone
-from pathlib import Path
+from datetime import UTC, datetime, timedelta
 
 import pytest
 from fastapi.testclient import TestClient
 
-from ares.config import VEHICLE_ID_PATTERN
-from ares.messages import EventLevel, Position, ProcessHealth, SensorHealth, StoredEvent, VehicleRecord
-from blackbox.api import CSV_COLUMNS, RECORD_FIELDS, ApiSettings, create_app
-from blackbox.auth import ROLES, add_user
-from blackbox.store import RETENTION, StoreSettings, StoreUnavailable
-
-VEHICLE = "shuttle01"
-OTHER = "shuttle02"
-PASSWORD = "correct horse battery"
-N_RECORDS = 1800                    # the last 30 min at 1 Hz
-FAULT_AT = 1200                     # seconds into the window: a FAULT, 60 s in MANUAL, back in AUTOMATIC
-FAST_ARGON2 = {"time_cost": 1, "memory_kib": 64, "parallelism": 1}
-
-VEHICLE_ID = "shuttle01"     # the stack's own (its API events are this vehicle's)
-
-
-def api_settings(**overrides) -> ApiSettings:
-    """Test settings: cheap hashing, and limits out of the way unless a test sets them."""
-    base = {"auth": {"argon2": FAST_ARGON2},
-            "rate_limit": {"client_per_s": 10_000, "client_burst": 10_000, "token_per_s": 100, "token_burst": 100},
-            "blacklist": {"failed_logins": 1000, "abuse_requests_per_s": 100_000}}
-    for key, value in overrides.items():
-        base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value
-    return ApiSettings.model_validate(base)
-
-
-def seed(store, now: datetime | None = None) -> datetime:
-    """N_RECORDS of VEHICLE ending one second before `now`, events, one record of OTHER; the
-    time of the first record."""
-    now = (now or store.now()).replace(microsecond=0)
-    first = now - timedelta(seconds=N_RECORDS)
-    procs = {"controller": ProcessHealth(state="running"), "dbw_bridge": ProcessHealth(state="running")}
-    records = []
-    for i in range(N_RECORDS):
-        manual = FAULT_AT <= i < FAULT_AT + 60
-        records.append(VehicleRecord(
-            vehicle_id=VEHICLE, time=first + timedelta(seconds=i), t=float(i),
-            position=Position(x=float(i), y=-2.5, z=0.0, easting=440000.0 + i, northing=4474000.0, zone=30,
-                              hemisphere="N", lat=40.4, lon=-3.7),
-            speed_mps=0.0 if manual else 3.0, steering_wheel_deg=1.5, mode="MANUAL" if manual else "AUTOMATIC",
-            scores={"odometry": 0.9}, controller="pure_pursuit",
-            sensors={"gnss": SensorHealth(rate_hz=5.0, ok=True)}, processes=procs, events=0))
-    store.insert_records(records)
-    store.insert_records([VehicleRecord(vehicle_id=OTHER, time=first, t=0.0, mode="READY")])
-    events = [StoredEvent(vehicle_id=VEHICLE, time=first + timedelta(seconds=FAULT_AT, milliseconds=300),
-                          t=FAULT_AT + 0.3, source="dbw_bridge", kind="watchdog", level=EventLevel.FAULT,
-                          message="setpoint timeout")]
-    for i in range(0, N_RECORDS, 60):      # 30 mode_change events
-        events.append(StoredEvent(vehicle_id=VEHICLE, time=first + timedelta(seconds=i, milliseconds=500),
-                                  t=i + 0.5, source="dbw_bridge", kind="mode_change", level=EventLevel.INFO,
-                                  message=f"event {i}", data={"i": i}))
-    store.insert_events(events)
-    return first
-
-
-def add_role_users(store, app) -> None:
-    for role in ROLES:
-        if store.get_user(role) is None:
-            add_user(store, app.state.services.passwords, role, role, PASSWORD, 10)
-
-
-def token_for(client: TestClient, name: str, password: str = PASSWORD) -> str:
-    r = client.post("/api/v1/auth/token", data={"username": name, "password": password})
-    assert r.status_code == 200, r.text
-    return r.json()["access_token"]
-
-
-def auth(token: str) -> dict:
-    return {"Authorization": f"Bearer {token}"}
-
-
-def open_test_store(path: Path):
-    from blackbox.sqlite_store import SqliteStore
-    # no fsync per commit: durability across power cuts is the store's own tests' business
-    return SqliteStore(str(path), settings=StoreSettings(synchronous="OFF"))
-
-
-@pytest.fixture
-def store(tmp_path: Path):
-    s = open_test_store(tmp_path / "blackbox.sqlite")
-    yield s
-    s.close()
+from ares.core.config import VEHICLE_ID_PATTERN
+from ares.core.messages import EventLevel, StoredEvent, VehicleRecord
+from blackbox.api import CSV_COLUMNS, RECORD_FIELDS, create_app
+from blackbox.api.credentials import ROLES
+from blackbox.store.record_store import RETENTION, StoreUnavailable
+from tests.helpers.api import (
+    FAULT_AT,
+    N_RECORDS,
+    OTHER,
+    PASSWORD,
+    VEHICLE,
+    VEHICLE_ID,
+    add_role_users,
+    api_settings,
+    auth,
+    open_test_store,
+    seed,
+    token_for,
+)
 
 
 @pytest.fixture(scope="module")
@@ -114,10 +51,11 @@ def world(tmp_path_factory):
 
 
 def iso(dt: datetime) -> str:
-    return dt.astimezone(timezone.utc).isoformat().replace("+00:00", "Z")
+    return dt.astimezone(UTC).isoformat().replace("+00:00", "Z")
 
 
 # ---- health, auth ------------------------------------------------------------------------------
+
 
 def test_health(world):
     client, *_ = world
@@ -151,6 +89,7 @@ def test_wrong_password_and_unknown_user(world):
 
 # ---- vehicles and latest -------------------------------------------------------------------------
 
+
 def test_vehicles(world):
     client, _, _, _, tokens = world
     r = client.get("/api/v1/vehicles", headers=auth(tokens["fleet"]))
@@ -170,9 +109,10 @@ def test_latest_and_its_cache(store):
     assert r.status_code == 200 and r.headers["content-type"] == "application/json"
     latest = VehicleRecord.model_validate(r.json())
     assert latest.t == N_RECORDS - 1 and latest.mode.value == "AUTOMATIC"
-    store.insert_records([VehicleRecord(vehicle_id=VEHICLE, time=latest.time + timedelta(seconds=1), t=N_RECORDS,
-                                        mode="MANUAL")])
-    assert client.get(f"/api/v1/vehicles/{VEHICLE}/latest", headers=h).json()["t"] == N_RECORDS - 1   # cached
+    store.insert_records(
+        [VehicleRecord(vehicle_id=VEHICLE, time=latest.time + timedelta(seconds=1), t=N_RECORDS, mode="MANUAL")]
+    )
+    assert client.get(f"/api/v1/vehicles/{VEHICLE}/latest", headers=h).json()["t"] == N_RECORDS - 1  # cached
     time.sleep(0.35)
     assert client.get(f"/api/v1/vehicles/{VEHICLE}/latest", headers=h).json()["t"] == N_RECORDS
 
@@ -186,7 +126,7 @@ def test_unknown_vehicle_404(world):
 
 
 def test_vehicle_id_is_a_configured_one(world):
-    """The path's vehicle id is what a stack's configuration allows (ares.config), in ASCII: the
+    """The path's vehicle id is what a stack's configuration allows (ares.core.config), in ASCII: the
     same for the schema's reader (ECMA 262, where \\s is no NEL) and the server (where it is)."""
     client, _, _, _, tokens = world
     op = client.get("/openapi.json").json()["paths"]["/api/v1/vehicles/{vehicle_id}/latest"]["get"]
@@ -198,6 +138,7 @@ def test_vehicle_id_is_a_configured_one(world):
 
 
 # ---- records -----------------------------------------------------------------------------------
+
 
 def test_records_paging(world):
     client, _, _, first, tokens = world
@@ -214,8 +155,11 @@ def test_records_paging(world):
     r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", params={**window, "page_size": 500, "page": 5}, headers=h)
     assert r.status_code == 200 and r.json()["records"] == []
     # a sub-window: start inclusive, end exclusive
-    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={
-        "start": iso(first + timedelta(seconds=10)), "end": iso(first + timedelta(seconds=20))})
+    r = client.get(
+        f"/api/v1/vehicles/{VEHICLE}/records",
+        headers=h,
+        params={"start": iso(first + timedelta(seconds=10)), "end": iso(first + timedelta(seconds=20))},
+    )
     assert [rec["t"] for rec in r.json()["records"]] == [float(i) for i in range(10, 20)]
 
 
@@ -226,8 +170,9 @@ def test_a_page_of_every_field_is_the_same_whether_spliced_or_selected(world):
     h = auth(tokens["auditor"])
     window = {"start": iso(first), "end": iso(first + timedelta(seconds=N_RECORDS)), "page_size": 50, "page": 3}
     spliced = client.get(f"/api/v1/vehicles/{VEHICLE}/records", params=window, headers=h).json()
-    selected = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h,
-                          params={**window, "fields": ",".join(RECORD_FIELDS)}).json()
+    selected = client.get(
+        f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={**window, "fields": ",".join(RECORD_FIELDS)}
+    ).json()
     assert spliced.pop("fields") is None and sorted(selected.pop("fields")) == sorted(RECORD_FIELDS)
     assert spliced == selected and len(spliced["records"]) == 50
 
@@ -244,8 +189,11 @@ def test_records_default_window_is_last_hour(world):
 def test_field_selection(world):
     client, _, _, first, tokens = world
     h = auth(tokens["auditor"])
-    r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h,
-                   params={"fields": "speed_mps,mode,position", "start": iso(first), "page_size": 3})
+    r = client.get(
+        f"/api/v1/vehicles/{VEHICLE}/records",
+        headers=h,
+        params={"fields": "speed_mps,mode,position", "start": iso(first), "page_size": 3},
+    )
     body = r.json()
     assert r.status_code == 200 and body["fields"] == ["time", "speed_mps", "mode", "position"]
     assert all(set(rec) == {"time", "speed_mps", "mode", "position"} for rec in body["records"])
@@ -253,9 +201,9 @@ def test_field_selection(world):
     r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={"fields": "mode,time", "page_size": 1})
     assert r.status_code == 200 and r.json()["fields"] == ["time", "mode"]
     r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={"page_size": 1})
-    assert r.status_code == 200 and r.json()["fields"] is None      # nothing selected: every field
+    assert r.status_code == 200 and r.json()["fields"] is None  # nothing selected: every field
     r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={"fields": "", "page_size": 1})
-    assert r.status_code == 422                                     # an empty name is no field
+    assert r.status_code == 422  # an empty name is no field
     # the schema's array of field names, comma-separated, each once: anything else is refused
     r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", headers=h, params={"fields": "speed_mps,altitude,_id"})
     assert r.status_code == 422
@@ -273,17 +221,20 @@ def test_fields_enumerated_in_the_schema(world):
     assert fields["schema"]["items"]["enum"] == list(RECORD_FIELDS) and fields["schema"]["uniqueItems"] is True
 
 
-@pytest.mark.parametrize("params, message", [
-    ({"page_size": 100000}, "page_size"),
-    ({"page": 0}, "page"),
-    ({"start": "2025-01-01T00:00:00"}, "UTC offset"),     # naive: ambiguous
-    ({"start": "yesterday"}, "start"),
-    ({"start": "0.5"}, "RFC 3339"),                      # pydantic alone: 0.5 s after 1970
-    ({"end": "2026-01-31"}, "RFC 3339"),
-    ({"end": "2026-01-31 08:00:00Z"}, "RFC 3339"),
-    ({"end": "2026-01-31T08:59:60Z"}, "leap second"),    # only at 23:59:60 UTC
-    ({"fields": "mode,altitude"}, "unknown field"),
-])
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({"page_size": 100000}, "page_size"),
+        ({"page": 0}, "page"),
+        ({"start": "2025-01-01T00:00:00"}, "UTC offset"),  # naive: ambiguous
+        ({"start": "yesterday"}, "start"),
+        ({"start": "0.5"}, "RFC 3339"),  # pydantic alone: 0.5 s after 1970
+        ({"end": "2026-01-31"}, "RFC 3339"),
+        ({"end": "2026-01-31 08:00:00Z"}, "RFC 3339"),
+        ({"end": "2026-01-31T08:59:60Z"}, "leap second"),  # only at 23:59:60 UTC
+        ({"fields": "mode,altitude"}, "unknown field"),
+    ],
+)
 def test_records_bad_parameters_422(world, params, message):
     client, _, _, _, tokens = world
     r = client.get(f"/api/v1/vehicles/{VEHICLE}/records", params=params, headers=auth(tokens["auditor"]))
@@ -298,17 +249,32 @@ def test_windows_beyond_the_retention_are_clipped(store):
     oldest = now - RETENTION
     # every 10 s from 400 s before the retention's start to 60 s after it: events, then records
     # (the first insert purged what had expired; the records are in before the next purge is due)
-    store.insert_events([StoredEvent(vehicle_id=VEHICLE, time=oldest + timedelta(seconds=s, milliseconds=500),
-                                     t=s + 0.5, source="test", kind="mark", level=EventLevel.INFO, message=str(s))
-                         for s in range(-400, 60, 10)])
-    store.insert_records([VehicleRecord(vehicle_id=VEHICLE, time=oldest + timedelta(seconds=s), t=float(s),
-                                        mode="READY") for s in range(-400, 60, 10)])
+    store.insert_events(
+        [
+            StoredEvent(
+                vehicle_id=VEHICLE,
+                time=oldest + timedelta(seconds=s, milliseconds=500),
+                t=s + 0.5,
+                source="test",
+                kind="mark",
+                level=EventLevel.INFO,
+                message=str(s),
+            )
+            for s in range(-400, 60, 10)
+        ]
+    )
+    store.insert_records(
+        [
+            VehicleRecord(vehicle_id=VEHICLE, time=oldest + timedelta(seconds=s), t=float(s), mode="READY")
+            for s in range(-400, 60, 10)
+        ]
+    )
     app = create_app(store, api_settings(), VEHICLE_ID)
     add_role_users(store, app)
     client = TestClient(app)
     h = auth(token_for(client, "auditor"))
     url = f"/api/v1/vehicles/{VEHICLE}"
-    inside = [float(s) for s in range(10, 60, 10)]      # the one at the retention's start may have just left it
+    inside = [float(s) for s in range(10, 60, 10)]  # the one at the retention's start may have just left it
 
     def get(path, **params):
         r = client.get(f"{url}/{path}", params=params, headers=h)
@@ -338,10 +304,12 @@ def test_windows_beyond_the_retention_are_clipped(store):
     assert get("records").json()["clipped"] is False
 
     # wholly before the retention, reversed, or empty: nothing, at end = start
-    for params in ({"start": "2000-01-01T00:00:00Z", "end": "2000-01-02T00:00:00Z"},
-                   {"end": "2000-01-02T00:00:00Z"},
-                   {"start": iso(now - timedelta(minutes=1)), "end": iso(now - timedelta(minutes=2))},
-                   {"start": iso(now + timedelta(days=1))}):
+    for params in (
+        {"start": "2000-01-01T00:00:00Z", "end": "2000-01-02T00:00:00Z"},
+        {"end": "2000-01-02T00:00:00Z"},
+        {"start": iso(now - timedelta(minutes=1)), "end": iso(now - timedelta(minutes=2))},
+        {"start": iso(now + timedelta(days=1))},
+    ):
         for path in ("records", "events", "reliability"):
             body = get(path, **params).json()
             assert body["clipped"] is True and body["start"] == body["end"], (path, params)
@@ -351,7 +319,7 @@ def test_windows_beyond_the_retention_are_clipped(store):
         assert r.text == "" and r.headers["x-window-clipped"] == "true"
         assert r.headers["x-window-start"] == r.headers["x-window-end"]
     body = get("records", start=iso(now), end=iso(now)).json()
-    assert body["clipped"] is False and body["total"] == 0          # empty as asked
+    assert body["clipped"] is False and body["total"] == 0  # empty as asked
     # RFC 3339 has them: the year 0000, a leap second
     assert get("records", start="0000-01-01T00:00:00Z").json()["clipped"] is True
     leap = (now - timedelta(days=1)).replace(hour=15, minute=59, second=0)
@@ -365,9 +333,14 @@ def test_windows_beyond_the_retention_are_clipped(store):
 
 # ---- export ------------------------------------------------------------------------------------
 
+
 def test_export_jsonl(world):
     client, _, _, first, tokens = world
-    params = {"start": iso(first + timedelta(seconds=100)), "end": iso(first + timedelta(seconds=1300)), "format": "jsonl"}
+    params = {
+        "start": iso(first + timedelta(seconds=100)),
+        "end": iso(first + timedelta(seconds=1300)),
+        "format": "jsonl",
+    }
     r = client.get(f"/api/v1/vehicles/{VEHICLE}/export", params=params, headers=auth(tokens["auditor"]))
     assert r.status_code == 200 and r.headers["content-type"].startswith("application/x-ndjson")
     assert r.headers["content-disposition"].startswith(f'attachment; filename="{VEHICLE}_')
@@ -392,7 +365,7 @@ def test_export_csv(world):
     assert row["time"] == iso(first + timedelta(seconds=10))
     assert json.loads(row["scores"]) == {"odometry": 0.9}
     assert json.loads(row["sensors"]) == {"gnss": {"rate_hz": 5.0, "ok": True}}
-    assert row["awareness_level"] == ""          # None -> empty cell
+    assert row["awareness_level"] == ""  # None -> empty cell
 
 
 def test_export_bad_format_and_roles(world):
@@ -405,6 +378,7 @@ def test_export_bad_format_and_roles(world):
 
 
 # ---- events and reliability ----------------------------------------------------------------------
+
 
 def test_events(world):
     client, _, _, first, tokens = world
@@ -426,13 +400,16 @@ def test_events(world):
 
 def test_reliability(world):
     client, _, _, first, tokens = world
-    r = client.get(f"/api/v1/vehicles/{VEHICLE}/reliability", headers=auth(tokens["operator"]),
-                   params={"start": iso(first), "end": iso(first + timedelta(seconds=N_RECORDS)), "t_hours": 2})
+    r = client.get(
+        f"/api/v1/vehicles/{VEHICLE}/reliability",
+        headers=auth(tokens["operator"]),
+        params={"start": iso(first), "end": iso(first + timedelta(seconds=N_RECORDS)), "t_hours": 2},
+    )
     body = r.json()
     assert r.status_code == 200, body
     assert body["records"] == N_RECORDS and body["failures"] == 1 and body["open_failures"] == 0
     operating_h = (N_RECORDS - 60) / 3600
-    repair_h = 59.7 / 3600                  # fault at 1200.3 s, up again in the record of 1260 s
+    repair_h = 59.7 / 3600  # fault at 1200.3 s, up again in the record of 1260 s
     assert body["operating_hours"] == pytest.approx(operating_h)
     assert body["repair_hours"] == pytest.approx(repair_h)
     assert body["mtbf_hours"] == pytest.approx(operating_h)
@@ -440,12 +417,12 @@ def test_reliability(world):
     assert body["availability"] == pytest.approx(operating_h / (operating_h + repair_h))
     assert body["reliability"] == pytest.approx(pytest.importorskip("math").exp(-2 / operating_h))
     assert "AUTOMATIC" in body["definitions"]
-    r = client.get(f"/api/v1/vehicles/{VEHICLE}/reliability", headers=auth(tokens["operator"]),
-                   params={"t_hours": 0})
+    r = client.get(f"/api/v1/vehicles/{VEHICLE}/reliability", headers=auth(tokens["operator"]), params={"t_hours": 0})
     assert r.status_code == 422
 
 
 # ---- users -------------------------------------------------------------------------------------
+
 
 def test_users_admin_only(world):
     client, _, _, _, tokens = world
@@ -466,8 +443,14 @@ def test_users_admin_only(world):
     assert r.status_code == 422
     for role in ("auditor", "operator", "fleet"):
         assert client.get("/api/v1/users", headers=auth(tokens[role])).status_code == 403
-        assert client.post("/api/v1/users", headers=auth(tokens[role]),
-                           json={"name": "mallory", "role": "admin", "password": "0123456789ab"}).status_code == 403
+        assert (
+            client.post(
+                "/api/v1/users",
+                headers=auth(tokens[role]),
+                json={"name": "mallory", "role": "admin", "password": "0123456789ab"},
+            ).status_code
+            == 403
+        )
 
 
 # ---- roles, no writes, store down, documentation ----------------------------------------------
@@ -496,18 +479,26 @@ def test_nothing_alters_records(world):
     client, app, _, _, tokens = world
     h = auth(tokens["admin"])
     for method in ("PUT", "DELETE", "PATCH", "POST"):
-        for path in (f"/api/v1/vehicles/{VEHICLE}/records", f"/api/v1/vehicles/{VEHICLE}/latest",
-                     f"/api/v1/vehicles/{VEHICLE}/events"):
+        for path in (
+            f"/api/v1/vehicles/{VEHICLE}/records",
+            f"/api/v1/vehicles/{VEHICLE}/latest",
+            f"/api/v1/vehicles/{VEHICLE}/events",
+        ):
             assert client.request(method, path, headers=h).status_code == 405, (method, path)
     schema = client.get("/openapi.json").json()
     writes = {(p, m) for p, ops in schema["paths"].items() for m in ops if m in ("put", "delete", "patch", "post")}
     # besides logging in and adding users, the operator's commands: a re-arm, the mission's goal,
     # pause, resume, cancel, the doors and the ramp, which the managers decide and which alter no
     # record (each adds the event that says who asked)
-    assert writes == {("/api/v1/auth/token", "post"), ("/api/v1/auth/renew", "post"), ("/api/v1/users", "post"),
-                      ("/api/v1/vehicles/{vehicle_id}/rearm", "post"), ("/api/v1/vehicles/{vehicle_id}/mission", "post"),
-                      ("/api/v1/vehicles/{vehicle_id}/mission/{action}", "post"),
-                      ("/api/v1/vehicles/{vehicle_id}/body", "post")}
+    assert writes == {
+        ("/api/v1/auth/token", "post"),
+        ("/api/v1/auth/renew", "post"),
+        ("/api/v1/users", "post"),
+        ("/api/v1/vehicles/{vehicle_id}/rearm", "post"),
+        ("/api/v1/vehicles/{vehicle_id}/mission", "post"),
+        ("/api/v1/vehicles/{vehicle_id}/mission/{action}", "post"),
+        ("/api/v1/vehicles/{vehicle_id}/body", "post"),
+    }
 
 
 def test_other_methods_get_405_and_allow(world):
@@ -548,9 +539,13 @@ def test_login_form_is_what_its_schema_says(world):
 def test_errors_documented(world):
     client, *_ = world
     paths = client.get("/openapi.json").json()["paths"]
-    for path in ("/api/v1/vehicles/{vehicle_id}/records", "/api/v1/vehicles/{vehicle_id}/export",
-                 "/api/v1/vehicles/{vehicle_id}/latest", "/api/v1/vehicles/{vehicle_id}/events",
-                 "/api/v1/vehicles/{vehicle_id}/reliability"):
+    for path in (
+        "/api/v1/vehicles/{vehicle_id}/records",
+        "/api/v1/vehicles/{vehicle_id}/export",
+        "/api/v1/vehicles/{vehicle_id}/latest",
+        "/api/v1/vehicles/{vehicle_id}/events",
+        "/api/v1/vehicles/{vehicle_id}/reliability",
+    ):
         assert {"200", "401", "403", "404", "422", "429", "503"} <= set(paths[path]["get"]["responses"]), path
     for path, ops in paths.items():
         for op in ops.values():
@@ -559,9 +554,10 @@ def test_errors_documented(world):
             if "401" in op["responses"]:
                 assert op["responses"]["401"]["headers"]["WWW-Authenticate"]["required"] is True, path
     assert paths["/api/v1/users"]["post"]["requestBody"]["content"]["application/json"]["schema"] == {
-        "$ref": "#/components/schemas/NewUser"}
+        "$ref": "#/components/schemas/NewUser"
+    }
     new_user = client.get("/openapi.json").json()["components"]["schemas"]["NewUser"]
-    assert new_user["properties"]["password"]["minLength"] == 10           # auth.min_password_length
+    assert new_user["properties"]["password"]["minLength"] == 10  # auth.min_password_length
     assert paths["/api/v1/auth/token"]["post"]["requestBody"]["content"].keys() == {"application/x-www-form-urlencoded"}
 
 
@@ -578,6 +574,7 @@ class DownStore:
     def __getattr__(self, name):
         def fail(*_args, **_kwargs):
             raise StoreUnavailable("connection refused")
+
         return fail
 
 
@@ -602,8 +599,10 @@ def test_store_down_503(store):
 
 # ---- CLI: users --------------------------------------------------------------------------------
 
+
 def test_cli_users(tmp_path, monkeypatch, capsys):
     from ares import cli
+
     db = str(tmp_path / "cli.sqlite")
     monkeypatch.setattr("sys.stdin", io.StringIO("a long password\na long password\n"))
     assert cli.main(["users", "add", "alice", "--role", "auditor", "--store", db]) == 0
@@ -622,7 +621,8 @@ def test_cli_users(tmp_path, monkeypatch, capsys):
     users = json.loads(capsys.readouterr().out)["users"]
     assert [(u["name"], u["role"]) for u in users] == [("alice", "auditor"), ("bob", "fleet")]
     # the hash is a real argon2id hash that the API accepts
-    from blackbox.sqlite_store import SqliteStore
+    from blackbox.store.sqlite_store import SqliteStore
+
     s = SqliteStore(db)
     app = create_app(s, api_settings(), VEHICLE_ID)
     assert token_for(TestClient(app), "bob", "one line password")

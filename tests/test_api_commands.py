@@ -1,18 +1,19 @@
 """The REST API's command route (blackbox/api/routes/commands.py): an operator, and only an
 operator, re-arms the shuttle through the movement manager's service, which decides; the black
 box's event names the operator. The movement manager is the real node, on the in-memory bus."""
+
 from __future__ import annotations
 
 import pytest
 from fastapi.testclient import TestClient
 
-from ares import config
-from ares.clock import ManualClock
-from ares.membus import MemoryNetwork
-from ares.messages import AwarenessState, CarState, DriveMode, Setpoint, SpeedLimits
+from ares.core import config
+from ares.core.clock import ManualClock
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import AwarenessState, CarState, DriveMode, Setpoint, SpeedLimits
 from blackbox.api import create_app
-from managers.movement import MovementManager
-from tests.test_api import VEHICLE_ID, add_role_users, api_settings, auth, open_test_store, token_for
+from managers.movement_node import MovementManager
+from tests.helpers.api import VEHICLE_ID, add_role_users, api_settings, auth, open_test_store, token_for
 
 
 @pytest.fixture
@@ -37,11 +38,33 @@ def vehicle(run_config, tmp_path):
             t = round(clock.now() + 0.02, 9)
             clock.set(t)
             feed.publish("control/setpoint", Setpoint(t=t, v=2.0, kappa=0.0, source="mpc"))
-            feed.publish("speed/limits", SpeedLimits(t=t, s=0.0, section=0, kind="cruise", limit_mps=3.0,
-                                                     next_section=None, next_limit_mps=None, distance_to_next_m=None))
-            feed.publish("dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
-                                                   setpoint_age_s=0.02, v_command=2.0, kappa_command=0.0,
-                                                   speed_mps=2.0, steering_wheel_deg=0.0))
+            feed.publish(
+                "speed/limits",
+                SpeedLimits(
+                    t=t,
+                    s=0.0,
+                    section=0,
+                    kind="cruise",
+                    limit_mps=3.0,
+                    next_section=None,
+                    next_limit_mps=None,
+                    distance_to_next_m=None,
+                ),
+            )
+            feed.publish(
+                "dbw/car_state",
+                CarState(
+                    t=t,
+                    mode=DriveMode.AUTOMATIC,
+                    engaged=True,
+                    watchdog_tripped=False,
+                    setpoint_age_s=0.02,
+                    v_command=2.0,
+                    kappa_command=0.0,
+                    speed_mps=2.0,
+                    steering_wheel_deg=0.0,
+                ),
+            )
             feed.publish("awareness/state", AwarenessState(t=t, level=level, causes=list(causes) if level else []))
             node.step_once(t)
         return node.gate
@@ -61,10 +84,13 @@ def test_an_operator_rearms_through_the_movement_manager_which_decides(vehicle):
     assert step(1).latched
     r = client.post(URL, headers=auth(tokens["operator"]))
     assert r.status_code == 409 and "level 1 persists (lidar roof: blind)" in r.json()["reason"]
-    assert step(0).latched                      # cleared, still latched
+    assert step(0).latched  # cleared, still latched
     r = client.post(URL, headers=auth(tokens["operator"]))
-    assert r.status_code == 200 and r.json() == {"accepted": True, "reason": "re-armed after: lidar roof: blind",
-                                                 "operator": "operator"}
+    assert r.status_code == 200 and r.json() == {
+        "accepted": True,
+        "reason": "re-armed after: lidar roof: blind",
+        "operator": "operator",
+    }
     assert not step(0).latched
     rearms = [e.data for _, e in events.drain() if e.kind == "rearm"]
     assert [(d["operator"], d["accepted"]) for d in rearms] == [("operator", False)] * 2 + [("operator", True)]
@@ -79,7 +105,7 @@ def test_only_an_operator_of_this_vehicle_may(vehicle):
         assert r.status_code == 403 and "needs operator" in r.json()["detail"]
     r = client.post("/api/v1/vehicles/shuttle99/rearm", headers=auth(tokens["operator"]))
     assert r.status_code == 404
-    assert step(0).latched                      # none of them re-armed it
+    assert step(0).latched  # none of them re-armed it
 
 
 def test_without_a_bus_the_route_says_so(tmp_path):
@@ -93,7 +119,8 @@ def test_without_a_bus_the_route_says_so(tmp_path):
 
 
 def test_an_operator_sets_pauses_and_cancels_the_mission_through_the_mission_manager(run_config, tmp_path):
-    from tests.test_mission_manager import Tour
+    from tests.helpers.mission import Tour
+
     tour = Tour(config.deep_merge(run_config, {"mission_manager": {"autostart": "none"}}), s0=40.0)
     tour.run(0.5)
     store = open_test_store(tmp_path / "bb.sqlite")
@@ -108,12 +135,18 @@ def test_an_operator_sets_pauses_and_cancels_the_mission_through_the_mission_man
         assert client.post(f"{base}/pause", headers=auth(tokens["fleet"])).status_code == 403
         refused = client.post(base, json={"pois": ["Atlantis"]}, headers=auth(tokens["operator"]))
         assert refused.status_code == 409 and "unknown POIs ['Atlantis']" in refused.json()["reason"]
-        assert client.post(base, json={"pois": ["Library"], "drive": True},
-                           headers=auth(tokens["operator"])).status_code == 422
+        assert (
+            client.post(base, json={"pois": ["Library"], "drive": True}, headers=auth(tokens["operator"])).status_code
+            == 422
+        )
         started = client.post(base, json={"pois": ["Library", "Lakeside"]}, headers=auth(tokens["operator"]))
         assert started.status_code == 200 and started.json() == {
-            "accepted": True, "reason": "accepted: 2 POIs, first Library", "operator": "operator", "goal_id": 1,
-            "state": "DRIVING"}
+            "accepted": True,
+            "reason": "accepted: 2 POIs, first Library",
+            "operator": "operator",
+            "goal_id": 1,
+            "state": "DRIVING",
+        }
         tour.run(5.0)
         assert tour.v > 2.0
         assert client.post(f"{base}/pause", headers=auth(tokens["operator"])).json()["state"] == "PAUSED"
@@ -124,7 +157,12 @@ def test_an_operator_sets_pauses_and_cancels_the_mission_through_the_mission_man
         assert client.post(f"{base}/fly", headers=auth(tokens["operator"])).status_code == 422
         assert client.post(f"{base}/cancel", headers=auth(tokens["operator"])).json()["state"] == "CANCELED"
         commands = [(e.data["operator"], e.data["accepted"]) for e in tour.kinds("mission_command")]
-        assert commands == [("operator", False), ("operator", True), ("operator", True), ("operator", False),
-                            ("operator", True)]
+        assert commands == [
+            ("operator", False),
+            ("operator", True),
+            ("operator", True),
+            ("operator", False),
+            ("operator", True),
+        ]
     finally:
         store.close()

@@ -19,6 +19,7 @@ real movement manager.
 A failure fails the test with schemathesis' report (each failure with a curl line to reproduce
 it, and the seed of the run).
 """
+
 from __future__ import annotations
 
 import json
@@ -32,21 +33,34 @@ from pathlib import Path
 import httpx
 import pytest
 
+from ares.core.localhost import free_port
+from blackbox.api.credentials import Argon2Settings, Passwords, add_user
 from blackbox.api.models import LoginForm
-from blackbox.auth import Argon2Settings, Passwords, add_user
-from tests.conftest import free_port
-from tests.test_api import PASSWORD, VEHICLE_ID, open_test_store, seed
-from tests.test_api_security import _start_server, _stop, _wait_serving
+from tests.helpers.api import (
+    PASSWORD,
+    VEHICLE_ID,
+    open_test_store,
+    seed,
+    start_api_process,
+    stop_api_process,
+    wait_serving,
+)
 
 PHASES = "examples,coverage,fuzzing,stateful"
 RATE = "30/s"
-MAX_EXAMPLES = 30               # per operation and phase: ~1,000 requests, ~35 s at 30/s
+MAX_EXAMPLES = 30  # per operation and phase: ~1,000 requests, ~35 s at 30/s
 LOGIN = "/api/v1/auth/token"
 # a store's API has no bus: the commands and the live gateway answer 503 by design (the gateway's
 # streams and refusals: tests/test_live.py)
-COMMANDS = ("/api/v1/vehicles/{vehicle_id}/rearm", "/api/v1/vehicles/{vehicle_id}/mission",
-            "/api/v1/vehicles/{vehicle_id}/mission/{action}", "/api/v1/vehicles/{vehicle_id}/body",
-            "/api/v1/live/vehicles/{vehicle_id}", "/api/v1/live/fleet", "/api/v1/route")
+COMMANDS = (
+    "/api/v1/vehicles/{vehicle_id}/rearm",
+    "/api/v1/vehicles/{vehicle_id}/mission",
+    "/api/v1/vehicles/{vehicle_id}/mission/{action}",
+    "/api/v1/vehicles/{vehicle_id}/body",
+    "/api/v1/live/vehicles/{vehicle_id}",
+    "/api/v1/live/fleet",
+    "/api/v1/route",
+)
 RUN_TIMEOUT_S = 240
 
 
@@ -66,20 +80,48 @@ def seeded(tmp_path_factory) -> Path:
     return db
 
 
-def schemathesis(tmp_path: Path, schema_url: str, cert: Path, headers: dict[str, str],
-                 per_path_headers: dict[str, dict[str, str]], *args: str) -> subprocess.CompletedProcess:
+def schemathesis(
+    tmp_path: Path,
+    schema_url: str,
+    cert: Path,
+    headers: dict[str, str],
+    per_path_headers: dict[str, dict[str, str]],
+    *args: str,
+) -> subprocess.CompletedProcess:
     """`st run` with every check in every phase at RATE, verifying the server's certificate;
     failing on warnings too (e.g. rate_limited: a 429 seen, missing_auth: a token refused)."""
+
     def table(values: dict[str, str]) -> str:
         return "{ " + ", ".join(f"{json.dumps(k)} = {json.dumps(v)}" for k, v in values.items()) + " }"
+
     lines = [f"headers = {table(headers)}", "warnings = { fail-on = true }"]
     for path, values in per_path_headers.items():
         lines += ["[[operations]]", f"include-path = {json.dumps(path)}", f"headers = {table(values)}"]
     cfg = tmp_path / "schemathesis.toml"
     cfg.write_text("\n".join(lines) + "\n")
-    command = [sys.executable, "-m", "schemathesis.cli", "--config-file", str(cfg), "--no-color", "run", schema_url,
-               "--checks", "all", "--phases", PHASES, "--rate-limit", RATE, "--max-examples", str(MAX_EXAMPLES),
-               "--tls-verify", str(cert), "--workers", "1", *args]   # one worker: the rate is the bound anyway
+    command = [
+        sys.executable,
+        "-m",
+        "schemathesis.cli",
+        "--config-file",
+        str(cfg),
+        "--no-color",
+        "run",
+        schema_url,
+        "--checks",
+        "all",
+        "--phases",
+        PHASES,
+        "--rate-limit",
+        RATE,
+        "--max-examples",
+        str(MAX_EXAMPLES),
+        "--tls-verify",
+        str(cert),
+        "--workers",
+        "1",
+        *args,
+    ]  # one worker: the rate is the bound anyway
     return subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
 
 
@@ -107,26 +149,33 @@ def test_live_api_as_its_schema_says_at_30_per_s(tmp_path, seeded):
     db = tmp_path / "blackbox.sqlite"
     shutil.copy(seeded, db)
     port = free_port()
-    server = _start_server(tmp_path, db, port)          # the production rate limits and blacklist
+    server = start_api_process(tmp_path, db, port)  # the production rate limits and blacklist
     base = f"https://127.0.0.1:{port}"
     cert = tmp_path / "state" / "tls" / "api_cert.pem"
     try:
-        _wait_serving(server, port)
+        wait_serving(server, port)
         with httpx.Client(base_url=base, verify=ssl.create_default_context(cafile=str(cert)), timeout=10) as client:
             auditor, admin = login(client, "auditor"), login(client, "admin")
-            run = schemathesis(tmp_path, f"{base}/openapi.json", cert, {"Authorization": f"Bearer {auditor}"},
-                               {"/api/v1/users": {"Authorization": f"Bearer {admin}"}}, "--exclude-path", LOGIN,
-                               *(arg for path in COMMANDS for arg in ("--exclude-path", path)))
+            run = schemathesis(
+                tmp_path,
+                f"{base}/openapi.json",
+                cert,
+                {"Authorization": f"Bearer {auditor}"},
+                {"/api/v1/users": {"Authorization": f"Bearer {admin}"}},
+                "--exclude-path",
+                LOGIN,
+                *(arg for path in COMMANDS for arg in ("--exclude-path", path)),
+            )
             assert run.returncode == 0, report(run)
-            summary = run.stdout[run.stdout.index("Test Phases:"):]
+            summary = run.stdout[run.stdout.index("Test Phases:") :]
             for phase in ("Examples", "Coverage", "Fuzzing", "Stateful"):
-                assert f"✅ {phase}" in summary, report(run)         # ran, and found nothing
+                assert f"✅ {phase}" in summary, report(run)  # ran, and found nothing
             assert "No issues found" in run.stdout, report(run)
             # the client is not blacklisted: it is still served, and no blacklisting was recorded
             r = client.get("/api/v1/health")
             assert r.status_code == 200, r.text
     finally:
-        _stop(server)
+        stop_api_process(server)
     assert blacklistings(db) == []
     assert "blacklisted" not in server.log_path.read_text()
 
@@ -137,16 +186,20 @@ def test_login_form_as_its_schema_says(tmp_path, seeded):
     shutil.copy(seeded, db)
     port = free_port()
     # every generated login is a failed one: the failed-login limits are raised out of the way
-    server = _start_server(tmp_path, db, port, api={"blacklist": {"failed_logins": 1_000_000},
-                                                    "rate_limit": {"token_per_s": 1000, "token_burst": 1000}})
+    server = start_api_process(
+        tmp_path,
+        db,
+        port,
+        api={"blacklist": {"failed_logins": 1_000_000}, "rate_limit": {"token_per_s": 1000, "token_burst": 1000}},
+    )
     cert = tmp_path / "state" / "tls" / "api_cert.pem"
     try:
-        _wait_serving(server, port)
+        wait_serving(server, port)
         run = schemathesis(tmp_path, f"https://127.0.0.1:{port}/openapi.json", cert, {}, {}, "--include-path", LOGIN)
         assert run.returncode == 0, report(run)
         assert "No issues found" in run.stdout, report(run)
         for phase in ("Examples", "Coverage", "Fuzzing"):
-            assert f"{phase}" in run.stdout[run.stdout.index("Test Phases:"):], report(run)
+            assert f"{phase}" in run.stdout[run.stdout.index("Test Phases:") :], report(run)
     finally:
-        _stop(server)
+        stop_api_process(server)
     assert blacklistings(db) == []

@@ -1,29 +1,36 @@
 """REST API security: tokens, rate limits, the IP blacklist, headers, CORS, TLS and a real
 uvicorn server over HTTPS."""
+
 from __future__ import annotations
 
 import base64
 import json
-import os
-import signal
 import ssl
-import subprocess
-import sys
 import time
 from datetime import timedelta
-from pathlib import Path
 
 import httpx
 import jwt
 import pytest
 from fastapi.testclient import TestClient
 
-from ares import config, run_config
+from ares.core.localhost import free_port
 from blackbox.api import ApiSettings, create_app
-from blackbox.auth import Argon2Settings, Passwords, Tokens, add_user
-from blackbox.security import BlacklistSettings, Guard, RateLimitSettings
-from tests.conftest import REPO, free_port, wait_for_port
-from tests.test_api import PASSWORD, VEHICLE, add_role_users, api_settings, auth, open_test_store, seed, token_for
+from blackbox.api.credentials import Argon2Settings, Passwords, Tokens, add_user
+from blackbox.api.security import BlacklistSettings, Guard, RateLimitSettings
+from tests.helpers.api import (
+    PASSWORD,
+    VEHICLE,
+    add_role_users,
+    api_settings,
+    auth,
+    open_test_store,
+    seed,
+    start_api_process,
+    stop_api_process,
+    token_for,
+    wait_serving,
+)
 
 HEADERS = {
     "strict-transport-security": "max-age=31536000; includeSubDomains",
@@ -34,7 +41,7 @@ HEADERS = {
     "cache-control": "no-store",
 }
 
-VEHICLE_ID = "shuttle01"     # the stack's own (its API events are this vehicle's)
+VEHICLE_ID = "shuttle01"  # the stack's own (its API events are this vehicle's)
 
 
 @pytest.fixture
@@ -62,6 +69,7 @@ def blacklist_events(store):
 
 # ---- tokens ------------------------------------------------------------------------------------
 
+
 def test_bad_tokens_401(store):
     app, client = make(store)
     good = token_for(client, "auditor")
@@ -74,20 +82,34 @@ def test_bad_tokens_401(store):
     expired = Tokens(cfg, secret, now=lambda: time.time() - cfg.token_ttl_s - 5).issue("auditor", "auditor")[0]
     tampered = ".".join([header, b64({**claims, "role": "admin", "sub": "admin"}), signature])
     alg_none = ".".join([b64({"alg": "none", "typ": "JWT"}), b64(claims), ""])
-    wrong_key = jwt.encode(claims, "another key of the same length, sixty-four bytes long, exactly!!", algorithm="HS256")
-    other_alg = jwt.encode(claims, secret, algorithm="HS512")          # right key, algorithm not accepted
+    wrong_key = jwt.encode(
+        claims, "another key of the same length, sixty-four bytes long, exactly!!", algorithm="HS256"
+    )
+    other_alg = jwt.encode(claims, secret, algorithm="HS512")  # right key, algorithm not accepted
     no_exp = jwt.encode({k: v for k, v in claims.items() if k != "exp"}, secret, algorithm="HS256")
     bad_role = jwt.encode({**claims, "role": "root"}, secret, algorithm="HS256")
     other_issuer = jwt.encode({**claims, "iss": "elsewhere"}, secret, algorithm="HS256")
-    cases = {"expired": expired, "tampered": tampered, "alg none": alg_none, "wrong key": wrong_key,
-             "HS512": other_alg, "no exp": no_exp, "bad role": bad_role, "issuer": other_issuer,
-             "garbage": "not.a.token", "huge": "a" * 5000}
+    cases = {
+        "expired": expired,
+        "tampered": tampered,
+        "alg none": alg_none,
+        "wrong key": wrong_key,
+        "HS512": other_alg,
+        "no exp": no_exp,
+        "bad role": bad_role,
+        "issuer": other_issuer,
+        "garbage": "not.a.token",
+        "huge": "a" * 5000,
+    }
     for name, token in cases.items():
         r = client.get(url, headers=auth(token))
         assert r.status_code == 401, name
         assert r.headers["www-authenticate"] == "Bearer", name
-        assert r.json()["detail"] in ("invalid token", "malformed token",
-                                      "token expired: get a new one at /api/v1/auth/token"), name
+        assert r.json()["detail"] in (
+            "invalid token",
+            "malformed token",
+            "token expired: get a new one at /api/v1/auth/token",
+        ), name
         assert client.post("/api/v1/auth/renew", headers=auth(token)).status_code == 401, name
     assert client.get(url, headers=auth(expired)).json()["detail"].startswith("token expired")
     assert client.get(url, headers={"Authorization": "Basic dXNlcjpwYXNz"}).status_code == 401
@@ -102,17 +124,21 @@ def test_password_hash_is_maintained(store):
     token_for(client, "olduser")
     after = store.get_user("olduser").password_hash
     assert after != before and "m=128,t=2,p=1" in after
-    token_for(client, "olduser")                            # still the same password
-    assert store.get_user("olduser").password_hash == after   # no needless re-hash
+    token_for(client, "olduser")  # still the same password
+    assert store.get_user("olduser").password_hash == after  # no needless re-hash
 
 
 # ---- rate limits and blacklist -----------------------------------------------------------------
 
+
 def test_password_guessing_burst_blacklists(store):
-    app, client = make(store, rate_limit={"token_per_s": 0.05, "token_burst": 5},
-                       blacklist={"failed_logins": 10, "duration_s": 600})
-    statuses = [client.post("/api/v1/auth/token", data={"username": "admin", "password": f"guess{i}"}).status_code
-                for i in range(15)]
+    app, client = make(
+        store, rate_limit={"token_per_s": 0.05, "token_burst": 5}, blacklist={"failed_logins": 10, "duration_s": 600}
+    )
+    statuses = [
+        client.post("/api/v1/auth/token", data={"username": "admin", "password": f"guess{i}"}).status_code
+        for i in range(15)
+    ]
     assert statuses == [401] * 5 + [429] * 4 + [403] * 6
     # blacklisted: everything from that address is refused, even the right password and /health
     assert client.post("/api/v1/auth/token", data={"username": "admin", "password": PASSWORD}).status_code == 403
@@ -139,24 +165,31 @@ def test_429_has_retry_after(store):
 
 
 def test_client_rate_limit_then_flood_blacklist(store):
-    app, client = make(store, rate_limit={"client_per_s": 2, "client_burst": 5},
-                       blacklist={"abuse_requests_per_s": 4, "abuse_window_s": 5})
+    app, client = make(
+        store,
+        rate_limit={"client_per_s": 2, "client_burst": 5},
+        blacklist={"abuse_requests_per_s": 4, "abuse_window_s": 5},
+    )
     statuses = [client.get("/api/v1/health").status_code for _ in range(25)]
     assert statuses[:5] == [200] * 5
     assert 429 in statuses
-    assert statuses[-1] == 403                  # kept hammering after its 429s: > 4 req/s over 5 s
+    assert statuses[-1] == 403  # kept hammering after its 429s: > 4 req/s over 5 s
     assert "requests/s" in blacklist_events(store)[0]["data"]["reason"]
 
 
 def test_guard_clock():
     now = [1000.0]
-    guard = Guard(RateLimitSettings(client_per_s=1, client_burst=2, token_per_s=0.1, token_burst=1),
-                  BlacklistSettings(failed_logins=3, failed_logins_window_s=60, duration_s=100,
-                                    abuse_requests_per_s=50, abuse_window_s=10), now=lambda: now[0])
+    guard = Guard(
+        RateLimitSettings(client_per_s=1, client_burst=2, token_per_s=0.1, token_burst=1),
+        BlacklistSettings(
+            failed_logins=3, failed_logins_window_s=60, duration_s=100, abuse_requests_per_s=50, abuse_window_s=10
+        ),
+        now=lambda: now[0],
+    )
     assert guard.admit("a") is None and guard.admit("a") is None
     assert guard.admit("a").status == 429
     now[0] += 1.0
-    assert guard.admit("a") is None                 # refilled one token
+    assert guard.admit("a") is None  # refilled one token
     # failed logins spread over more than the window do not add up
     for _ in range(2):
         assert guard.login_failed("b") is None
@@ -166,7 +199,7 @@ def test_guard_clock():
     assert verdict.status == 403 and verdict.newly_blacklisted
     assert guard.admit("b").status == 403 and guard.admit("b").newly_blacklisted is None
     now[0] += 101
-    assert guard.admit("b") is None                 # the blacklisting expires
+    assert guard.admit("b") is None  # the blacklisting expires
 
 
 def test_steady_client_is_never_blacklisted_but_abnormal_flows_are():
@@ -176,8 +209,10 @@ def test_steady_client_is_never_blacklisted_but_abnormal_flows_are():
     cfg = ApiSettings()
     now = [1000.0]
     guard = Guard(cfg.rate_limit, cfg.blacklist, now=lambda: now[0])
-    for ip, offsets in (("10.0.0.1", [i / 30 for i in range(30)]),          # evenly spread
-                        ("10.0.0.2", [i * 1e-4 for i in range(30)])):       # 30 back to back each second
+    for ip, offsets in (
+        ("10.0.0.1", [i / 30 for i in range(30)]),  # evenly spread
+        ("10.0.0.2", [i * 1e-4 for i in range(30)]),
+    ):  # 30 back to back each second
         start = now[0]
         for second in range(300):
             for dt in offsets:
@@ -187,7 +222,7 @@ def test_steady_client_is_never_blacklisted_but_abnormal_flows_are():
         assert guard.blacklisted(ip) is None
     # a flood: 150 requests/s from another address is blacklisted within the abuse window
     verdicts = []
-    for i in range(150 * 10):
+    for _ in range(150 * 10):
         now[0] += 1 / 150
         verdicts.append(guard.admit("10.0.0.3"))
     assert any(v is not None and v.newly_blacklisted for v in verdicts) and guard.blacklisted("10.0.0.3")
@@ -196,7 +231,7 @@ def test_steady_client_is_never_blacklisted_but_abnormal_flows_are():
         now[0] += 1.0
         assert guard.blacklisted("10.0.0.4") is None
         if guard.admit("10.0.0.4", login=True) is None:
-            guard.login_failed("10.0.0.4")          # what the login handler does on a wrong password
+            guard.login_failed("10.0.0.4")  # what the login handler does on a wrong password
     assert guard.blacklisted("10.0.0.4")
     # the steady clients are untouched by the others' blacklisting
     assert guard.admit("10.0.0.1") is None and guard.admit("10.0.0.2") is None
@@ -209,22 +244,23 @@ def test_rate_limit_and_blacklist_must_agree():
         ApiSettings.model_validate({"rate_limit": {"client_per_s": 200}})
     with pytest.raises(ValueError, match="rate_limit and blacklist disagree"):
         ApiSettings.model_validate({"blacklist": {"abuse_requests_per_s": 40}})
-    ApiSettings.model_validate({"rate_limit": {"client_per_s": 90}})       # 100 + 90 * 10 <= 100 * 10
+    ApiSettings.model_validate({"rate_limit": {"client_per_s": 90}})  # 100 + 90 * 10 <= 100 * 10
 
 
 # ---- headers, CORS, body size --------------------------------------------------------------------
+
 
 def test_security_headers_everywhere(store):
     _, client = make(store, rate_limit={"client_per_s": 1, "client_burst": 6})
     token = token_for(client, "auditor")
     responses = [
-        client.get("/api/v1/health"),                                           # 200
-        client.get(f"/api/v1/vehicles/{VEHICLE}/latest"),                      # 401
-        client.get("/api/v1/nothing"),                                          # 404
-        client.get(f"/api/v1/vehicles/{VEHICLE}/records", params={"page": 0}, headers=auth(token)),   # 422
+        client.get("/api/v1/health"),  # 200
+        client.get(f"/api/v1/vehicles/{VEHICLE}/latest"),  # 401
+        client.get("/api/v1/nothing"),  # 404
+        client.get(f"/api/v1/vehicles/{VEHICLE}/records", params={"page": 0}, headers=auth(token)),  # 422
         client.get("/openapi.json"),
     ]
-    responses += [client.get("/api/v1/health") for _ in range(3)]               # ... 429
+    responses += [client.get("/api/v1/health") for _ in range(3)]  # ... 429
     assert {r.status_code for r in responses} == {200, 401, 404, 422, 429}
     for r in responses:
         for name, value in HEADERS.items():
@@ -242,9 +278,10 @@ def test_cors_closed_unless_configured(store):
     origin = {"Origin": "https://evil.example"}
     r = client.get("/api/v1/health", headers=origin)
     assert r.status_code == 200 and "access-control-allow-origin" not in r.headers
-    r = client.options(f"/api/v1/vehicles/{VEHICLE}/latest",
-                       headers={**origin, "Access-Control-Request-Method": "GET",
-                                "Access-Control-Request-Headers": "authorization"})
+    r = client.options(
+        f"/api/v1/vehicles/{VEHICLE}/latest",
+        headers={**origin, "Access-Control-Request-Method": "GET", "Access-Control-Request-Headers": "authorization"},
+    )
     assert r.status_code == 405 and "access-control-allow-origin" not in r.headers
 
     _, client = make(store, cors_origins=["https://fleet.example"])
@@ -262,63 +299,30 @@ def test_body_size_bounded(store):
     r = client.post("/api/v1/users", headers=h, json={"name": "big", "role": "fleet", "password": "x" * 20000})
     assert r.status_code == 413
     r = client.post("/api/v1/users", headers=h, json={"name": "big", "role": "fleet", "password": "x" * 300})
-    assert r.status_code == 422                     # within the body limit, over the field's bound
-    r = client.post("/api/v1/users", headers=h, json={"name": "big", "role": "fleet", "password": "0123456789",
-                                                      "is_root": True})
-    assert r.status_code == 422                     # unknown fields are refused
+    assert r.status_code == 422  # within the body limit, over the field's bound
+    r = client.post(
+        "/api/v1/users", headers=h, json={"name": "big", "role": "fleet", "password": "0123456789", "is_root": True}
+    )
+    assert r.status_code == 422  # unknown fields are refused
 
 
 # ---- TLS ---------------------------------------------------------------------------------------
 
+
 def test_self_signed_certificate_reused(tmp_path):
     from cryptography import x509
 
-    from blackbox.tls import self_signed
+    from blackbox.api.tls import self_signed
+
     cert, key = self_signed(tmp_path, ["localhost", "127.0.0.1"])
     assert oct(key.stat().st_mode & 0o777) == "0o600"
     pem = cert.read_bytes()
-    assert self_signed(tmp_path, ["localhost", "127.0.0.1"])[0].read_bytes() == pem     # reused
+    assert self_signed(tmp_path, ["localhost", "127.0.0.1"])[0].read_bytes() == pem  # reused
     names = x509.load_pem_x509_certificate(pem).extensions.get_extension_for_class(x509.SubjectAlternativeName).value
     assert "localhost" in names.get_values_for_type(x509.DNSName)
-    assert self_signed(tmp_path, ["localhost", "127.0.0.1", "shuttle.local"])[0].read_bytes() != pem   # new names
+    assert self_signed(tmp_path, ["localhost", "127.0.0.1", "shuttle.local"])[0].read_bytes() != pem  # new names
     key.write_text("garbage")
     assert self_signed(tmp_path, ["localhost", "127.0.0.1", "shuttle.local"])[1].read_text() != "garbage"
-
-
-def _start_server(tmp_path: Path, db: Path, port: int, *extra: str, api: dict | None = None) -> subprocess.Popen:
-    """`ares api` on `port` over the store file `db`, state (key, certificate) in tmp_path/state,
-    the `api` section's defaults but for cheap hashing and what `api` overrides; its output in
-    tmp_path/api_<port>.log."""
-    fast_hashing = {"argon2": {"time_cost": 1, "memory_kib": 64, "parallelism": 1}}
-    section = config.deep_merge({"state_dir": str(tmp_path / "state"), "log_level": "warning", "auth": fast_hashing},
-                                api or {})
-    cfg = run_config.build(overrides={"api": section})
-    run_cfg = config.write_run_config(cfg, tmp_path / f"run_{port}.json")
-    env = {**os.environ, config.RUN_CONFIG_ENV: str(run_cfg), "PYTHONPATH": str(REPO)}
-    env.pop("ARES_API_SECRET", None)
-    log = tmp_path / f"api_{port}.log"
-    with log.open("w") as out:
-        proc = subprocess.Popen([sys.executable, "-m", "ares.cli", "api", "--port", str(port), "--store", str(db),
-                                 *extra], env=env, stdout=out, stderr=subprocess.STDOUT, text=True)
-    proc.log_path = log         # type: ignore[attr-defined]
-    return proc
-
-
-def _wait_serving(proc: subprocess.Popen, port: int, timeout_s: float = 20.0) -> None:
-    try:
-        wait_for_port(port, timeout_s, proc)
-    except RuntimeError:
-        raise AssertionError(f"server exited {proc.returncode}: {proc.log_path.read_text()}") from None
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 @pytest.mark.timeout(60)
@@ -326,12 +330,14 @@ def test_real_uvicorn_over_https(tmp_path):
     db = tmp_path / "blackbox.sqlite"
     s = open_test_store(db)
     seed(s)
-    add_user(s, Passwords(Argon2Settings(time_cost=1, memory_kib=64, parallelism=1)), "auditor", "auditor", PASSWORD, 10)
+    add_user(
+        s, Passwords(Argon2Settings(time_cost=1, memory_kib=64, parallelism=1)), "auditor", "auditor", PASSWORD, 10
+    )
     s.close()
     port = free_port()
-    server = _start_server(tmp_path, db, port)
+    server = start_api_process(tmp_path, db, port)
     try:
-        _wait_serving(server, port)
+        wait_serving(server, port)
         cert = tmp_path / "state" / "tls" / "api_cert.pem"
         assert cert.exists() and (tmp_path / "state" / "api_secret").exists()
         tls = ssl.create_default_context(cafile=str(cert))
@@ -341,7 +347,9 @@ def test_real_uvicorn_over_https(tmp_path):
             assert r.headers["strict-transport-security"].startswith("max-age=")
             assert "server" not in r.headers
         with httpx.Client(base_url=f"https://127.0.0.1:{port}/api/v1", verify=tls, timeout=5) as client:
-            token = client.post("/auth/token", data={"username": "auditor", "password": PASSWORD}).json()["access_token"]
+            token = client.post("/auth/token", data={"username": "auditor", "password": PASSWORD}).json()[
+                "access_token"
+            ]
             r = client.get(f"/vehicles/{VEHICLE}/latest", headers=auth(token))
             assert r.status_code == 200 and r.json()["vehicle_id"] == VEHICLE
             r = client.get(f"/vehicles/{VEHICLE}/export", params={"format": "csv"}, headers=auth(token))
@@ -354,18 +362,21 @@ def test_real_uvicorn_over_https(tmp_path):
             httpx.get(f"http://127.0.0.1:{port}/api/v1/health", timeout=5)
         pem = cert.read_bytes()
     finally:
-        _stop(server)
+        stop_api_process(server)
 
     # a second start reuses the certificate; plain HTTP only with the explicit flag
     port2 = free_port()
-    plain = _start_server(tmp_path, db, port2, "--insecure-http")
+    plain = start_api_process(tmp_path, db, port2, "--insecure-http")
     try:
-        _wait_serving(plain, port2)
+        wait_serving(plain, port2)
         assert cert.read_bytes() == pem
         r = httpx.get(f"http://127.0.0.1:{port2}/api/v1/health", timeout=5)
         assert r.status_code == 200
         with pytest.raises(httpx.TransportError):
-            httpx.get(f"https://127.0.0.1:{port2}/api/v1/health", verify=ssl.create_default_context(cafile=str(cert)),
-                      timeout=5)
+            httpx.get(
+                f"https://127.0.0.1:{port2}/api/v1/health",
+                verify=ssl.create_default_context(cafile=str(cert)),
+                timeout=5,
+            )
     finally:
-        _stop(plain)
+        stop_api_process(plain)

@@ -1,11 +1,13 @@
-"""Self-awareness checks (managers/awareness_checks.py): each sensor and process fault gives its
+"""Self-awareness checks (managers/awareness.py): each sensor and process fault gives its
 level and a cause that says what is wrong; level 1 outranks level 2; faults clear by themselves."""
+
 from __future__ import annotations
 
 import pytest
 
-from ares.messages import (GnssFix, Imu, LidarHealth, LidarStatus, ProcessState, ProcessStatus, SupervisorState)
-from managers.awareness_checks import CRITICAL, LOW, NOMINAL, AwarenessChecks, AwarenessParams
+from ares.core.messages import Imu, LidarHealth, LidarStatus, ProcessState, ProcessStatus, SupervisorState
+from managers.awareness import CRITICAL, LOW, NOMINAL, AwarenessChecks, AwarenessParams
+from tests.helpers.gnss import fix
 
 P = AwarenessParams()
 LIDARS = ["front_left", "front_right", "roof"]
@@ -13,25 +15,44 @@ WELL = LidarHealth(rate_hz=10.0, points=20000, road_points=3000, age_s=0.05)
 
 
 def imu(t: float, k: int) -> Imu:
-    return Imu(t=t, yaw=0.1, roll=0.0, pitch=0.0, gyro_x=0.001 * k, gyro_y=0.0, gyro_z=0.01, accel_x=0.0, accel_y=0.0,
-               accel_z=9.81)
-
-
-def fix(t: float, rtk: bool = True, var: float = 2.5e-5) -> GnssFix:
-    return GnssFix(t=t, x=0.0, y=0.0, z=0.0, lat=28.48, lon=-16.32, easting=0.0, northing=0.0, zone=28,
-                   hemisphere="N", quality=4 if rtk else 1, rtk=rtk, satellites=12, hdop=0.8, var_x=var, var_y=var,
-                   var_z=var)
+    return Imu(
+        t=t,
+        yaw=0.1,
+        roll=0.0,
+        pitch=0.0,
+        gyro_x=0.001 * k,
+        gyro_y=0.0,
+        gyro_z=0.01,
+        accel_x=0.0,
+        accel_y=0.0,
+        accel_z=9.81,
+    )
 
 
 def supervisor(t: float, **states: ProcessState) -> SupervisorState:
     names = ("localization", "mpc", "movement_manager", "blackbox")
-    return SupervisorState(t=t, processes=[
-        ProcessStatus(name=n, state=states.get(n, ProcessState.RUNNING), safety_relevant=n != "blackbox",
-                      last_failure="liveliness lost" if n in states else "") for n in names])
+    return SupervisorState(
+        t=t,
+        processes=[
+            ProcessStatus(
+                name=n,
+                state=states.get(n, ProcessState.RUNNING),
+                safety_relevant=n != "blackbox",
+                last_failure="liveliness lost" if n in states else "",
+            )
+            for n in names
+        ],
+    )
 
 
-def fed(seconds: float = 3.0, imu_hz: float = 50.0, gnss_hz: float = 5.0, frozen_after: float | None = None,
-        rtk_until: float | None = None, var: float = 2.5e-5) -> AwarenessChecks:
+def fed(
+    seconds: float = 3.0,
+    imu_hz: float = 50.0,
+    gnss_hz: float = 5.0,
+    frozen_after: float | None = None,
+    rtk_until: float | None = None,
+    var: float = 2.5e-5,
+) -> AwarenessChecks:
     checks = AwarenessChecks(P, LIDARS, started_at=0.0)
     for k in range(int(seconds * imu_hz)):
         t = k / imu_hz
@@ -49,20 +70,32 @@ def lidars(t: float, **faults: LidarHealth) -> LidarStatus:
 def test_all_well_is_nominal():
     found = fed().assess(3.0, lidars(2.95), supervisor(2.9))
     assert found.level == NOMINAL and found.causes == []
-    assert set(found.sensors.values()) == {"ok"} and set(found.processes) == {"localization", "mpc",
-                                                                                "movement_manager"}
+    assert set(found.sensors.values()) == {"ok"} and set(found.processes) == {"localization", "mpc", "movement_manager"}
 
 
-@pytest.mark.parametrize("fault,level,says", [
-    ({"roof": LidarHealth(rate_hz=10.0, points=3, road_points=0, blind=True)}, CRITICAL, "lidar roof: blind: no points (covered or failed)"),
-    ({"front_left": LidarHealth(rate_hz=10.0, points=9000, road_points=12)}, LOW,
-     "lidar front_left: 12 road points < 200 (the road hidden)"),
-    ({"front_right": LidarHealth(rate_hz=4.0, points=9000, road_points=900)}, CRITICAL,
-     "lidar front_right: 4.0 Hz < 8"),
-])
+@pytest.mark.parametrize(
+    "fault,level,says",
+    [
+        (
+            {"roof": LidarHealth(rate_hz=10.0, points=3, road_points=0, blind=True)},
+            CRITICAL,
+            "lidar roof: blind: no points (covered or failed)",
+        ),
+        (
+            {"front_left": LidarHealth(rate_hz=10.0, points=9000, road_points=12)},
+            LOW,
+            "lidar front_left: 12 road points < 200 (the road hidden)",
+        ),
+        (
+            {"front_right": LidarHealth(rate_hz=4.0, points=9000, road_points=900)},
+            CRITICAL,
+            "lidar front_right: 4.0 Hz < 8",
+        ),
+    ],
+)
 def test_a_blocked_or_slow_lidar_is_level_1(fault, level, says):
     checks = fed()
-    checks.assess(0.95, lidars(0.9), supervisor(0.9))      # the LiDARs have been running since
+    checks.assess(0.95, lidars(0.9), supervisor(0.9))  # the LiDARs have been running since
     found = checks.assess(3.0, lidars(2.95, **fault), supervisor(2.9))
     assert found.level == level and found.causes == [says]
 
@@ -72,17 +105,25 @@ def test_no_lidar_status_is_level_2():
     assert found.level == LOW and found.causes == ["lidars: no status from perception"]
 
 
-@pytest.mark.parametrize("kwargs,says", [
-    ({"imu_hz": 20.0}, "imu: 20 Hz < 30"),
-    ({"frozen_after": 2.0}, "imu: frozen: the same reading for 1.0 s"),
-])
+@pytest.mark.parametrize(
+    "kwargs,says",
+    [
+        ({"imu_hz": 20.0}, "imu: 20 Hz < 30"),
+        ({"frozen_after": 2.0}, "imu: frozen: the same reading for 1.0 s"),
+    ],
+)
 def test_imu_faults_are_level_2(kwargs, says):
     found = fed(**kwargs).assess(3.0, lidars(2.95), supervisor(2.9))
     assert found.level == LOW and found.causes == [says]
 
 
-def walk(seconds: float, gnss_hz: float = 5.0, var: float = 2.5e-5, rtk_until: float | None = None,
-         rtk_again: float | None = None):
+def walk(
+    seconds: float,
+    gnss_hz: float = 5.0,
+    var: float = 2.5e-5,
+    rtk_until: float | None = None,
+    rtk_again: float | None = None,
+):
     """The manager's life: IMU at 50 Hz and GNSS as asked, checked every 0.5 s; the assessments."""
     checks = AwarenessChecks(P, LIDARS, started_at=0.0)
     found, k_imu, k_gnss = [], 0, 0
@@ -100,11 +141,14 @@ def walk(seconds: float, gnss_hz: float = 5.0, var: float = 2.5e-5, rtk_until: f
     return found
 
 
-@pytest.mark.parametrize("kwargs,says", [
-    ({"gnss_hz": 2.0}, "2.0 Hz < 4"),
-    ({"var": 0.8}, "variance 1.60 m² > 1.00"),
-    ({"rtk_until": 0.5}, "no RTK corrections"),
-])
+@pytest.mark.parametrize(
+    "kwargs,says",
+    [
+        ({"gnss_hz": 2.0}, "2.0 Hz < 4"),
+        ({"var": 0.8}, "variance 1.60 m² > 1.00"),
+        ({"rtk_until": 0.5}, "no RTK corrections"),
+    ],
+)
 def test_a_gnss_outage_is_the_control_managers_for_5_minutes_then_level_2(kwargs, says):
     found = walk(320.0, **kwargs)
     assert all(a.level == NOMINAL for t, a in found if t <= 300.0)
@@ -122,16 +166,19 @@ def test_corrections_back_clear_the_outage():
 
 def test_a_process_down_is_level_2_and_only_whitelisted_ones_count():
     checks = fed()
-    found = checks.assess(3.0, lidars(2.95), supervisor(2.9, mpc=ProcessState.RESTARTING,
-                                                        blackbox=ProcessState.RESTARTING))
+    found = checks.assess(
+        3.0, lidars(2.95), supervisor(2.9, mpc=ProcessState.RESTARTING, blackbox=ProcessState.RESTARTING)
+    )
     assert found.level == LOW and found.causes == ["process mpc: restarting (liveliness lost)"]
     assert checks.assess(3.0, lidars(2.95), None).causes == ["processes: no state from the supervisor"]
 
 
 def test_level_1_outranks_level_2_and_every_cause_is_kept():
-    found = fed(imu_hz=10.0).assess(3.0, lidars(2.95, roof=LidarHealth(rate_hz=0.0, points=0, road_points=0,
-                                                                       blind=True)),
-                                    supervisor(2.9, mpc=ProcessState.STARTING))
+    found = fed(imu_hz=10.0).assess(
+        3.0,
+        lidars(2.95, roof=LidarHealth(rate_hz=0.0, points=0, road_points=0, blind=True)),
+        supervisor(2.9, mpc=ProcessState.STARTING),
+    )
     assert found.level == CRITICAL and len(found.causes) == 3
 
 
@@ -150,8 +197,9 @@ def test_a_lidars_rate_is_judged_once_it_has_run_a_window_but_a_blind_one_at_onc
     assert checks.assess(3.0, lidars(2.95, roof=starting), supervisor(2.9)).level == NOMINAL
     assert checks.assess(5.0, lidars(4.95, roof=starting), supervisor(4.9)).level == CRITICAL
     blind = AwarenessChecks(P, LIDARS, started_at=0.0)
-    found = blind.assess(0.5, lidars(0.45, roof=LidarHealth(rate_hz=1.0, points=0, road_points=0, blind=True)),
-                         supervisor(0.4))
+    found = blind.assess(
+        0.5, lidars(0.45, roof=LidarHealth(rate_hz=1.0, points=0, road_points=0, blind=True)), supervisor(0.4)
+    )
     assert found.level == CRITICAL
 
 
@@ -159,9 +207,9 @@ def test_lidars_back_after_a_gap_get_a_window_again_before_their_rate_counts():
     checks = fed(seconds=12.0)
     starting = LidarHealth(rate_hz=3.0, points=20000, road_points=3000)
     assert checks.assess(3.0, lidars(2.95), supervisor(2.9)).level == NOMINAL
-    gap = checks.assess(6.0, None, supervisor(5.9))                     # perception restarted: nothing
+    gap = checks.assess(6.0, None, supervisor(5.9))  # perception restarted: nothing
     assert gap.level == LOW and "lidars: no status from perception" in gap.causes
-    assert checks.assess(8.0, lidars(7.95, roof=starting), supervisor(7.9)).level == NOMINAL   # warming up again
+    assert checks.assess(8.0, lidars(7.95, roof=starting), supervisor(7.9)).level == NOMINAL  # warming up again
     assert checks.assess(10.5, lidars(10.45, roof=starting), supervisor(10.4)).level == CRITICAL
 
 

@@ -1,4 +1,5 @@
 """`ares bench bus`: a short run between real processes; figures are reported, not asserted."""
+
 from __future__ import annotations
 
 import json
@@ -8,9 +9,8 @@ import sys
 
 import pytest
 
-from ares.bench.common import percentile
-
-from conftest import REPO
+from ares.tools.bench.common import percentile
+from tests.helpers.stack import REPO
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -25,13 +25,31 @@ def test_percentile_nearest_rank():
 
 
 def test_bus_bench_json():
-    result = subprocess.run([sys.executable, "-m", "ares.cli", "bench", "bus", "--json", "--seconds", "1"],
-                            cwd=REPO, capture_output=True, text=True, timeout=150, stdin=subprocess.DEVNULL)
+    result = subprocess.run(
+        [sys.executable, "-m", "ares.cli", "bench", "bus", "--json", "--seconds", "1"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=150,
+        stdin=subprocess.DEVNULL,
+    )
     assert result.returncode == 0, result.stderr
-    assert "[bench]" in result.stderr                  # progress goes to stderr
+    assert "[bench]" in result.stderr  # progress goes to stderr
     report = json.loads(result.stdout.strip().splitlines()[-1])
-    for key in ("latency_p50_ms", "latency_p99_ms", "rate_msgs_per_s", "lost", "messages", "payload_bytes",
-                "mode", "python", "zenoh", "latency_method", "throughput_sent", "throughput_received"):
+    for key in (
+        "latency_p50_ms",
+        "latency_p99_ms",
+        "rate_msgs_per_s",
+        "lost",
+        "messages",
+        "payload_bytes",
+        "mode",
+        "python",
+        "zenoh",
+        "latency_method",
+        "throughput_sent",
+        "throughput_received",
+    ):
         assert key in report, key
     assert report["lost"] == 0
     assert report["latency_lost"] == 0
@@ -44,18 +62,40 @@ def test_bus_bench_json():
 
 
 def test_perception_bench_json():
-    result = subprocess.run([sys.executable, "-m", "ares.cli", "bench", "perception", "--json", "--frames", "2",
-                             "--repeats", "1"],
-                            cwd=REPO, capture_output=True, text=True, timeout=150, stdin=subprocess.DEVNULL)
+    result = subprocess.run(
+        [sys.executable, "-m", "ares.cli", "bench", "perception", "--json", "--frames", "2", "--repeats", "1"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=150,
+        stdin=subprocess.DEVNULL,
+    )
     assert result.returncode == 0, result.stderr
     assert "[bench]" in result.stderr
     report = json.loads(result.stdout.strip().splitlines()[-1])
-    for key in ("ground_ms_p50", "grid_ms_p50", "road_ms_p50", "pipeline_ms_p50", "raycast_ms_p50",
-                "raycast_core_share_at_10hz", "filters_ms_p50", "transform_ms_p50", "pipeline_ground_ms_p50",
-                "raycast_as_run_ms_p50", "raycast_cast_rays_ms_p50", "scan_pipeline_ms_p50", "scan_stage_ms_p50",
-                "ground_scan_points_p50", "frame_points_p50", "load_avg_1m", "cpus", "method", "goals_met"):
+    for key in (
+        "ground_ms_p50",
+        "grid_ms_p50",
+        "road_ms_p50",
+        "pipeline_ms_p50",
+        "raycast_ms_p50",
+        "raycast_core_share_at_10hz",
+        "filters_ms_p50",
+        "transform_ms_p50",
+        "pipeline_ground_ms_p50",
+        "raycast_as_run_ms_p50",
+        "raycast_cast_rays_ms_p50",
+        "scan_pipeline_ms_p50",
+        "scan_stage_ms_p50",
+        "ground_scan_points_p50",
+        "frame_points_p50",
+        "load_avg_1m",
+        "cpus",
+        "method",
+        "goals_met",
+    ):
         assert key in report, key
     assert report["frames"] == 2 and len(report["places"]) == 2
-    assert 100_000 < report["ground_scan_points_p50"] < 150_000         # a KITTI-dense 64-layer scan
-    assert report["frame_points_p50"] > 50_000                             # three sensors at full resolution
+    assert 100_000 < report["ground_scan_points_p50"] < 150_000  # a KITTI-dense 64-layer scan
+    assert report["frame_points_p50"] > 50_000  # three sensors at full resolution
     assert report["raycast_core_share_at_10hz"] == pytest.approx(report["raycast_ms_p50"] / 100.0, abs=1e-3)

@@ -10,7 +10,7 @@ API included) and the embedded store in the test's directory (`--store`).
   process holds an exclusive SQLite transaction for 6 s of wall time, so the clock must be tied to
   the wall's): afterwards every second is there.
 
-And the REST API as a process of its own (`python -m ares.launch blackbox.api_server:ApiServer`,
+And the REST API as a process of its own (`python -m ares.core.launch blackbox.api.api_node:ApiServer`,
 as the supervisor starts it): its heartbeat goes on from the server's event loop while a taken
 port makes it wait (one warning event) instead of crash-looping, and it serves once the port is
 free.
@@ -18,29 +18,30 @@ free.
 The recorder's logic (which second holds what, stale inputs, events, outages with the spool) is
 tested without processes in tests/test_recorder.py.
 """
+
 from __future__ import annotations
 
 import json
-import math
 import os
 import socket
 import subprocess
 import sys
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import httpx
 import pytest
 
-from ares.bus import Bus
-from ares.clock import WallClock
-from blackbox.sqlite_store import SqliteStore
-from tests.conftest import NO_LIDARS, REPO, free_port, make_run_config, stop_process
-from tests.test_recorder import assert_every_second_once, wait_until
+from ares.core.bus import Bus
+from ares.core.clock import WallClock
+from ares.core.localhost import free_port, stop_process
+from blackbox.store.sqlite_store import SqliteStore
+from tests.helpers.records import assert_every_second_once, stored
+from tests.helpers.stack import NO_LIDARS, REPO, make_run_config, wait_until
 
 pytestmark = pytest.mark.stack
 
 SPEED = 5
-PAST, FUTURE = datetime(2000, 1, 1, tzinfo=timezone.utc), datetime(2100, 1, 1, tzinfo=timezone.utc)
+PAST, FUTURE = datetime(2000, 1, 1, tzinfo=UTC), datetime(2100, 1, 1, tzinfo=UTC)
 VEHICLE = "shuttle01"
 
 LOCK_SCRIPT = """
@@ -55,8 +56,9 @@ db.execute("COMMIT")
 
 def lock_store(path: str, seconds: float) -> subprocess.Popen:
     """Another process holding an exclusive transaction on the store's file for `seconds` (wall)."""
-    proc = subprocess.Popen([sys.executable, "-c", LOCK_SCRIPT, path, str(seconds)], stdout=subprocess.PIPE,
-                            text=True, process_group=0)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", LOCK_SCRIPT, path, str(seconds)], stdout=subprocess.PIPE, text=True, process_group=0
+    )
     assert proc.stdout.readline().strip() == "locked"
     return proc
 
@@ -64,24 +66,34 @@ def lock_store(path: str, seconds: float) -> subprocess.Popen:
 def start_headless(*args: str, speed: str = str(SPEED)) -> subprocess.Popen:
     env = {**os.environ, "ARES_RUNS_DIR": os.environ.get("ARES_TEST_RUNS_DIR", "/tmp/ares-test-runs")}
     listen = f"tcp/127.0.0.1:{free_port()}"
-    return subprocess.Popen([sys.executable, "-m", "ares.cli", "run", "--headless", "--listen", listen,
-                             "--speed", speed, "--config", str(NO_LIDARS), *args], cwd=REPO, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ares.cli",
+            "run",
+            "--headless",
+            "--listen",
+            listen,
+            "--speed",
+            speed,
+            "--config",
+            str(NO_LIDARS),
+            *args,
+        ],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def finish(proc: subprocess.Popen, timeout_s: float = 180) -> dict:
     out, err = proc.communicate(timeout=timeout_s)
     assert proc.returncode == 0, f"exit {proc.returncode}\n{out[-2000:]}\n{err[-3000:]}"
     return json.loads(out.strip().splitlines()[-1])
-
-
-def stored(path) -> tuple[list[int], list[dict]]:
-    store = SqliteStore(str(path))
-    try:
-        ts = [int(r["t"]) for r in store.records(VEHICLE, PAST, FUTURE, limit=1_000_000)]
-        return ts, store.events(VEHICLE, PAST, FUTURE, limit=1_000_000)
-    finally:
-        store.close()
 
 
 def latest_t(path) -> int | None:
@@ -99,27 +111,12 @@ def latest_t(path) -> int | None:
 
 # ---- the REST API as a process ------------------------------------------------------------------
 
-def assert_300_s_recorded(path, result: dict) -> None:
-    """The store of a run of at least 300 s of vehicle time at --speed max holds one record per
-    second, none duplicated, none missing, exactly 300 for the drive's first 300 s."""
-    assert result["clock"] == "driven" and result["total_time_s"] >= 300
-    ts, events = stored(path)
-    assert_every_second_once(ts)                    # distinct seconds == count, no gap
-    assert result["blackbox_records"] == len(ts)
-    # whatever fraction of a second the drive starts at, its first 300 s hold exactly 300 whole seconds
-    drive_start = result["t_start_s"]
-    drive = [t for t in ts if drive_start <= t < drive_start + 300]
-    assert len(drive) == 300, f"{len(drive)} records during the first 300 s of the drive"
-    assert ts[-1] >= math.floor(result["t_end_s"]), "the last seconds were flushed when the stack stopped"
-    assert not [e for e in events if e["kind"].startswith("blackbox_")], "the store never went down"
-
 
 @pytest.fixture
 def run_config(port, tmp_path) -> dict:
     """For the API process test (conftest's router and spawn_node use it): store and API port of
     its own."""
-    return make_run_config(port, {"blackbox_store": {"uri": str(tmp_path / "bb.sqlite")},
-                                  "api": {"port": free_port()}})
+    return make_run_config(port, {"blackbox_store": {"uri": str(tmp_path / "bb.sqlite")}, "api": {"port": free_port()}})
 
 
 def _health(port: int):
@@ -142,13 +139,14 @@ def test_the_api_process_beats_from_its_event_loop_and_waits_for_a_taken_port(ro
     try:
         beats = bus.subscribe("heartbeat/api")
         events = bus.subscribe("events", queue=100)
-        # as the supervisor starts it: `python -m ares.launch blackbox.api_server:ApiServer`
-        proc = spawn_node("blackbox.api_server:ApiServer", "api")
+        # as the supervisor starts it: `python -m ares.core.launch blackbox.api.api_node:ApiServer`
+        proc = spawn_node("blackbox.api.api_node:ApiServer", "api")
         seen: list = []
 
         def port_events() -> list:
             seen.extend(e for _, e in events.drain())
             return [e for e in seen if e.kind == "api_port_in_use"]
+
         in_use = wait_until(port_events, 30, "the port-in-use event")[0]
         assert in_use.level == "warning" and in_use.source == "api" and in_use.data["port"] == api_port
 
@@ -173,14 +171,14 @@ def test_the_api_process_beats_from_its_event_loop_and_waits_for_a_taken_port(ro
 
 # ---- the whole stack ------------------------------------------------------------------------------
 
+
 @pytest.mark.timeout(240)
 def test_a_30_s_store_outage_mid_run_loses_no_second(tmp_path):
     path = tmp_path / "blackbox.sqlite"
     run = start_headless("--seconds", "150", "--store", str(path))
     try:
-        before = wait_until(lambda: (t := latest_t(path)) is not None and t >= 60 and t, 120,
-                            "60 s of records", 0.2)
-        locker = lock_store(str(path), 30 / SPEED)    # 6 s of wall time: 30 s of vehicle time
+        before = wait_until(lambda: (t := latest_t(path)) is not None and t >= 60 and t, 120, "60 s of records", 0.2)
+        locker = lock_store(str(path), 30 / SPEED)  # 6 s of wall time: 30 s of vehicle time
         assert locker.wait(timeout=30) == 0
         result = finish(run)
     finally:
@@ -197,6 +195,8 @@ def test_a_30_s_store_outage_mid_run_loses_no_second(tmp_path):
     down = next(e for e in events if e["kind"] == "blackbox_store_down")
     up = next(e for e in events if e["kind"] == "blackbox_store_up")
     assert before < down["t"] < up["t"] and up["data"]["flushed"] > 0
-    print(f"\noutage run: store locked after t={before} for 30 s of vehicle time; down event at "
-          f"t={down['t']:.1f}, up at t={up['t']:.1f} ({up['data']['flushed']} spooled items written); "
-          f"{len(ts)} records t {ts[0]}..{ts[-1]}, none missing, none duplicated")
+    print(
+        f"\noutage run: store locked after t={before} for 30 s of vehicle time; down event at "
+        f"t={down['t']:.1f}, up at t={up['t']:.1f} ({up['data']['flushed']} spooled items written); "
+        f"{len(ts)} records t {ts[0]}..{ts[-1]}, none missing, none duplicated"
+    )

@@ -1,5 +1,6 @@
-"""ares.bus over a real router subprocess (`python -m ares.router`), with Bus instances in the
+"""ares.core.bus over a real router subprocess (`python -m ares.app.embedded_router`), with Bus instances in the
 test process (each its own Zenoh session) and, for liveliness, a node subprocess."""
+
 from __future__ import annotations
 
 import json
@@ -9,15 +10,22 @@ import signal
 import threading
 import time
 
+import numpy as np
 import pydantic
 import pytest
 import zenoh
 
-import numpy as np
-
-from ares.bus import Bus, ServiceError, encoding_name
-from ares.messages import (Ack, DriverCommand, Event, GnssSentences, Heartbeat, PointCloud, ServiceErrorReply,
-                           SupervisorState)
+from ares.core.bus import Bus, ServiceError, encoding_name
+from ares.core.messages import (
+    Ack,
+    DriverCommand,
+    Event,
+    GnssSentences,
+    Heartbeat,
+    PointCloud,
+    ServiceErrorReply,
+    SupervisorState,
+)
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -49,10 +57,12 @@ def buses(router):
 def connected(pub: Bus, sub, topic: str, make_msg) -> None:
     """Publish until the subscriber has seen one message: declarations take a moment to
     propagate through the router, and tests must not depend on a sleep being long enough."""
+
     def probe() -> bool:
         pub.publish(topic, make_msg())
         time.sleep(0.02)
         return sub.count > 0
+
     wait_until(probe, what=f"{topic} to connect")
 
 
@@ -72,7 +82,7 @@ def test_pub_sub_round_trip_with_schema(buses):
     wait_until(lambda: sub.count >= received_before + 10, what="10 heartbeats")
     got = sub.drain()
     assert [topic for topic, _ in got] == ["heartbeat/alice"] * 10
-    assert [m for _, m in got] == sent                  # equal values, validated as Heartbeat
+    assert [m for _, m in got] == sent  # equal values, validated as Heartbeat
     assert all(isinstance(m, Heartbeat) for _, m in got)
     assert bob.rejects.total == 0
     # the publisher side checks the schema too
@@ -99,18 +109,24 @@ def test_corrupt_messages_are_rejected_counted_and_harmless(buses):
     as_hb = zenoh.Encoding(encoding_name(Heartbeat))
     good = json.loads(hb("s", 7).model_dump_json())
     raw_put = sender.session.put
-    raw_put(key, b"{not json", encoding=as_hb)                                          # bad JSON
-    raw_put(key, json.dumps({**good, "seq": "seven"}).encode(), encoding=as_hb)         # wrong type
-    raw_put(key, json.dumps({**good, "wall": math.nan}).encode(), encoding=as_hb)       # NaN
-    raw_put(key, json.dumps({**good, "extra": 1}).encode(), encoding=as_hb)             # extra field
+    raw_put(key, b"{not json", encoding=as_hb)  # bad JSON
+    raw_put(key, json.dumps({**good, "seq": "seven"}).encode(), encoding=as_hb)  # wrong type
+    raw_put(key, json.dumps({**good, "wall": math.nan}).encode(), encoding=as_hb)  # NaN
+    raw_put(key, json.dumps({**good, "extra": 1}).encode(), encoding=as_hb)  # extra field
     raw_put(key, json.dumps({k: v for k, v in good.items() if k != "pid"}).encode(), encoding=as_hb)  # missing
     raw_put(key, json.dumps(good).encode(), encoding=zenoh.Encoding(encoding_name(Event)))  # wrong schema name
     raw_put(sender.key("sensors/lidar_raw"), b"{}", encoding=zenoh.Encoding.APPLICATION_JSON)  # no such topic
     # ... and good messages afterwards still arrive
     sender.publish("heartbeat/s", hb("s", 8))
     sender.publish("sensors/gnss", GnssSentences(sentences=["$GPRMC"]))
-    wait_until(lambda: hb_sub.count > hb_before and sensors.count > sensors_before and receiver.rejects.total - sum(before.values()) >= 7,
-               what="the good messages after the bad ones")
+    wait_until(
+        lambda: (
+            hb_sub.count > hb_before
+            and sensors.count > sensors_before
+            and receiver.rejects.total - sum(before.values()) >= 7
+        ),
+        what="the good messages after the bad ones",
+    )
     added = {k: v - before.get(k, 0) for k, v in receiver.rejects.by_reason.items() if v - before.get(k, 0)}
     assert added == {"malformed": 5, "unknown schema": 1, "unknown topic": 1}
     # (a connection probe still in flight may land after the drain above: probes are seq 0 / $GPGGA)
@@ -190,7 +206,7 @@ def test_invalid_request_gets_an_error_reply(buses, driver_service):
         assert len(replies) == 1 and replies[0].ok is None
         err = ServiceErrorReply.model_validate_json(replies[0].err.payload.to_bytes())
         assert err.error == "invalid request" and err.detail
-    assert len(driver_service) == served             # the handler never saw them
+    assert len(driver_service) == served  # the handler never saw them
     assert client.call("sim/driver", DriverCommand(action="BUTTON")).ok
 
 
@@ -209,7 +225,7 @@ def test_call_to_a_hung_process_times_out(buses):
     hung.serve("supervisor/status", lambda req: SupervisorState(processes=[]))  # never polled
     timeout_s = 1.0
     deadline = time.monotonic() + 5
-    while True:     # until the queryable is known here, a call fails at once instead
+    while True:  # until the queryable is known here, a call fails at once instead
         started = time.monotonic()
         try:
             client.call("supervisor/status", timeout_s=timeout_s)
@@ -255,7 +271,7 @@ def test_liveliness_tokens_appear_and_disappear(buses, spawn_node):
     wait_until(lambda: ("other", False) in [(n, a) for _, n, a in changes], what="other's token gone")
     assert "other" not in watcher.alive_processes()
     # a node subprocess killed with SIGKILL: its token disappears at once
-    node = spawn_node("ares.bench.ticker:Ticker", "tick")
+    node = spawn_node("ares.tools.bench.ticker:Ticker", "tick")
     wait_until(lambda: ("tick", True) in [(n, a) for _, n, a in changes], timeout_s=10, what="token of tick")
     killed_at = time.monotonic()
     os.kill(node.pid, signal.SIGKILL)
@@ -273,15 +289,22 @@ def test_a_point_cloud_crosses_the_bus_as_raw_arrays(buses):
     clouds = perception.subscribe("lidar/roof/points", queue=4)
     n = 131_072
     rng = np.random.default_rng(0)
-    sent = PointCloud(t=1.5, sensor="roof", frame="lidar_roof", x=rng.normal(size=n).astype("<f4"),
-                      y=rng.normal(size=n).astype("<f4"), z=rng.normal(size=n).astype("<f4"),
-                      intensity=rng.random(n, dtype=np.float32), ring=(np.arange(n) % 64).astype("u1"))
+    sent = PointCloud(
+        t=1.5,
+        sensor="roof",
+        frame="lidar_roof",
+        x=rng.normal(size=n).astype("<f4"),
+        y=rng.normal(size=n).astype("<f4"),
+        z=rng.normal(size=n).astype("<f4"),
+        intensity=rng.random(n, dtype=np.float32),
+        ring=(np.arange(n) % 64).astype("u1"),
+    )
     connected(lidar, clouds, "lidar/roof/points", lambda: sent)
     got = clouds.drain()[-1][1]
     assert got.t == 1.5 and got.sensor == "roof" and got.size == n
     for name in ("x", "y", "z", "intensity", "ring"):
         assert np.array_equal(getattr(got, name), getattr(sent, name))
-        assert not getattr(got, name).flags.writeable      # a view of the received bytes, not a copy
+        assert not getattr(got, name).flags.writeable  # a view of the received bytes, not a copy
     assert perception.rejects.total == 0
 
 
@@ -289,7 +312,8 @@ def test_a_flooded_service_refuses_at_once_and_forgets_abandoned_requests(buses)
     """The queryable's inbox is filled on Zenoh's thread, which must never block: past its
     capacity a request gets a "busy" error reply at once; requests older than the call timeout
     are dropped, because their callers have given up."""
-    from ares.bus import SERVICE_INBOX_CAPACITY
+    from ares.core.bus import SERVICE_INBOX_CAPACITY
+
     hung, client = buses("hung"), buses("cli")
     hung.serve("supervisor/status", lambda req: SupervisorState(processes=[]))
     inbox = hung._services[0][1]
@@ -300,8 +324,9 @@ def test_a_flooded_service_refuses_at_once_and_forgets_abandoned_requests(buses)
         client.session.get(key, payload=b"{}", timeout=0.5)
         time.sleep(0.05)
         return len(inbox._queue) > 0
+
     wait_until(a_probe_reaches_the_inbox, what="the service to be reachable")
-    while inbox._queue:      # the probes queued requests; start from an empty inbox
+    while inbox._queue:  # the probes queued requests; start from an empty inbox
         inbox._queue.popleft()
     pending = [client.session.get(key, payload=b"{}", timeout=3.0) for _ in range(SERVICE_INBOX_CAPACITY + 6)]
     wait_until(lambda: inbox.refused >= 6, what="the overflow to be refused")
@@ -312,6 +337,6 @@ def test_a_flooded_service_refuses_at_once_and_forgets_abandoned_requests(buses)
     assert busy == ["busy"] * 6
     assert len(inbox._queue) == SERVICE_INBOX_CAPACITY
 
-    inbox.max_wait_s = 0.0          # every queued caller has (as far as the inbox knows) given up
+    inbox.max_wait_s = 0.0  # every queued caller has (as far as the inbox knows) given up
     time.sleep(0.01)
     assert hung.poll_services() == 0 and inbox.expired == SERVICE_INBOX_CAPACITY

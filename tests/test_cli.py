@@ -1,4 +1,5 @@
 """The `ares` command line: parser, `node`, and `topics` / `echo` against a real router."""
+
 from __future__ import annotations
 
 import json
@@ -10,10 +11,10 @@ import threading
 import pytest
 
 from ares import cli
-from ares.bus import Bus
-from ares.messages import CarState, DriveMode
-
-from conftest import REPO, free_port
+from ares.core.bus import Bus
+from ares.core.localhost import free_port
+from ares.core.messages import CarState, DriveMode
+from tests.helpers.stack import REPO
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -27,20 +28,55 @@ def env_without_run_config() -> dict:
 
 def ares(*argv: str, env: dict | None = None, timeout: float = 60) -> subprocess.CompletedProcess:
     """The CLI as a user runs it: its own process, real exit code."""
-    return subprocess.run([sys.executable, "-m", "ares.cli", *argv], cwd=REPO, env=env, capture_output=True,
-                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [sys.executable, "-m", "ares.cli", *argv],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 # ---- parser ----------------------------------------------------------------------------------
 
+
 def test_run_parser_takes_every_option():
-    args = cli.build_parser().parse_args([
-        "run", "--headless", "--laps", "2", "--speed", "5", "--route", "tour.yaml", "--vehicle", "techs4agecar",
-        "--passengers", "4", "--vehicle-id", "shuttle07", "--router", "tcp/10.0.0.2:7447", "--run-dir", "/tmp/r"])
+    args = cli.build_parser().parse_args(
+        [
+            "run",
+            "--headless",
+            "--laps",
+            "2",
+            "--speed",
+            "5",
+            "--route",
+            "tour.yaml",
+            "--vehicle",
+            "techs4agecar",
+            "--passengers",
+            "4",
+            "--vehicle-id",
+            "shuttle07",
+            "--router",
+            "tcp/10.0.0.2:7447",
+            "--run-dir",
+            "/tmp/r",
+        ]
+    )
     assert args.command == "run"
-    assert (args.headless, args.laps, args.speed, args.route, args.vehicle, args.passengers,
-            args.vehicle_id, args.router, args.run_dir) == (
-        True, 2, 5.0, "tour.yaml", "techs4agecar", 4, "shuttle07", "tcp/10.0.0.2:7447", "/tmp/r")
+    assert (
+        args.headless,
+        args.laps,
+        args.speed,
+        args.route,
+        args.vehicle,
+        args.passengers,
+        args.vehicle_id,
+        args.router,
+        args.run_dir,
+    ) == (True, 2, 5.0, "tour.yaml", "techs4agecar", 4, "shuttle07", "tcp/10.0.0.2:7447", "/tmp/r")
 
 
 def test_run_parser_defaults():
@@ -50,18 +86,21 @@ def test_run_parser_defaults():
     assert args.vehicle_id is None and args.router is None and args.run_dir is None
 
 
-@pytest.mark.parametrize("argv, complaint", [
-    (["run", "--speed", "0"], "--speed"),
-    (["run", "--speed", "fast"], "--speed"),
-    (["run", "--laps", "-1"], "--laps"),
-    (["run", "--passengers", "-2"], "--passengers"),
-    (["run", "--router", "localhost"], "endpoint"),
-    (["run", "--vehicle-id", "a/b"], "vehicle id"),
-    (["echo"], "KEY"),
-    (["topics", "--seconds", "0"], "--seconds"),
-    (["bench", "bus", "--mode", "router"], "--mode"),
-    (["fly"], "invalid choice"),
-])
+@pytest.mark.parametrize(
+    "argv, complaint",
+    [
+        (["run", "--speed", "0"], "--speed"),
+        (["run", "--speed", "fast"], "--speed"),
+        (["run", "--laps", "-1"], "--laps"),
+        (["run", "--passengers", "-2"], "--passengers"),
+        (["run", "--router", "localhost"], "endpoint"),
+        (["run", "--vehicle-id", "a/b"], "vehicle id"),
+        (["echo"], "KEY"),
+        (["topics", "--seconds", "0"], "--seconds"),
+        (["bench", "bus", "--mode", "router"], "--mode"),
+        (["fly"], "invalid choice"),
+    ],
+)
 def test_bad_arguments_are_usage_errors(argv, complaint, capsys):
     assert cli.main(argv) == 2
     assert complaint in capsys.readouterr().err
@@ -85,10 +124,18 @@ def test_no_command_prints_help(capsys):
 
 def test_help_imports_no_heavy_package():
     # `ares --help` and `ares topics` start fast: each command imports what it needs when it runs
-    probe = ("import sys\nfrom ares import cli\ncli.build_parser().format_help()\n"
-             "print(' '.join(sorted({m.split('.')[0] for m in sys.modules})))")
-    result = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=env_without_run_config(),
-                            capture_output=True, text=True, timeout=60)
+    probe = (
+        "import sys\nfrom ares import cli\ncli.build_parser().format_help()\n"
+        "print(' '.join(sorted({m.split('.')[0] for m in sys.modules})))"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", probe],
+        cwd=REPO,
+        env=env_without_run_config(),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert result.returncode == 0, result.stderr
     loaded = set(result.stdout.split())
     assert not loaded & {"zenoh", "fastapi", "numpy", "pydantic", "blackbox"}
@@ -96,11 +143,12 @@ def test_help_imports_no_heavy_package():
 
 # ---- node ------------------------------------------------------------------------------------
 
+
 def test_node_unknown_name_fails_clearly(capsys):
     assert cli.main(["node", "nosuch"]) == 1
     err = capsys.readouterr().err
     assert "unknown process 'nosuch'" in err
-    assert "dbw_bridge" in err           # the known names are listed
+    assert "dbw_bridge" in err  # the known names are listed
 
 
 def test_node_unknown_name_exit_code_from_the_shell():
@@ -111,10 +159,20 @@ def test_node_unknown_name_exit_code_from_the_shell():
 
 # ---- topics / echo against a real router -----------------------------------------------------
 
+
 def car_state(i: int) -> CarState:
-    return CarState(t=float(i), mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
-                    setpoint_age_s=0.1, v_command=2.5, kappa_command=0.02, speed_mps=2.4,
-                    steering_wheel_deg=12.5, reason=f"test {i}")
+    return CarState(
+        t=float(i),
+        mode=DriveMode.AUTOMATIC,
+        engaged=True,
+        watchdog_tripped=False,
+        setpoint_age_s=0.1,
+        v_command=2.5,
+        kappa_command=0.02,
+        speed_mps=2.4,
+        steering_wheel_deg=12.5,
+        reason=f"test {i}",
+    )
 
 
 @pytest.fixture
@@ -129,8 +187,7 @@ def publishing(router):
         i = 0
         while not stop.is_set():
             bus.publish("dbw/car_state", car_state(i))
-            bus.session.put(bus.key("dbw/measure"), b'{"t": 1.0, "v": "fast"}',
-                            encoding="application/json;DbwMeasure")
+            bus.session.put(bus.key("dbw/measure"), b'{"t": 1.0, "v": "fast"}', encoding="application/json;DbwMeasure")
             bus.session.put(bus.key("lab/notes"), b"plain text")
             i += 1
             stop.wait(0.05)
@@ -163,8 +220,16 @@ def test_topics_lists_keys_rates_schemas_and_live_processes(publishing, child_en
 def test_topics_with_explicit_router_and_vehicle_id(publishing, port):
     # no ARES_RUN_CONFIG: the endpoint and the vehicle id come from the command line
     env = env_without_run_config()
-    result = ares("topics", "--seconds", "1", "--router", f"tcp/127.0.0.1:{port}",
-                  "--vehicle-id", publishing["vehicle_id"], env=env)
+    result = ares(
+        "topics",
+        "--seconds",
+        "1",
+        "--router",
+        f"tcp/127.0.0.1:{port}",
+        "--vehicle-id",
+        publishing["vehicle_id"],
+        env=env,
+    )
     assert result.returncode == 0, result.stderr
     assert "dbw/car_state" in result.stdout
 
@@ -220,12 +285,18 @@ def test_no_router_is_a_clear_error(command):
 def test_run_route_takes_a_built_in_tour_a_tour_file_or_a_route_csv(tmp_path):
     import argparse
 
-    from ares.stack import overrides_from_args
+    from ares.app.stack import overrides_from_args
+
     tour = tmp_path / "mine.yaml"
     tour.write_text("name: mine\n")
     csv = tmp_path / "drive.csv"
     csv.write_text("0,0\n10,0\n")
-    picked = {r: {k: v for k, v in overrides_from_args(argparse.Namespace(route=r)).items() if k in ("tour", "route_file")}
-              for r in ("campus", str(tour), str(csv))}
-    assert picked == {"campus": {"tour": "campus"}, str(tour): {"tour": str(tour.resolve())},
-                      str(csv): {"route_file": str(csv.resolve())}}
+    picked = {
+        r: {k: v for k, v in overrides_from_args(argparse.Namespace(route=r)).items() if k in ("tour", "route_file")}
+        for r in ("campus", str(tour), str(csv))
+    }
+    assert picked == {
+        "campus": {"tour": "campus"},
+        str(tour): {"tour": str(tour.resolve())},
+        str(csv): {"route_file": str(csv.resolve())},
+    }

@@ -1,6 +1,7 @@
 """Point-cloud filters (perception/cloud_filters.py, ARES §3.5.1): the body's box, the near-field
 ghost filter against its rule computed by brute force, and a realistic frame of the three
 LiDARs (tests/lidar_scene.py)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,24 +9,35 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ares.config import load_vehicle
+from ares.core.config import load_vehicle
 from perception.cloud_filters import BodyBox, CloudFilterParams, ghost_mask, keep_mask, self_hit_mask
-from tests import lidar_scene
+from tests.helpers import lidar_scene
 
 BODY = BodyBox(*lidar_scene.BODY)
 ORIGINS = lidar_scene.ORIGINS
 
 
 def test_the_body_box_comes_from_the_vehicle_profile():
-    box = BodyBox.of(load_vehicle("ares_shuttle"), 2.6)       # length 3.93, wheelbase 2.8, width 1.99
+    box = BodyBox.of(load_vehicle("ares_shuttle"), 2.6)  # length 3.93, wheelbase 2.8, width 1.99
     assert box == pytest.approx(lidar_scene.BODY)
 
 
 def test_points_inside_the_grown_box_are_self_hits():
-    points = np.array([
-        (1.0, 0.0, 1.0), (3.45, 0.5, 0.5), (-0.7, 0.0, 1.0), (1.0, 1.1, 2.0), (1.0, 0.0, 2.7),   # in, or within 0.15 m
-        (3.6, 0.5, 0.5), (-0.8, 0.0, 1.0), (1.0, 1.2, 2.0), (1.0, 0.0, 2.8), (5.0, 0.0, 0.0),    # out
-    ], np.float32)
+    points = np.array(
+        [
+            (1.0, 0.0, 1.0),
+            (3.45, 0.5, 0.5),
+            (-0.7, 0.0, 1.0),
+            (1.0, 1.1, 2.0),
+            (1.0, 0.0, 2.7),  # in, or within 0.15 m
+            (3.6, 0.5, 0.5),
+            (-0.8, 0.0, 1.0),
+            (1.0, 1.2, 2.0),
+            (1.0, 0.0, 2.8),
+            (5.0, 0.0, 0.0),  # out
+        ],
+        np.float32,
+    )
     assert self_hit_mask(points, BODY, 0.15).tolist() == [True] * 5 + [False] * 5
     assert self_hit_mask(points, BODY, 0.0).tolist()[:5] == [True, False, False, False, False]
     empty = np.zeros((0, 3), np.float32)
@@ -62,12 +74,12 @@ def test_a_pedestrian_by_the_bumper_stays_lone_points_around_go_far_ones_stay():
     lone = lone[~BODY.grown(0.5).contains(lone)]
     far = rng.uniform([12.0, -20.0, 0.0], [40.0, 20.0, 3.0], (100, 3)).astype(np.float32)
     points = np.concatenate([person, lone, far])
-    sensors = np.ones(len(points), int)                     # all from the front-left sensor
+    sensors = np.ones(len(points), int)  # all from the front-left sensor
     ghost = ghost_mask(points, sensors, ORIGINS, BODY)
-    assert not ghost[:len(person)].any()
-    isolated = brute_force_ghosts(points, sensors, ORIGINS, BODY, 4.0, 0.3, 3, 0.5)[len(person):-len(far)]
-    assert isolated.mean() > 0.95 and (ghost[len(person):-len(far)] == isolated).all()
-    assert not ghost[-len(far):].any()
+    assert not ghost[: len(person)].any()
+    isolated = brute_force_ghosts(points, sensors, ORIGINS, BODY, 4.0, 0.3, 3, 0.5)[len(person) : -len(far)]
+    assert isolated.mean() > 0.95 and (ghost[len(person) : -len(far)] == isolated).all()
+    assert not ghost[-len(far) :].any()
 
 
 def test_returns_closer_than_the_minimum_range_are_ghosts_even_in_a_crowd():
@@ -76,7 +88,7 @@ def test_returns_closer_than_the_minimum_range_are_ghosts_even_in_a_crowd():
     ghost = ghost_mask(patch, np.ones(50, int), ORIGINS, BODY, min_range_m=0.5)
     assert ghost.all()
     assert not ghost_mask(patch, np.ones(50, int), ORIGINS, BODY, min_range_m=0.3).any()
-    per_sensor = [0.9, 0.3, 0.3]                                       # the roof's datasheet says more
+    per_sensor = [0.9, 0.3, 0.3]  # the roof's datasheet says more
     assert not ghost_mask(patch, np.ones(50, int), ORIGINS, BODY, min_range_m=per_sensor).any()
     assert ghost_mask(patch, np.zeros(50, int), ORIGINS[[1]], BODY, min_range_m=per_sensor[:1]).all()
 
@@ -86,19 +98,24 @@ def test_self_hits_do_not_vouch_for_a_ghost_beside_them():
     ghost = np.array([(BODY.x_max + 0.2, 0.0, 0.55)])
     points = np.concatenate([bumper, ghost]).astype(np.float32)
     sensors = np.ones(len(points), int)
-    assert not ghost_mask(points, sensors, ORIGINS, BODY)[-1]          # judged among the self hits: kept
+    assert not ghost_mask(points, sensors, ORIGINS, BODY)[-1]  # judged among the self hits: kept
     keep = keep_mask(points, sensors, ORIGINS, BODY, CloudFilterParams())
-    assert not keep.any()                                              # the bumper, then the ghost
+    assert not keep.any()  # the bumper, then the ghost
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), radius=st.sampled_from([0.1, 0.3, 0.5]),
-       k=st.integers(1, 6), near_field=st.sampled_from([1.0, 4.0]))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(1, 400),
+    radius=st.sampled_from([0.1, 0.3, 0.5]),
+    k=st.integers(1, 6),
+    near_field=st.sampled_from([1.0, 4.0]),
+)
 def test_the_ghost_filter_is_exactly_its_rule(seed, n, radius, k, near_field):
     rng = np.random.default_rng(seed)
     # clusters of varied density, some near the body, some past the near field's edge
     centres = rng.uniform([-6.0, -6.0, -0.5], [9.0, 6.0, 3.0], (max(n // 15, 1), 3))
-    points = (centres[rng.integers(0, len(centres), n)] + rng.normal(0, rng.uniform(0.02, 0.5), (n, 3)))
+    points = centres[rng.integers(0, len(centres), n)] + rng.normal(0, rng.uniform(0.02, 0.5), (n, 3))
     points = points.astype(np.float32)
     sensors = rng.integers(0, 3, n)
     fast = ghost_mask(points, sensors, ORIGINS, BODY, near_field, radius, k, 0.5)
@@ -117,9 +134,9 @@ def test_a_frame_of_the_three_lidars():
     points = np.concatenate([frame.points, ghosts])
     sensors = np.concatenate([frame.sensor, rng.integers(0, 3, len(ghosts))])
     keep = keep_mask(points, sensors, ORIGINS, BODY, CloudFilterParams())
-    real = keep[:len(frame.points)]
-    assert not real[frame.body].any()                                  # every self hit
-    assert not keep[len(frame.points):].any()                          # every ghost
+    real = keep[: len(frame.points)]
+    assert not real[frame.body].any()  # every self hit
+    assert not keep[len(frame.points) :].any()  # every ghost
     person = BodyBox(5.0, 5.4, 1.8, 2.3, 0.0, 1.75).grown(0.02).contains(frame.points) & ~frame.body
     assert person.sum() > 100 and real[person].all()
-    assert len(ghosts) > 200 and (~real[~frame.body]).sum() <= 0.001 * (~frame.body).sum()   # a few real ones at most
+    assert len(ghosts) > 200 and (~real[~frame.body]).sum() <= 0.001 * (~frame.body).sum()  # a few real ones at most

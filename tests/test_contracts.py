@@ -1,6 +1,7 @@
 """Node contracts as data: every process declares its inputs, outputs, services and parameters;
 `ares describe` and docs/nodes.md show them; the topic graph they form is whole (every input has
 a publisher, a single-publisher topic has one); nothing undeclared gets onto the bus."""
+
 from __future__ import annotations
 
 import json
@@ -11,13 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from ares import contracts, run_config
-from ares.clock import ManualClock
-from ares.config import Params, param
-from ares.membus import MemoryNetwork
-from ares.messages import OdometryScore
-from ares.node import ContractError, Input, Node, Output
-from ares.processes import PROCESSES, Process
+from ares.app import contracts, run_config
+from ares.app.processes import PROCESSES, Process
+from ares.core.clock import ManualClock
+from ares.core.config import Params, param
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import OdometryScore
+from ares.core.node import ContractError, Input, Node, Output
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -56,23 +57,44 @@ def test_the_topic_graph_is_whole(cfg):
 
 
 def test_problems_in_a_graph_are_named():
-    graph = {"path/match": {"publishers": [], "subscribers": ["controller"]},
-             "control/setpoint": {"publishers": ["controller", "rogue"], "subscribers": ["dbw_bridge"]},
-             "events": {"publishers": ["a", "b"], "subscribers": []}}
+    graph = {
+        "path/match": {"publishers": [], "subscribers": ["controller"]},
+        "control/setpoint": {"publishers": ["controller", "rogue"], "subscribers": ["dbw_bridge"]},
+        "events": {"publishers": ["a", "b"], "subscribers": []},
+    }
     found = contracts.problems(graph)
-    assert found == ["path/match: read by controller but nobody publishes it",
-                     "control/setpoint: a single-publisher topic published by controller, rogue"]
+    assert found == [
+        "path/match: read by controller but nobody publishes it",
+        "control/setpoint: a single-publisher topic published by controller, rogue",
+    ]
 
 
 def test_the_simulator_waits_for_every_process_it_feeds(cfg):
     fed = contracts.fed_by(contracts.all_contracts(cfg), "sim")
-    assert fed == ["lidar_sim", "gnss", "localization", "odometry_manager", "path_manager", "speed_manager",
-                   "lidar_perception", "dbw_bridge", "mpc", "rrc", "pure_pursuit", "control_manager",
-                   "obstacle_manager", "mission_manager", "awareness_manager", "movement_manager", "blackbox"]
+    assert fed == [
+        "lidar_sim",
+        "gnss",
+        "localization",
+        "odometry_manager",
+        "path_manager",
+        "speed_manager",
+        "lidar_perception",
+        "dbw_bridge",
+        "mpc",
+        "rrc",
+        "pure_pursuit",
+        "control_manager",
+        "obstacle_manager",
+        "mission_manager",
+        "awareness_manager",
+        "movement_manager",
+        "blackbox",
+    ]
 
 
 def test_declaring_a_topic_that_is_not_in_the_table_fails_when_the_class_is_defined():
     with pytest.raises(ContractError, match="localisation/pose"):
+
         class Misspelt(Node):
             pose = Input("localisation/pose")
 
@@ -84,34 +106,45 @@ def test_a_rate_naming_a_missing_parameter_fails_at_start(cfg):
 
         class Params(Params):
             rate_hz: float = param(10.0, "loop rate", unit="Hz", gt=0)
+
     clock = ManualClock()
     with pytest.raises(ContractError, match="rate_hz_typo"):
         NoSuchRate(cfg, clock=clock, bus=MemoryNetwork().bus("no_such_rate", clock))
 
 
 def test_publishing_or_subscribing_outside_the_contract_fails_at_once(cfg):
-    from managers.odometry import OdometryManager
+    from managers.odometry_node import OdometryManager
+
     clock = ManualClock()
     node = OdometryManager(cfg, clock=clock, bus=MemoryNetwork().bus("odometry_manager", clock))
     with pytest.raises(ContractError, match="add `Output\\('path/match'"):
         node.bus.publish("path/match", None)
     with pytest.raises(ContractError, match="declare `Input\\('sensors/imu'"):
         node.bus.subscribe("sensors/imu")
-    node.bus.subscribe("localization/pose", on_message=lambda *_: None)     # declared: allowed
+    node.bus.subscribe("localization/pose", on_message=lambda *_: None)  # declared: allowed
 
 
 def test_ares_describe_json_lists_every_process():
-    result = subprocess.run([sys.executable, "-m", "ares.cli", "describe", "--json"], cwd=REPO,
-                            capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-m", "ares.cli", "describe", "--json"], cwd=REPO, capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0, result.stderr
     described = json.loads(result.stdout)
     assert [p["process"] for p in described["processes"]] == [p.name for p in PROCESSES]
     by_name = {p["process"]: p for p in described["processes"]}
-    assert {"topic": "localization/pose", "schema": "Pose", "rate_hz": 50.0, "encoding": "json", "reliable": False,
-            "doc": "every loop from the first fix on"} in by_name["localization"]["outputs"]
+    assert {
+        "topic": "localization/pose",
+        "schema": "Pose",
+        "rate_hz": 50.0,
+        "encoding": "json",
+        "reliable": False,
+        "doc": "every loop from the first fix on",
+    } in by_name["localization"]["outputs"]
     assert by_name["dbw_bridge"]["services"][0]["name"] == "set_automatic_mode"
-    assert any(p["name"] == "path_manager.radius_m" and p["value"] == 5.0 and p["unit"] == "m"
-               for p in by_name["path_manager"]["parameters"])
+    assert any(
+        p["name"] == "path_manager.radius_m" and p["value"] == 5.0 and p["unit"] == "m"
+        for p in by_name["path_manager"]["parameters"]
+    )
     assert described["topics"]["movement/command"]["subscribers"] == ["dbw_bridge"]
 
 
@@ -128,7 +161,7 @@ def test_the_readmes_manager_template_is_one_file_that_runs(cfg):
     exec(compile(_readme_template(), "README template", "exec"), namespace)
     cls = next(v for v in namespace.values() if isinstance(v, type) and issubclass(v, Node) and v is not Node)
     spec = Process(cls.name, f"{__name__}:{cls.__name__}", safety_relevant=True)
-    globals()[cls.__name__] = cls       # what the process table's "module:Class" finds
+    globals()[cls.__name__] = cls  # what the process table's "module:Class" finds
     try:
         contract = contracts.contract(spec, cfg)
         assert contract["inputs"] and contract["outputs"] and contract["parameters"]
@@ -152,7 +185,8 @@ def test_the_readmes_manager_template_is_one_file_that_runs(cfg):
 def test_the_simulators_truth_reaches_no_process_of_the_stack(cfg):
     # sim/truth and sim/world are for the evaluation (the headless runner) only: a vehicle-side
     # process that read them would be steering by what a real shuttle cannot know
-    from ares.processes import PROCESSES
+    from ares.app.processes import PROCESSES
+
     sim_only = {p.name for p in PROCESSES if p.sim_only}
     for c in contracts.all_contracts(cfg):
         if c["process"] in sim_only:

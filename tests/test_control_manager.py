@@ -1,32 +1,65 @@
-"""The control manager as a node (managers/control.py) on the in-memory bus with a manual clock:
+"""The control manager as a node (managers/control_node.py) on the in-memory bus with a manual clock:
 what reaches control/setpoint, the switches as events with their causes, the stand-in for a
 failing MPC, the speed manager's limit, a pinned controller; and the RRC node's candidate from
 road detection (control/rrc_node.py)."""
+
 from __future__ import annotations
 
 import pytest
 
-from ares import config
-from ares.clock import ManualClock
-from ares.membus import MemoryNetwork
-from ares.messages import (CarState, ControlCandidate, ControllerStatus, DriveMode, OdometryScore, PathMatch,
-                           RoadBoundary, RoadDetection, SpeedLimits)
+from ares.core import config
+from ares.core.clock import ManualClock
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import (
+    CarState,
+    ControlCandidate,
+    ControllerStatus,
+    DriveMode,
+    OdometryScore,
+    PathMatch,
+    RoadBoundary,
+    RoadDetection,
+    SpeedLimits,
+)
 from control.rrc_node import RrcNode
-from managers.control import ControlManager
+from managers.control_node import ControlManager
 
 PERIOD = 0.05
 
 
 def match(t: float, force: bool = False, to_end: float | None = None) -> PathMatch:
-    return PathMatch(t=t, index=10, s=5.0, lap=0, xte=0.02, heading_error=0.01, zones=["intersection"] if force else [],
-                     force_odometry=force, distance_to_end_m=to_end, ahead_x=[0.0, 1.0], ahead_y=[0.0, 0.0],
-                     ahead_yaw=[0.0, 0.0], ahead_curvature=[0.0, 0.0], ahead_speed=[3.0, 3.0], ahead_s=[5.0, 6.0])
+    return PathMatch(
+        t=t,
+        index=10,
+        s=5.0,
+        lap=0,
+        xte=0.02,
+        heading_error=0.01,
+        zones=["intersection"] if force else [],
+        force_odometry=force,
+        distance_to_end_m=to_end,
+        ahead_x=[0.0, 1.0],
+        ahead_y=[0.0, 0.0],
+        ahead_yaw=[0.0, 0.0],
+        ahead_curvature=[0.0, 0.0],
+        ahead_speed=[3.0, 3.0],
+        ahead_s=[5.0, 6.0],
+    )
 
 
 def road(t: float, confidence: float = 0.9, offset: float = 0.1) -> RoadDetection:
     centre = RoadBoundary(coefficients=[-offset, 0.0, 0.0], x_min=0.0, x_max=15.0, points=30)
-    return RoadDetection(t=t, found=confidence > 0, centre=centre, left=None, right=None, lateral_offset_m=offset,
-                         heading_rad=0.0, width_m=6.0, confidence=confidence)
+    return RoadDetection(
+        t=t,
+        found=confidence > 0,
+        centre=centre,
+        left=None,
+        right=None,
+        lateral_offset_m=offset,
+        heading_rad=0.0,
+        width_m=6.0,
+        confidence=confidence,
+    )
 
 
 class Harness:
@@ -42,9 +75,19 @@ class Harness:
         self.events = self.bus.subscribe("events", queue=1000)
         self.t = 0.0
 
-    def step(self, *, score: float | None = 1.0, confidence: float | None = None, force: bool = False,
-             mpc: tuple | None = (3.0, 0.01), rrc: tuple | None = None, pure_pursuit: tuple | None = (3.0, 0.02),
-             handover: bool = False, limit: float | None = None, to_end: float | None = None):
+    def step(
+        self,
+        *,
+        score: float | None = 1.0,
+        confidence: float | None = None,
+        force: bool = False,
+        mpc: tuple | None = (3.0, 0.01),
+        rrc: tuple | None = None,
+        pure_pursuit: tuple | None = (3.0, 0.02),
+        handover: bool = False,
+        limit: float | None = None,
+        to_end: float | None = None,
+    ):
         t = self.t = round(self.t + PERIOD, 9)
         self.clock.set(t)
         pub = self.bus.publish
@@ -55,11 +98,26 @@ class Harness:
         pub("path/match", match(t, force, to_end))
         for name, cand in (("mpc", mpc), ("rrc", rrc), ("pure_pursuit", pure_pursuit)):
             if cand is not None:
-                pub(f"control/candidate/{name}", ControlCandidate(t=t, controller=name, v=cand[0], kappa=cand[1],
-                                                                  handover=handover and name == "mpc"))
+                pub(
+                    f"control/candidate/{name}",
+                    ControlCandidate(
+                        t=t, controller=name, v=cand[0], kappa=cand[1], handover=handover and name == "mpc"
+                    ),
+                )
         if limit is not None:
-            pub("speed/limits", SpeedLimits(t=t, s=5.0, section=0, kind="cruise", limit_mps=limit, next_section=1,
-                                            next_limit_mps=limit, distance_to_next_m=10.0))
+            pub(
+                "speed/limits",
+                SpeedLimits(
+                    t=t,
+                    s=5.0,
+                    section=0,
+                    kind="cruise",
+                    limit_mps=limit,
+                    next_section=1,
+                    next_limit_mps=limit,
+                    distance_to_next_m=10.0,
+                ),
+            )
         self.node.step_once(t)
         return self.setpoints.latest, self.status.latest
 
@@ -157,49 +215,70 @@ class RrcHarness:
         if detection is not None:
             self.bus.publish("perception/road", detection)
         if driving is not None:
-            self.bus.publish("control/status", ControllerStatus(t=t, controller=driving, mode=driving, reason="",
-                                                                s=None, xte=None, heading_error=None,
-                                                                target_speed=speed))
-        self.bus.publish("dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
-                                                   setpoint_age_s=0.05, v_command=speed, kappa_command=0.0,
-                                                   speed_mps=speed, steering_wheel_deg=0.0))
+            self.bus.publish(
+                "control/status",
+                ControllerStatus(
+                    t=t,
+                    controller=driving,
+                    mode=driving,
+                    reason="",
+                    s=None,
+                    xte=None,
+                    heading_error=None,
+                    target_speed=speed,
+                ),
+            )
+        self.bus.publish(
+            "dbw/car_state",
+            CarState(
+                t=t,
+                mode=DriveMode.AUTOMATIC,
+                engaged=True,
+                watchdog_tripped=False,
+                setpoint_age_s=0.05,
+                v_command=speed,
+                kappa_command=0.0,
+                speed_mps=speed,
+                steering_wheel_deg=0.0,
+            ),
+        )
         self.node.step_once(t)
         return [c for _, c in self.candidates.drain()]
 
 
 def test_the_rrc_node_steers_back_to_the_centre_and_remembers_a_lost_road_for_a_stop_only(run_config):
     h = RrcHarness(run_config)
-    got = h.step(0.05, road(0.05, 0.9, offset=0.5))           # half a metre left of the centre: steer right
+    got = h.step(0.05, road(0.05, 0.9, offset=0.5))  # half a metre left of the centre: steer right
     assert len(got) == 1 and got[0].kappa < 0 and got[0].v > 0 and got[0].controller == "rrc"
     assert not got[0].stop_only
-    lost = h.step(0.10, road(0.10, 0.01))                      # not confident: the road seen at 0.05 s, remembered
+    lost = h.step(0.10, road(0.10, 0.01))  # not confident: the road seen at 0.05 s, remembered
     assert len(lost) == 1 and lost[0].stop_only and lost[0].v == 0.0 and lost[0].kappa < 0
     assert "road lost" in lost[0].note
-    again = h.step(0.15, road(0.15, 0.9, offset=0.5))[0]                # seen again: driving again
+    again = h.step(0.15, road(0.15, 0.9, offset=0.5))[0]  # seen again: driving again
     assert not again.stop_only and again.v > 0 and again.kappa < 0
     t = 0.15
-    while h.node.rrc.memory is not None and t < 10.0:           # stale detection: remembered for memory_m
+    while h.node.rrc.memory is not None and t < 10.0:  # stale detection: remembered for memory_m
         t += 0.05
         got = h.step(t, None)
-    assert got == [] and 3.5 < t < 5.0                          # 8 m at 2 m/s, after the road's timeout
+    assert got == [] and 3.5 < t < 5.0  # 8 m at 2 m/s, after the road's timeout
 
 
 def test_the_rrc_node_does_not_follow_a_frame_that_disagrees_with_the_road_seen_and_says_so(run_config):
     h = RrcHarness(run_config)
     events = h.bus.subscribe("events", queue=100)
     t = 0.0
-    for _ in range(40):                                         # 4 m along the road, 0.1 m left of its centre
+    for _ in range(40):  # 4 m along the road, 0.1 m left of its centre
         t += 0.1
         assert not h.step(t, road(t, 0.9))[0].stop_only
-    for _ in range(3):                                          # standing: a frame sees the centre 3 m to the right
+    for _ in range(3):  # standing: a frame sees the centre 3 m to the right
         t += 0.1
         got = h.step(t, road(t, 0.5, offset=3.0), speed=0.0)
         assert got[0].stop_only and got[0].v == 0.0 and "disagrees with the road seen" in got[0].note
     doubts = [e for _, e in events.drain() if e.kind == "road_doubted"]
-    assert len(doubts) == 1 and doubts[0].data["confidence"] == 0.5      # once for the spell
+    assert len(doubts) == 1 and doubts[0].data["confidence"] == 0.5  # once for the spell
     t += 0.1
-    assert not h.step(t, road(t, 0.9), speed=0.0)[0].stop_only          # the road seen again
-    for _ in range(30):                                                  # spells 0.2 s apart for 6 s, then 12 s on
+    assert not h.step(t, road(t, 0.9), speed=0.0)[0].stop_only  # the road seen again
+    for _ in range(30):  # spells 0.2 s apart for 6 s, then 12 s on
         t += 0.1
         h.step(t, road(t, 0.5, offset=3.0), speed=0.0)
         t += 0.1
@@ -207,7 +286,7 @@ def test_the_rrc_node_does_not_follow_a_frame_that_disagrees_with_the_road_seen_
     t += 12.0
     h.step(t, road(t, 0.5, offset=3.0), speed=0.0)
     doubts = [e for _, e in events.drain() if e.kind == "road_doubted"]
-    assert [e.data["spells"] for e in doubts] == [31]                   # not one event each: one, counting them
+    assert [e.data["spells"] for e in doubts] == [31]  # not one event each: one, counting them
 
 
 def test_the_rrc_integrates_its_offset_only_while_it_drives(run_config):
@@ -215,11 +294,11 @@ def test_the_rrc_integrates_its_offset_only_while_it_drives(run_config):
     integral (it would steer the shuttle aside at the hand-over)."""
     h = RrcHarness(run_config)
     t = 0.0
-    for _ in range(20):                                         # the MPC drives, 0.3 m off the road seen
+    for _ in range(20):  # the MPC drives, 0.3 m off the road seen
         t += 0.05
         h.step(t, road(t, 0.9, offset=0.3), driving="mpc")
     assert h.node.rrc.integral == 0.0
-    for _ in range(20):                                         # the RRC drives: 2 m at 2 m/s
+    for _ in range(20):  # the RRC drives: 2 m at 2 m/s
         t += 0.05
         h.step(t, road(t, 0.9, offset=0.3), driving="rrc")
     assert h.node.rrc.integral == pytest.approx(0.3 * 1.9, rel=0.1)

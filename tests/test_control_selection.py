@@ -1,7 +1,8 @@
-"""The control manager's choice of controller (managers/control_selection.py): every mode × every
+"""The control manager's choice of controller (managers/control.py): every mode × every
 combination of inputs against the rule written out plainly, then hypothesis properties over
 random sequences (no stale candidate forwarded, the dwell respected unless the mode in charge
 fails, the curvature within the steering's rate, a controlled stop that only slows)."""
+
 from __future__ import annotations
 
 import itertools
@@ -10,33 +11,49 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from managers.control_selection import Candidate, ControlSelector, Inputs, Mode, SelectionParams
+from managers.control import Candidate, ControlSelector, Inputs, Mode, SelectionParams
 
-P = SelectionParams(score_enter=0.6, score_exit=0.4, road_enter=0.6, road_exit=0.4, min_dwell_s=1.0,
-                    max_kappa_rate=0.2, stop_decel_mps2=1.0)
+P = SelectionParams(
+    score_enter=0.6,
+    score_exit=0.4,
+    road_enter=0.6,
+    road_exit=0.4,
+    min_dwell_s=1.0,
+    max_kappa_rate=0.2,
+    stop_decel_mps2=1.0,
+)
 ODO, RRC = Candidate(3.0, 0.01), Candidate(2.0, -0.02)
-RRC_REMEMBERED = Candidate(0.0, -0.03, stop_only=True)     # the road lost, remembered: steers a stop only
-LEVELS = (None, 0.2, 0.5, 0.9)          # missing, below exit, between exit and enter, above enter
+RRC_REMEMBERED = Candidate(0.0, -0.03, stop_only=True)  # the road lost, remembered: steers a stop only
+LEVELS = (None, 0.2, 0.5, 0.9)  # missing, below exit, between exit and enter, above enter
 
 
 def rule(current: Mode, i: Inputs, dwelt: bool) -> Mode:
     """The module docstring's order of trust, as plainly as it reads."""
+
     def ok(mode: Mode) -> bool:
         holding = mode is current
         if mode is Mode.ODOMETRY:
-            return i.odometry is not None and (i.force_odometry or (
-                i.odometry_score is not None and i.odometry_score >= (P.score_exit if holding else P.score_enter)))
+            return i.odometry is not None and (
+                i.force_odometry
+                or (i.odometry_score is not None and i.odometry_score >= (P.score_exit if holding else P.score_enter))
+            )
         if mode is Mode.RRC:
-            return (i.rrc is not None and not i.rrc.stop_only and not (i.force_odometry and i.odometry is not None)
-                    and i.road_confidence is not None
-                    and i.road_confidence >= (P.road_exit if holding else P.road_enter))
+            return (
+                i.rrc is not None
+                and not i.rrc.stop_only
+                and not (i.force_odometry and i.odometry is not None)
+                and i.road_confidence is not None
+                and i.road_confidence >= (P.road_exit if holding else P.road_enter)
+            )
         return True
+
     want = next((m for m in (Mode.ODOMETRY, Mode.RRC) if ok(m)), Mode.STOP)
     return want if want is not current and (not ok(current) or dwelt) else current
 
 
-CASES = list(itertools.product(Mode, LEVELS, LEVELS, (False, True), (None, ODO), (None, RRC, RRC_REMEMBERED),
-                               (False, True)))
+CASES = list(
+    itertools.product(Mode, LEVELS, LEVELS, (False, True), (None, ODO), (None, RRC, RRC_REMEMBERED), (False, True))
+)
 
 
 @pytest.mark.parametrize("current,score,road,force,odo,rrc,dwelt", CASES)
@@ -51,20 +68,22 @@ def test_every_mode_and_input(current, score, road, force, odo, rrc, dwelt):
     assert {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(decision.mode, "stop") is not None
     assert not (decision.mode is Mode.RRC and rrc.stop_only)
     if force and odo is not None and (current is not Mode.STOP or dwelt):
-        assert decision.mode is Mode.ODOMETRY         # (a stop, once begun, lasts its dwell)
+        assert decision.mode is Mode.ODOMETRY  # (a stop, once begun, lasts its dwell)
     if decision.mode is Mode.STOP and current is not Mode.STOP:
-        assert rule(Mode.STOP, inputs, True) is Mode.STOP     # left for STOP only when nothing else would do
+        assert rule(Mode.STOP, inputs, True) is Mode.STOP  # left for STOP only when nothing else would do
 
 
 def test_hysteresis_keeps_odometry_down_to_its_exit_threshold():
     selector = ControlSelector(P, start=Mode.STOP)
     t = 0.0
-    selector.step(t, Inputs(None, None, False, None, None))      # at start-up: stopped
-    for t, score, expected in ((1.1, 0.5, Mode.RRC),          # between the thresholds: not trusted yet
-                               (1.5, 0.65, Mode.RRC),         # trusted, but the RRC's dwell has not passed
-                               (2.2, 0.65, Mode.ODOMETRY),
-                               (3.5, 0.45, Mode.ODOMETRY),    # held down to the exit threshold
-                               (4.8, 0.39, Mode.RRC)):
+    selector.step(t, Inputs(None, None, False, None, None))  # at start-up: stopped
+    for t, score, expected in (
+        (1.1, 0.5, Mode.RRC),  # between the thresholds: not trusted yet
+        (1.5, 0.65, Mode.RRC),  # trusted, but the RRC's dwell has not passed
+        (2.2, 0.65, Mode.ODOMETRY),
+        (3.5, 0.45, Mode.ODOMETRY),  # held down to the exit threshold
+        (4.8, 0.39, Mode.RRC),
+    ):
         assert selector.step(t, Inputs(score, 0.9, False, ODO, RRC)).mode is expected, (score, t)
 
 
@@ -72,13 +91,13 @@ def test_a_switch_ramps_the_curvature_at_the_steering_rate():
     selector = ControlSelector(P, start=Mode.ODOMETRY)
     selector.step(0.0, Inputs(0.9, 0.9, False, Candidate(3.0, 0.0), Candidate(3.0, 0.1)))
     d = selector.step(0.1, Inputs(0.1, 0.9, False, Candidate(3.0, 0.0), Candidate(3.0, 0.1)))
-    assert d.mode is Mode.RRC and d.switched and d.kappa == pytest.approx(0.02)     # 0.2 /m/s × 0.1 s
+    assert d.mode is Mode.RRC and d.switched and d.kappa == pytest.approx(0.02)  # 0.2 /m/s × 0.1 s
     assert "odometry score 0.10 too low" in d.reason
-    for t in (0.2, 0.3, 0.4, 0.5):                  # 0.02 a step ...
+    for t in (0.2, 0.3, 0.4, 0.5):  # 0.02 a step ...
         d = selector.step(t, Inputs(0.1, 0.9, False, Candidate(3.0, 0.0), Candidate(3.0, 0.1)))
-    assert d.kappa == pytest.approx(0.1)            # ... caught up at 0.5 s
+    assert d.kappa == pytest.approx(0.1)  # ... caught up at 0.5 s
     d = selector.step(0.6, Inputs(0.1, 0.9, False, Candidate(3.0, 0.0), Candidate(3.0, 0.16)))
-    assert d.kappa == 0.16                          # then the RRC's own command, not delayed
+    assert d.kappa == 0.16  # then the RRC's own command, not delayed
 
 
 def test_a_controlled_stop_slows_and_holds_the_curvature():
@@ -94,17 +113,18 @@ def test_a_controlled_stop_steers_along_the_rrc_at_the_steering_rate():
     selector = ControlSelector(P, start=Mode.RRC)
     selector.step(0.0, Inputs(None, 0.9, False, None, Candidate(2.5, 0.05)))
     d = selector.step(0.1, Inputs(None, 0.1, False, None, Candidate(0.0, -0.05, stop_only=True)))
-    assert d.mode is Mode.STOP and d.v == pytest.approx(2.4) and d.kappa == pytest.approx(0.03)   # 0.2 /m/s × 0.1 s
+    assert d.mode is Mode.STOP and d.v == pytest.approx(2.4) and d.kappa == pytest.approx(0.03)  # 0.2 /m/s × 0.1 s
     for t in (0.2, 0.3, 0.4, 0.5, 0.6):
         d = selector.step(t, Inputs(None, 0.1, False, None, Candidate(0.0, -0.05, stop_only=True)))
     assert d.kappa == pytest.approx(-0.05) and d.mode is Mode.STOP and d.v == pytest.approx(1.9)
-    d = selector.step(0.7, Inputs(None, 0.1, False, None, None))       # the memory ran out: held
+    d = selector.step(0.7, Inputs(None, 0.1, False, None, None))  # the memory ran out: held
     assert d.kappa == pytest.approx(-0.05)
 
 
 def test_a_pinned_stop_holds_the_curvature_whatever_the_rrc_says():
-    selector = ControlSelector(SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, pinned=Mode.ODOMETRY),
-                               start=Mode.ODOMETRY)
+    selector = ControlSelector(
+        SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, pinned=Mode.ODOMETRY), start=Mode.ODOMETRY
+    )
     selector.step(0.0, Inputs(0.9, None, False, Candidate(3.0, 0.05), None))
     d = selector.step(0.5, Inputs(0.9, 0.9, False, None, Candidate(2.0, -0.1)))
     assert d.mode is Mode.STOP and d.kappa == pytest.approx(0.05)
@@ -132,15 +152,15 @@ def test_properties_over_random_sequences(start, cycles):
         ramping = selector.catching_up
         d = selector.step(t, inputs)
         assert {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(d.mode, "stop") is not None
-        assert not (d.mode is Mode.RRC and rrc.stop_only)         # a stop-only candidate never drives
+        assert not (d.mode is Mode.RRC and rrc.stop_only)  # a stop-only candidate never drives
         if d.switched:
-            assert held_ok is False or t - last_switch >= P.min_dwell_s - 1e-9   # early only when it had to
+            assert held_ok is False or t - last_switch >= P.min_dwell_s - 1e-9  # early only when it had to
             last_switch = t
         target = {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(d.mode)
         if kappa is not None and (d.switched or ramping or target is None):
-            assert abs(d.kappa - kappa) <= P.max_kappa_rate * dt + 1e-9      # a switch, a stop: bumpless
+            assert abs(d.kappa - kappa) <= P.max_kappa_rate * dt + 1e-9  # a switch, a stop: bumpless
         elif kappa is not None:
-            assert d.kappa == target.kappa          # in charge and caught up: passed through, never delayed
+            assert d.kappa == target.kappa  # in charge and caught up: passed through, never delayed
         if d.mode is Mode.STOP and mode is Mode.STOP and v is not None:
             assert d.v <= v + 1e-9
         kappa, v, mode = d.kappa, d.v, d.mode

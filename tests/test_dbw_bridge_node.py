@@ -2,27 +2,34 @@
 (button, set_automatic_mode, pedals, steering wheel), setpoints through Ackermann to the inner
 loops, the 1 s setpoint watchdog and the standstill brake, as dbw/actuators, dbw/car_state and
 the events it publishes show them. Its contract: what it declares, and nothing beyond."""
+
 from __future__ import annotations
 
 import math
 
 import pytest
 
-from ares import config, topics
-from ares.clock import ManualClock
-from ares.membus import MemoryNetwork
-from ares.messages import CanFrame, DriveMode, EventLevel, PanelEvent, MovementCommand, PanelInput
-from ares.node import ContractError
-from control import dbw_bridge
-from control.dbw_bridge import DbwBridge
+from ares.core import config, topics
+from ares.core.clock import ManualClock
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import CanFrame, DriveMode, EventLevel, MovementCommand, PanelEvent, PanelInput
+from ares.core.node import ContractError
+from control import dbw_bridge_node as dbw_bridge
+from control.dbw_bridge_node import DbwBridge
 
-PERIOD = 0.1                # the bridge's 10 Hz
-SHUTTLE_WHEELBASE = 2.8     # ares_shuttle, the default vehicle
+PERIOD = 0.1  # the bridge's 10 Hz
+SHUTTLE_WHEELBASE = 2.8  # ares_shuttle, the default vehicle
 SHUTTLE_MAX_KAPPA = math.tan(0.31) / 2.8
 SHUTTLE_MAX_SPEED = 4.0
-STANDSTILL_BRAKE = 0.5      # dbw_bridge.standstill_brake_effort
-STANDING = {"wheel_speed_rad_s": 0.0, "speed_mps": 0.0, "steering_wheel_deg": 0.0, "throttle_pedal": 0.0,
-            "brake_pedal": 0.0, "steering_torque": False}
+STANDSTILL_BRAKE = 0.5  # dbw_bridge.standstill_brake_effort
+STANDING = {
+    "wheel_speed_rad_s": 0.0,
+    "speed_mps": 0.0,
+    "steering_wheel_deg": 0.0,
+    "throttle_pedal": 0.0,
+    "brake_pedal": 0.0,
+    "steering_torque": False,
+}
 
 
 def steering_wheel_deg(kappa: float) -> float:
@@ -58,8 +65,7 @@ class BridgeOnTheBus:
 
     def setpoint(self, v: float, kappa: float, stamp: float | None = None, emergency: bool = False) -> None:
         t = self.clock.now() if stamp is None else stamp
-        self.bus.publish("movement/command", MovementCommand(t=t, v=v, kappa=kappa, emergency=emergency,
-                                                             source="test"))
+        self.bus.publish("movement/command", MovementCommand(t=t, v=v, kappa=kappa, emergency=emergency, source="test"))
 
     def set_automatic_mode(self):
         return self.bus.call("set_automatic_mode")
@@ -77,7 +83,7 @@ class BridgeOnTheBus:
         self.step(t)
         assert self.set_automatic_mode().accepted
         for now in ticks(t + PERIOD, t + 1.0):
-            self.setpoint(2.0, 0.05, stamp=now)     # produced just before the bridge's period
+            self.setpoint(2.0, 0.05, stamp=now)  # produced just before the bridge's period
             self.step(now)
         assert self.car.latest.mode == DriveMode.AUTOMATIC and self.car.latest.v_command == 2.0
         self.new_events()
@@ -98,16 +104,23 @@ def bridge(run_config) -> BridgeOnTheBus:
 
 # ---- the contract ---------------------------------------------------------------------------------
 
+
 def test_the_contract_is_the_documented_one():
     # DBW paper §4 as the node documents it: navigation setpoints, the control panel and the CAN
     # readings in; efforts, the inner loops' references and measurements and the car's state
     # out; the software half of the Manual -> Ready -> Automatic switch as a service
     assert "navigation setpoints in, actuator efforts out" in dbw_bridge.__doc__
     assert {i.topic: i.attr for i in DbwBridge.inputs()} == {
-        "movement/command": "setpoints", "vehicle/panel": "panel", "sensors/can": "can"}
+        "movement/command": "setpoints",
+        "vehicle/panel": "panel",
+        "sensors/can": "can",
+    }
     assert {o.topic: o.attr for o in DbwBridge.outputs()} == {
-        "dbw/actuators": "actuators", "dbw/reference": "reference", "dbw/measure": "measure",
-        "dbw/car_state": "car_state"}
+        "dbw/actuators": "actuators",
+        "dbw/reference": "reference",
+        "dbw/measure": "measure",
+        "dbw/car_state": "car_state",
+    }
     assert DbwBridge.services() == {"set_automatic_mode": "_set_automatic_mode"}
     # every setpoint and every driver action is handled, none is lost between two periods
     assert DbwBridge.setpoints.queue == 64 and DbwBridge.panel.queue == 64
@@ -141,6 +154,7 @@ def test_everything_the_bridge_publishes_is_declared(bridge):
 
 # ---- the mode machine through the bus ------------------------------------------------------------
 
+
 def test_starts_in_manual_and_refuses_automatic_before_the_button(bridge):
     car, actuators = bridge.step(0.0)
     assert car.mode == DriveMode.MANUAL and not car.engaged
@@ -163,7 +177,7 @@ def test_the_button_arms_ready_with_null_setpoints_and_the_brake_held(bridge):
     assert car.mode == DriveMode.READY and car.engaged and not car.watchdog_tripped
     assert (car.v_command, car.kappa_command) == (0.0, 0.0)
     assert actuators.engaged and actuators.steer_effort == 0.0
-    assert actuators.drive_effort == -STANDSTILL_BRAKE        # standing still: the board holds the brake
+    assert actuators.drive_effort == -STANDSTILL_BRAKE  # standing still: the board holds the brake
     assert bridge.mode_changes() == [("MANUAL", "READY", "BUTTON")]
     # Ready sends null setpoints whatever navigation asks
     bridge.setpoint(2.0, 0.05)
@@ -203,23 +217,27 @@ def test_automatic_drives_the_setpoints_through_ackermann_to_the_inner_loops(bri
 
 def test_measurements_are_reported_as_speed_and_curvature(bridge):
     bridge.step(0.0, can=None)
-    assert bridge.measure.latest is None                  # no CAN reading yet: nothing to report
+    assert bridge.measure.latest is None  # no CAN reading yet: nothing to report
     kappa, v = -0.08, 1.5
     theta = math.atan(kappa * SHUTTLE_WHEELBASE)
-    bridge.step(0.1, wheel_speed_rad_s=v / (math.cos(theta) * 0.28), speed_mps=v,
-                steering_wheel_deg=steering_wheel_deg(kappa))
+    bridge.step(
+        0.1, wheel_speed_rad_s=v / (math.cos(theta) * 0.28), speed_mps=v, steering_wheel_deg=steering_wheel_deg(kappa)
+    )
     measured = bridge.measure.latest
     assert measured.kappa == pytest.approx(kappa, rel=1e-9) and measured.v == pytest.approx(v, rel=1e-9)
     assert measured.steering_wheel_deg == pytest.approx(steering_wheel_deg(kappa))
     assert bridge.car.latest.speed_mps == v and bridge.car.latest.steering_wheel_deg == measured.steering_wheel_deg
 
 
-@pytest.mark.parametrize("action", [PanelInput.THROTTLE_PEDAL, PanelInput.BRAKE_PEDAL, PanelInput.STEERING_WHEEL,
-                                    PanelInput.BUTTON], ids=lambda action: action.value)
+@pytest.mark.parametrize(
+    "action",
+    [PanelInput.THROTTLE_PEDAL, PanelInput.BRAKE_PEDAL, PanelInput.STEERING_WHEEL, PanelInput.BUTTON],
+    ids=lambda action: action.value,
+)
 def test_a_driver_action_or_the_button_takes_an_automatic_vehicle_back_to_manual(bridge, action):
     t = bridge.arm(0.0)
     bridge.press(action)
-    bridge.setpoint(2.0, 0.05)              # navigation keeps talking: it no longer drives
+    bridge.setpoint(2.0, 0.05)  # navigation keeps talking: it no longer drives
     car, actuators = bridge.step(t)
     assert car.mode == DriveMode.MANUAL and not car.engaged
     assert not actuators.engaged and actuators.steer_effort == 0.0 and actuators.drive_effort == 0.0
@@ -228,8 +246,11 @@ def test_a_driver_action_or_the_button_takes_an_automatic_vehicle_back_to_manual
     assert not bridge.set_automatic_mode().accepted
 
 
-@pytest.mark.parametrize("action", [PanelInput.THROTTLE_PEDAL, PanelInput.BRAKE_PEDAL, PanelInput.STEERING_WHEEL],
-                         ids=lambda action: action.value)
+@pytest.mark.parametrize(
+    "action",
+    [PanelInput.THROTTLE_PEDAL, PanelInput.BRAKE_PEDAL, PanelInput.STEERING_WHEEL],
+    ids=lambda action: action.value,
+)
 def test_a_driver_action_in_ready_gives_manual(bridge, action):
     bridge.press(PanelInput.BUTTON)
     bridge.step(0.0)
@@ -239,9 +260,14 @@ def test_a_driver_action_in_ready_gives_manual(bridge, action):
     assert bridge.mode_changes() == [("MANUAL", "READY", "BUTTON"), ("READY", "MANUAL", action.value)]
 
 
-@pytest.mark.parametrize("reading, cause", [({"throttle_pedal": 0.2}, "THROTTLE_PEDAL"),
-                                            ({"brake_pedal": 0.2}, "BRAKE_PEDAL"),
-                                            ({"steering_torque": True}, "STEERING_WHEEL")])
+@pytest.mark.parametrize(
+    "reading, cause",
+    [
+        ({"throttle_pedal": 0.2}, "THROTTLE_PEDAL"),
+        ({"brake_pedal": 0.2}, "BRAKE_PEDAL"),
+        ({"steering_torque": True}, "STEERING_WHEEL"),
+    ],
+)
 def test_pedals_and_steering_torque_on_can_take_over_should_a_panel_event_be_missed(bridge, reading, cause):
     t = bridge.arm(0.0)
     car, actuators = bridge.step(t, **reading)
@@ -252,12 +278,13 @@ def test_pedals_and_steering_torque_on_can_take_over_should_a_panel_event_be_mis
 def test_pedal_noise_below_the_threshold_is_not_a_driver_action(bridge):
     t = bridge.arm(0.0)
     bridge.setpoint(2.0, 0.05)
-    car, actuators = bridge.step(t, throttle_pedal=0.04, brake_pedal=0.04)   # pedal_pressed is 0.05
+    car, actuators = bridge.step(t, throttle_pedal=0.04, brake_pedal=0.04)  # pedal_pressed is 0.05
     assert car.mode == DriveMode.AUTOMATIC and actuators.engaged and car.v_command == 2.0
     assert bridge.mode_changes() == []
 
 
 # ---- the setpoint watchdog -------------------------------------------------------------------------
+
 
 def test_automatic_without_any_setpoint_stands_still_and_says_so(bridge):
     bridge.press(PanelInput.BUTTON)
@@ -279,8 +306,9 @@ def test_one_second_without_setpoints_stops_and_centres_the_steering_then_it_rec
     assert car.setpoint_age_s == pytest.approx(1.0)
     assert [e for e in bridge.new_events() if e.kind == "watchdog"] == []
     # ... and one period later it stops and centres the steering, still in Automatic
-    car, actuators = bridge.step(round(last_setpoint + 1.1, 9), speed_mps=2.0, wheel_speed_rad_s=7.0,
-                                 steering_wheel_deg=steering_wheel_deg(0.05))
+    car, actuators = bridge.step(
+        round(last_setpoint + 1.1, 9), speed_mps=2.0, wheel_speed_rad_s=7.0, steering_wheel_deg=steering_wheel_deg(0.05)
+    )
     assert car.mode == DriveMode.AUTOMATIC and car.watchdog_tripped
     assert (car.v_command, car.kappa_command) == (0.0, 0.0)
     assert bridge.reference.latest.steering_wheel_deg == 0.0 and bridge.reference.latest.wheel_speed_deg_s == 0.0
@@ -304,23 +332,24 @@ def test_the_movement_managers_emergency_stop_brakes_fully_and_holds_the_wheel(b
     car, actuators = bridge.step(t)
     assert actuators.engaged and actuators.drive_effort == -1.0
     assert car.mode == DriveMode.AUTOMATIC and (car.v_command, car.kappa_command) == (0.0, 0.05)
-    bridge.setpoint(1.0, 0.0, stamp=round(t + PERIOD, 9))      # re-armed: the gate's commands drive again
+    bridge.setpoint(1.0, 0.0, stamp=round(t + PERIOD, 9))  # re-armed: the gate's commands drive again
     _, actuators = bridge.step(round(t + PERIOD, 9))
     assert actuators.drive_effort > -1.0
 
 
 def test_a_setpoint_older_than_the_timeout_when_it_arrives_is_not_driven(bridge):
     t = bridge.arm(0.0)
-    for now in ticks(t, t + 1.0):           # navigation goes quiet: the watchdog stops the car
+    for now in ticks(t, t + 1.0):  # navigation goes quiet: the watchdog stops the car
         bridge.step(now)
     assert bridge.car.latest.watchdog_tripped
-    stamped = round(t - PERIOD, 9)          # then a backlog arrives: produced 1.2 s ago
+    stamped = round(t - PERIOD, 9)  # then a backlog arrives: produced 1.2 s ago
     bridge.setpoint(2.0, 0.05, stamp=stamped)
     car, _ = bridge.step(round(t + 1.1, 9))
     assert car.watchdog_tripped and (car.v_command, car.kappa_command) == (0.0, 0.0)
 
 
 # ---- the command gate, the inner loops, the standstill brake -------------------------------------
+
 
 def test_setpoints_beyond_the_vehicle_are_limited(bridge):
     t = bridge.arm(0.0)
@@ -338,7 +367,7 @@ def test_the_brake_is_held_for_a_zero_speed_setpoint_only_near_standstill(bridge
     _, actuators = bridge.step(t, speed_mps=speed_mps, wheel_speed_rad_s=speed_mps / 0.28)
     if braked:
         assert actuators.drive_effort <= -STANDSTILL_BRAKE
-    else:                                   # from 1 m/s: no hold, the brake assist closes the gap in 0.5 s
+    else:  # from 1 m/s: no hold, the brake assist closes the gap in 0.5 s
         assert actuators.drive_effort == pytest.approx(-1.0 * (2450 + 2 * 75) / 10000.0, abs=1e-3)
 
 
@@ -350,7 +379,7 @@ def test_the_brake_helps_the_speed_loop_only_for_a_gap_beyond_its_deadband(bridg
     wanted = min((speed_mps - command_mps - 0.5) / 0.5, 3.0) * (2450 + 2 * 75) / 10000.0
     if assisted:
         assert actuators.drive_effort == pytest.approx(-wanted, abs=1e-3)
-    else:                                   # tracking: the PI alone, gently
+    else:  # tracking: the PI alone, gently
         assert actuators.drive_effort > -0.1
 
 
@@ -362,9 +391,9 @@ def test_no_brake_when_the_setpoint_asks_to_move_off(bridge):
 
 
 def test_re_engaging_starts_the_inner_loops_afresh(bridge):
-    t = bridge.arm(0.0)                     # a second of steering towards 319 deg winds the integral up
+    t = bridge.arm(0.0)  # a second of steering towards 319 deg winds the integral up
     bridge.press(PanelInput.BUTTON)
-    bridge.step(t)                          # Manual
+    bridge.step(t)  # Manual
     bridge.press(PanelInput.BUTTON)
     _, actuators = bridge.step(round(t + PERIOD, 9))
     # Ready, everything centred and still: only a leftover integral could turn the wheel
@@ -375,8 +404,11 @@ def test_corrupt_setpoints_are_rejected_and_the_bridge_keeps_running(bridge):
     t = bridge.arm(0.0)
     key = bridge.bus.key("movement/command")
     encoding = "application/json;MovementCommand"
-    for payload in (b"garbage", b'{"t": 0, "v": "fast", "kappa": 0, "source": "x"}',
-                    b'{"t": 0, "v": 1e999, "kappa": 0, "source": "x"}'):
+    for payload in (
+        b"garbage",
+        b'{"t": 0, "v": "fast", "kappa": 0, "source": "x"}',
+        b'{"t": 0, "v": 1e999, "kappa": 0, "source": "x"}',
+    ):
         bridge.network.put(key, encoding, payload)
     car, actuators = bridge.step(t)
     assert bridge.node.bus.rejects.by_reason["malformed"] == 3
@@ -386,22 +418,24 @@ def test_corrupt_setpoints_are_rejected_and_the_bridge_keeps_running(bridge):
     assert car.watchdog_tripped
 
 
-def test_a_restarted_bridge_process_finds_the_boards_mode_and_a_first_start_is_manual(run_config, tmp_path,
-                                                                                    monkeypatch):
-    from ares.recording import INCARNATION_ENV
+def test_a_restarted_bridge_process_finds_the_boards_mode_and_a_first_start_is_manual(
+    run_config, tmp_path, monkeypatch
+):
+    from ares.core.recording import INCARNATION_ENV
+
     monkeypatch.setenv(config.RUN_CONFIG_ENV, str(tmp_path / "config.json"))
     first = BridgeOnTheBus(run_config)
     t = first.arm(0.0)
     assert (tmp_path / "dbw_bridge.json").exists()
-    monkeypatch.setenv(INCARNATION_ENV, "1")             # killed, and started again by the supervisor
+    monkeypatch.setenv(INCARNATION_ENV, "1")  # killed, and started again by the supervisor
     again = BridgeOnTheBus(run_config)
     again.clock.set(t)
     car, actuators = again.step(t)
-    assert car.mode == DriveMode.AUTOMATIC and car.watchdog_tripped and actuators.drive_effort < 0   # stopped
+    assert car.mode == DriveMode.AUTOMATIC and car.watchdog_tripped and actuators.drive_effort < 0  # stopped
     again.setpoint(1.5, 0.0)
     car, _ = again.step(round(t + PERIOD, 9))
-    assert not car.watchdog_tripped and car.v_command == 1.5            # commands again: it drives on
-    monkeypatch.setenv(INCARNATION_ENV, "0")             # a new run's first start: Manual, whatever was kept
+    assert not car.watchdog_tripped and car.v_command == 1.5  # commands again: it drives on
+    monkeypatch.setenv(INCARNATION_ENV, "0")  # a new run's first start: Manual, whatever was kept
     fresh = BridgeOnTheBus(run_config)
     car, _ = fresh.step(0.0)
     assert car.mode == DriveMode.MANUAL

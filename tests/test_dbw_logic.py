@@ -1,25 +1,43 @@
 """The drive-by-wire bridge's decision core against Fig. 17 of the DBW paper and §4.5's 1 s
 setpoint timeout: every (mode, event) pair by hand, then random event sequences."""
+
 import itertools
 import json
 import math
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
-from ares import config
-from ares.config import ConfigError, VehicleProfile
-from control.dbw_logic import (
-    DRIVER_ACTIONS, TRANSITIONS, Command, DbwCore, DbwLimits, Event, EventKind, Mode,
-    command_gate, setpoint_problem,
+from ares.core import config
+from ares.core.config import ConfigError, VehicleProfile
+from control.dbw_bridge import (
+    DRIVER_ACTIONS,
+    TRANSITIONS,
+    Command,
+    DbwCore,
+    DbwLimits,
+    Event,
+    EventKind,
+    Mode,
+    command_gate,
+    setpoint_problem,
 )
 
 # A Techs4AgeCar-like profile (the shuttle's with the car's geometry and top speed): max
 # curvature tan(0.349)/2.36 = 0.15419 1/m.
-PROFILE = config.load_vehicle("ares_shuttle", {"wheelbase_m": 2.36, "track_m": 1.315, "wheel_radius_m": 0.28,
-                                               "steering_ratio": 40, "max_wheel_angle_rad": 0.349,
-                                               "max_speed_mps": 6.9})
+PROFILE = config.load_vehicle(
+    "ares_shuttle",
+    {
+        "wheelbase_m": 2.36,
+        "track_m": 1.315,
+        "wheel_radius_m": 0.28,
+        "steering_ratio": 40,
+        "max_wheel_angle_rad": 0.349,
+        "max_speed_mps": 6.9,
+    },
+)
 LIMITS = DbwLimits.from_profile(PROFILE)
 MAX_KAPPA = math.tan(0.349) / 2.36
 TIMEOUT = 1.0
@@ -34,8 +52,7 @@ FIG17 = {
     R: dict(zip(K, [M, A, M, M, M, R, R])),
     A: dict(zip(K, [M, A, M, M, M, A, A])),
 }
-assert list(K) == [K.BUTTON, K.SET_AUTOMATIC, K.THROTTLE_PEDAL, K.BRAKE_PEDAL,
-                   K.STEERING_WHEEL, K.SETPOINT, K.TICK]
+assert list(K) == [K.BUTTON, K.SET_AUTOMATIC, K.THROTTLE_PEDAL, K.BRAKE_PEDAL, K.STEERING_WHEEL, K.SETPOINT, K.TICK]
 
 # In the scenario below the AUTOMATIC core last got (2.0, -0.05) at t = 10.0, the event comes
 # at t = 10.5, and a SETPOINT event carries (1.5, 0.05). Expected output (engaged, v, kappa).
@@ -43,7 +60,7 @@ OLD_SETPOINT, NEW_SETPOINT = (2.0, -0.05), (1.5, 0.05)
 MANUAL_OUT, NULL_ENGAGED = (False, 0.0, 0.0), (True, 0.0, 0.0)
 EXPECTED_OUTPUT = {
     (M, K.BUTTON): NULL_ENGAGED,
-    (R, K.SET_AUTOMATIC): NULL_ENGAGED,       # just switched: wait for a newer setpoint
+    (R, K.SET_AUTOMATIC): NULL_ENGAGED,  # just switched: wait for a newer setpoint
     (A, K.SET_AUTOMATIC): (True, *OLD_SETPOINT),
     (A, K.SETPOINT): (True, *NEW_SETPOINT),
     (A, K.TICK): (True, *OLD_SETPOINT),
@@ -79,8 +96,7 @@ def test_table_is_fig17():
     assert {(mode, kind): FIG17[mode][kind] for mode in Mode for kind in EventKind} == TRANSITIONS
 
 
-@pytest.mark.parametrize("mode, kind", list(itertools.product(Mode, EventKind)),
-                         ids=lambda x: x.value)
+@pytest.mark.parametrize("mode, kind", list(itertools.product(Mode, EventKind)), ids=lambda x: x.value)
 def test_every_mode_and_event(mode, kind):
     core = core_in(mode)
     records_before = len(core.history)
@@ -105,8 +121,7 @@ def test_every_mode_and_event(mode, kind):
 
     command = outcome.command
     engaged, v, kappa = EXPECTED_OUTPUT.get((mode, kind), MANUAL_OUT)
-    assert (command.engaged, command.v, command.kappa) == (engaged, pytest.approx(v),
-                                                          pytest.approx(kappa))
+    assert (command.engaged, command.v, command.kappa) == (engaged, pytest.approx(v), pytest.approx(kappa))
     assert not command.watchdog_tripped
     assert command == core.command(10.5)
 
@@ -124,12 +139,12 @@ def test_driver_action_always_gives_manual(mode, kind):
 
 # --- activation --------------------------------------------------------------------------------
 
+
 def test_starts_in_manual_not_engaged():
     core = DbwCore(LIMITS)
     command = core.command(0.0)
     assert core.mode is M
-    assert (command.engaged, command.v, command.kappa, command.watchdog_tripped) == \
-        (False, 0.0, 0.0, False)
+    assert (command.engaged, command.v, command.kappa, command.watchdog_tripped) == (False, 0.0, 0.0, False)
     assert command.setpoint_age_s is None
 
 
@@ -155,7 +170,10 @@ def test_full_activation_path_and_history():
     core.handle(Event.set_automatic(2.0))
     core.handle(Event.brake_pedal(3.0))
     assert [(tr.from_mode, tr.to_mode, tr.event, tr.t) for tr in core.history] == [
-        (M, R, K.BUTTON, 1.0), (R, A, K.SET_AUTOMATIC, 2.0), (A, M, K.BRAKE_PEDAL, 3.0)]
+        (M, R, K.BUTTON, 1.0),
+        (R, A, K.SET_AUTOMATIC, 2.0),
+        (A, M, K.BRAKE_PEDAL, 3.0),
+    ]
 
 
 def test_history_is_bounded():
@@ -168,6 +186,7 @@ def test_history_is_bounded():
 
 # --- setpoints and the watchdog ----------------------------------------------------------------
 
+
 def automatic_core(t_switch: float = 0.0, timeout: float = TIMEOUT) -> DbwCore:
     core = DbwCore(LIMITS, timeout)
     core.handle(Event.button(t_switch))
@@ -178,7 +197,7 @@ def automatic_core(t_switch: float = 0.0, timeout: float = TIMEOUT) -> DbwCore:
 def test_stale_setpoint_from_ready_is_not_used_after_the_switch():
     core = DbwCore(LIMITS)
     core.handle(Event.button(0.0))
-    core.handle(Event.setpoint(3.0, 0.1, 0.9))     # seen in READY
+    core.handle(Event.setpoint(3.0, 0.1, 0.9))  # seen in READY
     core.handle(Event.set_automatic(1.0))
     waiting = core.command(1.05)
     assert waiting.is_null and waiting.engaged and not waiting.watchdog_tripped
@@ -208,9 +227,9 @@ def test_automatic_without_any_setpoint_is_null_and_tripped():
 def test_watchdog_trips_after_the_timeout_and_recovers_on_fresh_setpoints():
     core = automatic_core()
     first = core.handle(Event.setpoint(2.0, 0.1, 0.1))
-    assert first.watchdog_changed           # recovered from "nothing yet"
+    assert first.watchdog_changed  # recovered from "nothing yet"
     assert (first.command.v, first.command.kappa) == (2.0, 0.1)
-    assert core.command(1.1).v == 2.0       # exactly 1 s old: still used
+    assert core.command(1.1).v == 2.0  # exactly 1 s old: still used
     tripped = core.handle(Event.tick(1.1001))
     assert tripped.command.is_null and tripped.command.watchdog_tripped and tripped.watchdog_changed
     assert "no setpoint for 1.000 s" in tripped.command.reason
@@ -244,10 +263,19 @@ def test_clock_going_backwards_stops_the_vehicle():
     assert command.is_null and command.watchdog_tripped and "clock" in command.reason
 
 
-@pytest.mark.parametrize("v, kappa", [
-    (math.nan, 0.0), (0.0, math.nan), (math.inf, 0.0), (1.0, -math.inf),
-    (None, 0.0), ("1.0", 0.0), (True, 0.0), (1.0, [0.1]),
-])
+@pytest.mark.parametrize(
+    "v, kappa",
+    [
+        (math.nan, 0.0),
+        (0.0, math.nan),
+        (math.inf, 0.0),
+        (1.0, -math.inf),
+        (None, 0.0),
+        ("1.0", 0.0),
+        (True, 0.0),
+        (1.0, [0.1]),
+    ],
+)
 def test_invalid_setpoints_are_rejected_counted_and_do_not_feed_the_watchdog(v, kappa):
     core = automatic_core()
     core.handle(Event.setpoint(2.0, 0.05, 0.0))
@@ -255,8 +283,8 @@ def test_invalid_setpoints_are_rejected_counted_and_do_not_feed_the_watchdog(v, 
     assert not outcome.accepted
     assert outcome.reason.startswith("setpoint rejected")
     assert core.rejected_setpoints == 1 and core.last_rejection == outcome.reason
-    assert (outcome.command.v, outcome.command.kappa) == (2.0, 0.05)   # the last good one
-    assert core.command(1.2).watchdog_tripped                          # not refreshed at 0.9
+    assert (outcome.command.v, outcome.command.kappa) == (2.0, 0.05)  # the last good one
+    assert core.command(1.2).watchdog_tripped  # not refreshed at 0.9
 
 
 def test_setpoint_outside_automatic_is_noted_but_not_used():
@@ -281,20 +309,24 @@ def test_event_time_must_be_finite():
 
 # --- the command gate ------------------------------------------------------------------------
 
-@pytest.mark.parametrize("v, kappa, expected", [
-    (2.0, 0.1, (2.0, 0.1, False)),
-    (10.0, 0.1, (6.9, 0.1, True)),
-    (-1.0, 0.1, (0.0, 0.1, True)),
-    (2.0, 0.5, (2.0, MAX_KAPPA, True)),
-    (2.0, -0.5, (2.0, -MAX_KAPPA, True)),
-    (math.nan, 0.1, (0.0, 0.0, True)),
-    (1.0, math.inf, (0.0, 0.0, True)),
-    (-0.0, -0.0, (0.0, 0.0, False)),
-])
+
+@pytest.mark.parametrize(
+    "v, kappa, expected",
+    [
+        (2.0, 0.1, (2.0, 0.1, False)),
+        (10.0, 0.1, (6.9, 0.1, True)),
+        (-1.0, 0.1, (0.0, 0.1, True)),
+        (2.0, 0.5, (2.0, MAX_KAPPA, True)),
+        (2.0, -0.5, (2.0, -MAX_KAPPA, True)),
+        (math.nan, 0.1, (0.0, 0.0, True)),
+        (1.0, math.inf, (0.0, 0.0, True)),
+        (-0.0, -0.0, (0.0, 0.0, False)),
+    ],
+)
 def test_command_gate(v, kappa, expected):
     out = command_gate(v, kappa, LIMITS)
     assert out == pytest.approx(expected)
-    assert math.copysign(1, out[0]) == 1    # never a negative zero speed
+    assert math.copysign(1, out[0]) == 1  # never a negative zero speed
 
 
 def test_automatic_command_is_limited_to_the_vehicle():
@@ -307,13 +339,13 @@ def test_automatic_command_is_limited_to_the_vehicle():
 def test_limits_from_the_shipped_shuttle_profile():
     shuttle = DbwLimits.from_profile(config.load_vehicle("ares_shuttle"))
     assert shuttle.max_speed_mps == 4.0
-    assert shuttle.max_curvature == pytest.approx(math.tan(0.31) / 2.8)   # 0.11440 1/m
+    assert shuttle.max_curvature == pytest.approx(math.tan(0.31) / 2.8)  # 0.11440 1/m
 
 
 def test_limits_from_the_shipped_techs4agecar_profile():
     core = DbwCore.from_profile(config.load_vehicle("techs4agecar"), TIMEOUT)
     assert core.limits.max_curvature == pytest.approx(MAX_KAPPA)
-    assert core.limits.max_speed_mps == 6.94        # 25 km/h
+    assert core.limits.max_speed_mps == 6.94  # 25 km/h
 
 
 def test_core_from_profile_takes_the_watchdog_timeout():
@@ -327,8 +359,10 @@ def test_a_profile_without_a_limit_is_refused_naming_the_key():
         config.validated(VehicleProfile, data, "test profile")
 
 
-@pytest.mark.parametrize("key, bad", [("max_speed_mps", 0.0), ("max_speed_mps", math.inf),
-                                      ("wheelbase_m", -2.36), ("max_wheel_angle_rad", math.nan)])
+@pytest.mark.parametrize(
+    "key, bad",
+    [("max_speed_mps", 0.0), ("max_speed_mps", math.inf), ("wheelbase_m", -2.36), ("max_wheel_angle_rad", math.nan)],
+)
 def test_a_profile_with_a_bad_limit_is_refused_naming_the_key(key, bad):
     # DbwLimits never sees such a profile: the typed model stops it where it is read
     with pytest.raises(ConfigError, match=f"{key}: Input should be"):
@@ -343,13 +377,18 @@ def test_limits_must_be_positive_and_finite(speed, kappa):
 
 # --- serialisation -----------------------------------------------------------------------------
 
+
 def test_modes_and_records_serialise_as_plain_strings():
     assert json.dumps(Mode.AUTOMATIC) == '"AUTOMATIC"'
     core = core_in(A)
     outcome = core.handle(Event.steering_wheel(10.2))
     assert json.loads(json.dumps(outcome.transition.as_dict())) == {
-        "from": "AUTOMATIC", "to": "MANUAL", "event": "STEERING_WHEEL", "t": 10.2,
-        "reason": outcome.transition.reason}
+        "from": "AUTOMATIC",
+        "to": "MANUAL",
+        "event": "STEERING_WHEEL",
+        "t": 10.2,
+        "reason": outcome.transition.reason,
+    }
     as_dict = json.loads(json.dumps(outcome.command.as_dict()))
     assert as_dict["mode"] == "MANUAL" and as_dict["engaged"] is False
     assert set(as_dict) == {f for f in Command.__dataclass_fields__}
@@ -376,10 +415,10 @@ class DbwSequences(RuleBasedStateMachine):
     def start(self):
         self.core = DbwCore(LIMITS, TIMEOUT)
         self.t = 0.0
-        self.mode = M                 # the model's own idea of the mode
-        self.licensed = False         # SET_AUTOMATIC accepted in READY, no BUTTON/driver since
-        self.last_valid_t = None      # time of the last valid setpoint, any mode
-        self.since_switch = None      # (v, kappa) received since entering AUTOMATIC
+        self.mode = M  # the model's own idea of the mode
+        self.licensed = False  # SET_AUTOMATIC accepted in READY, no BUTTON/driver since
+        self.last_valid_t = None  # time of the last valid setpoint, any mode
+        self.since_switch = None  # (v, kappa) received since entering AUTOMATIC
 
     def advance(self, dt):
         self.t += dt
@@ -476,8 +515,7 @@ class DbwSequences(RuleBasedStateMachine):
             assert (command.v, command.kappa) == (expected_v, expected_kappa)
 
 
-DbwSequences.TestCase.settings = settings(max_examples=300, stateful_step_count=50,
-                                          deadline=None)
+DbwSequences.TestCase.settings = settings(max_examples=300, stateful_step_count=50, deadline=None)
 TestDbwSequences = DbwSequences.TestCase
 
 

@@ -1,4 +1,5 @@
 """LiDAR extrinsics (perception/extrinsics.py): the ZYX convention, the inverse, float32 clouds."""
+
 from __future__ import annotations
 
 import math
@@ -34,7 +35,7 @@ def test_the_inverse_undoes_the_transform(pose):
     moved = apply(m, points)
     assert moved.dtype == np.float32 and moved.shape == (1000, 3)
     exact = points.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-    assert np.abs(moved - exact).max() < 1e-4                       # float32 of ~50 m: ~4 µm
+    assert np.abs(moved - exact).max() < 1e-4  # float32 of ~50 m: ~4 µm
     assert np.abs(apply(inverse(m), moved) - points).max() < 1e-4
 
 

@@ -1,4 +1,5 @@
-"""ares.geometry: angles and the projection of a point onto polyline segments."""
+"""ares.core.geometry: angles and the projection of a point onto polyline segments."""
+
 import math
 
 import numpy as np
@@ -6,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from ares.geometry import project_on_segment, project_on_segments, signed_distance, wrap_angle
+from ares.core.geometry import project_on_segment, project_on_segments, signed_distance, wrap_angle
 
 coordinates = st.floats(-50.0, 50.0)
 
@@ -29,7 +30,7 @@ def test_the_foot_is_clamped_to_the_segment_unless_that_side_extends():
     assert project_on_segment(12.0, 1.0, 0.0, 0.0, 10.0, 0.0, extend_ahead=True) == (1.2, 1.0)
     assert project_on_segment(-3.0, -1.0, 0.0, 0.0, 10.0, 0.0, extend_back=True) == (-0.3, 1.0)
     assert project_on_segment(-3.0, -1.0, 0.0, 0.0, 10.0, 0.0, extend_ahead=True) == (0.0, 10.0)
-    assert project_on_segment(4.0, 3.0, 1.0, 1.0, 0.0, 0.0) == (0.0, 13.0)     # a segment of no length
+    assert project_on_segment(4.0, 3.0, 1.0, 1.0, 0.0, 0.0) == (0.0, 13.0)  # a segment of no length
 
 
 def test_the_signed_distance_is_positive_to_the_left():
@@ -40,8 +41,11 @@ def test_the_signed_distance_is_positive_to_the_left():
     assert signed_distance(5.0, 0.0, 0.0, 0.0, 10.0, 0.0, 0.0) == 0.0
 
 
-segments = st.lists(st.tuples(coordinates, coordinates, st.floats(-5.0, 5.0), st.floats(-5.0, 5.0),
-                              st.booleans(), st.booleans()), min_size=1, max_size=20)
+segments = st.lists(
+    st.tuples(coordinates, coordinates, st.floats(-5.0, 5.0), st.floats(-5.0, 5.0), st.booleans(), st.booleans()),
+    min_size=1,
+    max_size=20,
+)
 
 
 @given(x=coordinates, y=coordinates, segments=segments)

@@ -1,6 +1,7 @@
-"""The live gateway (blackbox/live.py, blackbox/api/routes/live.py) and the pages' serving
+"""The live gateway (blackbox/api/live_hub.py, blackbox/api/routes/live.py) and the pages' serving
 (blackbox/api/routes/pages.py): what a frame holds, staleness, events, the fleet's legs and
 lateness, the thinned grid; the streams' roles, limits and refusals; the pages' security headers."""
+
 from __future__ import annotations
 
 import json
@@ -10,12 +11,22 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from ares.messages import (AwarenessState, BodyState, CarState, DriveMode, Event, EventLevel, MissionStatus,
-                           OccupancyGrid, OdometryScore, Pose)
+from ares.core.messages import (
+    AwarenessState,
+    BodyState,
+    CarState,
+    DriveMode,
+    Event,
+    EventLevel,
+    MissionStatus,
+    OccupancyGrid,
+    OdometryScore,
+    Pose,
+)
 from blackbox.api import create_app
+from blackbox.api.live_hub import LegTimer, LiveHub, LiveSettings
 from blackbox.api.routes.pages import vendor_missing
-from blackbox.live import LegTimer, LiveHub, LiveSettings
-from tests.test_api import VEHICLE_ID, add_role_users, api_settings, auth, store, token_for  # noqa: F401 (fixture)
+from tests.helpers.api import VEHICLE_ID, add_role_users, api_settings, auth, token_for
 
 OTHER = "shuttle02"
 
@@ -29,18 +40,52 @@ class Wall:
 
 
 def pose(t=1.0, x=10.0, y=5.0, yaw=0.0) -> Pose:
-    return Pose(t=t, x=x, y=y, z=0.0, yaw=yaw, v=2.0, yaw_rate=0.0, cov_xx=0.01, cov_xy=0.0, cov_yy=0.01,
-                var_yaw=0.001, var_v=0.01, position_std_m=0.1, rtk=True, gnss_age_s=0.1)
+    return Pose(
+        t=t,
+        x=x,
+        y=y,
+        z=0.0,
+        yaw=yaw,
+        v=2.0,
+        yaw_rate=0.0,
+        cov_xx=0.01,
+        cov_xy=0.0,
+        cov_yy=0.01,
+        var_yaw=0.001,
+        var_v=0.01,
+        position_std_m=0.1,
+        rtk=True,
+        gnss_age_s=0.1,
+    )
 
 
 def car(t=1.0, speed=2.0) -> CarState:
-    return CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False, setpoint_age_s=0.02,
-                    v_command=speed, kappa_command=0.0, speed_mps=speed, steering_wheel_deg=12.0)
+    return CarState(
+        t=t,
+        mode=DriveMode.AUTOMATIC,
+        engaged=True,
+        watchdog_tripped=False,
+        setpoint_age_s=0.02,
+        v_command=speed,
+        kappa_command=0.0,
+        speed_mps=speed,
+        steering_wheel_deg=12.0,
+    )
 
 
 def mission(t, state="DRIVING", poi="Library", eta=None, kind="tour") -> MissionStatus:
-    return MissionStatus(t=t, goal_id=1, state=state, kind=kind, poi=poi, action="OPENING_DOORS" if state == "AT_POI"
-                         else None, distance_m=50.0, eta_s=eta, limit_mps=3.0, ready_to_move=True)
+    return MissionStatus(
+        t=t,
+        goal_id=1,
+        state=state,
+        kind=kind,
+        poi=poi,
+        action="OPENING_DOORS" if state == "AT_POI" else None,
+        distance_m=50.0,
+        eta_s=eta,
+        limit_mps=3.0,
+        ready_to_move=True,
+    )
 
 
 def test_a_frame_holds_the_latest_of_each_topic_and_drops_what_went_stale():
@@ -55,10 +100,10 @@ def test_a_frame_holds_the_latest_of_each_topic_and_drops_what_went_stale():
     assert frame["speed_mps"] == 2.0 and frame["mode"] == "AUTOMATIC" and frame["scores"]["odometry"] == 0.93
     assert frame["awareness"] == {"level": 2, "causes": ["road hidden"]} and frame["body"]["doors"] == "closed"
     assert frame["pose"]["x"] == 10.0 and frame["car_state_wall_ms"] == 1000.0 * 1e3
-    assert frame["mission"] is None and frame["controller"] is None     # never heard: missing, not invented
+    assert frame["mission"] is None and frame["controller"] is None  # never heard: missing, not invented
     wall.t += 1.5
     hub.put(VEHICLE_ID, "dbw/car_state", car(t=2.5, speed=0.0))
-    wall.t += 1.0                                                       # pose 2.5 s old, car state 1 s
+    wall.t += 1.0  # pose 2.5 s old, car state 1 s
     frame = hub.frame(VEHICLE_ID)
     assert frame["pose"] is None and frame["speed_mps"] == 0.0
     assert hub.frame("nobody") is None
@@ -68,56 +113,69 @@ def test_events_are_kept_in_order_per_vehicle_and_the_fleet_lists_vehicles_heard
     wall = Wall()
     hub = LiveHub(LiveSettings(vehicle_gone_s=30.0, events_kept=3), now=wall)
     for i in range(5):
-        hub.put(VEHICLE_ID if i % 2 == 0 else OTHER, "events",
-                Event(t=float(i), source="mission_manager", kind="mission_command", level=EventLevel.INFO,
-                      message=f"event {i}"))
+        hub.put(
+            VEHICLE_ID if i % 2 == 0 else OTHER,
+            "events",
+            Event(
+                t=float(i),
+                source="mission_manager",
+                kind="mission_command",
+                level=EventLevel.INFO,
+                message=f"event {i}",
+            ),
+        )
     kept = hub.events_since(0)
-    assert [e["message"] for e in kept] == ["event 2", "event 3", "event 4"]     # the last 3
+    assert [e["message"] for e in kept] == ["event 2", "event 3", "event 4"]  # the last 3
     assert [e["message"] for e in hub.events_since(kept[0]["seq"], VEHICLE_ID)] == ["event 4"]
     hub.put(OTHER, "dbw/car_state", car())
     assert hub.vehicles() == sorted([VEHICLE_ID, OTHER])
     wall.t += 20
     hub.put(VEHICLE_ID, "dbw/car_state", car())
     wall.t += 15
-    assert hub.vehicles() == [VEHICLE_ID]                              # OTHER silent for 35 s
+    assert hub.vehicles() == [VEHICLE_ID]  # OTHER silent for 35 s
     assert [v["vehicle_id"] for v in hub.fleet_frame()] == [VEHICLE_ID]
 
 
 def test_the_grid_is_thinned_and_placed_in_the_local_frame():
     hub = LiveHub(LiveSettings(grid_cell_m=0.5, grid_max_cells=1000), now=Wall())
     cells = np.zeros((40, 40), dtype=np.uint8)
-    cells[20, 30:34] = 100                      # a wall ahead: x 5.0-7.0 m (0.5 m from the origin at -10), y 0.0
+    cells[20, 30:34] = 100  # a wall ahead: x 5.0-7.0 m (0.5 m from the origin at -10), y 0.0
     grid = OccupancyGrid(t=1.0, frame="vehicle", resolution_m=0.25, origin_x=-2.5, origin_y=-5.0, cells=cells)
-    hub.put(VEHICLE_ID, "localization/pose", pose(x=100.0, y=50.0, yaw=math.pi / 2))   # facing +y
+    hub.put(VEHICLE_ID, "localization/pose", pose(x=100.0, y=50.0, yaw=math.pi / 2))  # facing +y
     hub.put(VEHICLE_ID, "perception/grid", grid)
     frame = hub.frame(VEHICLE_ID)
     g = frame["grid"]
-    assert g["cell_m"] == 0.5 and len(g["x"]) == 2                  # four 0.25 m cells -> two of 0.5 m
-    assert all(99.5 <= x <= 100.0 for x in g["x"])                  # ahead (+x in the vehicle) is +y here
+    assert g["cell_m"] == 0.5 and len(g["x"]) == 2  # four 0.25 m cells -> two of 0.5 m
+    assert all(99.5 <= x <= 100.0 for x in g["x"])  # ahead (+x in the vehicle) is +y here
     assert all(55.0 <= y <= 56.0 for y in g["y"])
-    assert hub.frame(VEHICLE_ID)["grid"] is g                       # the same grid message: cached
+    assert hub.frame(VEHICLE_ID)["grid"] is g  # the same grid message: cached
 
 
 def test_a_leg_is_timed_from_its_poi_and_late_against_past_runs_or_the_profile():
     legs = LegTimer()
     legs.update(mission(0.0, "AT_POI", poi="Depot"))
-    legs.update(mission(10.0, "DRIVING", poi="Library", eta=110.0))        # leaves the Depot: 100 s expected
+    legs.update(mission(10.0, "DRIVING", poi="Library", eta=110.0))  # leaves the Depot: 100 s expected
     assert (legs.from_poi, legs.to_poi, legs.started_t) == ("Depot", "Library", 10.0)
     assert legs.expected_s() == (100.0, "speed profile")
-    legs.update(mission(130.0, "AT_POI", poi="Library"))                   # took 120 s
+    legs.update(mission(130.0, "AT_POI", poi="Library"))  # took 120 s
     assert legs.history[("Depot", "Library")][-1] == 120.0
     hub = LiveHub(LiveSettings(late_factor=1.25, late_margin_s=30.0), now=Wall())
-    for t, state, poi, eta in ((0.0, "AT_POI", "Depot", None), (10.0, "DRIVING", "Library", 110.0),
-                               (130.0, "AT_POI", "Library", None), (200.0, "AT_POI", "Depot", None),
-                               (210.0, "DRIVING", "Library", 310.0), (370.0, "DRIVING", "Library", 400.0)):
+    for t, state, poi, eta in (
+        (0.0, "AT_POI", "Depot", None),
+        (10.0, "DRIVING", "Library", 110.0),
+        (130.0, "AT_POI", "Library", None),
+        (200.0, "AT_POI", "Depot", None),
+        (210.0, "DRIVING", "Library", 310.0),
+        (370.0, "DRIVING", "Library", 400.0),
+    ):
         hub.put(VEHICLE_ID, "mission/status", mission(t, state, poi, eta))
     leg = hub.fleet_frame()[0]["leg"]
     assert leg["expected_s"] == 120.0 and leg["expected_from"] == "median of 1 past runs"
-    assert leg["since_s"] == 160.0 and leg["late"] is False                # 160 < 120 × 1.25 + 30 = 180
+    assert leg["since_s"] == 160.0 and leg["late"] is False  # 160 < 120 × 1.25 + 30 = 180
     hub.put(VEHICLE_ID, "mission/status", mission(395.0, "PAUSED", "Library", None))
-    assert hub.fleet_frame()[0]["leg"]["late"] is True                     # 185 s: a pause counts too
+    assert hub.fleet_frame()[0]["leg"]["late"] is True  # 185 s: a pause counts too
     hub.put(VEHICLE_ID, "mission/status", mission(396.0, "IDLE", None, None, kind="none"))
-    assert hub.fleet_frame()[0]["leg"]["late"] is False                    # no goal: no leg
+    assert hub.fleet_frame()[0]["leg"]["late"] is False  # no goal: no leg
 
 
 def test_streams_per_user_are_bounded():
@@ -132,14 +190,22 @@ def test_streams_per_user_are_bounded():
 
 # ---- over HTTP ---------------------------------------------------------------------------------
 
+
 @pytest.fixture
 def live_api(store):
     hub = LiveHub(LiveSettings(rate_hz=20.0, max_streams_per_user=1))
     hub.put(VEHICLE_ID, "dbw/car_state", car())
     hub.put(VEHICLE_ID, "localization/pose", pose())
     hub.put(VEHICLE_ID, "events", Event(t=1.0, source="api", kind="note", message="hello"))
-    route = {"name": "default", "closed": True, "length_m": 10.0, "x": [0.0, 10.0], "y": [0.0, 0.0], "pois": [],
-             "zones": []}
+    route = {
+        "name": "default",
+        "closed": True,
+        "length_m": 10.0,
+        "x": [0.0, 10.0],
+        "y": [0.0, 0.0],
+        "pois": [],
+        "zones": [],
+    }
     app = create_app(store, api_settings(), VEHICLE_ID, live=hub, route=route)
     add_role_users(store, app)
     client = TestClient(app, base_url="https://testserver")
@@ -178,14 +244,17 @@ def test_the_fleet_stream_lists_every_vehicle(live_api):
     assert {v["vehicle_id"]: v["speed_mps"] for v in frame["vehicles"]} == {VEHICLE_ID: 2.0, OTHER: 1.0}
 
 
-@pytest.mark.parametrize("role,path,status", [
-    ("fleet", f"/api/v1/live/vehicles/{VEHICLE_ID}", 403),     # the fleet sees the fleet, not one cab
-    ("admin", "/api/v1/live/fleet", 403),
-    (None, "/api/v1/live/fleet", 401),
-    ("operator", "/api/v1/live/vehicles/nobody", 404),
-    ("operator", f"/api/v1/live/vehicles/{VEHICLE_ID}?hz=50", 422),   # above the gateway's rate
-    ("admin", "/api/v1/route", 403),
-])
+@pytest.mark.parametrize(
+    "role,path,status",
+    [
+        ("fleet", f"/api/v1/live/vehicles/{VEHICLE_ID}", 403),  # the fleet sees the fleet, not one cab
+        ("admin", "/api/v1/live/fleet", 403),
+        (None, "/api/v1/live/fleet", 401),
+        ("operator", "/api/v1/live/vehicles/nobody", 404),
+        ("operator", f"/api/v1/live/vehicles/{VEHICLE_ID}?hz=50", 422),  # above the gateway's rate
+        ("admin", "/api/v1/route", 403),
+    ],
+)
 def test_streams_are_refused_to_the_wrong_role_or_request(live_api, role, path, status):
     client, tokens, _ = live_api
     headers = auth(tokens[role]) if role else {}
@@ -194,12 +263,12 @@ def test_streams_are_refused_to_the_wrong_role_or_request(live_api, role, path, 
 
 def test_one_stream_too_many_is_refused_and_the_slot_comes_back(live_api):
     client, tokens, hub = live_api
-    hub.open_stream("operator")                                    # the operator's one stream, held elsewhere
+    hub.open_stream("operator")  # the operator's one stream, held elsewhere
     r = client.get(f"/api/v1/live/vehicles/{VEHICLE_ID}", headers=auth(tokens["operator"]))
     assert r.status_code == 429 and "live streams" in r.json()["detail"]
     hub.close_stream("operator")
     assert read_events(client, f"/api/v1/live/vehicles/{VEHICLE_ID}?hz=20", tokens["operator"], 1)
-    assert hub.streams == {}                                        # closed with the connection
+    assert hub.streams == {}  # closed with the connection
 
 
 def test_without_a_bus_the_gateway_says_so(store):
@@ -218,13 +287,15 @@ def test_pages_are_served_with_a_strict_policy_and_the_api_keeps_its_own(live_ap
         assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
         csp = r.headers["content-security-policy"]
         assert "script-src 'self'" in csp and "connect-src 'self'" in csp and "unsafe" not in csp
-        assert "<script>" not in r.text and "style=" not in r.text            # nothing inline
-        assert "http://" not in r.text and "https://" not in r.text           # nothing from elsewhere
+        assert "<script>" not in r.text and "style=" not in r.text  # nothing inline
+        assert "http://" not in r.text and "https://" not in r.text  # nothing from elsewhere
     js = client.get("/static/common.js")
     assert js.status_code == 200 and "javascript" in js.headers["content-type"]
     assert client.get("/").headers.get("location") is None or client.get("/", follow_redirects=False).status_code == 307
-    assert client.get("/api/v1/health").headers["content-security-policy"] == "default-src 'none'; frame-ancestors 'none'"
-    assert client.get("/static/../api/v1/health").status_code in (200, 404)      # no escape from the folder
+    assert (
+        client.get("/api/v1/health").headers["content-security-policy"] == "default-src 'none'; frame-ancestors 'none'"
+    )
+    assert client.get("/static/../api/v1/health").status_code in (200, 404)  # no escape from the folder
     if not vendor_missing():
         lib = client.get("/vendor/leaflet/leaflet.js")
         assert lib.status_code == 200 and "script-src 'self'" in lib.headers["content-security-policy"]

@@ -1,7 +1,8 @@
-"""The mission's state machine (managers/mission_machine.py): every state × every event against
+"""The mission's state machine (managers/mission.py): every state × every event against
 the rule written out plainly, a POI's actions run in order with the doors and ramp answering
 after their travel, passengers holding the doors, and hypothesis properties (no motion with a
 door open or the ramp out; the doors open only standing; the actions done in each POI's order)."""
+
 from __future__ import annotations
 
 import itertools
@@ -10,12 +11,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from managers.mission_machine import ACTIVE, Body, Mission, MissionParams, MissionState, PoiGoal, ready_to_move
+from managers.mission import ACTIVE, Body, Mission, MissionParams, MissionState, PoiGoal, ready_to_move
 
-LIBRARY = PoiGoal("Library", 330.0, ("STOP", "OPENING_DOORS", "TAKEOFF_RAMP", "PICKUP_RAMP", "CLOSING_DOORS",
-                                     "NEXT_POI"))
-LAKESIDE = PoiGoal("Lakeside", 700.0, ("STOP", "FULL_STOP", "OPENING_DOORS", "CLOSING_DOORS", "START_MEDIA",
-                                       "NEXT_POI"))
+LIBRARY = PoiGoal(
+    "Library", 330.0, ("STOP", "OPENING_DOORS", "TAKEOFF_RAMP", "PICKUP_RAMP", "CLOSING_DOORS", "NEXT_POI")
+)
+LAKESIDE = PoiGoal(
+    "Lakeside", 700.0, ("STOP", "FULL_STOP", "OPENING_DOORS", "CLOSING_DOORS", "START_MEDIA", "NEXT_POI")
+)
 READY, OPEN = Body(), Body(doors="open")
 
 
@@ -27,7 +30,7 @@ def mission_in(state: str) -> Mission:
     if state == "DRIVING":
         return m
     if state in ("AT_POI", "PAUSED_AT_POI"):
-        m.step(0.0, 0.2, 0.0, READY)                # reached and standing: doors being opened
+        m.step(0.0, 0.2, 0.0, READY)  # reached and standing: doors being opened
         assert m.state is MissionState.AT_POI and m.current_action() == "OPENING_DOORS"
         if state == "PAUSED_AT_POI":
             m.pause()
@@ -62,8 +65,10 @@ def expected(state: str, event: str, body: str) -> tuple[bool | None, str]:
         return (True, "PAUSED") if state in ("DRIVING", "AT_POI") else (False, paused)
     if event == "resume":
         # a paused drive goes on only ready to move (a POI's actions close what they opened)
-        return {"PAUSED_DRIVING": (True, "DRIVING") if ready else (False, paused),
-                "PAUSED_AT_POI": (True, "AT_POI")}.get(state, (False, paused))
+        return {
+            "PAUSED_DRIVING": (True, "DRIVING") if ready else (False, paused),
+            "PAUSED_AT_POI": (True, "AT_POI"),
+        }.get(state, (False, paused))
     if event == "reach":
         return None, "AT_POI" if state == "DRIVING" else paused
     return None, paused
@@ -141,7 +146,7 @@ def run_poi(m: Mission, body: Doors, seconds: float, boarding: tuple[float, floa
         body.entrance_clear = not boarding[0] <= now < boarding[1]
         commands = m.step(now, 0.0, 0.0, body.body())
         if commands.doors == "open" or commands.ramp == "deploy":
-            assert m.state is MissionState.AT_POI       # only there, and standing (speed 0 here)
+            assert m.state is MissionState.AT_POI  # only there, and standing (speed 0 here)
         media.append(commands.media)
         body.obey(now, commands)
         if m.state is not MissionState.AT_POI:
@@ -176,7 +181,7 @@ def test_doors_closing_on_a_passenger_open_again():
     m = Mission()
     m.goal([PoiGoal("Stop", 10.0, ("STOP", "OPENING_DOORS", "CLOSING_DOORS", "NEXT_POI"))], READY)
     body = Doors(travel_s=2.0)
-    run_poi(m, body, 3.0)                                   # doors open at 2 s, closing from 2.1 s
+    run_poi(m, body, 3.0)  # doors open at 2 s, closing from 2.1 s
     assert body.doors == "closing"
     body.entrance_clear = False
     commands = m.step(3.0, 0.0, 0.0, body.body())
@@ -194,9 +199,14 @@ def test_the_approach_limit_brings_the_shuttle_to_the_stop_point():
 # ---- properties ------------------------------------------------------------------------------------
 
 EVENT = st.one_of(
-    st.tuples(st.just("step"), st.floats(0.0, 40.0), st.floats(0.0, 3.0), st.sampled_from(["closed", "open", "opening",
-                                                                                          "closing"]),
-              st.sampled_from(["stowed", "deployed", "deploying", "stowing"]), st.booleans()),
+    st.tuples(
+        st.just("step"),
+        st.floats(0.0, 40.0),
+        st.floats(0.0, 3.0),
+        st.sampled_from(["closed", "open", "opening", "closing"]),
+        st.sampled_from(["stowed", "deployed", "deploying", "stowing"]),
+        st.booleans(),
+    ),
     st.tuples(st.sampled_from(["goal", "cancel", "pause", "resume"])),
 )
 
@@ -229,7 +239,7 @@ def test_properties_over_random_sequences(events):
     # whatever happened, each POI's actions were done in its own order
     for poi in (LIBRARY, LAKESIDE):
         done = [a for name, a in m.done if name == poi.name]
-        assert done == list(poi.actions[:len(done)])
+        assert done == list(poi.actions[: len(done)])
 
 
 def test_a_drive_goes_round_without_stopping_and_a_door_still_stops_it():
@@ -237,7 +247,7 @@ def test_a_drive_goes_round_without_stopping_and_a_door_still_stops_it():
     assert m.goal([LIBRARY], READY, drive=True) == (False, "refused: a drive goal has no POIs")
     assert m.goal([], READY, drive=True)[0]
     for t in range(5):
-        assert m.step(float(t), None, 3.0, READY) == m.step(float(t), 0.1, 3.0, READY)   # nothing asked of the body
+        assert m.step(float(t), None, 3.0, READY) == m.step(float(t), 0.1, 3.0, READY)  # nothing asked of the body
         assert m.state is MissionState.DRIVING and m.limit_mps(None, READY) == float("inf")
     assert m.limit_mps(None, OPEN) == 0.0
     assert m.pause()[0] and m.limit_mps(None, READY) == 0.0

@@ -1,7 +1,8 @@
-"""The mission manager as a node (managers/mission.py) on the in-memory bus with a manual clock, in a
+"""The mission manager as a node (managers/mission_node.py) on the in-memory bus with a manual clock, in a
 closed loop with the simulated body (ares/sim/body.py) and a shuttle that drives at the mission's
 limit along the built-in tour: goals, each POI's actions in order, passengers holding the doors,
 pause / resume / cancel, pre-emption, and a restart that goes on where the last process was."""
+
 from __future__ import annotations
 
 import itertools
@@ -9,93 +10,15 @@ import math
 
 import pytest
 
-from ares import config
-from ares.clock import ManualClock
-from ares.config import ScenarioPassengers
-from ares.membus import MemoryNetwork
-from ares.messages import (BodyRequest, BodyState, CarState, DriveMode, MissionGoal, MissionRequest, PathMatch,
-                           SpeedLimits)
-from ares.recording import INCARNATION_ENV
-from ares.sim.body import BodySim
-from managers.mission import MissionManager
-from managers.mission_machine import Body, MissionState, body_request_refusal
+from ares.core import config
+from ares.core.config import ScenarioPassengers
+from ares.core.messages import BodyRequest, MissionGoal, MissionRequest
+from ares.core.recording import INCARNATION_ENV
+from managers.mission import Body, MissionState, body_request_refusal
+from tests.helpers.mission import Tour
 
 DT = 0.1
 CRUISE = 3.0
-
-
-class Tour:
-    """The mission manager, the body and a point that drives along the route at the mission's limit."""
-
-    def __init__(self, cfg: dict, passengers=(), s0: float = 0.0):
-        self.cfg = cfg
-        self.clock = ManualClock()
-        self.network = MemoryNetwork()
-        self.bus = self.network.bus("test", self.clock)
-        self.status = self.bus.subscribe("mission/status")
-        self.commands = self.bus.subscribe("body/command", queue=1000)
-        self.events = self.bus.subscribe("events", queue=10000)
-        self.body = BodySim(door_travel_s=2.5, ramp_travel_s=6.0, per_person_s=2.0, passengers=2,
-                            stops={p.poi: p for p in passengers})
-        self.t, self.progress, self.v = 0.0, s0, 0.0
-        self.node = self.start_node()
-        self.violations: list[str] = []
-        self.lap_offset = 0            # a restarted path manager counts its laps from 0 again
-
-    def start_node(self) -> MissionManager:
-        node = MissionManager(self.cfg, clock=self.clock, bus=self.network.bus("mission_manager", self.clock))
-        node.setup()
-        self.route = node.route
-        return node
-
-    def poi_here(self) -> str | None:
-        if self.v > 0.05:
-            return None
-        for poi in self.route.pois:
-            if abs(self.route.step_between(poi.s, self.progress % self.route.length)) <= 3.0:
-                return poi.name
-        return None
-
-    def run(self, seconds: float) -> None:
-        for _ in range(round(seconds / DT)):
-            self.t = t = round(self.t + DT, 9)
-            self.clock.set(t)
-            lap, s = divmod(self.progress, self.route.length)
-            self.bus.publish("path/match", PathMatch(
-                t=t, index=0, s=s, lap=int(lap) - self.lap_offset, xte=0.0, heading_error=0.0, zones=[], force_odometry=False,
-                distance_to_end_m=None, ahead_x=[], ahead_y=[], ahead_yaw=[], ahead_curvature=[], ahead_speed=[],
-                ahead_s=[]))
-            self.bus.publish("dbw/car_state", CarState(
-                t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False, setpoint_age_s=0.02,
-                v_command=self.v, kappa_command=0.0, speed_mps=self.v, steering_wheel_deg=0.0))
-            self.bus.publish("speed/limits", SpeedLimits(t=t, s=s, section=0, kind="cruise", limit_mps=CRUISE,
-                                                         next_section=1, next_limit_mps=CRUISE,
-                                                         distance_to_next_m=10.0))
-            b = self.body
-            self.bus.publish("body/state", BodyState(t=t, doors=b.door_state, ramp=b.ramp_state,
-                                                     entrance_clear=b.entrance_clear, passengers=b.passengers))
-            self.node.step_once(t)
-            self.node.bus.poll_services()
-            for _, cmd in self.commands.drain():
-                self.body.command(cmd.doors, cmd.ramp, cmd.media)
-            self.body.step(DT, self.poi_here())
-            st = self.status.latest
-            limit = CRUISE if st.limit_mps is None else min(st.limit_mps, CRUISE)
-            self.v = max(0.0, min(limit, self.v + 1.0 * DT)) if limit >= self.v else max(limit, self.v - 2.5 * DT)
-            if self.v > 0.05 and (b.door_state != "closed" or b.ramp_state != "stowed"):
-                self.violations.append(f"t={t:.1f}: moving at {self.v:.2f} m/s, doors {b.door_state}, "
-                                       f"ramp {b.ramp_state}")
-            self.progress += self.v * DT
-
-    def until(self, condition, limit_s: float, what: str) -> None:
-        for _ in range(round(limit_s / DT)):
-            if self.status.latest is not None and condition():
-                return
-            self.run(DT)
-        raise AssertionError(f"not within {limit_s} s: {what} (mission {self.status.latest})")
-
-    def kinds(self, kind: str) -> list:
-        return [e for _, e in self.events.drain() if e.kind == kind]
 
 
 @pytest.fixture
@@ -104,19 +27,21 @@ def tour_cfg(run_config) -> dict:
 
 
 def test_the_tour_serves_each_poi_in_order_and_passengers_hold_the_doors(tour_cfg):
-    people = [ScenarioPassengers(poi="Depot", boarding=2, late=1),
-              ScenarioPassengers(poi="Library", boarding=1, alighting=1, on_ramp=1)]
+    people = [
+        ScenarioPassengers(poi="Depot", boarding=2, late=1),
+        ScenarioPassengers(poi="Library", boarding=1, alighting=1, on_ramp=1),
+    ]
     tour = Tour(tour_cfg, passengers=people)
-    tour.until(lambda: tour.status.latest is not None and tour.status.latest.poi == "Library", 120,
-               "the Depot served")
+    tour.until(lambda: tour.status.latest is not None and tour.status.latest.poi == "Library", 120, "the Depot served")
     tour.until(lambda: tour.status.latest.poi == "Lakeside", 400, "the Library served")
     st = tour.status.latest
     assert st.kind == "tour" and st.state == "DRIVING" and st.goal_id == 1
     assert [(p.name, p.done) for p in st.pois[:2]] == [
         ("Depot", ["STOP", "FULL_STOP", "OPENING_DOORS", "CLOSING_DOORS", "NEXT_POI"]),
-        ("Library", ["STOP", "OPENING_DOORS", "TAKEOFF_RAMP", "PICKUP_RAMP", "CLOSING_DOORS", "NEXT_POI"])]
+        ("Library", ["STOP", "OPENING_DOORS", "TAKEOFF_RAMP", "PICKUP_RAMP", "CLOSING_DOORS", "NEXT_POI"]),
+    ]
     assert tour.violations == []
-    assert tour.body.passengers == 2 + 2 + 1 + 1 - 1               # the late one got on too
+    assert tour.body.passengers == 2 + 2 + 1 + 1 - 1  # the late one got on too
     actions = [(e.data["poi"], e.data["action"]) for e in tour.kinds("poi_action")]
     assert actions[:5] == [("Depot", a) for a in st.pois[0].done]
     # the stop points: stood within reach of each
@@ -126,8 +51,9 @@ def test_the_tour_serves_each_poi_in_order_and_passengers_hold_the_doors(tour_cf
 def test_the_late_passenger_opens_the_closing_doors_again(tour_cfg):
     tour = Tour(tour_cfg, passengers=[ScenarioPassengers(poi="Depot", boarding=0, late=1)])
     seen = []
-    tour.until(lambda: seen.append(tour.body.door_state) or tour.status.latest.poi == "Library", 120,
-               "the Depot served")
+    tour.until(
+        lambda: seen.append(tour.body.door_state) or tour.status.latest.poi == "Library", 120, "the Depot served"
+    )
     compact = [d for i, d in enumerate(seen) if i == 0 or seen[i - 1] != d]
     # closing on the late one: open again (the doors had barely moved: maybe never seen "opening")
     assert compact[:4] == ["closed", "opening", "open", "closing"]
@@ -136,7 +62,7 @@ def test_the_late_passenger_opens_the_closing_doors_again(tour_cfg):
 
 
 def test_pause_holds_resume_goes_on_and_the_limit_falls_gently(tour_cfg):
-    tour = Tour(tour_cfg, s0=40.0)                  # past the Depot: the Library next
+    tour = Tour(tour_cfg, s0=40.0)  # past the Depot: the Library next
     tour.run(8.0)
     assert tour.v == pytest.approx(CRUISE)
     reply = tour.bus.call("mission/pause", MissionRequest(operator="ana"))
@@ -145,7 +71,7 @@ def test_pause_holds_resume_goes_on_and_the_limit_falls_gently(tour_cfg):
     for _ in range(30):
         tour.run(DT)
         limits.append(tour.status.latest.limit_mps)
-    assert all(a - b <= 3.0 * DT + 1e-6 for a, b in zip(limits, limits[1:]))    # <= pause_decel_mps2
+    assert all(a - b <= 3.0 * DT + 1e-6 for a, b in zip(limits, limits[1:]))  # <= pause_decel_mps2
     assert tour.v == 0.0 and limits[-1] == 0.0
     assert [(e.data["operator"], e.data["accepted"]) for e in tour.kinds("mission_command")] == [("ana", True)]
     refused = tour.bus.call("mission/pause", MissionRequest(operator="ana"))
@@ -158,7 +84,7 @@ def test_pause_holds_resume_goes_on_and_the_limit_falls_gently(tour_cfg):
 def test_goals_are_checked_pre_empt_and_end_with_a_result(tour_cfg):
     tour = Tour(config.deep_merge(tour_cfg, {"mission_manager": {"autostart": "none"}}))
     tour.run(1.0)
-    assert tour.status.latest.state == "IDLE" and tour.status.latest.limit_mps == 0.0   # no mission, no motion
+    assert tour.status.latest.state == "IDLE" and tour.status.latest.limit_mps == 0.0  # no mission, no motion
     refused = tour.bus.call("mission/goal", MissionGoal(operator="ana", pois=["Atlantis"]))
     assert not refused.accepted and "unknown POIs ['Atlantis']" in refused.reason
     first = tour.bus.call("mission/goal", MissionGoal(operator="ana", pois=["Lakeside", "Library"]))
@@ -183,10 +109,17 @@ def test_goals_are_checked_pre_empt_and_end_with_a_result(tour_cfg):
 def test_a_restarted_mission_manager_goes_on_where_the_last_one_was(tour_cfg, tmp_path, monkeypatch):
     monkeypatch.setenv(config.RUN_CONFIG_ENV, str(tmp_path / "config.json"))
     tour = Tour(tour_cfg, s0=40.0)
-    tour.until(lambda: tour.status.latest is not None and tour.status.latest.state == "AT_POI"
-               and tour.status.latest.action == "TAKEOFF_RAMP", 200, "the ramp going out at the Library")
+    tour.until(
+        lambda: (
+            tour.status.latest is not None
+            and tour.status.latest.state == "AT_POI"
+            and tour.status.latest.action == "TAKEOFF_RAMP"
+        ),
+        200,
+        "the ramp going out at the Library",
+    )
     before = tour.status.latest
-    monkeypatch.setenv(INCARNATION_ENV, "1")          # the supervisor's restart
+    monkeypatch.setenv(INCARNATION_ENV, "1")  # the supervisor's restart
     tour.node.teardown()
     tour.node = tour.start_node()
     tour.run(0.5)
@@ -205,29 +138,30 @@ def test_a_first_start_ignores_what_an_earlier_run_left(tour_cfg, tmp_path, monk
     assert tour.status.latest.goal_id == 1 and tour.status.latest.poi == "Depot"
     monkeypatch.setenv(INCARNATION_ENV, "2")
     (tmp_path / "mission_manager.json").write_text("{not json")
-    tour.node = tour.start_node()                      # a restart that finds a corrupt file says so
+    tour.node = tour.start_node()  # a restart that finds a corrupt file says so
     assert any("could not read the mission" in e.message for e in tour.kinds("mission"))
     tour.run(0.5)
     assert tour.status.latest.state == "IDLE" and math.isclose(tour.status.latest.limit_mps, 0.0)
 
 
 def test_the_tour_goes_round_again_after_its_last_poi(tour_cfg):
-    tour = Tour(tour_cfg, s0=1400.0)            # before the Main gate, the last POI of the lap
+    tour = Tour(tour_cfg, s0=1400.0)  # before the Main gate, the last POI of the lap
     tour.until(lambda: tour.status.latest.poi == "Main gate", 10, "the goal")
     assert [p.name for p in tour.status.latest.pois] == ["Main gate", "Depot", "Library", "Lakeside", "Observatory"]
-    tour.until(lambda: tour.status.latest.poi == "Depot" and tour.status.latest.state == "DRIVING", 200,
-               "the Main gate served")
+    tour.until(
+        lambda: tour.status.latest.poi == "Depot" and tour.status.latest.state == "DRIVING", 200, "the Main gate served"
+    )
     tour.until(lambda: tour.status.latest.poi == "Library", 300, "the Depot served, on the next lap")
     st = tour.status.latest
     assert st.goal_id == 1 and st.kind == "tour" and st.state == "DRIVING"
     assert 1587 + 20 < tour.progress < 1587 + 330 and tour.violations == []
-    assert not tour.kinds("mission_result")     # a repeating tour does not end
+    assert not tour.kinds("mission_result")  # a repeating tour does not end
 
 
 def test_a_restarted_path_managers_lap_count_does_not_move_the_pois(tour_cfg):
-    tour = Tour(tour_cfg, s0=1560.0)            # before the start line: the Depot (20 m) is on the next lap
+    tour = Tour(tour_cfg, s0=1560.0)  # before the start line: the Depot (20 m) is on the next lap
     tour.until(lambda: tour.status.latest.poi == "Library", 120, "the Depot served, across the start line")
-    tour.lap_offset = 1                         # the path manager restarted: lap 0 again
+    tour.lap_offset = 1  # the path manager restarted: lap 0 again
     tour.until(lambda: tour.status.latest.poi == "Lakeside", 300, "the Library served all the same")
     assert [p.done[-1] for p in tour.status.latest.pois[:2]] == ["NEXT_POI", "NEXT_POI"]
 
@@ -247,11 +181,13 @@ def test_every_doors_and_ramp_request_in_every_state(state, standing, doors_ask,
         body = Body(doors=doors, ramp=ramp, entrance_clear=clear)
         refusal = body_request_refusal(state, standing, body, doors_ask, ramp_ask)
         allowed = (
-            (doors_ask is not None or ramp_ask is not None) and standing
+            (doors_ask is not None or ramp_ask is not None)
+            and standing
             and state not in (MissionState.DRIVING, MissionState.AT_POI)
             and not (ramp_ask == "deploy" and (doors != "open" or doors_ask == "close"))
             and not (ramp_ask == "stow" and not clear)
-            and not (doors_ask == "close" and (ramp != "stowed" or ramp_ask == "deploy" or not clear)))
+            and not (doors_ask == "close" and (ramp != "stowed" or ramp_ask == "deploy" or not clear))
+        )
         assert (refusal is None) == allowed, (state, standing, body, doors_ask, ramp_ask, refusal)
         if refusal is not None:
             assert refusal.startswith("refused: ")
@@ -268,21 +204,21 @@ def test_an_operator_opens_and_closes_the_doors_while_paused_and_is_refused_on_t
     reply = tour.bus.call("mission/body", BodyRequest(operator="ana", doors="open"))
     assert reply.accepted and reply.state == "PAUSED"
     tour.until(lambda: tour.body.door_state == "open", 5, "the doors open")
-    tour.run(0.2)                                              # the manager hears the body
+    tour.run(0.2)  # the manager hears the body
     ramp = tour.bus.call("mission/body", BodyRequest(operator="ana", ramp="deploy"))
     assert ramp.accepted
     tour.until(lambda: tour.body.ramp_state == "deployed", 8, "the ramp deployed")
-    tour.run(0.2)                                              # the manager hears the body
+    tour.run(0.2)  # the manager hears the body
     assert not tour.bus.call("mission/body", BodyRequest(operator="ana", doors="close")).accepted  # over the ramp
     assert "close the doors" in tour.bus.call("mission/resume", MissionRequest(operator="ana")).reason
     tour.run(3.0)
     assert tour.v == 0.0
     assert tour.bus.call("mission/body", BodyRequest(operator="ana", ramp="stow")).accepted
     tour.until(lambda: tour.body.ramp_state == "stowed", 8, "the ramp stowed")
-    tour.run(0.2)                                              # the manager hears the body
+    tour.run(0.2)  # the manager hears the body
     assert tour.bus.call("mission/body", BodyRequest(operator="ana", doors="close")).accepted
     tour.until(lambda: tour.body.door_state == "closed", 5, "the doors closed")
-    tour.run(0.2)                                              # the manager hears the body
+    tour.run(0.2)  # the manager hears the body
     assert tour.bus.call("mission/resume", MissionRequest(operator="ana")).accepted
     tour.until(lambda: tour.v > 1.0, 15, "driving on")
     commands = [e for e in tour.kinds("mission_command") if e.data["operator"] == "ana"]

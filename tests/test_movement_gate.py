@@ -1,7 +1,8 @@
-"""The movement gate (managers/movement_gate.py): every gate state × every combination of inputs
+"""The movement gate (managers/movement.py): every gate state × every combination of inputs
 against the rule written out plainly, then hypothesis properties over random sequences (the
 command never above an active limit, level 1 never cleared without a re-arm, the vehicle's
 acceleration and the steering's rate respected)."""
+
 from __future__ import annotations
 
 import itertools
@@ -10,10 +11,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from managers.movement_gate import GateInputs, GateLimits, Level, MovementGate
+from managers.movement import GateInputs, GateLimits, Level, MovementGate
 
-LIMITS = GateLimits(max_accel_mps2=1.5, max_decel_mps2=1.5, max_jerk_mps3=2.0, max_kappa=0.11,
-                    max_kappa_rate=0.3, stop_decel_mps2=1.0)
+LIMITS = GateLimits(
+    max_accel_mps2=1.5, max_decel_mps2=1.5, max_jerk_mps3=2.0, max_kappa=0.11, max_kappa_rate=0.3, stop_decel_mps2=1.0
+)
 DT = 0.02
 COMMANDS = (None, (3.0, 0.05), (0.5, -0.05))
 SPEED_LIMITS = (None, 1.0, 5.0)
@@ -68,7 +70,7 @@ def test_a_limit_applies_at_once_and_speed_comes_back_gently():
     speeds = [gate.step(DT, GateInputs(command=(3.0, 0.0), limits={"speed": 5.0})).v for _ in range(200)]
     steps = [b - a for a, b in zip([1.0, *speeds], speeds)]
     assert max(steps) <= LIMITS.max_accel_mps2 * DT + 1e-12
-    assert steps[0] <= LIMITS.max_jerk_mps3 * DT * DT + 1e-12      # the acceleration builds up within the jerk
+    assert steps[0] <= LIMITS.max_jerk_mps3 * DT * DT + 1e-12  # the acceleration builds up within the jerk
     assert speeds[-1] == pytest.approx(3.0)
 
 
@@ -87,9 +89,10 @@ def test_level_1_latches_until_a_rearm_that_is_refused_while_it_lasts():
     gate = MovementGate(LIMITS)
     gate.v = 2.0
     assert gate.rearm(Level.NOMINAL) == (False, "nothing to re-arm: no emergency stop is latched")
-    gate.step(DT, GateInputs(command=(2.0, 0.0), limits={"speed": 5.0}, level=Level.CRITICAL,
-                             level_cause="lidar roof: blind"))
-    for _ in range(50):     # cleared, but still latched
+    gate.step(
+        DT, GateInputs(command=(2.0, 0.0), limits={"speed": 5.0}, level=Level.CRITICAL, level_cause="lidar roof: blind")
+    )
+    for _ in range(50):  # cleared, but still latched
         assert gate.step(DT, GateInputs(command=(2.0, 0.0), limits={"speed": 5.0})).emergency
     accepted, reason = gate.rearm(Level.CRITICAL)
     assert not accepted and "level 1 persists (lidar roof: blind)" in reason and gate.latched
@@ -99,13 +102,15 @@ def test_level_1_latches_until_a_rearm_that_is_refused_while_it_lasts():
     assert not out.emergency and out.v > 0.0
 
 
-STEP = st.fixed_dictionaries({
-    "command": st.one_of(st.none(), st.tuples(st.floats(-1.0, 6.0), st.floats(-0.5, 0.5))),
-    "speed": st.one_of(st.none(), st.floats(0.0, 6.0)),
-    "obstacle": st.one_of(st.none(), st.floats(0.0, 6.0)),
-    "level": st.sampled_from(LEVELS),
-    "rearm": st.booleans(),
-})
+STEP = st.fixed_dictionaries(
+    {
+        "command": st.one_of(st.none(), st.tuples(st.floats(-1.0, 6.0), st.floats(-0.5, 0.5))),
+        "speed": st.one_of(st.none(), st.floats(0.0, 6.0)),
+        "obstacle": st.one_of(st.none(), st.floats(0.0, 6.0)),
+        "level": st.sampled_from(LEVELS),
+        "rearm": st.booleans(),
+    }
+)
 
 
 @settings(max_examples=300, deadline=None)
@@ -120,8 +125,10 @@ def test_properties_over_random_sequences(steps):
             if accepted:
                 latched_without_rearm = False
         v_before, kappa_before = gate.v, gate.kappa
-        out = gate.step(DT, GateInputs(command=s["command"], limits={"speed": s["speed"], "obstacle": s["obstacle"]},
-                                       level=s["level"]))
+        out = gate.step(
+            DT,
+            GateInputs(command=s["command"], limits={"speed": s["speed"], "obstacle": s["obstacle"]}, level=s["level"]),
+        )
         if s["level"] is Level.CRITICAL:
             latched_without_rearm = True
         # level 1 never clears without a re-arm

@@ -1,5 +1,6 @@
 """The MPC (control/mpc.py, ARES eqs. 11-13) on its own: in closed loop with a kinematic vehicle
 whose steering has the profile's dead time and rate limit, on hand-made paths."""
+
 from __future__ import annotations
 
 import math
@@ -7,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from ares.config import load_vehicle
+from ares.core.config import load_vehicle
 from control.mpc import Mpc, MpcParams, VehicleState, predict
 
 VEHICLE = load_vehicle("ares_shuttle")
@@ -17,8 +18,7 @@ PLANT_DT = 0.01
 UNTIMED = {"max_solve_ms": 10_000.0}
 
 
-def arc_path(radius: float, straight_m: float = 15.0, turn_deg: float = 90.0, after_m: float = 40.0,
-             ds: float = 0.5):
+def arc_path(radius: float, straight_m: float = 15.0, turn_deg: float = 90.0, after_m: float = 40.0, ds: float = 0.5):
     """A straight, a left arc of `radius` through `turn_deg` (inf: straight on), a straight; poses
     every ds, as the path manager sends them."""
     if math.isinf(radius):
@@ -28,8 +28,10 @@ def arc_path(radius: float, straight_m: float = 15.0, turn_deg: float = 90.0, af
     arc = np.arange(0.0, radius * a, ds) / radius
     end = np.array([straight_m + radius * math.sin(a), radius - radius * math.cos(a)])
     tail = np.arange(ds, after_m, ds)
-    return (np.r_[np.arange(0.0, straight_m, ds), straight_m + radius * np.sin(arc), end[0] + tail * math.cos(a)],
-            np.r_[np.zeros(int(math.ceil(straight_m / ds))), radius - radius * np.cos(arc), end[1] + tail * math.sin(a)])
+    return (
+        np.r_[np.arange(0.0, straight_m, ds), straight_m + radius * np.sin(arc), end[0] + tail * math.cos(a)],
+        np.r_[np.zeros(int(math.ceil(straight_m / ds))), radius - radius * np.cos(arc), end[1] + tail * math.sin(a)],
+    )
 
 
 def distance_to(path, x: float, y: float) -> float:
@@ -41,8 +43,7 @@ def distance_to(path, x: float, y: float) -> float:
     return float(np.min(np.hypot(ax + t * dx - x, ay + t * dy - y)))
 
 
-def closed_loop(mpc: Mpc, path, offset_m: float, speed: float = 3.0, seconds: float = 12.0,
-                v0: float | None = None):
+def closed_loop(mpc: Mpc, path, offset_m: float, speed: float = 3.0, seconds: float = 12.0, v0: float | None = None):
     """Drive the path from `offset_m` left of its start; the wheels follow each command after the
     steering's dead time at its rate. Returns the distance from the path at each plant step and
     the commands."""
@@ -56,8 +57,7 @@ def closed_loop(mpc: Mpc, path, offset_m: float, speed: float = 3.0, seconds: fl
         if k % every == 0:
             i = int(np.argmin(np.hypot(px - x, py - y)))
             near = slice(max(i - 2, 0), i + 80)
-            cmd = mpc.solve(VehicleState(x, y, yaw, v, delta, accel), px[near], py[near],
-                            np.full(len(px[near]), speed))
+            cmd = mpc.solve(VehicleState(x, y, yaw, v, delta, accel), px[near], py[near], np.full(len(px[near]), speed))
             commands.append(cmd)
             pending.append((k * PLANT_DT + steering.dead_time_s, cmd.delta))
             accel = cmd.accel
@@ -72,17 +72,19 @@ def closed_loop(mpc: Mpc, path, offset_m: float, speed: float = 3.0, seconds: fl
 
 def test_an_offset_on_a_straight_is_taken_out():
     errors, commands = closed_loop(Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(math.inf), offset_m=0.5)
-    assert commands[0].delta < 0                        # left of the path: steer right
+    assert commands[0].delta < 0  # left of the path: steer right
     assert commands[0].cte == pytest.approx(-0.5, abs=0.05)
-    assert errors[-300:].max() < 0.03                   # settled within 9 s
+    assert errors[-300:].max() < 0.03  # settled within 9 s
     assert all(c.ok for c in commands)
 
 
 @pytest.mark.parametrize("radius", [12.0, 20.0, 40.0])
 def test_arcs_are_followed_closely(radius):
-    errors, commands = closed_loop(Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(radius), offset_m=0.0, speed=min(3.0, math.sqrt(0.5 * radius)))
+    errors, commands = closed_loop(
+        Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(radius), offset_m=0.0, speed=min(3.0, math.sqrt(0.5 * radius))
+    )
     # measured: RMSE 1.0-2.1 cm, max 1.6-3.9 cm
-    assert errors.max() < 0.08 and np.sqrt(np.mean(errors ** 2)) < 0.04, (errors.max(), np.sqrt(np.mean(errors ** 2)))
+    assert errors.max() < 0.08 and np.sqrt(np.mean(errors**2)) < 0.04, (errors.max(), np.sqrt(np.mean(errors**2)))
     steady = [c.delta for c in commands[-20:]]
     assert np.mean(steady) == pytest.approx(math.atan(VEHICLE.wheelbase_m / radius), rel=0.15)
 
@@ -91,8 +93,9 @@ def test_a_long_arc_is_held_on_the_line_not_inside_it():
     """Steps along the heading halfway through them: with the paper's form (the heading at the
     step's start) the plan believes the vehicle wider than it goes and holds it inside the arc
     (measured: 2.3 cm inside a 30 m arc at 3 m/s, against 0.3 mm)."""
-    errors, _ = closed_loop(Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(30.0, turn_deg=120.0), 0.0, speed=3.0,
-                            seconds=20.0)
+    errors, _ = closed_loop(
+        Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(30.0, turn_deg=120.0), 0.0, speed=3.0, seconds=20.0
+    )
     assert errors[1200:].max() < 0.005
 
 
@@ -113,12 +116,14 @@ def test_inputs_stay_within_eq_12_and_the_steering_rate():
     deltas = np.array([c.delta for c in commands])
     assert np.abs(deltas).max() <= VEHICLE.max_wheel_angle_rad + 1e-6
     assert all(-VEHICLE.max_decel_mps2 - 1e-6 <= c.accel <= VEHICLE.max_accel_mps2 + 1e-6 for c in commands)
-    assert np.abs(np.diff(deltas)).max() <= step + 1e-6    # commands 0.1 s apart: within one step's reach
-    assert commands[0].accel > 0                           # from standstill: away
+    assert np.abs(np.diff(deltas)).max() <= step + 1e-6  # commands 0.1 s apart: within one step's reach
+    assert commands[0].accel > 0  # from standstill: away
 
 
 def test_speed_follows_the_limit():
-    errors, commands = closed_loop(Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(math.inf), offset_m=0.0, speed=2.0, seconds=10.0, v0=0.0)
+    errors, commands = closed_loop(
+        Mpc(VEHICLE, MpcParams(**UNTIMED)), arc_path(math.inf), offset_m=0.0, speed=2.0, seconds=10.0, v0=0.0
+    )
     assert commands[-1].v == pytest.approx(2.0, abs=0.1)
 
 
@@ -128,12 +133,12 @@ def test_a_failed_solve_reuses_the_previous_solution_then_hands_over():
     state = VehicleState(0.0, 0.2, 0.0, 3.0)
     good = mpc.solve(state, px[:120], py[:120], np.full(120, 3.0))
     assert good.ok and not good.handover and len(good.predicted_x) == mpc.params.horizon_steps + 1
-    nowhere = mpc.solve(state, px[:2], py[:2], np.full(2, 3.0))        # no path to fit: a failure
+    nowhere = mpc.solve(state, px[:2], py[:2], np.full(2, 3.0))  # no path to fit: a failure
     assert not nowhere.ok and not nowhere.handover and nowhere.reused == 1
     assert nowhere.delta == pytest.approx(second_input_of_previous(mpc))
     assert not mpc.solve(state, px[:2], py[:2], np.full(2, 3.0)).handover
     third = mpc.solve(state, px[:2], py[:2], np.full(2, 3.0))
-    assert third.handover and third.accel < 0                        # stop asking, slow down
+    assert third.handover and third.accel < 0  # stop asking, slow down
     assert mpc.failures == 3
     again = mpc.solve(state, px[:120], py[:120], np.full(120, 3.0))
     assert again.ok and again.reused == 0
@@ -155,11 +160,12 @@ def test_the_predicted_trajectory_is_in_the_callers_frame():
 
 
 def test_the_bench_reports_solve_times_and_the_loops_tracking():
-    from ares.bench.mpc import run_mpc_bench
+    from ares.tools.bench.mpc import run_mpc_bench
+
     result = run_mpc_bench(solves=60)
     assert result["solves"] == 60 and result["horizon"] == MpcParams().horizon_steps
     assert 0 < result["solve_p50_ms"] <= result["solve_p99_ms"] <= result["solve_max_ms"]
-    assert result["failed_solves"] == 0 and result["xte_max_m"] < 0.2      # it drove the tour's start
+    assert result["failed_solves"] == 0 and result["xte_max_m"] < 0.2  # it drove the tour's start
 
 
 def test_one_iteration_per_cycle_tracks_as_well_as_a_converged_solve():
@@ -168,20 +174,24 @@ def test_one_iteration_per_cycle_tracks_as_well_as_a_converged_solve():
     path = arc_path(15.0)
     rti, rti_cmds = closed_loop(Mpc(VEHICLE, MpcParams(**UNTIMED)), path, 0.3)
     full, _ = closed_loop(Mpc(VEHICLE, MpcParams(sqp_iterations=20, **UNTIMED)), path, 0.3)
-    rmse = lambda e: float(np.sqrt(np.mean(e ** 2)))       # noqa: E731
+    rmse = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
     assert rmse(rti) == pytest.approx(rmse(full), rel=0.1) and rti.max() <= full.max() * 1.1 + 0.01
     assert all(c.ok for c in rti_cmds)
 
 
-@pytest.mark.parametrize("v_command, v_now, v_path, stalls", [
-    (0.0, 0.0, 2.0, True),        # standing, the plan stays, the path asks to move: stalled
-    (0.3, 0.0, 2.0, False),       # the plan starts the shuttle
-    (0.0, 1.5, 2.0, False),       # a plan to stop from speed is not a stall
-    (0.0, 0.0, 0.2, False),       # the path asks for nothing (its end, a stop)
-])
+@pytest.mark.parametrize(
+    "v_command, v_now, v_path, stalls",
+    [
+        (0.0, 0.0, 2.0, True),  # standing, the plan stays, the path asks to move: stalled
+        (0.3, 0.0, 2.0, False),  # the plan starts the shuttle
+        (0.0, 1.5, 2.0, False),  # a plan to stop from speed is not a stall
+        (0.0, 0.0, 0.2, False),  # the path asks for nothing (its end, a stop)
+    ],
+)
 def test_a_plan_that_keeps_the_shuttle_standing_hands_over_after_a_while(v_command, v_now, v_path, stalls):
     from control.mpc_node import StallGuard
+
     guard = StallGuard(after_s=2.0)
     answers = [guard.stalled(t / 10, v_command, v_now, v_path) for t in range(31)]
-    assert answers[19] is False and answers[-1] is stalls       # never before 2 s
-    assert guard.stalled(3.1, 0.5, 0.0, v_path) is False and guard.since is None   # moving again: reset
+    assert answers[19] is False and answers[-1] is stalls  # never before 2 s
+    assert guard.stalled(3.1, 0.5, 0.0, v_path) is False and guard.since is None  # moving again: reset

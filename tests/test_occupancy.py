@@ -1,5 +1,6 @@
 """Local occupancy grid (perception/occupancy.py, free_space.py, grid_geometry.py; ARES §3.5.2):
 hand-made clouds, and random clouds against a brute-force tracing of every ray."""
+
 from __future__ import annotations
 
 import math
@@ -15,7 +16,7 @@ from perception.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMapper, Occup
 
 ROOF, LEFT, RIGHT = (3.0, 0.0, 2.94), (3.3, 0.95, 0.9), (3.3, -0.95, 0.9)
 ORIGINS = np.array([ROOF, LEFT, RIGHT])
-X0, Y0, D, N = -8.6, -10.0, 0.2, 100          # the default grid: 20 m around x = 1.4, y = 0
+X0, Y0, D, N = -8.6, -10.0, 0.2, 100  # the default grid: 20 m around x = 1.4, y = 0
 
 
 def cell(x, y):
@@ -35,17 +36,19 @@ def grid_of(points, ground=None, sensors=None, origins=ORIGINS, **params):
 
 
 def counts(cells):
-    return {name: int((cells == value).sum()) for name, value in (("free", FREE), ("occupied", OCCUPIED),
-                                                                   ("unknown", UNKNOWN))}
+    return {
+        name: int((cells == value).sum())
+        for name, value in (("free", FREE), ("occupied", OCCUPIED), ("unknown", UNKNOWN))
+    }
 
 
 def test_one_obstacle_point_clears_its_ray_and_hides_what_lies_behind():
-    cells = grid_of([(8.1, 0.1, 1.0)])                  # roof sensor at (3, 0): the ray stays in row 50
+    cells = grid_of([(8.1, 0.1, 1.0)])  # roof sensor at (3, 0): the ray stays in row 50
     row, col = cell(8.1, 0.1)
     assert (row, col) == (50, 83) and cells[row, col] == OCCUPIED
-    first = cell(3.05, 0.0)[1]                           # the sensor's own cell (x = 3.0 is a grid line)
+    first = cell(3.05, 0.0)[1]  # the sensor's own cell (x = 3.0 is a grid line)
     assert (cells[50, first:col] == FREE).all()
-    assert (cells[50, col + 1:] == UNKNOWN).all()
+    assert (cells[50, col + 1 :] == UNKNOWN).all()
     assert counts(cells) == {"free": col - first, "occupied": 1, "unknown": N * N - (col - first) - 1}
 
 
@@ -57,11 +60,11 @@ def test_two_sensors_see_one_spot_from_both_sides():
     road = ORIGINS[1, :2] + 1.6 * (seen - ORIGINS[1, :2])
     cells = grid_of([spot, spot, (*road, 0.0)], ground=[False, False, True], sensors=[1, 2, 1])
     assert cells[cell(*spot[:2])] == OCCUPIED
-    for origin in ORIGINS[1:, :2]:                      # halfway along each sensor's ray: free
+    for origin in ORIGINS[1:, :2]:  # halfway along each sensor's ray: free
         assert cells[cell(*(origin + 0.5 * (spot[:2] - origin)))] == FREE
-    assert cells[cell(*seen)] == FREE                   # hidden from one sensor, seen by the other
+    assert cells[cell(*seen)] == FREE  # hidden from one sensor, seen by the other
     behind_left = spot[:2] + 0.3 * (spot[:2] - ORIGINS[1, :2])
-    assert cells[cell(*behind_left)] == UNKNOWN         # hidden from the left one, never seen by the right
+    assert cells[cell(*behind_left)] == UNKNOWN  # hidden from the left one, never seen by the right
     assert counts(cells)["occupied"] == 1
 
 
@@ -70,7 +73,7 @@ def test_a_ground_ring_clears_the_disc_inside_it_and_marks_nothing_occupied():
     ring = np.column_stack([3.0 + 6.0 * np.cos(azimuth), 6.0 * np.sin(azimuth), np.zeros_like(azimuth)])
     cells = grid_of(ring, ground=np.ones(len(ring), bool))
     x, y = np.meshgrid(X0 + (np.arange(N) + 0.5) * D, Y0 + (np.arange(N) + 0.5) * D)
-    distance = np.hypot(x - 3.0, y)                      # of each cell's centre, [row, col]
+    distance = np.hypot(x - 3.0, y)  # of each cell's centre, [row, col]
     assert counts(cells)["occupied"] == 0
     assert (cells[distance < 5.8] == FREE).all()
     assert (cells[distance > 6.2] == UNKNOWN).all()
@@ -78,7 +81,7 @@ def test_a_ground_ring_clears_the_disc_inside_it_and_marks_nothing_occupied():
 
 def test_points_above_the_band_are_passed_under_and_heights_count_from_the_local_ground():
     road = [(x, y, 0.0) for x in np.arange(5.0, 8.0, 0.1) for y in (-0.5, 0.5)]
-    ramp = [(x, y, 1.0) for x in np.arange(-7.0, -5.0, 0.1) for y in (-3.5, -2.5)]   # a raised patch
+    ramp = [(x, y, 1.0) for x in np.arange(-7.0, -5.0, 0.1) for y in (-3.5, -2.5)]  # a raised patch
     branch, child, low = (6.5, 0.0, 3.5), (7.5, 0.0, 1.0), (5.5, 0.0, 0.15)
     on_ramp = [(-6.0, -3.0, 1.25), (-6.4, -3.0, 1.1), (-5.6, -3.0, 4.3), (-6.6, -2.6, 4.1)]
     points = road + ramp + [branch, child, low] + on_ramp
@@ -101,15 +104,20 @@ def test_rays_outside_the_fan_leave_their_cells_unknown():
     road = np.column_stack([3.0 + r * np.cos(a), r * np.sin(a), np.zeros_like(r)])
     cells = grid_of(road, ground=np.ones(len(road), bool))
     assert cells[cell(6.0, 0.0)] == FREE
-    assert cells[cell(6.0, 3.0)] == UNKNOWN and cells[cell(-2.0, 0.0)] == UNKNOWN   # aside, behind
+    assert cells[cell(6.0, 3.0)] == UNKNOWN and cells[cell(-2.0, 0.0)] == UNKNOWN  # aside, behind
     assert cells[cell(3.0 + 8.0 * math.cos(0.40), 8.0 * math.sin(0.40))] == UNKNOWN  # 23°: outside
     assert cells[cell(3.0 + 8.0 * math.cos(0.40), -8.0 * math.sin(0.40))] == UNKNOWN
-    assert cells[cell(3.0 + 8.0 * math.cos(0.33), 8.0 * math.sin(0.33))] == FREE     # 19°: inside
+    assert cells[cell(3.0 + 8.0 * math.cos(0.33), 8.0 * math.sin(0.33))] == FREE  # 19°: inside
 
 
 def test_cells_at_the_edges_row_along_y_col_along_x():
-    corners = [(X0 + 0.1, Y0 + 0.1), (X0 + 19.9, Y0 + 0.1), (X0 + 0.1, Y0 + 19.9), (X0 + 19.9, Y0 + 19.9),
-               (X0 + 0.1, 0.1)]
+    corners = [
+        (X0 + 0.1, Y0 + 0.1),
+        (X0 + 19.9, Y0 + 0.1),
+        (X0 + 0.1, Y0 + 19.9),
+        (X0 + 19.9, Y0 + 19.9),
+        (X0 + 0.1, 0.1),
+    ]
     outside = [(X0 - 0.01, 0.0), (X0 + 20.01, 0.0), (1.0, Y0 - 0.01), (1.0, Y0 + 20.01)]
     points = [(x, y, 1.0) for x, y in corners + outside]
     cells = grid_of(points)
@@ -131,12 +139,12 @@ def test_grid_size_and_centre_follow_the_settings():
 
 
 def test_local_ground_is_the_mean_of_the_ground_points_around():
-    grid = Grid.centred(0.0, 0.0, 2.0, 2.0, 0.2)          # 10 × 10
+    grid = Grid.centred(0.0, 0.0, 2.0, 2.0, 0.2)  # 10 × 10
     flat = np.array([0, 0, 1, 55])
     ground = local_ground(grid, flat, np.array([1.0, 2.0, 3.0, 7.0]), 1).reshape(10, 10)
-    assert ground[0, 0] == pytest.approx(2.0) and ground[1, 1] == pytest.approx(2.0)   # (1 + 2 + 3) / 3
+    assert ground[0, 0] == pytest.approx(2.0) and ground[1, 1] == pytest.approx(2.0)  # (1 + 2 + 3) / 3
     assert ground[0, 2] == pytest.approx(3.0) and ground[5, 5] == pytest.approx(7.0)
-    assert ground[9, 9] == 0.0                           # no ground around: the road plane z = 0
+    assert ground[9, 9] == 0.0  # no ground around: the road plane z = 0
 
 
 def test_the_tracer_bins_tile_the_circle():
@@ -149,8 +157,10 @@ def test_the_tracer_bins_tile_the_circle():
 
 # ---- against brute force -------------------------------------------------------------------------
 
+
 def brute_force(points, ground, sensors, origins, low=0.2, high=3.2):
     """Every ray walked in 5 mm steps, cell after cell; the ground is the plane z = 0."""
+
     def inside(r, c):
         return 0 <= r < N and 0 <= c < N
 
@@ -159,7 +169,7 @@ def brute_force(points, ground, sensors, origins, low=0.2, high=3.2):
     free = set()
     for (x, y, z), g, s in zip(points, ground, sensors):
         if not g and z > high:
-            continue                                     # passed over the cells, saw none of them
+            continue  # passed over the cells, saw none of them
         ox, oy = origins[s][:2]
         length = math.hypot(x - ox, y - oy)
         # every sample before the return; from half a step on, so that a sensor on a grid
@@ -224,7 +234,7 @@ def fast_and_slow(points, ground, sensors):
 def test_the_fast_tracer_agrees_with_brute_force_on_sweeps(seed):
     fast, slow = fast_and_slow(*random_sweeps(np.random.default_rng(seed)))
     assert ((fast == OCCUPIED) == (slow == OCCUPIED)).all()
-    assert (fast == slow).mean() >= 0.97          # 0.993 at worst over 40 seeds, 0.998 median
+    assert (fast == slow).mean() >= 0.97  # 0.993 at worst over 40 seeds, 0.998 median
 
 
 @settings(max_examples=20, deadline=None)
@@ -232,18 +242,22 @@ def test_the_fast_tracer_agrees_with_brute_force_on_sweeps(seed):
 def test_isolated_rays_are_the_worst_case(seed, rays):
     fast, slow = fast_and_slow(*random_rays(np.random.default_rng(seed), rays))
     assert ((fast == OCCUPIED) == (slow == OCCUPIED)).all()
-    assert (fast == slow).mean() >= 0.94          # 0.961 at worst over 300 seeds, 0.979 median
+    assert (fast == slow).mean() >= 0.94  # 0.961 at worst over 300 seeds, 0.979 median
 
 
 def test_the_top_of_a_low_box_the_heightmap_called_ground_is_occupied():
     # only the box's top was seen: its cells span millimetres, so Algorithm 2 calls them ground;
     # the road around is the floor it stands 0.3 m above
-    road = [(x, y, 0.0) for x in np.arange(5.0, 9.0, 0.1) for y in np.arange(-1.0, 1.0, 0.1)
-            if not (6.6 <= x <= 7.0 and 0.0 <= y <= 0.4)]
+    road = [
+        (x, y, 0.0)
+        for x in np.arange(5.0, 9.0, 0.1)
+        for y in np.arange(-1.0, 1.0, 0.1)
+        if not (6.6 <= x <= 7.0 and 0.0 <= y <= 0.4)
+    ]
     top = [(x, y, 0.3) for x in np.arange(6.62, 7.0, 0.05) for y in np.arange(0.02, 0.4, 0.05)]
     points = road + top
     cells = grid_of(points, ground=np.ones(len(points), bool))
     assert cells[cell(6.8, 0.2)] == OCCUPIED
-    assert counts(cells)["occupied"] == len({cell(x, y) for x, y, _ in top})     # the road stays clear
-    low = [(x, y, 0.1) for x, y, _ in top]                                      # a 0.1 m bump is not
+    assert counts(cells)["occupied"] == len({cell(x, y) for x, y, _ in top})  # the road stays clear
+    low = [(x, y, 0.1) for x, y, _ in top]  # a 0.1 m bump is not
     assert counts(grid_of(road + low, ground=np.ones(len(road + low), bool)))["occupied"] == 0

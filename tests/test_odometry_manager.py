@@ -1,5 +1,6 @@
 """Odometry manager (ARES §3.1.2): eq. 6, the choice of a, b, c, and the manager as a node on the
 in-memory bus."""
+
 from __future__ import annotations
 
 import math
@@ -9,13 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ares import config
-from ares.clock import ManualClock
-from ares.config import ConfigError
-from ares.harness.odometry_score import choose_parameters
-from ares.membus import MemoryNetwork
-from ares.messages import Pose
-from managers.odometry import OdometryManager, OdometryParams, OdometryScorer, pose_covariance, score
+from ares.core import config
+from ares.core.clock import ManualClock
+from ares.core.config import ConfigError
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import Pose
+from ares.tools.harness.odometry_score import choose_parameters
+from managers.odometry import OdometryParams, OdometryScorer, pose_covariance, score
+from managers.odometry_node import OdometryManager
 
 PARAMS = OdometryParams()
 
@@ -26,8 +28,23 @@ def literal_eq6(cov, a, b, c):
 
 def pose(t=0.0, cov_xx=1e-4, cov_xy=0.0, cov_yy=1e-4) -> Pose:
     eig = 0.5 * (cov_xx + cov_yy) + math.hypot(0.5 * (cov_xx - cov_yy), cov_xy)
-    return Pose(t=t, x=1.0, y=2.0, z=0.0, yaw=0.1, v=2.0, yaw_rate=0.0, cov_xx=cov_xx, cov_xy=cov_xy,
-                cov_yy=cov_yy, var_yaw=1e-6, var_v=1e-4, position_std_m=math.sqrt(eig), rtk=True, gnss_age_s=0.1)
+    return Pose(
+        t=t,
+        x=1.0,
+        y=2.0,
+        z=0.0,
+        yaw=0.1,
+        v=2.0,
+        yaw_rate=0.0,
+        cov_xx=cov_xx,
+        cov_xy=cov_xy,
+        cov_yy=cov_yy,
+        var_yaw=1e-6,
+        var_v=1e-4,
+        position_std_m=math.sqrt(eig),
+        rtk=True,
+        gnss_age_s=0.1,
+    )
 
 
 def test_eq6_values():
@@ -35,7 +52,7 @@ def test_eq6_values():
     assert score(c, a, b, c) == pytest.approx(0.5)
     assert score(c + math.log(9) / b, a, b, c) == pytest.approx(0.1)
     assert score(c - math.log(9) / b, a, b, c) == pytest.approx(0.9)
-    assert score(0.0, a, b, c) == pytest.approx(1 - 1 / (1 + math.e))      # b·(0 − c) = −1
+    assert score(0.0, a, b, c) == pytest.approx(1 - 1 / (1 + math.e))  # b·(0 − c) = −1
     for cov in (0.0, 5e-4, 2e-3, 0.01):
         assert score(cov, 0.8, b, c) == pytest.approx(literal_eq6(cov, 0.8, b, c))
 
@@ -46,13 +63,17 @@ def test_no_overflow_at_the_extremes():
 
 
 @settings(max_examples=300, deadline=None)
-@given(a=st.floats(0.01, 1.0), b=st.floats(1.0, 1e6), c=st.floats(1e-6, 1.0),
-       covs=st.lists(st.floats(0.0, 100.0), min_size=2, max_size=20))
+@given(
+    a=st.floats(0.01, 1.0),
+    b=st.floats(1.0, 1e6),
+    c=st.floats(1e-6, 1.0),
+    covs=st.lists(st.floats(0.0, 100.0), min_size=2, max_size=20),
+)
 def test_score_is_bounded_and_never_rises_with_the_covariance(a, b, c, covs):
     values = [score(cov, a, b, c) for cov in sorted(covs)]
     assert all(0.0 <= v <= 1.0 for v in values)
     assert all(later <= earlier + 1e-12 for earlier, later in zip(values, values[1:]))
-    assert min(values) >= 1.0 - a - 1e-12              # a = 1 spans the whole range, a < 1 keeps a floor
+    assert min(values) >= 1.0 - a - 1e-12  # a = 1 spans the whole range, a < 1 keeps a floor
 
 
 def test_configured_parameters_separate_the_measured_populations():
@@ -68,7 +89,7 @@ def test_configured_parameters_separate_the_measured_populations():
 def test_cov_is_the_largest_eigenvalue_and_ignores_the_axes():
     p = pose(cov_xx=3e-4, cov_xy=1e-4, cov_yy=1e-4)
     assert pose_covariance(p) == pytest.approx(np.linalg.eigvalsh([[3e-4, 1e-4], [1e-4, 1e-4]])[-1])
-    assert pose_covariance(p) == pytest.approx(p.position_std_m ** 2)
+    assert pose_covariance(p) == pytest.approx(p.position_std_m**2)
     # the same ellipse rotated by 30 degrees
     rot = np.array([[math.cos(0.52), -math.sin(0.52)], [math.sin(0.52), math.cos(0.52)]])
     m = rot @ np.array([[3e-4, 1e-4], [1e-4, 1e-4]]) @ rot.T
@@ -113,7 +134,7 @@ def test_the_node_scores_with_its_sections_values(run_config):
 
 
 class OdometryManagerOnTheBus:
-    PERIOD = 0.05           # the manager's 20 Hz
+    PERIOD = 0.05  # the manager's 20 Hz
 
     def __init__(self, cfg, start: float = 0.0):
         self.clock = ManualClock(start)
@@ -139,7 +160,7 @@ class OdometryManagerOnTheBus:
 def test_odometry_manager_node_scores_poses_and_distrusts_stale_ones(run_config):
     manager = OdometryManagerOnTheBus(run_config, start=3.0)
     no_pose = manager.run(0.5)
-    assert len(no_pose) == 10                                  # one score a step
+    assert len(no_pose) == 10  # one score a step
     assert all(m.score == 0.0 and m.covariance == 0.0 for m in no_pose)
     # without any pose the age is the time since the manager started
     assert no_pose[-1].pose_age_s == pytest.approx(0.5)
@@ -148,15 +169,15 @@ def test_odometry_manager_node_scores_poses_and_distrusts_stale_ones(run_config)
     latest = with_rtk[-1]
     assert latest.score == pytest.approx(score(1e-4, PARAMS.a, PARAMS.b, PARAMS.c), abs=1e-9)
     assert latest.covariance == pytest.approx(1e-4) and latest.pose_age_s == 0.0
-    assert manager.run(1.0, cov=5e-3)[-1].score < 0.01        # covariance of a dead-reckoning pose
+    assert manager.run(1.0, cov=5e-3)[-1].score < 0.01  # covariance of a dead-reckoning pose
     assert manager.run(0.5, cov=1e-4)[-1].score > 0.95
 
     last_pose = manager.t
-    silent = manager.run(PARAMS.stale_after_s + 0.5)           # the poses stop
+    silent = manager.run(PARAMS.stale_after_s + 0.5)  # the poses stop
     assert len(silent) == round((PARAMS.stale_after_s + 0.5) / manager.PERIOD)
     for m in silent:
         assert m.pose_age_s == pytest.approx(m.t - last_pose)
-        assert m.covariance == pytest.approx(1e-4)             # the last pose's, for the record
+        assert m.covariance == pytest.approx(1e-4)  # the last pose's, for the record
     fresh = [m for m in silent if m.pose_age_s <= PARAMS.stale_after_s - 1e-9]
     stale = [m for m in silent if m.pose_age_s > PARAMS.stale_after_s + 1e-9]
     assert fresh and all(m.score > 0.95 for m in fresh)
@@ -167,7 +188,7 @@ def test_a_pose_delivered_late_is_as_old_as_its_stamp(run_config):
     manager = OdometryManagerOnTheBus(run_config, start=10.0)
     manager.run(0.1, cov=1e-4)
     manager.clock.set(10.5)
-    manager.bus.publish("localization/pose", pose(t=8.0, cov_xx=1e-4, cov_yy=1e-4))   # produced 2.5 s ago
+    manager.bus.publish("localization/pose", pose(t=8.0, cov_xx=1e-4, cov_yy=1e-4))  # produced 2.5 s ago
     manager.node.step_once(10.5)
     [late] = [m for _, m in manager.scores.drain()]
     assert late.pose_age_s == pytest.approx(2.5) and late.score == 0.0

@@ -12,26 +12,26 @@ One stack, one browser, the three roles in turn (a run of the stack costs ~20 s 
 - the fleet page lists the vehicle live.
 Screenshots of each page go to artifacts/pages/ (kept by CI as the test's artifacts).
 """
+
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
 import httpx
 import pytest
 
-from ares.bench.live import BrowserCalmer, chromium_path
-from ares.bus import Bus
-from ares.clock import WallClock
-from ares.messages import LidarFault
-from blackbox.auth import Argon2Settings, Passwords, add_user
-from blackbox.sqlite_store import SqliteStore
-from tests.conftest import LIGHT_LIDARS, REPO, free_port, make_run_config, stop_process
-from tests.test_recorder import wait_until
+from ares.core.bus import Bus
+from ares.core.clock import WallClock
+from ares.core.localhost import free_port, stop_process
+from ares.core.messages import LidarFault
+from ares.tools.bench.live import BrowserCalmer, chromium_path
+from blackbox.api.credentials import Argon2Settings, Passwords, add_user
+from blackbox.store.sqlite_store import SqliteStore
+from tests.helpers.stack import LIGHT_LIDARS, REPO, make_run_config, wait_until
 
 pytestmark = pytest.mark.stack
 
@@ -62,19 +62,45 @@ def stack(tmp_path_factory, browser):
     for role in ("operator", "auditor", "fleet"):
         add_user(store, passwords, f"{role}1", role, PASSWORD, 10)
     store.close()
-    (tmp / "pages.yaml").write_text("api:\n  rate_limit:\n    token_burst: 30\n")    # the tests log in often
+    (tmp / "pages.yaml").write_text("api:\n  rate_limit:\n    token_burst: 30\n")  # the tests log in often
     port, router = free_port(), f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ares.cli", "run", "--speed", "paced", "--config", str(LIGHT_LIDARS), "--config", str(tmp / "pages.yaml"),
-         "--listen", router, "--api-port", str(port), "--store", str(store_path), "--run-dir", str(tmp / "run")],
-        cwd=REPO, stdout=open(tmp / "stdout.log", "w"), stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-        start_new_session=True)
-    bus = Bus(make_run_config(free_port(), {"bus": {"router": router, "embedded_router": False}}), "pages_test",
-              WallClock())
+        [
+            sys.executable,
+            "-m",
+            "ares.cli",
+            "run",
+            "--speed",
+            "paced",
+            "--config",
+            str(LIGHT_LIDARS),
+            "--config",
+            str(tmp / "pages.yaml"),
+            "--listen",
+            router,
+            "--api-port",
+            str(port),
+            "--store",
+            str(store_path),
+            "--run-dir",
+            str(tmp / "run"),
+        ],
+        cwd=REPO,
+        stdout=open(tmp / "stdout.log", "w"),
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    bus = Bus(
+        make_run_config(free_port(), {"bus": {"router": router, "embedded_router": False}}), "pages_test", WallClock()
+    )
     try:
         truth = bus.subscribe("sim/truth")
-        wait_for(lambda: truth.latest is not None and truth.latest.v > 1.5 or proc.poll() is not None, 90,
-                 "the shuttle to drive")
+        wait_for(
+            lambda: truth.latest is not None and truth.latest.v > 1.5 or proc.poll() is not None,
+            90,
+            "the shuttle to drive",
+        )
         assert proc.poll() is None, (tmp / "stdout.log").read_text()[-3000:]
         yield {"bus": bus, "truth": truth, "url": f"https://127.0.0.1:{port}", "store": store_path}
     finally:
@@ -85,6 +111,7 @@ def stack(tmp_path_factory, browser):
 @pytest.fixture(scope="module")
 def browser():
     from playwright.sync_api import sync_playwright
+
     with sync_playwright() as p, BrowserCalmer():
         # reniced (BrowserCalmer): on the vehicle the pages' browsers are tablets, not a load on its computer
         b = p.chromium.launch(executable_path=chromium_path(), headless=True, args=["--no-sandbox"])
@@ -94,8 +121,9 @@ def browser():
 
 @pytest.fixture
 def page(browser, stack, request):
-    context = browser.new_context(ignore_https_errors=True, viewport={"width": 1024, "height": 900},
-                                  accept_downloads=True)
+    context = browser.new_context(
+        ignore_https_errors=True, viewport={"width": 1024, "height": 900}, accept_downloads=True
+    )
     pg = context.new_page()
     pg.set_default_timeout(20_000)
     problems: list[str] = []
@@ -104,7 +132,7 @@ def page(browser, stack, request):
     pg.on("pageerror", lambda e: problems.append(str(e)))
     pg.problems = problems
     yield pg
-    shot(pg, f"last_{request.node.name}")        # where the test ended (a failure's picture)
+    shot(pg, f"last_{request.node.name}")  # where the test ended (a failure's picture)
     print("browser console errors:", problems)
     context.close()
 
@@ -135,7 +163,7 @@ def rest(stack, user: str) -> httpx.Client:
 
 def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covered_lidar(page, stack):
     pg, truth, bus = page, stack["truth"], stack["bus"]
-    login(pg, stack["url"] + "/operator", "auditor1")             # the wrong role first: refused
+    login(pg, stack["url"] + "/operator", "auditor1")  # the wrong role first: refused
     pg.wait_for_selector("#refused:not([hidden])")
     assert "operator role" in pg.inner_text("#refused")
     shot(pg, "operator_refused_to_an_auditor")
@@ -149,7 +177,7 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     assert field(pg, "mode") == "AUTOMATIC" and field(pg, "controller")
     wait_for(lambda: pg.locator("#events li").count() > 0, 10, "events on the page")
     lag = pg.evaluate("window.aresLag.slice(-20)")
-    assert lag and max(lag) < 2000, lag                            # (measured properly: ares bench live)
+    assert lag and max(lag) < 2000, lag  # (measured properly: ares bench live)
 
     # Pause: standing within 2 s, confirmed by the vehicle, recorded with the operator's name
     wait_for(lambda: truth.latest.v > 1.0, 30, "the shuttle at speed before the pause")
@@ -162,9 +190,15 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     wait_for(lambda: pg.get_attribute("#command-status", "data-state") == "confirmed", 10, "the pause confirmed")
     shot(pg, "operator_paused")
     auditor = rest(stack, "auditor1")
-    events = wait_for(lambda: [e for e in auditor.get(f"/vehicles/{VEHICLE}/events",
-                                                      params={"kinds": "mission_command"}).json()["events"]
-                               if e["data"].get("operator") == "operator1"], 10, "the pause in the black box")
+    events = wait_for(
+        lambda: [
+            e
+            for e in auditor.get(f"/vehicles/{VEHICLE}/events", params={"kinds": "mission_command"}).json()["events"]
+            if e["data"].get("operator") == "operator1"
+        ],
+        10,
+        "the pause in the black box",
+    )
     assert any("paused" in e["message"] for e in events)
     pg.click("[data-command=resume]")
     wait_for(lambda: truth.latest.v > 0.5, 20, "the shuttle to drive on after the resume")
@@ -177,9 +211,18 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     shot(pg, "operator_emergency_stop")
 
     def rearmed() -> bool:
-        pg.click("[data-command=rearm]")            # refused while level 1 lasts: pressed again
-        return bool(wait_for(lambda: pg.get_attribute("#command-status", "data-state") in ("confirmed", "refused"),
-                             5, "an answer")) and pg.get_attribute("#command-status", "data-state") == "confirmed"
+        pg.click("[data-command=rearm]")  # refused while level 1 lasts: pressed again
+        return (
+            bool(
+                wait_for(
+                    lambda: pg.get_attribute("#command-status", "data-state") in ("confirmed", "refused"),
+                    5,
+                    "an answer",
+                )
+            )
+            and pg.get_attribute("#command-status", "data-state") == "confirmed"
+        )
+
     wait_for(rearmed, 30, "the re-arm confirmed", step_s=1.0)
     assert field(pg, "movement.latched") == "false"
     wait_for(lambda: truth.latest.v > 0.5, 30, "the shuttle moving after the re-arm")
@@ -189,7 +232,7 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
 
 def test_the_auditor_exports_the_window_the_rest_api_returns(page, stack):
     pg = page
-    login(pg, stack["url"] + "/blackbox", "fleet1")                 # the wrong role first: refused
+    login(pg, stack["url"] + "/blackbox", "fleet1")  # the wrong role first: refused
     pg.wait_for_selector("#refused:not([hidden])")
     assert "auditor role" in pg.inner_text("#refused") and pg.locator("#app").is_hidden()
     pg.click("#logout")
@@ -197,15 +240,21 @@ def test_the_auditor_exports_the_window_the_rest_api_returns(page, stack):
     pg.wait_for_selector("#app:not([hidden])")
     wait_for(lambda: pg.get_attribute("#query-status", "data-state") == "confirmed", 20, "the records shown")
     shown = int(pg.get_attribute("#query-status", "data-count"))
-    assert shown > 10 and pg.locator("#records tr").count() == shown + 1      # a header and a row per record
-    assert pg.locator("#plots .uplot").count() >= 4                          # speed, steering, scores, ...
+    assert shown > 10 and pg.locator("#records tr").count() == shown + 1  # a header and a row per record
+    assert pg.locator("#plots .uplot").count() >= 4  # speed, steering, scores, ...
     shot(pg, "blackbox")
     with pg.expect_download() as download, pg.expect_request(lambda r: "/export?" in r.url) as request:
         pg.click("#export-jsonl")
     lines = Path(download.value.path()).read_text().splitlines()
     query = parse_qs(urlparse(request.value.url).query)
-    rest_page = rest(stack, "auditor1").get(f"/vehicles/{VEHICLE}/records", params={
-        "start": query["start"][0], "end": query["end"][0], "page_size": 1000}).json()
+    rest_page = (
+        rest(stack, "auditor1")
+        .get(
+            f"/vehicles/{VEHICLE}/records",
+            params={"start": query["start"][0], "end": query["end"][0], "page_size": 1000},
+        )
+        .json()
+    )
     exported = [json.loads(line) for line in lines]
     assert [r["time"] for r in exported] == [r["time"] for r in rest_page["records"]]
     assert exported == rest_page["records"]
@@ -221,7 +270,7 @@ def test_the_fleet_page_shows_the_vehicle_and_refuses_an_operator(page, stack):
     login(pg, stack["url"] + "/fleet", "fleet1")
     pg.wait_for_selector(f"#vehicles tr[data-vehicle='{VEHICLE}']")
     wait_for(lambda: pg.locator("#events li").count() > 0, 10, "the fleet's events")
-    assert pg.locator("#map canvas").count() >= 1                             # the route and POIs drawn
+    assert pg.locator("#map canvas").count() >= 1  # the route and POIs drawn
     wait_for(lambda: pg.locator(f".leaflet-tooltip:has-text('{VEHICLE}')").count() == 1, 10, "the vehicle on the map")
     shot(pg, "fleet")
     assert not [p for p in pg.problems if "favicon" not in p], pg.problems

@@ -1,4 +1,5 @@
 """Path manager: reachable-nearest matching on the KD-tree, the path ahead, and the node."""
+
 import math
 
 import numpy as np
@@ -6,22 +7,23 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ares import config
-from ares.clock import ManualClock
-from ares.config import ConfigError
-from ares.membus import MemoryNetwork
-from ares.messages import EventLevel, Pose
-from ares.node import ContractError
-from ares.route import Route
+from ares.core import config
+from ares.core.clock import ManualClock
+from ares.core.config import ConfigError
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import EventLevel, Pose
+from ares.core.node import ContractError
+from ares.core.route import Route
 from managers import path as path_module
-from managers.path import PathIndex, PathManager, PathManagerParams, PathTracker, zone_kinds_at
-from managers.speed_profile import SpeedProfileParams, speed_limits
-from tests.path_match_reference import ReferencePathIndex
-from tests.random_routes import pose_along, routes
+from managers.path import PathIndex, PathManagerParams, PathTracker, zone_kinds_at
+from managers.path_node import PathManager
+from managers.speed import SpeedProfileParams, speed_limits
+from tests.helpers.path_match_reference import ReferencePathIndex
+from tests.helpers.random_routes import pose_along, routes
 
 PARAMS = PathManagerParams()
 VEHICLE = config.load_vehicle("ares_shuttle")
-CROSSING_PASSES = (517.0, 1320.0)   # the default tour's two passes over its crossing
+CROSSING_PASSES = (517.0, 1320.0)  # the default tour's two passes over its crossing
 
 
 @pytest.fixture(scope="module")
@@ -71,6 +73,7 @@ def hairpin_route(gap=5.0, leg=40.0):
 
 # ---- the default tour's crossing and corners ---------------------------------------------------
 
+
 def test_the_default_tour_crosses_itself(tour):
     (ax, ay, _, ayaw), (bx, by, _, byaw) = (tour.point_at(s) for s in CROSSING_PASSES)
     assert math.hypot(ax - bx, ay - by) < 0.5
@@ -108,7 +111,7 @@ def test_driving_through_the_crossing_never_leaves_its_pass(index, tour, own):
 
 
 def test_a_drive_round_the_tight_corners_is_continuous(index, tour):
-    for start in (0.0, 220.0, 765.0, 1005.0):      # the 12-14 m radius corners
+    for start in (0.0, 220.0, 765.0, 1005.0):  # the 12-14 m radius corners
         for offset in (-1.5, 1.5):
             matches = [m for _, m in drive(index, tour, start - 10, start + 40, offset=offset)]
             steps = np.diff([m.progress for m in matches])
@@ -119,6 +122,7 @@ def test_a_drive_round_the_tight_corners_is_continuous(index, tour):
 
 
 # ---- a hairpin ----------------------------------------------------------------------------------
+
 
 def test_on_a_hairpin_the_match_never_jumps_to_the_other_leg():
     route = hairpin_route(gap=5.0)
@@ -137,11 +141,12 @@ def test_on_a_hairpin_the_match_never_jumps_to_the_other_leg():
     steps = np.diff([m.progress for _, m in matches])
     assert steps.min() > -0.1 and steps.max() < 0.5
     for s, m in matches:
-        if s < leg_end - 3 or s > back_start + 3:       # on the legs: exactly the offset
+        if s < leg_end - 3 or s > back_start + 3:  # on the legs: exactly the offset
             assert m.xte == pytest.approx(1.2, abs=1e-6)
 
 
 # ---- laps, reverse heading, fallback --------------------------------------------------------------
+
 
 def test_after_a_lap_the_lap_count_increments_and_s_wraps(index, tour):
     L = tour.length
@@ -160,7 +165,7 @@ def test_a_vehicle_facing_against_the_route_is_not_matched(index, tour):
     x, y, yaw = offset_pose(tour, 400.0, 0.5)
     for hint in (None, 399.5):
         assert index.match(x, y, yaw + math.pi, s_hint=hint) is None
-    assert index.match(x, y, yaw + 0.9, s_hint=399.5).search == "tracked"   # within the heading limit
+    assert index.match(x, y, yaw + 0.9, s_hint=399.5).search == "tracked"  # within the heading limit
     assert index.match(x, y, yaw + 1.1, s_hint=399.5) is None
     for own, other in (CROSSING_PASSES, CROSSING_PASSES[::-1]):
         x, y, yaw = offset_pose(tour, own, 0.5)
@@ -173,17 +178,18 @@ def test_a_vehicle_facing_against_the_route_is_not_matched(index, tour):
 
 def test_a_jump_or_a_start_off_the_path_falls_back_to_a_wide_search(index, tour):
     x, y, yaw = offset_pose(tour, 800.0, 0.0)
-    m = index.match(x, y, yaw, s_hint=500.0)             # a pose jump of 300 m
+    m = index.match(x, y, yaw, s_hint=500.0)  # a pose jump of 300 m
     assert m.search == "wide" and m.s == pytest.approx(800.0, abs=0.05)
     assert m.progress == pytest.approx(800.0, abs=0.05)
-    x, y, yaw = offset_pose(tour, 400.0, 12.0)            # placed 12 m beside the road
+    x, y, yaw = offset_pose(tour, 400.0, 12.0)  # placed 12 m beside the road
     m = index.match(x, y, yaw)
     assert m.search == "wide" and m.xte == pytest.approx(12.0, abs=0.01)
-    x, y, yaw = offset_pose(tour, 400.0, 80.0)            # far off anything
+    x, y, yaw = offset_pose(tour, 400.0, 80.0)  # far off anything
     assert index.match(x, y, yaw) is None
 
 
 # ---- open routes ----------------------------------------------------------------------------------
+
 
 def test_open_route_end_and_distance_to_end(tmp_path):
     route = straight_route(tmp_path, 100.0)
@@ -191,16 +197,22 @@ def test_open_route_end_and_distance_to_end(tmp_path):
     for x, expected_s in ((10.0, 10.0), (99.7, 99.7), (101.0, 101.0)):
         m, msg = tracker.update(0.0, x, 0.4, 0.0)
         assert m.s == pytest.approx(expected_s, abs=1e-6)
-        assert m.xte == pytest.approx(0.4, abs=1e-9)    # past the end, overshoot is no cross-track error
+        assert m.xte == pytest.approx(0.4, abs=1e-9)  # past the end, overshoot is no cross-track error
         assert msg.distance_to_end_m == pytest.approx(max(100.0 - expected_s, 0.0), abs=1e-6)
         assert msg.lap == 0
-    assert msg.ahead_x == [100.0]                          # past the end: only the end remains
+    assert msg.ahead_x == [100.0]  # past the end: only the end remains
 
 
 def test_zones_and_forced_odometry(index, tour):
     tracker = PathTracker(tour, PARAMS, index.speed_limit)
-    cases = [(100.0, ["narrow"], False), (400.0, [], False), (517.0, ["intersection"], True),
-             (620.0, ["rtk_loss"], False), (1320.0, ["intersection"], True), (1575.0, ["road_opening"], True)]
+    cases = [
+        (100.0, ["narrow"], False),
+        (400.0, [], False),
+        (517.0, ["intersection"], True),
+        (620.0, ["rtk_loss"], False),
+        (1320.0, ["intersection"], True),
+        (1575.0, ["road_opening"], True),
+    ]
     for s, zones, forced in cases:
         tracker.progress = s - 0.3
         _, msg = tracker.update(1.0, *offset_pose(tour, s, 0.2))
@@ -213,6 +225,7 @@ def test_zones_and_forced_odometry(index, tour):
 
 # ---- the path ahead -------------------------------------------------------------------------------
 
+
 def test_ahead_wraps_on_a_closed_route(index, tour):
     L = tour.length
     i = tour.index_at(L - 10.0)
@@ -221,11 +234,11 @@ def test_ahead_wraps_on_a_closed_route(index, tour):
     assert a.s[0] == pytest.approx(L - 10.0) and a.s[-1] == pytest.approx(20.0)
     assert np.all((a.s >= 0) & (a.s < L))
     steps = np.hypot(np.diff(a.x), np.diff(a.y))
-    assert steps == pytest.approx(np.full(60, 0.5), abs=0.01)     # no jump across the start line
+    assert steps == pytest.approx(np.full(60, 0.5), abs=0.01)  # no jump across the start line
     for s, x, y in zip(a.s, a.x, a.y):
         px, py, _, _ = tour.point_at(float(s))
         assert (x, y) == pytest.approx((px, py), abs=1e-6)
-    default = index.ahead(i, 30.0, 0.5)                  # from the pose's own s
+    default = index.ahead(i, 30.0, 0.5)  # from the pose's own s
     assert default.s[0] == pytest.approx(tour.s[i])
 
 
@@ -242,9 +255,9 @@ def test_ahead_stops_at_the_end_of_an_open_route(tmp_path):
 
 # ---- agreement with Route.project -----------------------------------------------------------------
 
+
 @settings(max_examples=300, deadline=None)
-@given(s=st.floats(0.0, 1587.0), offset=st.floats(-2.0, 2.0), dyaw=st.floats(-0.5, 0.5),
-       lag=st.floats(-1.0, 3.0))
+@given(s=st.floats(0.0, 1587.0), offset=st.floats(-2.0, 2.0), dyaw=st.floats(-0.5, 0.5), lag=st.floats(-1.0, 3.0))
 def test_cross_track_error_equals_route_projection(tour, index, s, offset, dyaw, lag):
     x, y, yaw = offset_pose(tour, s, offset, dyaw)
     hint = s - lag
@@ -261,25 +274,37 @@ def test_cross_track_error_equals_route_projection(tour, index, s, offset, dyaw,
 # query filtered by heading and window, then refined by its own copy of the projection): every
 # query must give exactly what it gives, down to the last bit of every float and the search kind.
 
-matcher_params = st.fixed_dictionaries({
-    "radius_m": st.one_of(st.sampled_from([1.0, 2.5, 5.0]), st.floats(0.3, 10.0)),
-    "fallback_radius_m": st.floats(0.0, 60.0), "max_heading_error_rad": st.floats(0.05, 3.2),
-    "window_behind_m": st.floats(0.0, 30.0), "window_ahead_m": st.floats(0.0, 60.0)})
-
+matcher_params = st.fixed_dictionaries(
+    {
+        "radius_m": st.one_of(st.sampled_from([1.0, 2.5, 5.0]), st.floats(0.3, 10.0)),
+        "fallback_radius_m": st.floats(0.0, 60.0),
+        "max_heading_error_rad": st.floats(0.05, 3.2),
+        "window_behind_m": st.floats(0.0, 30.0),
+        "window_ahead_m": st.floats(0.0, 60.0),
+    }
+)
 
 
 def mostly(usual, unusual):
-    return st.one_of(usual, usual, usual, unusual)      # three times in four
+    return st.one_of(usual, usual, usual, unusual)  # three times in four
 
 
 # a query: how far the vehicle moved along the route since the last one, its offset across it
 # and its yaw error (mostly small, as when tracking), and what the matcher is told: the heading
 # or not, which hint, which radius
-queries = st.lists(st.tuples(
-    st.floats(-1.0, 3.0), mostly(st.floats(-1.5, 1.5), st.floats(-12.0, 12.0)),
-    mostly(st.floats(-0.3, 0.3), st.floats(-3.2, 3.2)), st.sampled_from(["yaw"] * 4 + ["no yaw"]),
-    st.sampled_from(["last progress"] * 6 + ["none", "elsewhere"]), st.floats(-100.0, 2000.0),
-    st.sampled_from([None] * 4 + [0.5, 3.0, 20.0])), min_size=10, max_size=60)
+queries = st.lists(
+    st.tuples(
+        st.floats(-1.0, 3.0),
+        mostly(st.floats(-1.5, 1.5), st.floats(-12.0, 12.0)),
+        mostly(st.floats(-0.3, 0.3), st.floats(-3.2, 3.2)),
+        st.sampled_from(["yaw"] * 4 + ["no yaw"]),
+        st.sampled_from(["last progress"] * 6 + ["none", "elsewhere"]),
+        st.floats(-100.0, 2000.0),
+        st.sampled_from([None] * 4 + [0.5, 3.0, 20.0]),
+    ),
+    min_size=10,
+    max_size=60,
+)
 
 
 def as_tuple(m):
@@ -287,14 +312,20 @@ def as_tuple(m):
 
 
 @settings(max_examples=500, deadline=None)
-@given(route=routes, params=matcher_params, start=st.floats(-0.2, 1.2),
-       laps=st.integers(0, 50), on_grid=st.booleans(), queries=queries)
+@given(
+    route=routes,
+    params=matcher_params,
+    start=st.floats(-0.2, 1.2),
+    laps=st.integers(0, 50),
+    on_grid=st.booleans(),
+    queries=queries,
+)
 def test_match_returns_what_the_reference_returns(route, params, start, laps, on_grid, queries):
     """on_grid puts the vehicle on a 0.5 m grid: on a lattice route, at exactly equal distances
     from several poses, or exactly at the radius."""
     index, reference = PathIndex(route, **params), ReferencePathIndex(route, **params)
     s = start * route.length + (laps * route.length if route.closed else 0.0)
-    progress = None         # the reference's last match, the hint as the path manager keeps it
+    progress = None  # the reference's last match, the hint as the path manager keeps it
     for step, offset, dyaw, heading, hint_kind, elsewhere, radius in queries:
         s += step
         x, y, yaw = pose_along(route, s, offset)
@@ -310,17 +341,29 @@ def test_match_returns_what_the_reference_returns(route, params, start, laps, on
 
 # ---- the parameters ---------------------------------------------------------------------------------
 
+
 def straight_route_in_memory(length=100.0):
     x = np.arange(0.0, length + 0.25, 0.25)
     return Route("line", x, np.zeros_like(x), np.zeros_like(x), False, np.full(len(x), 4.0))
 
 
 def test_the_index_takes_the_sections_values():
-    params = PathManagerParams.model_validate({"radius_m": 2.0, "fallback_radius_m": 20.0, "window_behind_m": 1.0,
-                                               "window_ahead_m": 3.0, "max_heading_error_rad": 0.5})
+    params = PathManagerParams.model_validate(
+        {
+            "radius_m": 2.0,
+            "fallback_radius_m": 20.0,
+            "window_behind_m": 1.0,
+            "window_ahead_m": 3.0,
+            "max_heading_error_rad": 0.5,
+        }
+    )
     index = PathIndex.from_params(straight_route_in_memory(), params)
-    assert (index.radius_m, index.fallback_radius_m, index.window_behind_m, index.window_ahead_m) == \
-        (2.0, 20.0, 1.0, 3.0)
+    assert (index.radius_m, index.fallback_radius_m, index.window_behind_m, index.window_ahead_m) == (
+        2.0,
+        20.0,
+        1.0,
+        3.0,
+    )
     assert index.cos_heading_limit == pytest.approx(math.cos(0.5))
 
 
@@ -340,6 +383,7 @@ def test_a_bad_path_manager_section_is_refused_naming_the_key(key, bad):
 
 
 # ---- the node -------------------------------------------------------------------------------------
+
 
 def test_the_contract_reads_the_fused_pose_and_publishes_the_match():
     # the module's docstring: the pose in (fixed to localization/pose), path/match out, the
@@ -379,8 +423,23 @@ class PathManagerOnTheBus:
 
 def pose_on(route, s, t, offset=0.3, var_yaw=1e-4) -> Pose:
     x, y, yaw = offset_pose(route, s, offset)
-    return Pose(t=t, x=x, y=y, z=0.0, yaw=yaw, v=4.0, yaw_rate=0.0, cov_xx=1e-4, cov_xy=0.0, cov_yy=1e-4,
-                var_yaw=var_yaw, var_v=1e-4, position_std_m=0.01, rtk=True, gnss_age_s=0.1)
+    return Pose(
+        t=t,
+        x=x,
+        y=y,
+        z=0.0,
+        yaw=yaw,
+        v=4.0,
+        yaw_rate=0.0,
+        cov_xx=1e-4,
+        cov_xy=0.0,
+        cov_yy=1e-4,
+        var_yaw=var_yaw,
+        var_v=1e-4,
+        position_std_m=0.01,
+        rtk=True,
+        gnss_age_s=0.1,
+    )
 
 
 @pytest.fixture
@@ -432,12 +491,12 @@ def test_path_manager_node_says_once_that_it_lost_the_path(path_manager, tour):
     pm = path_manager
     pm.step(0.0, pose_on(tour, 400.0, 0.0))
     pm.new_events()
-    for k in range(1, 6):       # 80 m beside the road: nothing reachable
+    for k in range(1, 6):  # 80 m beside the road: nothing reachable
         t = round(k * pm.PERIOD, 9)
         pm.step(t, pose_on(tour, 400.0, t, offset=80.0))
     lost = pm.new_events()
     assert [(e.kind, e.level) for e in lost] == [("path_lost", EventLevel.WARNING)]
-    assert len(pm.new_matches()) == 1           # only the match before it went off
+    assert len(pm.new_matches()) == 1  # only the match before it went off
     # back on the road within the hint's window: tracked again, and a later loss is said again
     pm.step(0.3, pose_on(tour, 400.5, 0.3))
     assert pm.new_matches()[0].s == pytest.approx(400.5, abs=0.05) and pm.new_events() == []
@@ -458,9 +517,23 @@ def test_a_vehicle_placed_off_its_path_at_start_up_is_found_by_the_wide_search(p
 def test_path_manager_node_matches_by_position_while_the_heading_is_a_guess(path_manager, tour):
     pm = path_manager
     x, y, yaw = offset_pose(tour, 400.0, 0.3)
-    backwards = Pose(t=0.0, x=x, y=y, z=0.0, yaw=yaw + math.pi, v=0.0, yaw_rate=0.0, cov_xx=1e-4, cov_xy=0.0,
-                     cov_yy=1e-4, var_yaw=PARAMS.max_heading_sigma_rad ** 2 * 4, var_v=1e-4, position_std_m=0.01,
-                     rtk=True, gnss_age_s=0.1)
+    backwards = Pose(
+        t=0.0,
+        x=x,
+        y=y,
+        z=0.0,
+        yaw=yaw + math.pi,
+        v=0.0,
+        yaw_rate=0.0,
+        cov_xx=1e-4,
+        cov_xy=0.0,
+        cov_yy=1e-4,
+        var_yaw=PARAMS.max_heading_sigma_rad**2 * 4,
+        var_v=1e-4,
+        position_std_m=0.01,
+        rtk=True,
+        gnss_age_s=0.1,
+    )
     pm.step(0.0, backwards)
     [m] = pm.new_matches()
     assert m.s == pytest.approx(400.0, abs=0.5)
@@ -473,16 +546,25 @@ def test_the_path_manager_refuses_an_undeclared_topic(path_manager):
 
 # ---- `ares bench path` ----------------------------------------------------------------------------
 
+
 def test_path_bench_reports_build_match_and_ukf_figures():
-    from ares.bench import path as path_bench
     from ares.cli import build_parser
+    from ares.tools.bench import path as path_bench
+
     args = build_parser().parse_args(["bench", "path", "--json"])
     assert args.bench == "path" and args.json
     route = path_bench.bench_route(4000)
     assert len(route) == 4000 and route.closed and np.diff(route.s) == pytest.approx(np.full(3999, 0.5), abs=1e-3)
     result = path_bench.run_path_bench(poses=20_000, queries=1000, builds=2, ukf_steps=20)
-    for key in ("kdtree_build_ms", "query_p50_us", "kd_ball_query_p50_us", "kd_nearest_query_p50_us",
-                "ukf_step_p50_ms", "goals", "goals_met"):
+    for key in (
+        "kdtree_build_ms",
+        "query_p50_us",
+        "kd_ball_query_p50_us",
+        "kd_nearest_query_p50_us",
+        "ukf_step_p50_ms",
+        "goals",
+        "goals_met",
+    ):
         assert key in result, key
     # the figures are measured, not judged here; what the matcher found is
     assert result["poses"] == 20_000 and result["queries"] == 1000

@@ -2,8 +2,9 @@
 
 The step-response figures are the DBW paper's (§5.1). Tolerances: times within 20 % of the
 paper, overshoot within 35 % (the paper reports 4.73 % for both loads; in a physical plant
-the overshoot moves with the load, see the report in ares/config/vehicles/*.yaml).
+the overshoot moves with the load, see the report in ares/core/config/vehicles/*.yaml).
 """
+
 from __future__ import annotations
 
 import math
@@ -14,14 +15,22 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ares import config, run_config
-from ares.config import ConfigError, VehicleProfile
-from ares.harness.step_response import PID_PERIOD_S, measure_step, step_response
-from ares.route import SAMPLE_SPACING_M, Route
+from ares.app import run_config
+from ares.core import config
+from ares.core.config import ConfigError, VehicleProfile
+from ares.core.route import SAMPLE_SPACING_M, Route
 from ares.sim.actuators import GRAVITY, TractionActuator
 from ares.sim.params import SimParams
-from ares.sim.vehicle import (BLEND_HIGH_MPS, BLEND_LOW_MPS, PHYSICS_DT, LateralParams, VehiclePlant, lateral_step,
-                               start_pose)
+from ares.sim.vehicle import (
+    BLEND_HIGH_MPS,
+    BLEND_LOW_MPS,
+    PHYSICS_DT,
+    LateralParams,
+    VehiclePlant,
+    lateral_step,
+    start_pose,
+)
+from ares.tools.harness.step_response import PID_PERIOD_S, measure_step, step_response
 from control.pid import PID
 
 VEHICLES = ["techs4agecar", "ares_shuttle"]
@@ -36,8 +45,7 @@ def _close(value: float, target: float, rel: float) -> bool:
 def straight_route(length_m: float = 400.0, grade: float = 0.0) -> Route:
     """An open straight road along x that climbs at a constant grade."""
     x = np.arange(0.0, length_m + SAMPLE_SPACING_M / 2, SAMPLE_SPACING_M)
-    return Route(name="straight", x=x, y=np.zeros_like(x), z=grade * x, closed=False,
-                 width=np.full(len(x), 6.0))
+    return Route(name="straight", x=x, y=np.zeros_like(x), z=grade * x, closed=False, width=np.full(len(x), 6.0))
 
 
 class SpeedLoop:
@@ -60,15 +68,16 @@ class SpeedLoop:
 
 # ---- PID ---------------------------------------------------------------------------------------
 
+
 def test_pid_is_the_papers_equations():
     pid = PID(kp=2.0, ki=0.5, kd=0.0, out_min=-100, out_max=100)
-    assert pid.step(10.0, 4.0, 0.1) == pytest.approx(2.0 * 6 + 0.5 * 6 * 0.1)      # eqs. 4-8
+    assert pid.step(10.0, 4.0, 0.1) == pytest.approx(2.0 * 6 + 0.5 * 6 * 0.1)  # eqs. 4-8
     assert pid.step(10.0, 6.0, 0.1) == pytest.approx(2.0 * 4 + 0.5 * (6 + 4) * 0.1)
 
 
 def test_pid_output_is_clamped_and_integral_does_not_wind_up():
     pid = PID(kp=0.1, ki=1.0)
-    for _ in range(200):                      # 20 s saturated at full effort
+    for _ in range(200):  # 20 s saturated at full effort
         assert pid.step(100.0, 0.0, 0.1) == 1.0
     assert pid.integral <= 1.0
     # Once the error reverses the output must leave saturation at once, not after the
@@ -80,8 +89,8 @@ def test_pid_output_is_clamped_and_integral_does_not_wind_up():
 def test_pid_derivative_on_measurement_does_not_kick_on_reference_steps():
     pid = PID(kp=0.0, ki=0.0, kd=1.0, out_min=-1e9, out_max=1e9)
     pid.step(0.0, 0.0, 0.1)
-    assert pid.step(50.0, 0.0, 0.1) == 0.0    # reference jump: no kick
-    assert pid.step(50.0, 1.0, 0.1) == pytest.approx(-10.0)   # measurement moved up 1 in 0.1 s
+    assert pid.step(50.0, 0.0, 0.1) == 0.0  # reference jump: no kick
+    assert pid.step(50.0, 1.0, 0.1) == pytest.approx(-10.0)  # measurement moved up 1 in 0.1 s
     on_error = PID(kp=0.0, kd=1.0, out_min=-1e9, out_max=1e9, derivative_on_measurement=False)
     on_error.step(0.0, 0.0, 0.1)
     assert on_error.step(50.0, 0.0, 0.1) == pytest.approx(500.0)
@@ -102,8 +111,11 @@ def test_pid_rejects_bad_arguments():
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3)), min_size=1, max_size=40),
-       st.floats(0.0, 5.0), st.floats(0.0, 5.0))
+@given(
+    st.lists(st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3)), min_size=1, max_size=40),
+    st.floats(0.0, 5.0),
+    st.floats(0.0, 5.0),
+)
 def test_pid_output_always_within_limits(samples, kp, ki):
     pid = PID(kp, ki, out_min=-0.5, out_max=0.8)
     for ref, meas in samples:
@@ -114,15 +126,16 @@ def test_pid_output_always_within_limits(samples, kp, ki):
 
 # ---- step responses (DBW paper §5.1) --------------------------------------------------------------
 
+
 @pytest.mark.parametrize("vehicle", VEHICLES)
 def test_steering_step_matches_paper(vehicle):
-    for step in (200.0, -200.0):          # the paper shows both directions of rotation
+    for step in (200.0, -200.0):  # the paper shows both directions of rotation
         r = step_response("steering", vehicle, step=step)
         assert _close(r.dead_time_s, 0.100, 0.20), r.summary()
         assert _close(r.rise_time_s, 0.650, 0.20), r.summary()
         assert _close(r.overshoot_pct, 3.92, 0.35), r.summary()
         assert abs(r.steady_state_error) <= 4.0, r.summary()
-        assert r.steady_state_error != 0.0          # static friction leaves a real error
+        assert r.steady_state_error != 0.0  # static friction leaves a real error
 
 
 @pytest.mark.parametrize("vehicle", VEHICLES)
@@ -156,7 +169,7 @@ def test_step_response_loop_follows_the_dead_time_of_the_actuator():
 def test_measure_step_on_a_known_curve():
     t = np.arange(0.0, 20.0, 0.01)
     tau = 1.0
-    y = np.where(t < 0.5, 0.0, 1.0 - np.exp(-(t - 0.5) / tau))   # first order + 0.5 s dead time
+    y = np.where(t < 0.5, 0.0, 1.0 - np.exp(-(t - 0.5) / tau))  # first order + 0.5 s dead time
     m = measure_step(t, y, reference=1.0)
     assert m["dead_time_s"] == pytest.approx(0.5 + tau * -math.log(0.99), abs=0.02)
     assert m["rise_time_s"] == pytest.approx(0.5 + tau * math.log(10), abs=0.02)
@@ -166,6 +179,7 @@ def test_measure_step_on_a_known_curve():
 
 # ---- actuators ---------------------------------------------------------------------------------
 
+
 def test_steering_stops_at_the_rack_limit():
     profile = config.load_vehicle("techs4agecar")
     plant = VehiclePlant(straight_route(), profile, SimParams())
@@ -174,7 +188,7 @@ def test_steering_stops_at_the_rack_limit():
         plant.step(1.0, 0.0)
     assert plant.state.steering_wheel_deg == pytest.approx(limit)
     assert plant.state.wheel_angle_rad == pytest.approx(profile.max_wheel_angle_rad)
-    for _ in range(100):                  # and it can come back off the end stop
+    for _ in range(100):  # and it can come back off the end stop
         plant.step(-1.0, 0.0)
     assert plant.state.steering_wheel_deg < limit - 100
 
@@ -204,17 +218,17 @@ def test_traction_dead_time_is_a_pure_delay():
 def test_brake_never_drives_the_vehicle_backwards(vehicle, grade):
     plant = VehiclePlant(straight_route(grade=grade), vehicle, SMOOTH_ROAD, s0=10.0)
     loop = SpeedLoop(plant)
-    for _ in range(1200):                 # get to ~3 m/s
+    for _ in range(1200):  # get to ~3 m/s
         loop.step(3.0)
     assert plant.state.v > 2.5
     speeds = []
-    for _ in range(800):                  # full brake for 8 s
+    for _ in range(800):  # full brake for 8 s
         speeds.append(plant.step(0.0, -1.0).v)
     # After the traction dead time and ramp, the brake acts.
     speeds = np.array(speeds[40:])
-    assert speeds.min() == 0.0            # it stops ...
-    assert np.all(np.diff(speeds) <= 1e-12)   # ... slowing all the way ...
-    assert np.all(speeds[np.argmax(speeds == 0.0):] == 0.0)  # ... and stays stopped
+    assert speeds.min() == 0.0  # it stops ...
+    assert np.all(np.diff(speeds) <= 1e-12)  # ... slowing all the way ...
+    assert np.all(speeds[np.argmax(speeds == 0.0) :] == 0.0)  # ... and stays stopped
 
 
 @pytest.mark.parametrize("vehicle", VEHICLES)
@@ -222,15 +236,15 @@ def test_holds_on_a_14_percent_grade_with_the_brake_and_rolls_back_with_a_weak_t
     profile = config.load_vehicle(vehicle)
     plant = VehiclePlant(straight_route(grade=0.14), profile, SMOOTH_ROAD, passengers=profile.seats, s0=50.0)
     x0 = plant.state.x
-    for _ in range(500):                  # standing, throttle released: the parking brake holds
+    for _ in range(500):  # standing, throttle released: the parking brake holds
         assert plant.step(0.0, 0.0).v == 0.0
-    for _ in range(500):                  # and so does the service brake
+    for _ in range(500):  # and so does the service brake
         assert plant.step(0.0, -1.0).v == 0.0
     assert plant.state.x == x0
-    for _ in range(300):                  # a throttle too weak for the slope: gravity wins
+    for _ in range(300):  # a throttle too weak for the slope: gravity wins
         plant.step(0.0, 0.02)
     assert plant.state.v < -0.5 and plant.state.x < x0
-    for _ in range(600):                  # the brake stops the roll-back, and no further
+    for _ in range(600):  # the brake stops the roll-back, and no further
         st = plant.step(0.0, -1.0)
         assert st.v <= 0.0
     assert st.v == 0.0
@@ -241,16 +255,17 @@ def test_climbs_a_14_percent_grade_fully_loaded(vehicle):
     profile = config.load_vehicle(vehicle)
     plant = VehiclePlant(straight_route(grade=0.14), profile, SMOOTH_ROAD, passengers=profile.seats, s0=10.0)
     loop = SpeedLoop(plant)
-    for _ in range(2000):                 # 20 s at a 3 m/s setpoint
+    for _ in range(2000):  # 20 s at a 3 m/s setpoint
         loop.step(3.0)
     st = plant.state
     assert st.v == pytest.approx(3.0, abs=0.15)
     assert st.grade == pytest.approx(0.14, abs=1e-6)
-    assert st.z == pytest.approx(0.14 * st.x, abs=1e-6)       # on the road surface
-    assert st.pitch == pytest.approx(-math.atan(0.14), abs=1e-9)   # REP-103: climbing = nose up = negative
+    assert st.z == pytest.approx(0.14 * st.x, abs=1e-6)  # on the road surface
+    assert st.pitch == pytest.approx(-math.atan(0.14), abs=1e-9)  # REP-103: climbing = nose up = negative
 
 
 # ---- the vehicle ---------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("vehicle", VEHICLES)
 def test_every_packaged_vehicle_profile_loads(vehicle):
@@ -297,8 +312,8 @@ def test_start_pose_is_on_the_route_facing_along_it():
 def test_bicycle_turns_on_a_circle_of_radius_wheelbase_over_tan_delta(vehicle):
     profile = config.load_vehicle(vehicle)
     plant = VehiclePlant(straight_route(), profile, SMOOTH_ROAD, s0=100.0)
-    alpha = 300.0                          # steering-wheel degrees
-    for _ in range(600):                   # hand on the wheel, gentle throttle
+    alpha = 300.0  # steering-wheel degrees
+    for _ in range(600):  # hand on the wheel, gentle throttle
         plant.step_manual(0.12, 0.0, alpha, PHYSICS_DT)
     delta = math.radians(plant.state.steering_wheel_deg) / profile.steering_ratio
     assert plant.state.steering_wheel_deg == pytest.approx(alpha, abs=0.01)
@@ -311,20 +326,21 @@ def test_bicycle_turns_on_a_circle_of_radius_wheelbase_over_tan_delta(vehicle):
     # Least-squares circle through the rear-axle track: x^2 + y^2 + D x + E y + F = 0.
     xs, ys = np.array(xs), np.array(ys)
     A = np.column_stack([xs, ys, np.ones_like(xs)])
-    D, E, F = np.linalg.lstsq(A, -(xs ** 2 + ys ** 2), rcond=None)[0]
+    D, E, F = np.linalg.lstsq(A, -(xs**2 + ys**2), rcond=None)[0]
     radius = math.sqrt(D * D / 4 + E * E / 4 - F)
     assert radius == pytest.approx(profile.wheelbase_m / math.tan(delta), rel=1e-3)
-    assert D / -2 + 0 == pytest.approx(100.0, abs=0.5)       # centre to the left of the start
+    assert D / -2 + 0 == pytest.approx(100.0, abs=0.5)  # centre to the left of the start
     assert E / -2 > 0
 
 
 # ---- lateral dynamics: the dynamic bicycle and its blend into the kinematic one ----------
 
+
 def _steady_yaw_rate(p: LateralParams, v: float, delta: float) -> float:
     """Hand-computed steady cornering of the linear bicycle: r = v δ / (L (1 + K v^2)),
     K = m / L^2 (l_r / C_f - l_f / C_r)."""
     wheelbase = p.l_f + p.l_r
-    k = p.mass / wheelbase ** 2 * (p.l_r / p.c_f - p.l_f / p.c_r)
+    k = p.mass / wheelbase**2 * (p.l_r / p.c_f - p.l_f / p.c_r)
     return v * delta / (wheelbase * (1 + k * v * v))
 
 
@@ -333,7 +349,7 @@ def _steady_yaw_rate(p: LateralParams, v: float, delta: float) -> float:
 def test_dynamic_bicycle_settles_on_the_understeer_gradient_yaw_rate(vehicle, v):
     profile = config.load_vehicle(vehicle)
     p = LateralParams.of(profile, profile.empty_mass_kg + 2 * profile.passenger_mass_kg)
-    assert p.l_r / p.c_f > p.l_f / p.c_r          # the profiles understeer (K > 0) ...
+    assert p.l_r / p.c_f > p.l_f / p.c_r  # the profiles understeer (K > 0) ...
     delta, v_y, r = 0.04, 0.0, 0.0
     for _ in range(1000):
         v_y, r = lateral_step(p, v_y, r, v, delta, PHYSICS_DT)
@@ -349,14 +365,14 @@ def test_dynamic_bicycle_settles_on_the_understeer_gradient_yaw_rate(vehicle, v)
 def test_plant_corners_steadily_at_speed_on_the_dynamic_yaw_rate(vehicle):
     profile = config.load_vehicle(vehicle)
     plant = VehiclePlant(straight_route(2000.0), profile, SMOOTH_ROAD, s0=100.0)
-    alpha = 100.0                               # steering-wheel degrees, throttle held
+    alpha = 100.0  # steering-wheel degrees, throttle held
     for _ in range(1500):
         st = plant.step_manual(0.45, 0.0, alpha, PHYSICS_DT)
     assert st.v > BLEND_HIGH_MPS + 1.0 and abs(st.accel) < 1e-3
     p = LateralParams.of(profile, plant.traction.mass_kg)
     delta = math.radians(alpha) / profile.steering_ratio
     assert st.yaw_rate == pytest.approx(_steady_yaw_rate(p, st.v, delta), rel=1e-3)
-    assert st.lateral_velocity != pytest.approx(p.l_r * st.yaw_rate, rel=0.05)   # the rear axle slips
+    assert st.lateral_velocity != pytest.approx(p.l_r * st.yaw_rate, rel=0.05)  # the rear axle slips
     assert st.lateral_accel == pytest.approx(st.v * st.yaw_rate, rel=1e-3)
 
 
@@ -377,7 +393,7 @@ def test_the_blend_into_the_kinematic_bicycle_is_continuous(vehicle):
         rs.append(r)
         v_ys.append(v_y)
     step_r = np.abs(np.diff(rs))
-    kinematic_step = PHYSICS_DT * math.tan(delta) / profile.wheelbase_m      # dr at 1 m/s^2, kinematic
+    kinematic_step = PHYSICS_DT * math.tan(delta) / profile.wheelbase_m  # dr at 1 m/s^2, kinematic
     assert step_r.max() < 3 * kinematic_step
     assert np.abs(np.diff(v_ys)).max() < 3 * p.l_r * kinematic_step
 
@@ -404,7 +420,7 @@ def test_at_standstill_a_turned_steering_wheel_moves_nothing(vehicle):
     plant = VehiclePlant(straight_route(), profile, SMOOTH_ROAD, s0=100.0)
     x0, y0, yaw0 = plant.state.x, plant.state.y, plant.state.yaw
     for _ in range(300):
-        st = plant.step_manual(0.0, 1.0, 400.0, PHYSICS_DT)          # brake held, wheel turned
+        st = plant.step_manual(0.0, 1.0, 400.0, PHYSICS_DT)  # brake held, wheel turned
     assert st.steering_wheel_deg > 300 and st.v == 0.0
     assert (st.x, st.y, st.yaw) == pytest.approx((x0, y0, yaw0), abs=1e-12)
     assert st.yaw_rate == 0.0 and st.lateral_velocity == 0.0 and st.lateral_accel == 0.0
@@ -417,9 +433,9 @@ def test_route_progress_follows_the_pass_being_driven_through_the_crossing():
     plant = VehiclePlant(route, profile, SMOOTH_ROAD, s0=460.0)
     L, ratio = profile.wheelbase_m, profile.steering_ratio
     s_track = [plant.state.s]
-    for _ in range(3000):                  # ~110 m at ~3.7 m/s, through s = 502..532
+    for _ in range(3000):  # ~110 m at ~3.7 m/s, through s = 502..532
         st = plant.state
-        gx, gy, _, _ = route.point_at(st.s + 5.0)          # pure pursuit by hand
+        gx, gy, _, _ = route.point_at(st.s + 5.0)  # pure pursuit by hand
         ang = math.atan2(gy - st.y, gx - st.x) - st.yaw
         ld = math.hypot(gx - st.x, gy - st.y)
         wheel = math.atan2(2.0 * L * math.sin(ang), ld)
@@ -431,7 +447,7 @@ def test_route_progress_follows_the_pass_being_driven_through_the_crossing():
     s_track = np.array(s_track)
     assert s_track[-1] > 545.0
     assert np.all(np.diff(s_track) > -1e-6)
-    assert np.all(np.diff(s_track) < 0.1)                  # never jumps to the other pass
+    assert np.all(np.diff(s_track) < 0.1)  # never jumps to the other pass
     assert plant.state.odometer == pytest.approx(s_track[-1] - 460.0, rel=0.01)
 
 
@@ -444,7 +460,7 @@ def test_elevation_and_grade_come_from_the_route():
     st = plant.state
     _, _, z_road, _ = route.point_at(st.s)
     assert st.z == pytest.approx(z_road, abs=1e-6)
-    assert st.grade > 0.05                        # on the climb from s=150 to 260
+    assert st.grade > 0.05  # on the climb from s=150 to 260
     # The accelerometer-free check of the pitch: standing on a climb pitches the nose up.
     assert st.pitch == pytest.approx(-math.atan(st.grade), abs=1e-9)
 
@@ -453,16 +469,16 @@ def test_manual_driving_pedals_and_steering_torque():
     plant = VehiclePlant(straight_route(), "techs4agecar", SimParams(), s0=10.0)
     st = plant.step_manual(0.5, 0.0, 90.0)
     assert st.manual and st.throttle_pedal == 0.5 and st.brake_pedal == 0.0
-    assert st.steering_torque                 # the hand leads the wheel
+    assert st.steering_torque  # the hand leads the wheel
     for _ in range(400):
         st = plant.step_manual(0.5, 0.0, 90.0)
     assert st.steering_wheel_deg == pytest.approx(90.0, abs=0.1)
-    assert not st.steering_torque             # holding the wheel still needs no torque
+    assert not st.steering_torque  # holding the wheel still needs no torque
     assert st.v > 1.0
-    for _ in range(800):                      # brake pedal wins over the throttle pedal
+    for _ in range(800):  # brake pedal wins over the throttle pedal
         st = plant.step_manual(0.5, 1.0, 90.0)
     assert st.v == 0.0 and st.drive_effort == -1.0
-    st = plant.step(0.0, 0.0)                 # the board takes over again
+    st = plant.step(0.0, 0.0)  # the board takes over again
     assert not st.manual and st.throttle_pedal == 0.0 and not st.steering_torque
 
 
@@ -483,7 +499,7 @@ def test_road_roughness_is_seeded_and_still_at_standstill():
     assert np.array_equal(moving, moving_again) and a == b
     assert not np.array_equal(moving, moving_other)
     rms = float(np.std(moving[500:]))
-    assert 0.05 < rms < 1.0                   # felt, but a small roughness
+    assert 0.05 < rms < 1.0  # felt, but a small roughness
 
 
 def test_plant_from_run_config():
@@ -509,21 +525,24 @@ def test_released_throttle_regenerates_gently_down_to_a_stop():
     for _ in range(1200):
         loop.step(3.0)
     m = plant.traction.mass_kg
-    decel_limit = (traction.max_regen_force_n + traction.rolling_resistance * m * GRAVITY
-                   + 0.5 * 1.2 * traction.drag_area_m2 * 3.2 ** 2) / m
+    decel_limit = (
+        traction.max_regen_force_n
+        + traction.rolling_resistance * m * GRAVITY
+        + 0.5 * 1.2 * traction.drag_area_m2 * 3.2**2
+    ) / m
     speeds = []
     for _ in range(2000):
         st = plant.step(0.0, 0.0)
         speeds.append(st.v)
         assert -decel_limit - 1e-9 <= st.accel <= 1e-9
     assert min(speeds) == 0.0 and speeds[-1] == 0.0
-    assert min(a for a in np.diff(speeds) / PHYSICS_DT) < -0.9 * decel_limit   # regen does bite
+    assert min(a for a in np.diff(speeds) / PHYSICS_DT) < -0.9 * decel_limit  # regen does bite
 
 
 def test_grade_is_felt_along_the_heading():
     plant = VehiclePlant(straight_route(grade=0.14), "techs4agecar", SMOOTH_ROAD, s0=100.0)
     assert plant.step(0.0, 0.0).grade == pytest.approx(0.14)
-    plant.state.yaw = math.pi                 # turned round: the same road now goes downhill
+    plant.state.yaw = math.pi  # turned round: the same road now goes downhill
     st = plant.step(0.0, 0.0)
     assert st.grade == pytest.approx(-0.14)
     assert st.pitch == pytest.approx(math.atan(0.14))
@@ -531,10 +550,17 @@ def test_grade_is_felt_along_the_heading():
 
 def test_a_profile_without_tyre_figures_drives_the_kinematic_bicycle():
     """A profile (or a recorded run) from before the tyre figures: the kinematic bicycle at any speed."""
-    from ares.config import load_vehicle
+    from ares.core.config import load_vehicle
     from ares.sim.vehicle import LateralParams, lateral_step
-    bare = load_vehicle("ares_shuttle", {"yaw_inertia_kgm2": None, "cornering_stiffness_front_n_per_rad": None,
-                                         "cornering_stiffness_rear_n_per_rad": None})
+
+    bare = load_vehicle(
+        "ares_shuttle",
+        {
+            "yaw_inertia_kgm2": None,
+            "cornering_stiffness_front_n_per_rad": None,
+            "cornering_stiffness_rear_n_per_rad": None,
+        },
+    )
     p = LateralParams.of(bare, bare.empty_mass_kg)
     assert not p.dynamic
     v_y, r = lateral_step(p, 0.0, 0.0, 8.0, 0.1, 0.01)

@@ -2,6 +2,7 @@
 format told from the content, every line counted, the positions of the right sentence type used,
 the route in a frame at its own origin anywhere on Earth, continuous across a UTM zone boundary.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -12,43 +13,30 @@ import sys
 import numpy as np
 import pytest
 
-from ares import config, run_config, stack
-from ares.clock import ManualClock
-from ares.geodesy import origin_at
-from ares.membus import MemoryNetwork
-from ares.messages import GnssSentences
-from ares.route import Route, RouteError, origin_comment, read_origin
-from ares.route_import import detect_format, import_route
+from ares.app import run_config, stack
+from ares.app.route_import import detect_format, import_route
+from ares.core import config
+from ares.core.clock import ManualClock
+from ares.core.geodesy import origin_at
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import GnssSentences
+from ares.core.route import Route, RouteError, origin_comment, read_origin
 from perception.gnss_node import GnssNode
-
-from conftest import REPO
-from receiver_logs import MARINE_LOGGER, OLD_GARMIN, TAGGED_GLL, UBLOX_F9P, Receiver, log_bytes, write_log
-from test_route_import import deviations, road
+from tests.helpers.gnss import PLACES, short_road
+from tests.helpers.receiver_logs import MARINE_LOGGER, OLD_GARMIN, TAGGED_GLL, UBLOX_F9P, Receiver, log_bytes, write_log
+from tests.helpers.roads import deviations
+from tests.helpers.stack import REPO
 
 CFG = run_config.build()
 
-# a short service road from (0, 0): a bend, a hairpin of 14 m, a gentle bend; ~260 m, a low hill
-SHORT_ROAD = [("L", 30), ("A", 20, 90), ("L", 40), ("A", 14, -180), ("L", 40), ("A", 25, 60), ("L", 50)]
 
-
-def short_road(heading_deg: float = 0.0) -> Route:
-    xy = road(SHORT_ROAD, heading_deg=heading_deg)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
-    z = 3.0 * np.sin(math.pi * s / s[-1])
-    return Route(name="short road", x=xy[:, 0], y=xy[:, 1], z=z, closed=False, width=np.full(len(xy), 5.0))
-
-
-# where on Earth: (latitude, longitude, altitude, heading of the road's first straight)
-PLACES = {
-    "munich": (48.137, 11.575, 519.0, 0.0),
-    "across 12 E": (48.0, 11.9995, 470.0, 0.0),          # the road runs east over the zone 32/33 boundary
-    "hobart": (-42.8806, 147.3250, 20.0, 30.0),
-    "across 150 E, south": (-33.9, 149.9993, 60.0, 0.0),  # zone 55/56 in the southern hemisphere
-    "equator": (0.0004, 9.4500, 10.0, -90.0),              # southwards over the equator (Gabon)
-}
-
-CASES = [(UBLOX_F9P, "across 12 E"), (OLD_GARMIN, "hobart"), (MARINE_LOGGER, "across 150 E, south"),
-         (TAGGED_GLL, "equator"), (UBLOX_F9P, "munich")]
+CASES = [
+    (UBLOX_F9P, "across 12 E"),
+    (OLD_GARMIN, "hobart"),
+    (MARINE_LOGGER, "across 150 E, south"),
+    (TAGGED_GLL, "equator"),
+    (UBLOX_F9P, "munich"),
+]
 
 
 def write(tmp_path, rx: Receiver, place: str) -> tuple[Route, bytes, str]:
@@ -70,7 +58,7 @@ def test_a_receivers_log_imports_as_it_comes(tmp_path, rx, place):
     # the positions: GGA when there is one, else RMC, else GLL; one per epoch
     used = next(k for k in ("GGA", "RMC", "GLL") if k in rx.position_sentences)
     assert log.used == used
-    if rx.also_gga_from:        # the second talker's GGA of each epoch (but where a glitch hit the first)
+    if rx.also_gga_from:  # the second talker's GGA of each epoch (but where a glitch hit the first)
         assert len(log.fixes) - 3 <= log.same_epoch <= len(log.fixes)
     else:
         assert log.same_epoch == 0
@@ -96,7 +84,7 @@ def test_a_receivers_log_imports_as_it_comes(tmp_path, rx, place):
 
     # the road's own shape, within centimetres (the 2 Hz logs cut the hairpin a little)
     dist, _, _ = deviations(result.xyz, truth)
-    assert math.sqrt(np.mean(dist ** 2)) < (0.02 if rx.hz >= 5 else 0.05) and dist.max() < 0.15
+    assert math.sqrt(np.mean(dist**2)) < (0.02 if rx.hz >= 5 else 0.05) and dist.max() < 0.15
     assert result.length_m == pytest.approx(truth.length, rel=0.01)
 
     # the file carries its origin; the summary says what was used and what was skipped
@@ -118,8 +106,13 @@ def _line_count(data: bytes, rx: Receiver) -> int:
 
 def test_the_cli_imports_a_log_with_no_options_and_prints_what_it_used_and_skipped(tmp_path):
     _, _, path = write(tmp_path, MARINE_LOGGER, "hobart")
-    done = subprocess.run([sys.executable, "-m", "ares.cli", "route", "import", path, "-o", str(tmp_path / "r.csv")],
-                          cwd=REPO, capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "ares.cli", "route", "import", path, "-o", str(tmp_path / "r.csv")],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode == 0, done.stderr
     out = done.stdout
     assert out.startswith("imported hobart.nmea -> ") and "RMC fixes in" in out
@@ -145,12 +138,15 @@ def test_the_origin_line_is_read_back_exactly_and_a_bad_one_is_a_clear_error(tmp
     path = tmp_path / "r.csv"
     path.write_text(f"# {origin_comment(origin)}\nx,y\n0,0\n10,0\n")
     assert read_origin(path) == origin
-    path.write_text("# origin: lat=-33.9, lon=149.9993, altitude_m=60\nx,y\n0,0\n10,0\n")      # zone from position
+    path.write_text("# origin: lat=-33.9, lon=149.9993, altitude_m=60\nx,y\n0,0\n10,0\n")  # zone from position
     assert read_origin(path).zone == 55
-    for line, words in [("lat=-33.9, lon=150.0", "needs altitude_m"), ("lat=x, lon=1, altitude_m=0", "float"),
-                        ("lat=1, lon=1, altitude_m=0, colour=red", "unknown origin key 'colour'"),
-                        ("lat=1, lon=1, altitude_m=0, easting=1", "disagree"),
-                        ("lat=89, lon=1, altitude_m=0", "no UTM coordinates")]:
+    for line, words in [
+        ("lat=-33.9, lon=150.0", "needs altitude_m"),
+        ("lat=x, lon=1, altitude_m=0", "float"),
+        ("lat=1, lon=1, altitude_m=0, colour=red", "unknown origin key 'colour'"),
+        ("lat=1, lon=1, altitude_m=0, easting=1", "disagree"),
+        ("lat=89, lon=1, altitude_m=0", "no UTM coordinates"),
+    ]:
         path.write_text(f"# origin: {line}\nx,y\n0,0\n10,0\n")
         with pytest.raises(RouteError, match=words):
             Route.from_csv(path)
@@ -167,9 +163,9 @@ def test_the_gnss_node_takes_a_receivers_habits_in_the_routes_frame():
     node.setup()
     test = network.bus("test", clock)
     fixes = test.subscribe("gnss/fix", queue=2000)
-    for k in range(0, len(lines), 4):   # four lines at a time, as a serial read gives them
+    for k in range(0, len(lines), 4):  # four lines at a time, as a serial read gives them
         t = 1.0 + k / 10
-        test.publish("sensors/gnss", GnssSentences(t=t, sentences=lines[k:k + 4]))
+        test.publish("sensors/gnss", GnssSentences(t=t, sentences=lines[k : k + 4]))
         clock.set(t)
         node.step_once(t)
     got = [f for _, f in fixes.drain()]

@@ -1,6 +1,6 @@
 """The event register (blackbox/recorder.py), without processes.
 
-The Recorder node runs on the in-memory bus (ares.membus) with a ManualClock: a feeder bus of
+The Recorder node runs on the in-memory bus (ares.core.membus) with a ManualClock: a feeder bus of
 the same network publishes its inputs at their rates, stamped with the manual time, and the
 test steps the recorder itself (`step_once`) at its 5 Hz, so which record holds what is exact.
 The writer thread is the real one; a test waits for it with a bounded poll on its counters.
@@ -8,82 +8,162 @@ The store is the embedded one in the test's directory, or a fake one that can be
 refuse a record, for the outage and spool cases. The whole stack with the recorder as a
 process (and a real SQLite store made unreachable) is tests/test_blackbox_stack.py.
 """
+
 from __future__ import annotations
 
 import math
 import threading
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import pytest
 import utm
 
-from ares import config, run_config
-from ares.clock import ManualClock
-from ares.geodesy import LocalFrame
-from ares.membus import MemoryNetwork
-from ares.messages import (CanFrame, CarState, ControllerStatus, DriveMode, Event, EventLevel, GnssSentences, Imu,
-                           OdometryScore, Pose, ProcessState, ProcessStatus, StoredEvent, SupervisorState,
-                           VehicleRecord)
-from blackbox import recorder as recorder_module
+from ares.app import run_config
+from ares.core import config
+from ares.core.clock import ManualClock
+from ares.core.geodesy import LocalFrame
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import (
+    CanFrame,
+    CarState,
+    ControllerStatus,
+    DriveMode,
+    Event,
+    EventLevel,
+    GnssSentences,
+    Imu,
+    OdometryScore,
+    Pose,
+    ProcessState,
+    ProcessStatus,
+    StoredEvent,
+    SupervisorState,
+    VehicleRecord,
+)
+from blackbox import recorder_node as recorder_module
 from blackbox import spool as spool_mod
-from blackbox.recorder import (Recorder, RecorderParams, Snapshot, StoreWriter, build_record, position_of,
-                               spool_path, store_uri)
+from blackbox.recorder import RecorderParams, Snapshot, StoreWriter, build_record, position_of, spool_path, store_uri
+from blackbox.recorder_node import Recorder
 from blackbox.spool import Spool
-from blackbox.sqlite_store import SqliteStore
-from blackbox.store import StoreSettings, StoreUnavailable
+from blackbox.store.record_store import StoreSettings, StoreUnavailable
+from blackbox.store.sqlite_store import SqliteStore
+from tests.helpers.records import assert_every_second_once
+from tests.helpers.stack import wait_until
 
-PAST, FUTURE = datetime(2000, 1, 1, tzinfo=timezone.utc), datetime(2100, 1, 1, tzinfo=timezone.utc)
+PAST, FUTURE = datetime(2000, 1, 1, tzinfo=UTC), datetime(2100, 1, 1, tzinfo=UTC)
 POSE_X, POSE_Y, POSE_Z = 12.5, -7.25, 1.5
 # the vehicle's calendar time at stack time 0: today (the store purges what is older than 7 days),
 # and not on a whole second (a record stands for the whole second of vehicle time it falls in)
 UTC_EPOCH = math.floor(time.time()) + 0.25
 
-TICK_HZ = 20                        # the feeder's time step; every rate below divides it
-RECORDER_HZ = 5                     # blackbox.rate_hz (its default)
-RATES_HZ = {"pose": 10, "car": 10, "score": 10, "control": 10, "supervisor": 2,
-            "gnss": 5, "imu": 20, "can": 20}     # imu below its 30 Hz minimum on purpose
+TICK_HZ = 20  # the feeder's time step; every rate below divides it
+RECORDER_HZ = 5  # blackbox.rate_hz (its default)
+RATES_HZ = {
+    "pose": 10,
+    "car": 10,
+    "score": 10,
+    "control": 10,
+    "supervisor": 2,
+    "gnss": 5,
+    "imu": 20,
+    "can": 20,
+}  # imu below its 30 Hz minimum on purpose
 
 
 # ---- helpers -----------------------------------------------------------------------------------
+
 
 def recorder_config(tmp_path, **blackbox) -> dict:
     """The validated run configuration: the embedded store in the test's directory (no fsync: the
     store's durability is test_store_contract's business), a writer that neither lingers nor backs
     off for long, so that the bounded waits below are short."""
-    return run_config.build(overrides={
-        "blackbox_store": {"uri": str(tmp_path / "blackbox.sqlite"), "synchronous": "OFF"},
-        "blackbox": {"batch_wait_s": 0.05, "retry_min_s": 0.05, "retry_max_s": 0.2, **blackbox}})
+    return run_config.build(
+        overrides={
+            "blackbox_store": {"uri": str(tmp_path / "blackbox.sqlite"), "synchronous": "OFF"},
+            "blackbox": {"batch_wait_s": 0.05, "retry_min_s": 0.05, "retry_max_s": 0.2, **blackbox},
+        }
+    )
 
 
 def message(kind: str, t: float):
     """(topic, message) of one of the recorder's inputs, stamped t."""
     if kind == "pose":
-        return "localization/pose", Pose(t=t, x=POSE_X, y=POSE_Y, z=POSE_Z, yaw=0.3, v=2.0, yaw_rate=0.0,
-                                         cov_xx=1e-5, cov_xy=0.0, cov_yy=1e-5, var_yaw=1e-4, var_v=1e-3,
-                                         position_std_m=0.003, rtk=True, gnss_age_s=0.1)
+        return "localization/pose", Pose(
+            t=t,
+            x=POSE_X,
+            y=POSE_Y,
+            z=POSE_Z,
+            yaw=0.3,
+            v=2.0,
+            yaw_rate=0.0,
+            cov_xx=1e-5,
+            cov_xy=0.0,
+            cov_yy=1e-5,
+            var_yaw=1e-4,
+            var_v=1e-3,
+            position_std_m=0.003,
+            rtk=True,
+            gnss_age_s=0.1,
+        )
     if kind == "car":
-        return "dbw/car_state", CarState(t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False,
-                                         setpoint_age_s=0.05, v_command=2.0, kappa_command=0.01,
-                                         speed_mps=2.0, steering_wheel_deg=-35.0)
+        return "dbw/car_state", CarState(
+            t=t,
+            mode=DriveMode.AUTOMATIC,
+            engaged=True,
+            watchdog_tripped=False,
+            setpoint_age_s=0.05,
+            v_command=2.0,
+            kappa_command=0.01,
+            speed_mps=2.0,
+            steering_wheel_deg=-35.0,
+        )
     if kind == "score":
         return "odometry/score", OdometryScore(t=t, score=0.93, covariance=1e-5, pose_age_s=0.02)
     if kind == "control":
-        return "control/status", ControllerStatus(t=t, controller="pure_pursuit", mode="odometry",
-                                                  reason="odometry score 0.93", s=10.0, xte=0.02,
-                                                  heading_error=0.0, target_speed=2.0)
+        return "control/status", ControllerStatus(
+            t=t,
+            controller="pure_pursuit",
+            mode="odometry",
+            reason="odometry score 0.93",
+            s=10.0,
+            xte=0.02,
+            heading_error=0.0,
+            target_speed=2.0,
+        )
     if kind == "supervisor":
-        return "supervisor/state", SupervisorState(t=t, processes=[
-            ProcessStatus(name="gnss", state=ProcessState.RUNNING, restarts=2),
-            ProcessStatus(name="controller", state=ProcessState.RESTARTING, restarts=1)])
+        return "supervisor/state", SupervisorState(
+            t=t,
+            processes=[
+                ProcessStatus(name="gnss", state=ProcessState.RUNNING, restarts=2),
+                ProcessStatus(name="controller", state=ProcessState.RESTARTING, restarts=1),
+            ],
+        )
     if kind == "gnss":
         return "sensors/gnss", GnssSentences(t=t, sentences=["$GPGGA,dummy*00"])
     if kind == "imu":
-        return "sensors/imu", Imu(t=t, yaw=0.0, roll=0.0, pitch=0.0, gyro_x=0.0, gyro_y=0.0, gyro_z=0.0,
-                                  accel_x=0.0, accel_y=0.0, accel_z=9.81)
+        return "sensors/imu", Imu(
+            t=t,
+            yaw=0.0,
+            roll=0.0,
+            pitch=0.0,
+            gyro_x=0.0,
+            gyro_y=0.0,
+            gyro_z=0.0,
+            accel_x=0.0,
+            accel_y=0.0,
+            accel_z=9.81,
+        )
     if kind == "can":
-        return "sensors/can", CanFrame(t=t, wheel_speed_rad_s=7.1, speed_mps=2.0, steering_wheel_deg=-35.0,
-                                       throttle_pedal=0.1, brake_pedal=0.0, steering_torque=False)
+        return "sensors/can", CanFrame(
+            t=t,
+            wheel_speed_rad_s=7.1,
+            speed_mps=2.0,
+            steering_wheel_deg=-35.0,
+            throttle_pedal=0.1,
+            brake_pedal=0.0,
+            steering_torque=False,
+        )
     raise ValueError(kind)
 
 
@@ -97,7 +177,7 @@ class Rig:
         self.clock = ManualClock(utc_epoch=UTC_EPOCH)
         self.network = MemoryNetwork(self.vehicle_id)
         self.feeder = self.network.bus("test_feeder", self.clock)
-        self.silent: set[str] = set()       # inputs not published any more (or never)
+        self.silent: set[str] = set()  # inputs not published any more (or never)
         self.recorder: Recorder | None = None
         self._tick = 0
 
@@ -128,8 +208,14 @@ class Rig:
                 self.recorder.step_once(t)
 
     def event(self, kind: str = "test_event", message: str = "hello", t: float | None = None) -> Event:
-        ev = Event(t=self.clock.now() if t is None else t, source="test", kind=kind, level=EventLevel.WARNING,
-                   message=message, data={"n": 1})
+        ev = Event(
+            t=self.clock.now() if t is None else t,
+            source="test",
+            kind=kind,
+            level=EventLevel.WARNING,
+            message=message,
+            data={"n": 1},
+        )
         self.feeder.publish("events", ev)
         return ev
 
@@ -142,22 +228,11 @@ def rigs():
     def make(cfg: dict) -> Rig:
         made.append(Rig(cfg))
         return made[-1]
+
     yield make
     for rig in made:
         if rig.recorder is not None:
             rig.stop_recorder()
-
-
-def wait_until(condition, timeout_s: float, what: str, interval_s: float = 0.01):
-    """Poll `condition` until it is true (its value is returned) or fail after timeout_s."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(interval_s)
 
 
 def records(store, vehicle: str) -> list[dict]:
@@ -166,13 +241,6 @@ def records(store, vehicle: str) -> list[dict]:
 
 def events(store, vehicle: str, kinds=None) -> list[dict]:
     return store.events(vehicle, PAST, FUTURE, kinds=kinds, limit=1_000_000)
-
-
-def assert_every_second_once(ts: list[int]) -> None:
-    assert ts, "no records"
-    assert len(ts) == len(set(ts)), f"duplicated seconds: {sorted(t for t in set(ts) if ts.count(t) > 1)}"
-    missing = sorted(set(range(min(ts), max(ts) + 1)) - set(ts))
-    assert not missing, f"missing seconds: {missing}"
 
 
 def frame_of(cfg: dict) -> LocalFrame:
@@ -190,7 +258,7 @@ class FakeStore:
         self.records: dict[float, VehicleRecord] = {}
         self.events: list[StoredEvent] = []
         self.submitted: list[float] = []
-        self._lock = threading.Lock()       # the writer thread inserts, the test reads
+        self._lock = threading.Lock()  # the writer thread inserts, the test reads
 
     def insert_records(self, records):
         with self._lock:
@@ -232,6 +300,7 @@ def fake_store(monkeypatch) -> FakeStore:
 
 # ---- records, positions, spool, writer ---------------------------------------------------------
 
+
 def test_position_is_the_pose_plus_the_gnss_origin_in_utm_and_lat_lon():
     cfg = run_config.build()
     pose = message("pose", 0.0)[1]
@@ -243,6 +312,7 @@ def test_position_is_the_pose_plus_the_gnss_origin_in_utm_and_lat_lon():
     assert (p.lat, p.lon) == pytest.approx((lat, lon), abs=1e-9)
     # and back: the GNSS node's projection of that lat/lon gives the same local x, y
     from perception.gnss import GnssParams, GnssProjector
+
     back = GnssProjector(frame_of(cfg), GnssParams()).project(p.lat, p.lon, 0.0)
     assert (back.x, back.y) == pytest.approx((POSE_X, POSE_Y), abs=1e-3)
     # a pose with no valid projection (beyond UTM's northings) has no position
@@ -253,29 +323,44 @@ def test_position_is_the_pose_plus_the_gnss_origin_in_utm_and_lat_lon():
 def test_a_record_carries_what_is_known_and_null_for_what_is_not():
     cfg = run_config.build()
     clock = ManualClock(utc_epoch=UTC_EPOCH)
-    empty = build_record("v1", clock.utc(7), 7, Snapshot(sensor_rates={"gnss": 0.0}), frame_of(cfg),
-                         {"gnss": 4.0}, events=3)
-    assert empty.time == datetime.fromtimestamp(UTC_EPOCH + 7, tz=timezone.utc) and empty.t == 7.0
+    empty = build_record(
+        "v1", clock.utc(7), 7, Snapshot(sensor_rates={"gnss": 0.0}), frame_of(cfg), {"gnss": 4.0}, events=3
+    )
+    assert empty.time == datetime.fromtimestamp(UTC_EPOCH + 7, tz=UTC) and empty.t == 7.0
     assert empty.position is None and empty.speed_mps is None and empty.mode is None
     assert empty.controller is None and empty.scores == {} and empty.processes == {}
     assert empty.sensors["gnss"].ok is False and empty.events == 3
     assert empty.awareness_level is None and empty.mission_state is None
 
 
-@pytest.mark.parametrize("state, action, recorded", [("DRIVING", None, "DRIVING"), ("AT_POI", "OPENING_DOORS",
-                                                     "OPENING_DOORS"), ("PAUSED", "OPENING_DOORS", "PAUSED")])
+@pytest.mark.parametrize(
+    "state, action, recorded",
+    [("DRIVING", None, "DRIVING"), ("AT_POI", "OPENING_DOORS", "OPENING_DOORS"), ("PAUSED", "OPENING_DOORS", "PAUSED")],
+)
 def test_the_record_keeps_the_mission_state_or_the_poi_action_running(state, action, recorded):
-    from ares.messages import MissionStatus
+    from ares.core.messages import MissionStatus
     from blackbox.recorder import mission_state
-    status = MissionStatus(t=1.0, goal_id=1, state=state, kind="tour", poi="Library", action=action, distance_m=None,
-                           eta_s=None, limit_mps=0.0, ready_to_move=True)
+
+    status = MissionStatus(
+        t=1.0,
+        goal_id=1,
+        state=state,
+        kind="tour",
+        poi="Library",
+        action=action,
+        distance_m=None,
+        eta_s=None,
+        limit_mps=0.0,
+        ready_to_move=True,
+    )
     assert mission_state(status) == recorded and mission_state(None) is None
 
 
 def bare_record(k: int, vehicle: str = "v1") -> VehicleRecord:
     """A record of second k that knows nothing but its time."""
-    return build_record(vehicle, ManualClock(utc_epoch=UTC_EPOCH).utc(k), k, Snapshot(),
-                        frame_of(run_config.build()), {}, 0)
+    return build_record(
+        vehicle, ManualClock(utc_epoch=UTC_EPOCH).utc(k), k, Snapshot(), frame_of(run_config.build()), {}, 0
+    )
 
 
 def test_spool_keeps_order_drops_the_oldest_beyond_its_bound_and_disappears_when_empty(tmp_path):
@@ -284,10 +369,10 @@ def test_spool_keeps_order_drops_the_oldest_beyond_its_bound_and_disappears_when
     spool = Spool(path, max_entries=5)
     assert not spool.pending and not path.exists()
     assert spool.append(recs[:4]) == 0
-    assert spool.append(recs[4:]) == 2             # 7 entries, bound 5: the two oldest go
+    assert spool.append(recs[4:]) == 2  # 7 entries, bound 5: the two oldest go
     assert len(spool) == 5 and spool.dropped_total == 2
     spool.close()
-    again = Spool(path, max_entries=5)             # a leftover is found by the next process
+    again = Spool(path, max_entries=5)  # a leftover is found by the next process
     assert len(again) == 5
     upto, chunk = again.peek(3)
     assert [r.t for r in chunk] == [3.0, 4.0, 5.0]
@@ -310,12 +395,18 @@ def test_writer_spools_while_the_store_is_down_and_drops_only_what_the_store_ref
     opened = []
 
     def open_fake():
-        if not opened:                  # the first attempt to open fails, like a store not up yet
+        if not opened:  # the first attempt to open fails, like a store not up yet
             opened.append(1)
             raise ConnectionError("not yet")
         return fake
-    writer = StoreWriter(open_fake, Spool(tmp_path / "spool.sqlite", max_entries=100), batch_wait_s=0.05,
-                         retry_min_s=0.1, retry_max_s=0.2)
+
+    writer = StoreWriter(
+        open_fake,
+        Spool(tmp_path / "spool.sqlite", max_entries=100),
+        batch_wait_s=0.05,
+        retry_min_s=0.1,
+        retry_max_s=0.2,
+    )
     writer.start()
     for k in range(1, 4):
         writer.submit(bare_record(k))
@@ -327,7 +418,7 @@ def test_writer_spools_while_the_store_is_down_and_drops_only_what_the_store_ref
     for k in range(4, 8):
         writer.submit(bare_record(k))
     wait_until(lambda: len(writer.spool) == 4, 5, "the spooled records")
-    fake.refuse = {5.0}                 # back, but one record is refused by the store
+    fake.refuse = {5.0}  # back, but one record is refused by the store
     fake.down = False
     wait_until(lambda: not writer.spool.pending, 5, "the flush")
     writer.close(1.0)
@@ -353,11 +444,14 @@ def test_store_and_spool_locations(tmp_path, monkeypatch):
     elsewhere = store_settings({"blackbox_store": {"uri": "elsewhere/bb.sqlite"}})
     assert store_uri(elsewhere) == str(tmp_path / "elsewhere" / "bb.sqlite")
     assert spool_path(params, elsewhere, vehicle) == tmp_path / "elsewhere" / spool_name
-    assert spool_path(RecorderParams(spool="spools/mine.sqlite"), elsewhere, vehicle) == \
-        tmp_path / "spools" / "mine.sqlite"
+    assert (
+        spool_path(RecorderParams(spool="spools/mine.sqlite"), elsewhere, vehicle)
+        == tmp_path / "spools" / "mine.sqlite"
+    )
 
 
 # ---- the recorder node -------------------------------------------------------------------------
+
 
 def test_one_record_per_second_with_the_latest_values_and_events_as_they_happen(tmp_path, rigs):
     cfg = recorder_config(tmp_path)
@@ -368,7 +462,7 @@ def test_one_record_per_second_with_the_latest_values_and_events_as_they_happen(
     try:
         rig.drive(5.3)
         ev = rig.event()
-        rig.drive(5.4)              # the recorder's next step takes the event in
+        rig.drive(5.4)  # the recorder's next step takes the event in
         wait_until(lambda: recorder.writer.events_written == 1, 10, "the event in the store")
         # in the store as it happened: before the record of its second was even built
         assert store.latest(vehicle)["t"] == 5.0
@@ -384,7 +478,7 @@ def test_one_record_per_second_with_the_latest_values_and_events_as_they_happen(
         ts = [int(r["t"]) for r in recs]
         assert ts == list(range(1, 13)), "every second once, the last one flushed at teardown"
         for r in recs:
-            assert r["time"] == datetime.fromtimestamp(math.floor(UTC_EPOCH + r["t"]), tz=timezone.utc)
+            assert r["time"] == datetime.fromtimestamp(math.floor(UTC_EPOCH + r["t"]), tz=UTC)
             VehicleRecord.model_validate(r)
 
         o = cfg["origin_utm"]
@@ -395,12 +489,14 @@ def test_one_record_per_second_with_the_latest_values_and_events_as_they_happen(
         assert (r["position"]["lat"], r["position"]["lon"]) == pytest.approx((lat, lon), abs=1e-9)
         assert r["speed_mps"] == 2.0 and r["steering_wheel_deg"] == -35.0 and r["mode"] == "AUTOMATIC"
         assert r["scores"] == {"odometry": 0.93} and r["controller"] == "pure_pursuit"
-        assert r["processes"] == {"gnss": {"state": "running", "restarts": 2},
-                                  "controller": {"state": "restarting", "restarts": 1}}
+        assert r["processes"] == {
+            "gnss": {"state": "running", "restarts": 2},
+            "controller": {"state": "restarting", "restarts": 1},
+        }
         sensors = r["sensors"]
         assert sensors["gnss"] == {"rate_hz": pytest.approx(5.0), "ok": True}
         assert sensors["can"] == {"rate_hz": pytest.approx(20.0), "ok": True}
-        assert sensors["imu"] == {"rate_hz": pytest.approx(20.0), "ok": False}      # 20 Hz < 30 Hz
+        assert sensors["imu"] == {"rate_hz": pytest.approx(20.0), "ok": False}  # 20 Hz < 30 Hz
         assert r["awareness_level"] is None and r["mission_state"] is None
         # the event is counted once, in the record of the second it happened in: [k - 1, k)
         assert {int(r["t"]): r["events"] for r in recs if r["events"]} == {6: 1}
@@ -411,10 +507,10 @@ def test_one_record_per_second_with_the_latest_values_and_events_as_they_happen(
 
 def test_missing_and_stale_inputs_are_recorded_as_null(tmp_path, rigs, fake_store):
     rig = rigs(recorder_config(tmp_path))
-    rig.silent = {"control", "can"}         # never heard of
+    rig.silent = {"control", "can"}  # never heard of
     rig.start_recorder()
     rig.drive(4.0)
-    rig.silent |= {"pose", "car", "score", "supervisor", "gnss"}      # last heard at t = 4.0
+    rig.silent |= {"pose", "car", "score", "supervisor", "gnss"}  # last heard at t = 4.0
     rig.drive(9.0)
     wait_until(lambda: fake_store.seconds() == list(range(1, 10)), 10, "the nine records in the store")
     rig.stop_recorder()
@@ -439,7 +535,7 @@ def test_missing_and_stale_inputs_are_recorded_as_null(tmp_path, rigs, fake_stor
 def test_a_silent_sensor_is_never_ok_whatever_minimums_are_configured(tmp_path, rigs, fake_store):
     # a run configuration that raises the IMU's minimum only: the GNSS keeps a minimum of its own
     rig = rigs(recorder_config(tmp_path, sensor_min_hz={"imu": 50.0}))
-    rig.silent = {"gnss"}                   # the receiver is dead
+    rig.silent = {"gnss"}  # the receiver is dead
     rig.start_recorder()
     rig.drive(3.0)
     wait_until(lambda: fake_store.seconds() == [1, 2, 3], 10, "the three records in the store")
@@ -452,15 +548,18 @@ def test_each_event_is_counted_once_even_when_it_arrives_after_its_record(tmp_pa
     rig = rigs(recorder_config(tmp_path))
     recorder = rig.start_recorder()
     rig.drive(2.5)
-    rig.event("on_time")                    # t = 2.5: the record of second 3
-    rig.drive(6.1)                          # the record of second 6 was built at t = 6.0 ...
-    rig.event("late", t=5.5)                # ... so this one of [5, 6) goes to the next record
+    rig.event("on_time")  # t = 2.5: the record of second 3
+    rig.drive(6.1)  # the record of second 6 was built at t = 6.0 ...
+    rig.event("late", t=5.5)  # ... so this one of [5, 6) goes to the next record
     rig.drive(7.2)
     rig.event("first_of_two")
-    rig.event("second_of_two")              # both at t = 7.2: the record of second 8
+    rig.event("second_of_two")  # both at t = 7.2: the record of second 8
     rig.drive(10.0)
-    wait_until(lambda: recorder.writer.events_written == 4 and recorder.writer.records_written == 10, 10,
-               "the four events and ten records in the store")
+    wait_until(
+        lambda: recorder.writer.events_written == 4 and recorder.writer.records_written == 10,
+        10,
+        "the four events and ten records in the store",
+    )
     rig.stop_recorder()
 
     counted = {int(t): r.events for t, r in fake_store.records.items() if r.events}
@@ -472,8 +571,8 @@ def test_a_recorder_that_falls_behind_writes_every_missed_second(tmp_path, rigs,
     rig = rigs(recorder_config(tmp_path))
     recorder = rig.start_recorder()
     rig.drive(3.0)
-    rig.drive(11.0, stepping=False)     # frozen (a stopped process, a starved loop) for 8 s ...
-    recorder.step_once(11.0)            # ... its next step crosses seconds 4 to 11 at once
+    rig.drive(11.0, stepping=False)  # frozen (a stopped process, a starved loop) for 8 s ...
+    recorder.step_once(11.0)  # ... its next step crosses seconds 4 to 11 at once
     rig.drive(13.0)
     wait_until(lambda: recorder.writer.records_written == 13, 10, "the records up to second 13")
     rig.stop_recorder()
@@ -505,8 +604,11 @@ def test_a_store_outage_loses_no_second_and_duplicates_none(tmp_path, rigs, fake
     wait_until(lambda: writer.store_up and not writer.spool.pending, 10, "the spool flushed once the store is back")
     assert not spool_file.exists()
     rig.drive(17.0)
-    wait_until(lambda: "blackbox_store_up" in fake_store.event_kinds() and fake_store.seconds()[-1] == 17, 10,
-               "the store_up event and the last record in the store")
+    wait_until(
+        lambda: "blackbox_store_up" in fake_store.event_kinds() and fake_store.seconds()[-1] == 17,
+        10,
+        "the store_up event and the last record in the store",
+    )
     rig.stop_recorder()
 
     ts = fake_store.seconds()
@@ -531,11 +633,12 @@ def test_stopped_during_an_outage_the_spool_is_kept_and_flushed_by_the_next_star
     wait_until(lambda: fake_store.seconds() == [1, 2, 3], 10, "the first records")
     fake_store.down = True
     rig.drive(4.0)
-    wait_until(lambda: not first.writer.store_up and not first.writer.notices.empty(), 10,
-               "the writer to notice the outage")
+    wait_until(
+        lambda: not first.writer.store_up and not first.writer.notices.empty(), 10, "the writer to notice the outage"
+    )
     rig.drive(8.0)
     wait_until(lambda: len(first.writer.spool) == 6, 10, "records 4..8 and the warning in the spool")
-    rig.stop_recorder()         # SIGTERM while the store is down: what is queued is spooled
+    rig.stop_recorder()  # SIGTERM while the store is down: what is queued is spooled
 
     left = spool_mod.load_all(spool_file)
     spooled = sorted(int(i.t) for i in left if isinstance(i, VehicleRecord))
@@ -543,12 +646,13 @@ def test_stopped_during_an_outage_the_spool_is_kept_and_flushed_by_the_next_star
     assert any(isinstance(i, StoredEvent) and i.kind == "blackbox_store_down" for i in left)
 
     fake_store.down = False
-    rig.drive(12.0)             # nobody records seconds 9..12
+    rig.drive(12.0)  # nobody records seconds 9..12
     second = rig.start_recorder()
     # the notice follows the flush: wait for both before stepping on, or the steps could all pass
     # before there is anything to publish
-    wait_until(lambda: not spool_file.exists() and not second.writer.notices.empty(), 10,
-               "the leftover spool to be flushed")
+    wait_until(
+        lambda: not spool_file.exists() and not second.writer.notices.empty(), 10, "the leftover spool to be flushed"
+    )
     rig.drive(15.0)
     wait_until(lambda: "blackbox_spool_flushed" in fake_store.event_kinds(), 10, "the spool_flushed event")
     wait_until(lambda: fake_store.seconds()[-3:] == [13, 14, 15], 10, "the second recorder's records")
@@ -560,4 +664,4 @@ def test_stopped_during_an_outage_the_spool_is_kept_and_flushed_by_the_next_star
     # each recorder's span is complete, the second starting at the second after its start
     assert ts == [*range(1, 9), 13, 14, 15]
     assert_every_second_once([t for t in ts if t <= spooled[-1]])
-    assert "blackbox_store_up" not in fake_store.event_kinds()      # a fresh writer never saw it down
+    assert "blackbox_store_up" not in fake_store.event_kinds()  # a fresh writer never saw it down

@@ -1,14 +1,15 @@
 """Reliability figures (DBW paper §5.4) and how the black box's records are tallied into them."""
+
 from __future__ import annotations
 
 import math
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 
 import pytest
 
 from blackbox import reliability as rel
 
-T0 = datetime(2025, 6, 1, 8, 0, 0, tzinfo=timezone.utc)
+T0 = datetime(2025, 6, 1, 8, 0, 0, tzinfo=UTC)
 
 
 def rec(second: int, mode: str = "AUTOMATIC", down: str | None = None) -> dict:
@@ -57,12 +58,15 @@ def test_is_up():
 
 def test_tally_one_outage_with_cascade():
     # 100 s up, a fault at 100.4 s, a second fault (same outage) at 105 s, 60 s in MANUAL, back up
-    records = [rec(s) for s in range(100)] + [rec(s, mode="MANUAL") for s in range(100, 160)] + \
-              [rec(s) for s in range(160, 200)]
+    records = (
+        [rec(s) for s in range(100)]
+        + [rec(s, mode="MANUAL") for s in range(100, 160)]
+        + [rec(s) for s in range(160, 200)]
+    )
     tally = rel.tally_window(records, [at(100.4), at(105)], until=at(200))
     assert tally.failures == 1
     assert tally.operating_s == 140
-    assert tally.repair_s == pytest.approx(59.6)        # 100.4 s -> first record up again at 160 s
+    assert tally.repair_s == pytest.approx(59.6)  # 100.4 s -> first record up again at 160 s
     assert tally.open_failures == 0
     f = tally.figures(t_hours=1)
     assert f.mtbf_hours == pytest.approx(140 / 3600)
@@ -71,8 +75,12 @@ def test_tally_one_outage_with_cascade():
 
 def test_process_down_is_not_repaired_yet():
     # back in AUTOMATIC at 110 s but the controller is still restarting until 120 s
-    records = [rec(s) for s in range(100)] + [rec(s, mode="MANUAL") for s in range(100, 110)] + \
-              [rec(s, down="controller") for s in range(110, 120)] + [rec(s) for s in range(120, 130)]
+    records = (
+        [rec(s) for s in range(100)]
+        + [rec(s, mode="MANUAL") for s in range(100, 110)]
+        + [rec(s, down="controller") for s in range(110, 120)]
+        + [rec(s) for s in range(120, 130)]
+    )
     tally = rel.tally_window(records, [at(99.5)], until=at(130))
     assert tally.failures == 1 and tally.repair_s == pytest.approx(20.5) and tally.operating_s == 110
 
@@ -92,8 +100,9 @@ def test_unrepaired_failure_counts_to_window_end():
 
 
 def test_two_failures_and_fault_after_last_record():
-    records = [rec(s) for s in range(10)] + [rec(s, mode="MANUAL") for s in range(10, 15)] + \
-              [rec(s) for s in range(15, 30)]
+    records = (
+        [rec(s) for s in range(10)] + [rec(s, mode="MANUAL") for s in range(10, 15)] + [rec(s) for s in range(15, 30)]
+    )
     tally = rel.tally_window(records, [at(10), at(30.5), at(500)], until=at(40))
     # 10 s: failure, repaired at 15; 30.5 s: last record (29) is up and within 2 s -> failure, open
     # until 40; 500 s is beyond the window's end and ignored

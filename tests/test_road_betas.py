@@ -1,8 +1,9 @@
-"""The road-detection experiment (ares/harness/road_betas.py, docs/road_detection.md) on a
+"""The road-detection experiment (ares/tools/harness/road_betas.py, docs/road_detection.md) on a
 handful of frames: one short sequence per verge kind, straight stretches of the tour, the
 vehicle off the centre line and turned, the LiDARs at full resolution. The defaults (the values
 `ares calibrate road` chose) meet the lap's bounds on each kind there; the search's pieces do
 what the docs say. The full experiment takes minutes: `ares calibrate road`."""
+
 from __future__ import annotations
 
 import math
@@ -11,14 +12,20 @@ import numpy as np
 import pytest
 import yaml
 
-from ares import run_config
-from ares.harness import road_betas
+from ares.app import run_config
+from ares.tools.harness import road_betas
 from perception.road_detection import RoadDetectionParams
 
 # (s of the first frame, lateral offset m, yaw °): grass both sides, rock walls both sides, a rock
 # wall and a ravine, kerbs, open (a crossing), grass and a ravine
-STARTS = [(275.0, 0.3, -3.0), (1150.0, -0.4, 4.0), (420.0, 0.2, 2.0), (730.0, -0.3, -4.0), (1300.0, 0.0, 1.0),
-          (1450.0, 0.4, -2.0)]
+STARTS = [
+    (275.0, 0.3, -3.0),
+    (1150.0, -0.4, 4.0),
+    (420.0, 0.2, 2.0),
+    (730.0, -0.3, -4.0),
+    (1300.0, 0.0, 1.0),
+    (1450.0, 0.4, -2.0),
+]
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +45,7 @@ def test_the_frames_cover_every_verge_kind_with_their_truth(frames):
         for side, kind in enumerate(f.verges):
             if kind == "open":
                 assert np.isnan(f.edge_y[side]).all()
-            else:       # the true edge ± half the width (3 m) from the centre line, seen across the road
+            else:  # the true edge ± half the width (3 m) from the centre line, seen across the road
                 across = np.abs(f.edge_y[side] - f.centre_y) * f.edge_gain[side]
                 assert np.allclose(across, 3.0, atol=0.05) and (f.edge_gain[side] > 0.9).all()
         assert len(f.lidar.points) > 30000
@@ -58,19 +65,22 @@ def test_the_defaults_meet_the_bounds_on_every_verge_kind(evaluation):
         # worst few boundaries of these few frames lie 0.6 m out (p95 over the whole search: 0.20 m)
         assert f["edge_p95_m"] <= (0.65 if kind == "grass" else b["edge_p95_m"]), (kind, f)
         assert f["centre_p50_m"] <= b["centre_p50_m"], (kind, f)
-    assert evaluation["margin"] > -0.75        # grass p95 (see above); every other criterion has slack
+    assert evaluation["margin"] > -0.75  # grass p95 (see above); every other criterion has slack
 
 
 def test_margin_and_objective():
-    fig = {"kerb": {"frames": 10, "detect_rate": 1.0, "edge_p50_m": 0.075, "edge_p95_m": 0.2, "centre_p50_m": 0.05},
-           "open": {"sides": 8, "open_false_rate": 0.0}}
-    assert road_betas.margin(fig) == pytest.approx(0.5)        # p50, p95 and centre each half their bound
+    fig = {
+        "kerb": {"frames": 10, "detect_rate": 1.0, "edge_p50_m": 0.075, "edge_p95_m": 0.2, "centre_p50_m": 0.05},
+        "open": {"sides": 8, "open_false_rate": 0.0},
+    }
+    assert road_betas.margin(fig) == pytest.approx(0.5)  # p50, p95 and centre each half their bound
     fig["kerb"]["detect_rate"] = 0.9
-    assert road_betas.margin(fig) == pytest.approx(-1.0)       # 0.05 short of 0.95, in units of 1 − 0.95
-    fig["kerb"]["edge_p95_m"] = None                            # never found: as bad as it gets
+    assert road_betas.margin(fig) == pytest.approx(-1.0)  # 0.05 short of 0.95, in units of 1 − 0.95
+    fig["kerb"]["edge_p95_m"] = None  # never found: as bad as it gets
     assert road_betas.margin(fig) == -1.0
-    assert road_betas.objective({"verges": {"open": {"sides": 1, "open_false_rate": 0.0}}, "margin": 1.0}) == \
-        pytest.approx(1.1)
+    assert road_betas.objective(
+        {"verges": {"open": {"sides": 1, "open_false_rate": 0.0}}, "margin": 1.0}
+    ) == pytest.approx(1.1)
 
 
 def test_parameter_sets_by_dotted_name_and_the_configuration_they_write(tmp_path):
@@ -81,18 +91,23 @@ def test_parameter_sets_by_dotted_name_and_the_configuration_they_write(tmp_path
     path.write_text(road_betas.overrides_yaml(p))
     road = run_config.build((path,))["lidar_perception"]["road"]
     assert road["weights"]["beta7"] == 12.5 and road["gradient_span_m"] == 0.45
-    assert set(yaml.safe_load(path.read_text())["lidar_perception"]["road"]) == {"gradient_span_m", "window_m",
-                                                                                 "run_m", "weights"}
+    assert set(yaml.safe_load(path.read_text())["lidar_perception"]["road"]) == {
+        "gradient_span_m",
+        "window_m",
+        "run_m",
+        "weights",
+    }
     with pytest.raises(ValueError):
         road_betas.with_values(RoadDetectionParams(), {"window_m": -1.0})
 
 
 def test_stretches_and_plan_follow_the_tour():
-    from ares.route import Route
+    from ares.core.route import Route
+
     route = Route.from_tour("default")
     parts = road_betas.stretches(route)
     assert parts[0][2] == ("kerb", "kerb") and any(v == ("grass", "ravine") for _, _, v in parts)
     starts = road_betas.plan(route, 2, 0)
     assert len(starts) == 2 * sum(1 for a, b, _ in parts if b - a >= road_betas.MIN_STRETCH_M + 13.2)
     assert all(abs(lat) <= 0.5 and abs(yaw) <= 5.0 for _, lat, yaw in starts)
-    assert math.isclose(starts[0][0], road_betas.plan(route, 2, 0)[0][0])      # the same seed, the same plan
+    assert math.isclose(starts[0][0], road_betas.plan(route, 2, 0)[0][0])  # the same seed, the same plan

@@ -6,11 +6,11 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ares import config
-from ares.config import ConfigError, CoreConfig
-from ares.route import SAMPLE_SPACING_M, Route, RouteError, load_route
-from tests.path_match_reference import reference_project
-from tests.random_routes import pose_along, routes
+from ares.core import config
+from ares.core.config import ConfigError, CoreConfig
+from ares.core.route import SAMPLE_SPACING_M, Route, RouteError, load_route
+from tests.helpers.path_match_reference import reference_project
+from tests.helpers.random_routes import pose_along, routes
 
 
 @pytest.fixture(scope="module")
@@ -21,13 +21,13 @@ def tour():
 def test_builtin_tour_meets_the_brief(tour):
     assert tour.closed
     assert 1000 <= tour.length <= 2000
-    assert np.abs(tour.grade).max() <= 0.15          # hills up to about 15 %
+    assert np.abs(tour.grade).max() <= 0.15  # hills up to about 15 %
     assert np.abs(tour.grade).max() >= 0.10
-    assert 1 / np.abs(tour.curvature).max() <= 15     # sharp curves
+    assert 1 / np.abs(tour.curvature).max() <= 15  # sharp curves
     assert len(tour.pois) >= 4
     assert sum(z.kind == "rtk_loss" for z in tour.zones) >= 2
     assert any(z.kind == "intersection" for z in tour.zones)
-    assert tour.width.min() < 3.5                     # a narrow stretch
+    assert tour.width.min() < 3.5  # a narrow stretch
 
 
 def test_campus_route_is_the_dbw_papers_test_loop():
@@ -39,11 +39,11 @@ def test_campus_route_is_the_dbw_papers_test_loop():
     # without a break (the rest of the way round is the entry and exit deflections).
     left = np.flatnonzero(campus.curvature >= 1 / 15.5)
     arcs = np.split(left, np.flatnonzero(np.diff(campus.s[left]) > 2.0) + 1)
-    turned = [math.degrees(campus.curvature[a[0]:a[-1] + 1].sum() * SAMPLE_SPACING_M) for a in arcs]
+    turned = [math.degrees(campus.curvature[a[0] : a[-1] + 1].sum() * SAMPLE_SPACING_M) for a in arcs]
     assert sum(t > 170 for t in turned) == 2, turned
-    assert sum(z.kind == "intersection" for z in campus.zones) == 4      # their mouths
+    assert sum(z.kind == "intersection" for z in campus.zones) == 4  # their mouths
     profile = config.load_vehicle("techs4agecar")
-    assert profile.max_speed_mps * 3.6 == pytest.approx(25, abs=0.1)   # the paper's 25 km/h
+    assert profile.max_speed_mps * 3.6 == pytest.approx(25, abs=0.1)  # the paper's 25 km/h
 
 
 def test_tour_is_closed_and_evenly_sampled(tour):
@@ -55,6 +55,7 @@ def test_tour_is_closed_and_evenly_sampled(tour):
 
 def test_the_route_crosses_itself_at_grade_inside_the_intersection_zones(tour):
     from scipy.spatial import cKDTree
+
     tree = cKDTree(np.column_stack([tour.x, tour.y]))
     crossings = [(i, j) for i, j in tree.query_pairs(0.3) if 100 < abs(tour.s[i] - tour.s[j]) < tour.length - 100]
     assert crossings
@@ -90,12 +91,15 @@ def test_csv_route_is_read_and_resampled(tmp_path):
     assert route.point_at(15.0)[:3] == pytest.approx((10.0, 5.0, 1.5))
 
 
-@pytest.mark.parametrize("text, message", [
-    ("x,y\n0,0\n1,banana\n", ":3: expected numbers"),
-    ("0,0\n1,2,3,4\n", ":2: expected 2 or 3"),
-    ("0,0\n", "at least two points"),
-    ("0,0\nnan,1\n", ":2: expected 2 or 3 finite"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("x,y\n0,0\n1,banana\n", ":3: expected numbers"),
+        ("0,0\n1,2,3,4\n", ":2: expected 2 or 3"),
+        ("0,0\n", "at least two points"),
+        ("0,0\nnan,1\n", ":2: expected 2 or 3 finite"),
+    ],
+)
 def test_bad_csv_files_name_the_line(tmp_path, text, message):
     path = tmp_path / "bad.csv"
     path.write_text(text)
@@ -145,12 +149,17 @@ def test_overshooting_the_end_of_an_open_route_is_not_cross_track_error(tmp_path
 
 
 @settings(max_examples=300, deadline=None)
-@given(route=routes, along=st.floats(-0.2, 1.2), offset=st.floats(-8.0, 8.0),
-       hint_lag=st.one_of(st.none(), st.floats(-40.0, 40.0)), on_grid=st.booleans())
+@given(
+    route=routes,
+    along=st.floats(-0.2, 1.2),
+    offset=st.floats(-8.0, 8.0),
+    hint_lag=st.one_of(st.none(), st.floats(-40.0, 40.0)),
+    on_grid=st.booleans(),
+)
 def test_projection_returns_what_it_did_before_it_moved_to_ares_geometry(route, along, offset, hint_lag, on_grid):
     s = along * route.length
     x, y, _ = pose_along(route, s, offset)
-    if on_grid:     # on a lattice route: exactly as near to two segments
+    if on_grid:  # on a lattice route: exactly as near to two segments
         x, y = round(2.0 * x) / 2.0, round(2.0 * y) / 2.0
     hint = None if hint_lag is None else s - hint_lag
     assert route.project(x, y, s_hint=hint) == reference_project(route, x, y, s_hint=hint)

@@ -1,8 +1,9 @@
-"""`ares route import` / `ares route record` (ares/route_import.py): recorded drives -> route files.
+"""`ares route import` / `ares route record` (ares/app/route_import.py): recorded drives -> route files.
 
 The NMEA logs here are "driven" by sampling a route at 5 Hz along a speed profile (slow in
 curves, a 60 s wait at a stop) through the simulator's own GNSS model with its RTK noise.
 """
+
 from __future__ import annotations
 
 import math
@@ -16,21 +17,32 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ares import cli, config, run_config
-from ares.bus import Bus
-from ares.clock import WallClock
-from ares.geodesy import LocalFrame
-from ares.messages import GnssSentences
-from ares.nmea import sentence as nmea_sentence
-from ares.route import Route, RouteError
-from ares.route_import import (RouteImportError, RouteImportSettings, detect_format, drop_standstill, import_route,
-                               project_fixes, read_nmea_log, resample_even)
+from ares import cli
+from ares.app import run_config
+from ares.app.route_import import (
+    RouteImportError,
+    RouteImportSettings,
+    detect_format,
+    drop_standstill,
+    import_route,
+    project_fixes,
+    read_nmea_log,
+    resample_even,
+)
+from ares.core import config
+from ares.core.bus import Bus
+from ares.core.clock import WallClock
+from ares.core.geodesy import LocalFrame
+from ares.core.localhost import free_port
+from ares.core.messages import GnssSentences
+from ares.core.nmea_framing import sentence as nmea_sentence
+from ares.core.route import Route, RouteError
 from ares.sim.params import SimParams
 from ares.sim.sensors import GnssSensor
 from ares.sim.vehicle import VehicleState
-
-from conftest import REPO, free_port
-from receiver_logs import drive_times
+from tests.helpers.receiver_logs import drive_times
+from tests.helpers.roads import deviations, road
+from tests.helpers.stack import REPO
 
 CFG = run_config.build()
 SIM_GNSS = config.section(CFG, "sim", SimParams).gnss
@@ -43,8 +55,10 @@ STOP_S, WAIT_S, HZ = 300.0, 60.0, 5.0
 
 # ---- making recordings ---------------------------------------------------------------------------
 
-def drive_log(route: Route, seed: int = 3, stop_s: float | None = STOP_S, wait_s: float = WAIT_S,
-              hz: float = HZ, **profile) -> list[str]:
+
+def drive_log(
+    route: Route, seed: int = 3, stop_s: float | None = STOP_S, wait_s: float = WAIT_S, hz: float = HZ, **profile
+) -> list[str]:
     """NMEA (GGA + GST) of a drive from s = 0 to the end through the simulator's GNSS model,
     recorded at `hz`, waiting wait_s at stop_s."""
     times, s = drive_times(route, hz, stop_s, wait_s, **profile)
@@ -56,38 +70,26 @@ def drive_log(route: Route, seed: int = 3, stop_s: float | None = STOP_S, wait_s
     return lines
 
 
-def road(pieces, start=(0.0, 0.0), heading_deg=0.0, step=0.05) -> np.ndarray:
-    """Dense x, y of a road of straights ("L", metres) and arcs ("A", radius, degrees, + = left)."""
-    x, y, h = start[0], start[1], math.radians(heading_deg)
-    pts = [(x, y)]
-    for piece in pieces:
-        if piece[0] == "L":
-            n = max(int(piece[1] / step), 1)
-            for _ in range(n):
-                x, y = x + math.cos(h) * piece[1] / n, y + math.sin(h) * piece[1] / n
-                pts.append((x, y))
-        else:
-            _, radius, degrees = piece
-            sweep = math.radians(degrees)
-            n = max(int(abs(sweep) * radius / step), 1)
-            cx, cy = x - math.sin(h) * radius * math.copysign(1, sweep), y + math.cos(h) * radius * math.copysign(1, sweep)
-            for i in range(1, n + 1):
-                a = h - math.copysign(math.pi / 2, sweep) + sweep * i / n
-                pts.append((cx + radius * math.cos(a), cy + radius * math.sin(a)))
-            h += sweep
-            x, y = pts[-1]
-    return np.array(pts)
-
-
 # a campus service road, ~470 m: bends of 12-30 m radius, a hairpin of 14 m, a gentle hill
-CAMPUS_ROAD = [("L", 40), ("A", 25, 90), ("L", 35), ("A", 14, -180), ("L", 30), ("A", 30, 60),
-               ("L", 45), ("A", 12, 90), ("L", 40), ("A", 20, -75), ("L", 60)]
+CAMPUS_ROAD = [
+    ("L", 40),
+    ("A", 25, 90),
+    ("L", 35),
+    ("A", 14, -180),
+    ("L", 30),
+    ("A", 30, 60),
+    ("L", 45),
+    ("A", 12, 90),
+    ("L", 40),
+    ("A", 20, -75),
+    ("L", 60),
+]
 
 
 def campus_road_truth() -> Route:
     xy = road(CAMPUS_ROAD, start=(-80.0, -60.0))
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
-    z = 4.0 * np.sin(math.pi * s / s[-1])           # over a low hill: grades under 3 %
+    z = 4.0 * np.sin(math.pi * s / s[-1])  # over a low hill: grades under 3 %
     return Route(name="campus road", x=xy[:, 0], y=xy[:, 1], z=z, closed=False, width=np.full(len(xy), 5.0))
 
 
@@ -95,27 +97,16 @@ def write_campus_road_csv(path: Path, every_m: float = 1.0) -> Route:
     """The campus road as a CSV of x,y,z every `every_m` metres (a few hundred points)."""
     truth = campus_road_truth()
     s = np.linspace(0.0, truth.s[-1], int(truth.s[-1] / every_m) + 1)
-    rows = ["x,y,z"] + [f"{np.interp(v, truth.s, truth.x):.3f},{np.interp(v, truth.s, truth.y):.3f},"
-                        f"{np.interp(v, truth.s, truth.z):.3f}" for v in s]
+    rows = ["x,y,z"] + [
+        f"{np.interp(v, truth.s, truth.x):.3f},{np.interp(v, truth.s, truth.y):.3f},"
+        f"{np.interp(v, truth.s, truth.z):.3f}"
+        for v in s
+    ]
     path.write_text("\n".join(rows) + "\n")
     return truth
 
 
 # ---- measuring routes ----------------------------------------------------------------------------
-
-def deviations(points: np.ndarray, reference: Route, start_s: float | None = None):
-    """Distance of each point (taken in order) to the reference route, and the reference's yaw
-    and z there. The projection follows the drive (hints), so a crossing matches the right pass."""
-    dist, yaw, z, hint = [], [], [], start_s
-    for x, y in points[:, :2]:
-        s, xte, _ = reference.project(float(x), float(y), s_hint=hint)
-        hint = s
-        dist.append(abs(xte))
-        z.append(reference.point_at(s)[2])
-        # the tangent, not the yaw of the 0.25 m segment (which lags 0.02 rad on a 12 m arc)
-        ahead, behind = reference.point_at(s + 0.1), reference.point_at(s - 0.1)
-        yaw.append(math.atan2(ahead[1] - behind[1], ahead[0] - behind[0]))
-    return np.array(dist), np.array(yaw), np.array(z)
 
 
 def angle_diff(a, b):
@@ -133,12 +124,13 @@ def tour_import(tmp_path_factory):
 
 # ---- NMEA import -----------------------------------------------------------------------------------
 
+
 def test_nmea_log_of_the_tour_gives_its_geometry_within_centimetres(tour_import):
     _, result, out = tour_import
     dist, yaw_true, z_true = deviations(result.xyz, TOUR_GEOMETRY)
-    assert math.sqrt(np.mean(dist ** 2)) < 0.01 and dist.max() < 0.03
-    assert np.abs(angle_diff(result.yaw, yaw_true)).max() < 0.03     # yaw from adjacent poses
-    assert np.abs(result.xyz[:, 2] - z_true).max() < 0.05             # z kept (the tour climbs 10 m)
+    assert math.sqrt(np.mean(dist**2)) < 0.01 and dist.max() < 0.03
+    assert np.abs(angle_diff(result.yaw, yaw_true)).max() < 0.03  # yaw from adjacent poses
+    assert np.abs(result.xyz[:, 2] - z_true).max() < 0.05  # z kept (the tour climbs 10 m)
     # and no stretch is missing: every point of the tour lies on the imported route
     back = Route.from_csv(out)
     covered, _, _ = deviations(np.column_stack([TOUR_GEOMETRY.x, TOUR_GEOMETRY.y]), back, start_s=0.0)
@@ -150,9 +142,9 @@ def test_the_standstill_is_de_duplicated(tour_import):
     log, result, _ = tour_import
     raw = project_fixes(read_nmea_log(log.read_bytes(), log.name), FRAME, log.name)
     assert result.points_in == len(raw)
-    assert result.points_in - result.kept >= WAIT_S * HZ - 5          # the 60 s wait, ~300 fixes
+    assert result.points_in - result.kept >= WAIT_S * HZ - 5  # the 60 s wait, ~300 fixes
     stop = np.array(TOUR_GEOMETRY.point_at(STOP_S)[:2])
-    at_stop = lambda pts: int(np.sum(np.hypot(*(pts[:, :2] - stop).T) < 0.05))   # noqa: E731
+    at_stop = lambda pts: int(np.sum(np.hypot(*(pts[:, :2] - stop).T) < 0.05))  # noqa: E731
     assert at_stop(raw) >= WAIT_S * HZ
     kept = drop_standstill(raw, 0.1)
     assert len(kept) == result.kept and at_stop(kept) <= 1
@@ -180,8 +172,14 @@ def test_the_written_file_is_an_evenly_spaced_open_route_with_its_summary(tour_i
 
 
 def test_noise_free_log_lands_on_the_geometry_and_no_stop_means_nothing_to_drop(tmp_path):
-    line = Route(name="line", x=np.array([0.0, 50.0]), y=np.array([0.0, 20.0]), z=np.zeros(2), closed=False,
-                 width=np.full(2, 4.0))
+    line = Route(
+        name="line",
+        x=np.array([0.0, 50.0]),
+        y=np.array([0.0, 20.0]),
+        z=np.zeros(2),
+        closed=False,
+        width=np.full(2, 4.0),
+    )
     gnss = GnssSensor(line, SIM_GNSS, FRAME, noise=False)
     lines = []
     for i in range(60):
@@ -197,6 +195,7 @@ def test_noise_free_log_lands_on_the_geometry_and_no_stop_means_nothing_to_drop(
 
 # ---- CSV import ------------------------------------------------------------------------------------
 
+
 def test_csv_of_a_campus_road_keeps_its_geometry(tmp_path):
     src = tmp_path / "campus_road.csv"
     truth = write_campus_road_csv(src)
@@ -204,7 +203,7 @@ def test_csv_of_a_campus_road_keeps_its_geometry(tmp_path):
     assert 300 <= result.points_in <= 600 and result.fmt == "csv" and not result.closed_loop
     dist, yaw_true, z_true = deviations(result.xyz, truth)
     # points every metre on a 12 m arc are chords 1 cm inside it: the import may not add much
-    assert math.sqrt(np.mean(dist ** 2)) < 0.01 and dist.max() < 0.02
+    assert math.sqrt(np.mean(dist**2)) < 0.01 and dist.max() < 0.02
     # (the smoothing eases the jump of curvature where a straight meets an arc: ~1 deg there)
     assert np.abs(angle_diff(result.yaw, yaw_true)).max() < 0.03
     assert result.length_m == pytest.approx(truth.length, rel=0.002)
@@ -224,17 +223,19 @@ def test_corners_are_not_cut(tmp_path, radius):
 
 def test_rtk_noise_is_smoothed_away(tmp_path):
     rng = np.random.default_rng(5)
-    x = np.arange(0.0, 150.0, 0.2)                 # a slow drive: a fix every 0.2 m
+    x = np.arange(0.0, 150.0, 0.2)  # a slow drive: a fix every 0.2 m
     src = tmp_path / "noisy.csv"
     src.write_text("\n".join(f"{a:.4f},{b:.4f}" for a, b in zip(x, rng.normal(0.0, 0.007, len(x)))))
     result = import_route(src, cfg=CFG)
     inner = result.xyz[6:-6]
-    assert math.sqrt(np.mean(inner[:, 1] ** 2)) < 0.0035             # 7 mm of noise -> under half
+    assert math.sqrt(np.mean(inner[:, 1] ** 2)) < 0.0035  # 7 mm of noise -> under half
     assert np.abs(result.yaw[6:-6]).max() < 0.02
 
 
 def test_drop_standstill_keeps_order_and_spacing():
-    pts = np.array([[0, 0, 0], [0.05, 0, 0], [0.02, 0.03, 0], [0.3, 0, 0], [0.35, 0, 0], [0.15, 0, 0], [1, 0, 0.5]], float)
+    pts = np.array(
+        [[0, 0, 0], [0.05, 0, 0], [0.02, 0.03, 0], [0.3, 0, 0], [0.35, 0, 0], [0.15, 0, 0], [1, 0, 0.5]], float
+    )
     kept = drop_standstill(pts, 0.1)
     assert kept.tolist() == [[0, 0, 0], [0.3, 0, 0], [0.15, 0, 0], [1, 0, 0.5]]
     even = resample_even(np.array([[0, 0, 0], [10.2, 0, 1.0]], float), 0.5)
@@ -243,8 +244,10 @@ def test_drop_standstill_keeps_order_and_spacing():
 
 def test_route_from_csv_reads_yaw_column_and_comments(tmp_path):
     path = tmp_path / "r.csv"
-    path.write_text("# ares route: source=x, points=3, length_m=20\n# another comment\nx,y,z,yaw\n"
-                    "0,0,0,0\n10,0,1,0.785\n10,10,2,1.571\n")
+    path.write_text(
+        "# ares route: source=x, points=3, length_m=20\n# another comment\nx,y,z,yaw\n"
+        "0,0,0,0\n10,0,1,0.785\n10,10,2,1.571\n"
+    )
     route = Route.from_csv(path)
     assert route.length == pytest.approx(20.0) and route.point_at(15.0)[:3] == pytest.approx((10.0, 5.0, 1.5))
     path.write_text("x,y,z,yaw\n0,0,0,0\n10,0,1\n")
@@ -257,6 +260,7 @@ def test_route_from_csv_reads_yaw_column_and_comments(tmp_path):
 
 # ---- bad files ---------------------------------------------------------------------------------------
 
+
 def good_lines(n: int = 20) -> list[str]:
     gnss = GnssSensor(TOUR, SIM_GNSS, FRAME, noise=False)
     out = []
@@ -267,26 +271,29 @@ def good_lines(n: int = 20) -> list[str]:
 
 
 def with_field(sentence: str, index: int, value: str) -> str:
-    fields = sentence[1:sentence.index("*")].split(",")
+    fields = sentence[1 : sentence.index("*")].split(",")
     fields[index] = value
     return nmea_sentence(",".join(fields))
 
 
-@pytest.mark.parametrize("bad, lineno, words", [
-    (lambda g: g[:-2] + ("00" if g[-2:] != "00" else "01"), 7, "checksum"),
-    (lambda g: g[:25], 9, "framing"),
-    (lambda g: with_field(g, 2, "4099.0000000"), 5, "latitude"),
-    (lambda g: with_field(g, 4, "01000.0000000"), 11, "far from origin"),
-    (lambda g: with_field(g, 7, "x"), 3, "satellites"),
-])
+@pytest.mark.parametrize(
+    "bad, lineno, words",
+    [
+        (lambda g: g[:-2] + ("00" if g[-2:] != "00" else "01"), 7, "checksum"),
+        (lambda g: g[:25], 9, "framing"),
+        (lambda g: with_field(g, 2, "4099.0000000"), 5, "latitude"),
+        (lambda g: with_field(g, 4, "01000.0000000"), 11, "far from origin"),
+        (lambda g: with_field(g, 7, "x"), 3, "satellites"),
+    ],
+)
 def test_a_bad_nmea_line_is_counted_and_skipped_or_with_strict_named(tmp_path, bad, lineno, words):
     lines = good_lines()
-    lines[lineno - 1] = bad(lines[lineno - 1])          # odd lines are GGA, even ones GST
+    lines[lineno - 1] = bad(lines[lineno - 1])  # odd lines are GGA, even ones GST
     src = tmp_path / "drive.nmea"
     src.write_text("\n".join(lines) + "\n")
     with pytest.raises(RouteImportError, match=f"drive.nmea:{lineno}: {words}"):
         import_route(src, tmp_path / "out.csv", strict=True, cfg=CFG)
-    assert not (tmp_path / "out.csv").exists()          # nothing half-written
+    assert not (tmp_path / "out.csv").exists()  # nothing half-written
     result = import_route(src, tmp_path / "out.csv", cfg=CFG)
     if words == "far from origin":
         assert result.log.far == 1 and not result.log.bad
@@ -310,17 +317,20 @@ def test_other_sentences_no_fix_and_blank_lines_are_not_errors(tmp_path):
     assert "skipped, no fix: GGA 1" in summary and "GPRMC 1 (GPRMC: positions taken from GGA)" in summary
 
 
-@pytest.mark.parametrize("text, words", [
-    ("x,y\n0,0\n1,banana\n", "bad.csv:3: expected numbers"),
-    ("0,0\n1,2,3,4,5\n", "bad.csv:2: expected 2 or 3 numbers"),
-    ("0,0\nnan,1\n", "bad.csv:2: not a finite number"),
-    ("", "no points"),
-    ("# only a comment\nx,y\n", "no points"),
-    ("0,0\n0.01,0.02\n0.03,0\n", "never moves"),
-    (nmea_sentence("GPGGA,,,,,,0,00,99.99,,,,,,") + "\n", "no usable position.*GGA 1 without a fix"),
-    ("# a logger's header\n" + nmea_sentence("GPGSV,1,1,01,03,03,111,00") + "\n", "no usable position"),
-    ("# a logger's header, nothing else\n", "neither NMEA sentences nor rows"),
-])
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("x,y\n0,0\n1,banana\n", "bad.csv:3: expected numbers"),
+        ("0,0\n1,2,3,4,5\n", "bad.csv:2: expected 2 or 3 numbers"),
+        ("0,0\nnan,1\n", "bad.csv:2: not a finite number"),
+        ("", "no points"),
+        ("# only a comment\nx,y\n", "no points"),
+        ("0,0\n0.01,0.02\n0.03,0\n", "never moves"),
+        (nmea_sentence("GPGGA,,,,,,0,00,99.99,,,,,,") + "\n", "no usable position.*GGA 1 without a fix"),
+        ("# a logger's header\n" + nmea_sentence("GPGSV,1,1,01,03,03,111,00") + "\n", "no usable position"),
+        ("# a logger's header, nothing else\n", "neither NMEA sentences nor rows"),
+    ],
+)
 def test_bad_files_get_a_clear_error(tmp_path, text, words):
     src = tmp_path / ("bad.nmea" if text.startswith("$") else "bad.csv")
     src.write_text(text)
@@ -343,12 +353,13 @@ def test_format_detection():
     assert detect_format(b"") is None and detect_format(b"# just words\n") is None
     header = "Logger v2.1 \u2014 Bootsfahrt M\u00fcnchen\r\n# port COM3 @ 38400\r\n".encode()
     assert detect_format(header + b"$GPGGA,1*00\r\n$GPRMC,2*00\r\n") == "nmea"
-    assert detect_format(b"\xef\xbb\xbfx,y\n# c\n0,0\n1,1\n$GPGGA,x*00\n") == "csv"      # rows win
+    assert detect_format(b"\xef\xbb\xbfx,y\n# c\n0,0\n1,1\n$GPGGA,x*00\n") == "csv"  # rows win
     assert detect_format(b"2024-05-01T09:47:36Z $GNGGA,1*00\n\\s:GPS1*5A\\$GPRMC,2*00\n") == "nmea"
     assert detect_format(b"1795427250.125,$GNGGA,1*00\n1795427250.250;COM3;$GNRMC,2*00\n") == "nmea"
 
 
 # ---- configuration: the route_import section ------------------------------------------------------
+
 
 def test_the_route_import_section_sets_the_spacing_and_the_argument_overrides_it(tmp_path):
     src = tmp_path / "road.csv"
@@ -368,6 +379,7 @@ def test_a_bad_route_import_setting_is_refused_naming_the_key():
 
 # ---- the command line -----------------------------------------------------------------------------
 
+
 @pytest.fixture
 def no_run_config(monkeypatch):
     monkeypatch.delenv(config.RUN_CONFIG_ENV, raising=False)
@@ -386,7 +398,7 @@ def test_cli_imports_nmea_and_csv(tmp_path, tour_import, capsys, no_run_config):
     out2 = tmp_path / "road_route.csv"
     assert cli.main(["route", "import", str(src), "-o", str(out2), "--format", "csv", "--spacing", "1"]) == 0
     assert "every 1.00 m" in capsys.readouterr().out
-    assert np.diff(Route.from_csv(out2).s).max() <= 0.25 + 1e-9    # read back: 0.25 m samples
+    assert np.diff(Route.from_csv(out2).s).max() <= 0.25 + 1e-9  # read back: 0.25 m samples
 
 
 def test_cli_errors_exit_non_zero_with_the_line(tmp_path, capsys, no_run_config):
@@ -402,7 +414,7 @@ def test_cli_errors_exit_non_zero_with_the_line(tmp_path, capsys, no_run_config)
     assert "drive.nmea:1: expected numbers" in capsys.readouterr().err
     assert cli.main(["route", "import", str(tmp_path / "nope.nmea"), "-o", str(tmp_path / "o.csv")]) == 1
     assert "cannot read" in capsys.readouterr().err
-    assert cli.main(["route", "import", str(src)]) == 2                  # -o is required
+    assert cli.main(["route", "import", str(src)]) == 2  # -o is required
     assert cli.main(["route", "import", str(src), "-o", "x.csv", "--spacing", "-1"]) == 2
 
 
@@ -413,8 +425,15 @@ def env_without_run_config() -> dict:
 
 
 def ares(*argv: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "ares.cli", *argv], cwd=REPO, env=env_without_run_config(),
-                          capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [sys.executable, "-m", "ares.cli", *argv],
+        cwd=REPO,
+        env=env_without_run_config(),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def test_cli_exit_code_as_a_process(tmp_path):
@@ -432,12 +451,13 @@ def test_route_record_writes_what_arrives_on_sensors_gnss(router, port, tmp_path
     in-memory bus cannot stand in for."""
     bus = Bus(router, "test", WallClock())
     stop = threading.Event()
-    line = Route(name="line", x=np.array([0.0, 100.0]), y=np.zeros(2), z=np.zeros(2), closed=False,
-                 width=np.full(2, 4.0))
+    line = Route(
+        name="line", x=np.array([0.0, 100.0]), y=np.zeros(2), z=np.zeros(2), closed=False, width=np.full(2, 4.0)
+    )
     gnss = GnssSensor(line, SIM_GNSS, FRAME, rng=np.random.default_rng(2), noise=True)
     published: list[str] = []
 
-    def feed() -> None:         # the simulated receiver, 20 Hz, driving east at 10 m/s
+    def feed() -> None:  # the simulated receiver, 20 Hz, driving east at 10 m/s
         i = 0
         while not stop.is_set():
             t = i * 0.05
@@ -461,7 +481,7 @@ def test_route_record_writes_what_arrives_on_sensors_gnss(router, port, tmp_path
     lines = log.read_text().splitlines()
     # what arrived while recording, one sentence a line, nothing lost or reordered in between
     start = published.index(lines[0])
-    assert lines == published[start:start + len(lines)]
+    assert lines == published[start : start + len(lines)]
     fixes = project_fixes(read_nmea_log(log.read_bytes(), log.name), FRAME, log.name)
     result = import_route(log, tmp_path / "recorded_route.csv", cfg=CFG)
     assert np.abs(result.xyz[:, 1]).max() < 0.03
@@ -469,6 +489,7 @@ def test_route_record_writes_what_arrives_on_sensors_gnss(router, port, tmp_path
 
 
 def test_route_record_without_a_stack_is_a_clear_error(tmp_path):
-    done = ares("route", "record", str(tmp_path / "x.nmea"), "--seconds", "1", "--router",
-                f"tcp/127.0.0.1:{free_port()}")
+    done = ares(
+        "route", "record", str(tmp_path / "x.nmea"), "--seconds", "1", "--router", f"tcp/127.0.0.1:{free_port()}"
+    )
     assert done.returncode == 1 and "no Zenoh router reachable" in done.stderr

@@ -1,33 +1,45 @@
-"""The safety figures of a headless run (ares/safety_eval.py) and the scenario's outside actions
-(ares/scenario_run.py): collisions and clearance from the footprints, each invariant violation
+"""The safety figures of a headless run (ares/tools/evaluation/safety_eval.py) and the scenario's outside actions
+(ares/tools/scenario_driver.py): collisions and clearance from the footprints, each invariant violation
 caught, the times of a fault's response, and faults and operator actions fired at their times."""
+
 from __future__ import annotations
 
 import math
 
 import pytest
 
-from ares.clock import ManualClock
-from ares.config import Scenario
-from ares.geometry import convex_gap, rectangle_corners
-from ares.membus import MemoryNetwork
-from ares.messages import (AwarenessState, BodyState, CarState, DriveMode, Event, MissionReply, MissionRequest,
-                           MovementStatus, ObstacleBox, RearmReply, RearmRequest, WorldTruth)
-from ares.safety_eval import SafetyTracker
-from ares.scenario_run import ScenarioDriver
+from ares.core.clock import ManualClock
+from ares.core.config import Scenario
+from ares.core.geometry import convex_gap, rectangle_corners
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import (
+    AwarenessState,
+    BodyState,
+    CarState,
+    DriveMode,
+    Event,
+    MissionReply,
+    MovementStatus,
+    ObstacleBox,
+    RearmReply,
+    WorldTruth,
+)
+from ares.tools.evaluation.safety_eval import SafetyTracker
+from ares.tools.scenario_driver import ScenarioDriver
 
 SHUTTLE = dict(length_m=3.93, width_m=1.99, front_bumper_m=3.365)
 
 
 def status(t: float, v: float, limit: float | None, latched: bool = False, stopping: bool = False) -> MovementStatus:
-    return MovementStatus(t=t, level=0, latched=latched, stopping=stopping, limit_mps=limit, limited_by="speed",
-                          v=v, kappa=0.0, reason="")
+    return MovementStatus(
+        t=t, level=0, latched=latched, stopping=stopping, limit_mps=limit, limited_by="speed", v=v, kappa=0.0, reason=""
+    )
 
 
 def test_the_gap_between_rectangles():
     a = rectangle_corners(0.0, 0.0, 0.0, 2.0, 1.0, 0.5)
     assert convex_gap(a, rectangle_corners(4.0, 0.0, 0.0, 0.5, 0.5, 0.5)) == pytest.approx(1.5)
-    assert convex_gap(a, rectangle_corners(2.2, 0.0, 0.7, 0.5, 0.5, 0.5)) == 0.0          # overlapping, turned
+    assert convex_gap(a, rectangle_corners(2.2, 0.0, 0.7, 0.5, 0.5, 0.5)) == 0.0  # overlapping, turned
     assert convex_gap(a, rectangle_corners(3.0, 3.0, 0.0, 0.5, 0.5, 0.5)) == pytest.approx(math.hypot(0.5, 2.0))
 
 
@@ -42,13 +54,20 @@ def test_a_collision_counts_once_per_obstacle_and_the_clearance_is_the_smallest_
     assert out["invariant_violations"] == 1 and "collision with walker" in out["invariant_examples"][0]
     near = SafetyTracker(**SHUTTLE)
     near.add_world(WorldTruth(t=0.0, obstacles=[walker]))
-    near.add_truth(0.0, 5.0, 0.0, 0.0, 0.0)          # bumper at 8.365, walker's back at 9.75
+    near.add_truth(0.0, 5.0, 0.0, 0.0, 0.0)  # bumper at 8.365, walker's back at 9.75
     assert near.summary()["min_clearance_m"] == pytest.approx(1.385) and near.summary()["collisions"] == 0
 
 
-@pytest.mark.parametrize("doors, ramp, v, violated", [
-    ("closed", "stowed", 2.0, False), ("open", "stowed", 0.0, False), ("open", "stowed", 0.3, True),
-    ("closing", "stowed", 0.1, True), ("closed", "deploying", 0.2, True)])
+@pytest.mark.parametrize(
+    "doors, ramp, v, violated",
+    [
+        ("closed", "stowed", 2.0, False),
+        ("open", "stowed", 0.0, False),
+        ("open", "stowed", 0.3, True),
+        ("closing", "stowed", 0.1, True),
+        ("closed", "deploying", 0.2, True),
+    ],
+)
 def test_moving_with_a_door_not_closed_or_the_ramp_out_is_a_violation(doors, ramp, v, violated):
     tracker = SafetyTracker(**SHUTTLE)
     tracker.add_body(BodyState(t=0.0, doors=doors, ramp=ramp, entrance_clear=True))
@@ -68,16 +87,16 @@ def test_a_command_above_the_limit_or_under_a_latch_is_a_violation():
 
 def test_a_faults_response_is_timed_from_its_start():
     tracker = SafetyTracker(**SHUTTLE)
-    tracker.add_status(status(5.0, 3.0, 3.0, stopping=True))        # a stop before the fault, over before it,
-    tracker.add_status(status(6.0, 3.0, 3.0))                        # is not its response
+    tracker.add_status(status(5.0, 3.0, 3.0, stopping=True))  # a stop before the fault, over before it,
+    tracker.add_status(status(6.0, 3.0, 3.0))  # is not its response
     tracker.add_fault(10.0, "kill_process", "mpc")
     tracker.add_truth(10.2, 0.0, 0.0, 0.0, 3.0)
     tracker.add_status(status(10.6, 2.9, 2.9, stopping=True))
     tracker.add_truth(14.0, 0.0, 0.0, 0.0, 0.0)
-    tracker.add_status(status(17.0, 0.0, 3.0))                       # the cause cleared: on again
+    tracker.add_status(status(17.0, 0.0, 3.0))  # the cause cleared: on again
     tracker.add_truth(18.0, 0.0, 0.0, 0.0, 0.2)
     tracker.add_truth(19.5, 0.0, 0.0, 0.0, 0.6)
-    brief = SafetyTracker(**SHUTTLE)                                 # a cause that clears before a standstill
+    brief = SafetyTracker(**SHUTTLE)  # a cause that clears before a standstill
     brief.add_fault(1.0, "kill_process", "gnss")
     brief.add_status(status(1.2, 3.0, 3.0, stopping=True))
     brief.add_truth(1.25, 0.0, 0.0, 0.0, 2.9)
@@ -85,26 +104,63 @@ def test_a_faults_response_is_timed_from_its_start():
     brief.add_truth(1.45, 0.0, 0.0, 0.0, 2.8)
     killed = SafetyTracker(**SHUTTLE)
     killed.add_fault(1.0, "kill_process", "dbw_bridge")
-    killed.add_truth(1.55, 0.0, 0.0, 0.0, 3.0, failsafe=True)       # the board's own brake
-    killed.add_car(CarState(t=2.0, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=True, setpoint_age_s=None,
-                            v_command=0.0, kappa_command=0.0, speed_mps=2.0, steering_wheel_deg=0.0))
-    assert tracker.summary()["faults"] == [{"kind": "kill_process", "target": "mpc", "at_s": 10.0,
-                                            "time_to_safe_state_s": 0.6, "time_to_standstill_s": 4.0,
-                                            "stop_ended_after_s": 7.0, "resumed_after_s": 9.5}]
-    assert brief.summary()["faults"][0] == {"kind": "kill_process", "target": "gnss", "at_s": 1.0,
-                                                "time_to_safe_state_s": 0.2, "time_to_standstill_s": None,
-                                                "stop_ended_after_s": 0.4, "resumed_after_s": 0.45}
+    killed.add_truth(1.55, 0.0, 0.0, 0.0, 3.0, failsafe=True)  # the board's own brake
+    killed.add_car(
+        CarState(
+            t=2.0,
+            mode=DriveMode.AUTOMATIC,
+            engaged=True,
+            watchdog_tripped=True,
+            setpoint_age_s=None,
+            v_command=0.0,
+            kappa_command=0.0,
+            speed_mps=2.0,
+            steering_wheel_deg=0.0,
+        )
+    )
+    assert tracker.summary()["faults"] == [
+        {
+            "kind": "kill_process",
+            "target": "mpc",
+            "at_s": 10.0,
+            "time_to_safe_state_s": 0.6,
+            "time_to_standstill_s": 4.0,
+            "stop_ended_after_s": 7.0,
+            "resumed_after_s": 9.5,
+        }
+    ]
+    assert brief.summary()["faults"][0] == {
+        "kind": "kill_process",
+        "target": "gnss",
+        "at_s": 1.0,
+        "time_to_safe_state_s": 0.2,
+        "time_to_standstill_s": None,
+        "stop_ended_after_s": 0.4,
+        "resumed_after_s": 0.45,
+    }
     assert killed.summary()["faults"][0]["time_to_safe_state_s"] == 0.55
 
 
 def test_levels_and_poi_actions_are_kept_in_order():
     tracker = SafetyTracker(**SHUTTLE)
-    for t, level, causes in [(0.0, 0, []), (0.5, 0, []), (1.0, 2, ["imu: frozen"]), (1.5, 2, ["imu: frozen"]),
-                             (2.0, 0, [])]:
+    for t, level, causes in [
+        (0.0, 0, []),
+        (0.5, 0, []),
+        (1.0, 2, ["imu: frozen"]),
+        (1.5, 2, ["imu: frozen"]),
+        (2.0, 0, []),
+    ]:
         tracker.add_awareness(AwarenessState(t=t, level=level, causes=causes))
     for action in ("STOP", "OPENING_DOORS"):
-        tracker.add_event(Event(t=3.0, source="mission_manager", kind="poi_action", message="",
-                                data={"poi": "Library", "action": action}))
+        tracker.add_event(
+            Event(
+                t=3.0,
+                source="mission_manager",
+                kind="poi_action",
+                message="",
+                data={"poi": "Library", "action": action},
+            )
+        )
     tracker.add_event(Event(t=3.0, source="x", kind="awareness", message=""))
     out = tracker.summary()
     assert out["level_history"] == [[0.0, 0, ""], [1.0, 2, "imu: frozen"], [2.0, 0, ""]]
@@ -115,18 +171,31 @@ def test_the_scenario_fires_faults_and_operator_actions_at_their_times():
     clock, network = ManualClock(), MemoryNetwork()
     vehicle = network.bus("vehicle", clock)
     calls = []
-    vehicle.serve("movement/rearm", lambda r: calls.append(("rearm", r.operator)) or
-                  RearmReply(t=0.0, accepted=True, reason="re-armed"))
-    vehicle.serve("mission/pause", lambda r: calls.append(("pause", r.operator)) or
-                  MissionReply(t=0.0, accepted=False, reason="nothing to pause (IDLE)"))
-    scenario = Scenario.model_validate({
-        "name": "s", "faults": [{"kind": "kill_process", "process": "mpc", "at_t_s": 5},
-                                {"kind": "freeze_imu", "at_t_s": 2, "duration_s": 1}],
-        "operator": [{"at_t_s": 7, "action": "pause"}, {"at_t_s": 6, "action": "rearm"}]})
+    vehicle.serve(
+        "movement/rearm",
+        lambda r: calls.append(("rearm", r.operator)) or RearmReply(t=0.0, accepted=True, reason="re-armed"),
+    )
+    vehicle.serve(
+        "mission/pause",
+        lambda r: (
+            calls.append(("pause", r.operator)) or MissionReply(t=0.0, accepted=False, reason="nothing to pause (IDLE)")
+        ),
+    )
+    scenario = Scenario.model_validate(
+        {
+            "name": "s",
+            "faults": [
+                {"kind": "kill_process", "process": "mpc", "at_t_s": 5},
+                {"kind": "freeze_imu", "at_t_s": 2, "duration_s": 1},
+            ],
+            "operator": [{"at_t_s": 7, "action": "pause"}, {"at_t_s": 6, "action": "rearm"}],
+        }
+    )
     injected = []
     tracker = SafetyTracker(**SHUTTLE)
-    driver = ScenarioDriver(scenario, network.bus("run", clock), lambda p, k: injected.append((p, k)) or f"{k} {p}",
-                            tracker)
+    driver = ScenarioDriver(
+        scenario, network.bus("run", clock), lambda p, k: injected.append((p, k)) or f"{k} {p}", tracker
+    )
     for t in (1.0, 2.0, 5.5, 6.5):
         driver.step(t)
         vehicle.poll_services()
@@ -134,6 +203,12 @@ def test_the_scenario_fires_faults_and_operator_actions_at_their_times():
     driver.step(9.0)
     assert calls[-1] == ("pause", "scenario")
     assert [a[1:3] for a in driver.summary()["scenario_actions"]] == [
-        ["freeze_imu imu", True], ["kill_process mpc", True], ["rearm", True], ["pause", False]]
-    assert [(f.kind, f.target, f.at_s) for f in tracker.faults] == [("freeze_imu", "imu", 2.0),
-                                                                     ("kill_process", "mpc", 5.0)]
+        ["freeze_imu imu", True],
+        ["kill_process mpc", True],
+        ["rearm", True],
+        ["pause", False],
+    ]
+    assert [(f.kind, f.target, f.at_s) for f in tracker.faults] == [
+        ("freeze_imu", "imu", 2.0),
+        ("kill_process", "mpc", 5.0),
+    ]

@@ -1,5 +1,6 @@
 """Bulk messages: a typed header plus raw little-endian arrays, decoded as views of the payload;
 anything that does not match the schema is refused with a reason, never half-read."""
+
 from __future__ import annotations
 
 import struct
@@ -7,18 +8,26 @@ import struct
 import numpy as np
 import pydantic
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from ares import schema
-from ares.messages import OccupancyGrid, PointCloud
-from ares.schema import BulkDecodeError
+from ares.core import schema
+from ares.core.messages import OccupancyGrid, PointCloud
+from ares.core.schema import BulkDecodeError
 
 
 def cloud(n: int = 1000, seed: int = 0) -> PointCloud:
     rng = np.random.default_rng(seed)
-    return PointCloud(t=3.25, sensor="roof", frame="lidar_roof", x=rng.normal(size=n).astype("<f4"),
-                      y=rng.normal(size=n).astype("<f4"), z=rng.normal(size=n).astype("<f4"),
-                      intensity=rng.random(n, dtype=np.float32), ring=rng.integers(0, 64, n).astype("u1"))
+    return PointCloud(
+        t=3.25,
+        sensor="roof",
+        frame="lidar_roof",
+        x=rng.normal(size=n).astype("<f4"),
+        y=rng.normal(size=n).astype("<f4"),
+        z=rng.normal(size=n).astype("<f4"),
+        intensity=rng.random(n, dtype=np.float32),
+        ring=rng.integers(0, 64, n).astype("u1"),
+    )
 
 
 def test_a_cloud_round_trips_and_its_arrays_view_the_payload():
@@ -29,8 +38,8 @@ def test_a_cloud_round_trips_and_its_arrays_view_the_payload():
     for name in PointCloud.ARRAYS:
         a = getattr(got, name)
         assert np.array_equal(a, getattr(sent, name)) and a.dtype == getattr(sent, name).dtype
-        assert not a.flags.owndata and not a.flags.writeable     # a view of the received bytes
-        assert a.ctypes.data % a.itemsize == 0                   # aligned: fast to read
+        assert not a.flags.owndata and not a.flags.writeable  # a view of the received bytes
+        assert a.ctypes.data % a.itemsize == 0  # aligned: fast to read
 
 
 def test_a_grid_round_trips_with_its_shape():
@@ -43,45 +52,74 @@ def test_a_grid_round_trips_with_its_shape():
 
 def test_the_sender_side_checks_the_arrays():
     with pytest.raises(pydantic.ValidationError, match="one entry per point"):
-        PointCloud(t=0.0, sensor="s", frame="f", x=np.zeros(3, "<f4"), y=np.zeros(3, "<f4"), z=np.zeros(2, "<f4"),
-                   intensity=np.zeros(3, "<f4"), ring=np.zeros(3, "u1"))
+        PointCloud(
+            t=0.0,
+            sensor="s",
+            frame="f",
+            x=np.zeros(3, "<f4"),
+            y=np.zeros(3, "<f4"),
+            z=np.zeros(2, "<f4"),
+            intensity=np.zeros(3, "<f4"),
+            ring=np.zeros(3, "u1"),
+        )
     with pytest.raises(pydantic.ValidationError, match="shape"):
         OccupancyGrid(t=0.0, frame="f", resolution_m=0.2, origin_x=0.0, origin_y=0.0, cells=np.zeros(10, "u1"))
     with pytest.raises(pydantic.ValidationError, match="cannot become"):
-        PointCloud(t=0.0, sensor="s", frame="f", x=np.zeros(1, "<f4"), y=np.zeros(1, "<f4"), z=np.zeros(1, "<f4"),
-                   intensity=np.zeros(1, "<f4"), ring=np.array(["a"]))
+        PointCloud(
+            t=0.0,
+            sensor="s",
+            frame="f",
+            x=np.zeros(1, "<f4"),
+            y=np.zeros(1, "<f4"),
+            z=np.zeros(1, "<f4"),
+            intensity=np.zeros(1, "<f4"),
+            ring=np.array(["a"]),
+        )
 
 
 def test_float64_arrays_become_the_declared_float32():
     n = 4
-    c = PointCloud(t=0.0, sensor="s", frame="f", x=np.arange(n, dtype=float), y=np.zeros(n), z=np.zeros(n),
-                   intensity=np.zeros(n), ring=np.zeros(n, dtype="u2"))
+    c = PointCloud(
+        t=0.0,
+        sensor="s",
+        frame="f",
+        x=np.arange(n, dtype=float),
+        y=np.zeros(n),
+        z=np.zeros(n),
+        intensity=np.zeros(n),
+        ring=np.zeros(n, dtype="u2"),
+    )
     assert c.x.dtype == np.dtype("<f4") and c.ring.dtype == np.dtype("u1")
 
 
 def _header(payload: bytes) -> tuple[dict, int]:
     import orjson
+
     (n,) = struct.unpack_from("<I", payload, 4)
-    return orjson.loads(payload[8:8 + n]), n
+    return orjson.loads(payload[8 : 8 + n]), n
 
 
 def _with_header(payload: bytes, header: dict) -> bytes:
     """The same arrays under another header."""
     import orjson
+
     _, n = _header(payload)
-    arrays = payload[-(-(8 + n) // 8) * 8:]
+    arrays = payload[-(-(8 + n) // 8) * 8 :]
     head = orjson.dumps(header)
     start = -(-(8 + len(head)) // 8) * 8
     return (payload[:4] + struct.pack("<I", len(head)) + head).ljust(start, b" ") + arrays
 
 
-@pytest.mark.parametrize("mutate, reason", [
-    (lambda p: b"XXXX" + p[4:], "bad magic"),
-    (lambda p: p[:6], "bad magic"),
-    (lambda p: p[:4] + struct.pack("<I", 10 ** 9) + p[8:], "header runs past"),
-    (lambda p: p[:-100], "runs past the payload"),
-    (lambda p: p[:8] + b"[" + p[9:], "malformed header"),
-])
+@pytest.mark.parametrize(
+    "mutate, reason",
+    [
+        (lambda p: b"XXXX" + p[4:], "bad magic"),
+        (lambda p: p[:6], "bad magic"),
+        (lambda p: p[:4] + struct.pack("<I", 10**9) + p[8:], "header runs past"),
+        (lambda p: p[:-100], "runs past the payload"),
+        (lambda p: p[:8] + b"[" + p[9:], "malformed header"),
+    ],
+)
 def test_broken_payloads_are_refused_with_a_reason(mutate, reason):
     with pytest.raises(BulkDecodeError, match=reason):
         schema.decode(mutate(bytes(schema.encode(cloud()))), PointCloud)

@@ -1,6 +1,7 @@
-"""A scenario's sensor errors (ares.config.ScenarioFault; ares/sim/sensors.py): each fault kind
+"""A scenario's sensor errors (ares.core.config.ScenarioFault; ares/sim/sensors.py): each fault kind
 takes the fields it needs and refuses the others; the sensors read them while they hold; and
 the built-in dead_reckoning_drift makes dead reckoning drift, in the closed-loop harness."""
+
 from __future__ import annotations
 
 import math
@@ -9,24 +10,27 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from ares import config
-from ares.config import ScenarioFault, load_scenario
-from ares.geodesy import LocalFrame
-from ares.harness import closed_loop
-from ares.route import Route
+from ares.core import config
+from ares.core.config import ScenarioFault, load_scenario
+from ares.core.geodesy import LocalFrame
+from ares.core.route import Route
 from ares.sim.params import SimParams
 from ares.sim.sensors import SensorSuite
 from ares.sim.vehicle import VehicleState
+from ares.tools.harness import closed_loop
 
 
-@pytest.mark.parametrize("fields,message", [
-    ({"kind": "gyro_bias"}, "needs bias_deg_s"),
-    ({"kind": "block_lidar", "sensor": "roof"}, "needs at_t_s"),
-    ({"kind": "wheel_speed_scale", "scale": 0.02, "sensor": "roof"}, "has no sensor"),
-    ({"kind": "gnss_outage", "s_start_m": 5.0}, "needs both s_start_m and s_end_m"),
-    ({"kind": "gnss_outage", "s_start_m": 5.0, "s_end_m": 50.0, "at_t_s": 3.0}, "not both"),
-    ({"kind": "wheel_speed_scale", "scale": 0.8}, "less than 0.5"),
-])
+@pytest.mark.parametrize(
+    "fields,message",
+    [
+        ({"kind": "gyro_bias"}, "needs bias_deg_s"),
+        ({"kind": "block_lidar", "sensor": "roof"}, "needs at_t_s"),
+        ({"kind": "wheel_speed_scale", "scale": 0.02, "sensor": "roof"}, "has no sensor"),
+        ({"kind": "gnss_outage", "s_start_m": 5.0}, "needs both s_start_m and s_end_m"),
+        ({"kind": "gnss_outage", "s_start_m": 5.0, "s_end_m": 50.0, "at_t_s": 3.0}, "not both"),
+        ({"kind": "wheel_speed_scale", "scale": 0.8}, "less than 0.5"),
+    ],
+)
 def test_a_fault_refuses_what_its_kind_does_not_take(fields, message):
     with pytest.raises(ValidationError, match=message):
         ScenarioFault(**fields)
@@ -34,19 +38,21 @@ def test_a_fault_refuses_what_its_kind_does_not_take(fields, message):
 
 def test_the_sensors_read_the_faults_while_they_hold():
     route = Route.from_tour("default")
-    faults = [ScenarioFault(kind="gnss_outage", s_start_m=100.0, s_end_m=200.0),
-              ScenarioFault(kind="wheel_speed_scale", scale=0.02, at_t_s=10.0),
-              ScenarioFault(kind="gyro_bias", bias_deg_s=0.5, at_t_s=10.0, duration_s=5.0)]
+    faults = [
+        ScenarioFault(kind="gnss_outage", s_start_m=100.0, s_end_m=200.0),
+        ScenarioFault(kind="wheel_speed_scale", scale=0.02, at_t_s=10.0),
+        ScenarioFault(kind="gyro_bias", bias_deg_s=0.5, at_t_s=10.0, duration_s=5.0),
+    ]
     suite = SensorSuite(route, SimParams(), LocalFrame(config.UtmOrigin()), 0.3, noise=False, faults=faults)
     state = VehicleState(t=5.0, s=150.0, yaw_rate=0.1, wheel_speed_rad_s=10.0)
     assert not suite.gnss.fix_available(150.0, 5.0) and not suite.gnss.rtk_available(150.0, 5.0)
     assert suite.gnss.fix_available(250.0, 5.0) and suite.gnss.rtk_available(250.0, 5.0)
-    assert suite.can.measure(state)["wheel_speed_rad_s"] == pytest.approx(10.0)          # before t = 10
+    assert suite.can.measure(state)["wheel_speed_rad_s"] == pytest.approx(10.0)  # before t = 10
     assert suite.imu.measure(state)["gyro_z"] == pytest.approx(0.1)
     state.t = 12.0
     assert suite.can.measure(state)["wheel_speed_rad_s"] == pytest.approx(10.2)
     assert suite.imu.measure(state)["gyro_z"] == pytest.approx(0.1 + math.radians(0.5))
-    state.t = 16.0                                                                        # the bias has ended
+    state.t = 16.0  # the bias has ended
     assert suite.imu.measure(state)["gyro_z"] == pytest.approx(0.1)
 
 
@@ -55,11 +61,12 @@ def test_dead_reckoning_drifts_metres_over_the_outage_of_the_built_in_scenario()
     centimetres before the outage and metres off by its end."""
     scenario = load_scenario("dead_reckoning_drift")
     outage = next(f for f in scenario.faults if f.kind == "gnss_outage")
-    r = closed_loop.run(seconds=150, s0=outage.s_start_m - 40.0, use_truth_pose=True,
-                        overrides={"scenario": "dead_reckoning_drift"})
+    r = closed_loop.run(
+        seconds=150, s0=outage.s_start_m - 40.0, use_truth_pose=True, overrides={"scenario": "dead_reckoning_drift"}
+    )
     err = np.hypot(r["est_x"] - r["x"], r["est_y"] - r["y"])
     before = (r["s"] > outage.s_start_m - 30.0) & (r["s"] < outage.s_start_m)
     inside = (r["s"] > outage.s_start_m) & (r["s"] < outage.s_end_m)
     assert np.nanmax(err[before]) < 0.1
     assert np.nanmax(err[inside]) > 2.0 and r["s"][inside].max() > outage.s_end_m - 20.0
-    assert r["score"][inside][-20:].max() < 0.1            # the odometry manager no longer trusts it
+    assert r["score"][inside][-20:].max() < 0.1  # the odometry manager no longer trusts it

@@ -1,4 +1,5 @@
 """Simulated GNSS (NMEA GGA + GST), IMU and CAN readings."""
+
 from __future__ import annotations
 
 import math
@@ -10,10 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ares.config import UtmOrigin
-from ares.geodesy import LocalFrame
-from ares.nmea import checksum
-from ares.route import Route
+from ares.core.config import UtmOrigin
+from ares.core.geodesy import LocalFrame
+from ares.core.nmea_framing import checksum
+from ares.core.route import Route
 from ares.sim.actuators import GRAVITY
 from ares.sim.params import SimParams
 from ares.sim.sensors import CanSensor, GnssSensor, ImuSensor, SensorSuite
@@ -26,7 +27,7 @@ RTK_LOSS = next(z for z in ROUTE.zones if z.kind == "rtk_loss")
 
 
 def parse(sentence: str):
-    return pynmea2.parse(sentence, check=True)      # raises on a wrong checksum
+    return pynmea2.parse(sentence, check=True)  # raises on a wrong checksum
 
 
 def gga_of(out: dict):
@@ -45,9 +46,9 @@ def gga_to_local(gga, gnss: GnssSensor) -> tuple[float, float, float]:
 
 # ---- NMEA ---------------------------------------------------------------------------------------
 
+
 @settings(max_examples=150, deadline=None)
-@given(x=st.floats(-5000, 5000), y=st.floats(-5000, 5000), z=st.floats(-50, 300),
-       t=st.floats(0, 86400 * 2))
+@given(x=st.floats(-5000, 5000), y=st.floats(-5000, 5000), z=st.floats(-50, 300), t=st.floats(0, 86400 * 2))
 def test_gga_round_trips_to_the_same_position_within_a_millimetre(x, y, z, t):
     gnss = GnssSensor(ROUTE, SIM.gnss, FRAME, noise=False)
     state = VehicleState(t=t, x=x, y=y, z=z, s=0.0)
@@ -65,8 +66,8 @@ def test_gga_round_trips_to_the_same_position_within_a_millimetre(x, y, z, t):
 def test_gga_fields_are_well_formed():
     gnss = GnssSensor(ROUTE, SIM.gnss, FRAME, noise=False)
     gga = gga_of(gnss.measure(VehicleState(t=3723.25, x=12.0, y=-7.0, z=3.0, s=0.0)))
-    assert str(gga.timestamp) == "11:02:03.250000+00:00"     # 10:00:00 + 3723.25 s
-    assert gga.lat_dir == "N" and gga.lon_dir == "W"          # Madrid, UTM zone 30 N
+    assert str(gga.timestamp) == "11:02:03.250000+00:00"  # 10:00:00 + 3723.25 s
+    assert gga.lat_dir == "N" and gga.lon_dir == "W"  # Madrid, UTM zone 30 N
     assert len(gga.lat.split(".")[1]) == 7 and len(gga.lon.split(".")[1]) == 7
     assert int(gga.num_sats) == SIM.gnss.rtk_satellites
     assert float(gga.horizontal_dil) == SIM.gnss.rtk_hdop
@@ -88,20 +89,23 @@ def test_fix_quality_and_gst_follow_the_rtk_loss_zones():
     rtk, lost = (gnss.measure(VehicleState(s=s)) for s in (RTK_LOSS.s_start - 5.0, inside))
     assert gga_of(rtk).gps_qual == 4
     assert gga_of(lost).gps_qual == SIM.gnss.no_rtk_fix_quality in (1, 2)
-    assert gga_of(lost).age_gps_data == ""                   # no corrections arriving
+    assert gga_of(lost).age_gps_data == ""  # no corrections arriving
     g = gst_of(rtk)
     assert g.sentence_type == "GST"
     assert (g.std_dev_latitude, g.std_dev_longitude, g.std_dev_altitude) == pytest.approx(
-        (SIM.gnss.rtk_sigma_m, SIM.gnss.rtk_sigma_m, SIM.gnss.rtk_sigma_alt_m), abs=5e-4)
+        (SIM.gnss.rtk_sigma_m, SIM.gnss.rtk_sigma_m, SIM.gnss.rtk_sigma_alt_m), abs=5e-4
+    )
     g = gst_of(lost)
     assert (g.std_dev_latitude, g.std_dev_longitude, g.std_dev_altitude) == pytest.approx(
-        (SIM.gnss.float_sigma_m, SIM.gnss.float_sigma_m, SIM.gnss.float_sigma_alt_m), abs=5e-4)
+        (SIM.gnss.float_sigma_m, SIM.gnss.float_sigma_m, SIM.gnss.float_sigma_alt_m), abs=5e-4
+    )
     # The receiver-side covariance of the ARES paper: ~5e-5 m^2 with RTK, ~0.5 m^2 without.
     assert gst_of(rtk).std_dev_latitude ** 2 < 1e-4
     assert 0.3 < gst_of(lost).std_dev_latitude ** 2 < 0.7
 
 
 # ---- GNSS noise ------------------------------------------------------------------------------------
+
 
 def _errors(gnss: GnssSensor, s: float, n: int, dt: float) -> np.ndarray:
     out = []
@@ -150,9 +154,10 @@ def test_gnss_is_repeatable_with_a_seed():
 
 # ---- IMU ----------------------------------------------------------------------------------------------
 
+
 def test_imu_yaw_carries_the_configured_offset_and_noise():
     imu = ImuSensor(SIM.imu, np.random.default_rng(6))
-    true_yaw = 3.1                    # near +-pi: the offset must wrap
+    true_yaw = 3.1  # near +-pi: the offset must wrap
     yaws = np.array([imu.measure(VehicleState(yaw=true_yaw))["yaw"] for _ in range(4000)])
     assert np.all(np.abs(yaws) <= math.pi)
     diff = np.angle(np.exp(1j * (yaws - true_yaw)))
@@ -175,20 +180,20 @@ def test_imu_noise_matches_the_configured_sigmas():
 def test_imu_feels_gravity_along_the_pitch():
     imu = ImuSensor(SIM.imu, noise=False)
     grade = 0.14
-    pitch = -math.atan(grade)             # standing on a climb, REP-103: nose up is negative
+    pitch = -math.atan(grade)  # standing on a climb, REP-103: nose up is negative
     m = imu.measure(VehicleState(pitch=pitch, grade=grade))
     assert m["pitch"] == pitch
-    assert m["accel_x"] == pytest.approx(GRAVITY * math.sin(math.atan(grade)))   # > 0: the climb
+    assert m["accel_x"] == pytest.approx(GRAVITY * math.sin(math.atan(grade)))  # > 0: the climb
     assert m["accel_z"] == pytest.approx(GRAVITY * math.cos(math.atan(grade)))
     assert math.hypot(m["accel_x"], m["accel_z"]) == pytest.approx(GRAVITY)
     assert m["yaw"] == pytest.approx(SIM.imu.yaw_offset_rad)
-    assert set(m) == {"yaw", "roll", "pitch", "gyro_x", "gyro_y", "gyro_z",
-                      "accel_x", "accel_y", "accel_z"}
+    assert set(m) == {"yaw", "roll", "pitch", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"}
 
 
 def test_imu_feels_the_road_roughness_while_driving():
     """Through the plant: a moving vehicle shakes the accelerometer's z axis."""
     from ares.sim.vehicle import VehiclePlant
+
     plant = VehiclePlant(ROUTE, "ares_shuttle", SIM, s0=20.0)
     imu = ImuSensor(SIM.imu, noise=False)
     az_still = [imu.measure(plant.step(0.0, 0.0))["accel_z"] for _ in range(50)]
@@ -201,6 +206,7 @@ def test_imu_feels_the_road_roughness_while_driving():
 
 
 # ---- CAN ----------------------------------------------------------------------------------------------
+
 
 def test_can_noise_matches_the_configured_sigmas_and_reads_zero_when_stopped():
     r = 0.28
@@ -223,11 +229,17 @@ def test_can_speed_is_the_rear_axle_speed_in_a_turn():
     v = 2.0
     m = can.measure(VehicleState(v=v, wheel_angle_rad=delta, wheel_speed_rad_s=v / (math.cos(delta) * r)))
     assert m["speed_mps"] == pytest.approx(v)
-    assert m["wheel_speed_rad_s"] == pytest.approx(v / (math.cos(delta) * r))   # DBW eq. 14
+    assert m["wheel_speed_rad_s"] == pytest.approx(v / (math.cos(delta) * r))  # DBW eq. 14
 
 
 def test_can_reports_the_driver():
     can = CanSensor(SIM.can, 0.28, noise=False)
     m = can.measure(replace(VehicleState(), throttle_pedal=0.4, brake_pedal=0.0, steering_torque=True))
-    assert m == {"wheel_speed_rad_s": 0.0, "speed_mps": 0.0, "steering_wheel_deg": 0.0,
-                 "throttle_pedal": 0.4, "brake_pedal": 0.0, "steering_torque": True}
+    assert m == {
+        "wheel_speed_rad_s": 0.0,
+        "speed_mps": 0.0,
+        "steering_wheel_deg": 0.0,
+        "throttle_pedal": 0.4,
+        "brake_pedal": 0.0,
+        "steering_torque": True,
+    }

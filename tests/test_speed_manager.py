@@ -1,5 +1,6 @@
 """Speed manager: the profile from curvature and grade (ARES eqs. 16–17), its single-speed
 sections (Figure 17), the node, and `ares route profile`."""
+
 import json
 import math
 
@@ -7,15 +8,25 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 
-from ares import cli, config
-from ares.clock import ManualClock
-from ares.membus import MemoryNetwork
-from ares.messages import PathMatch
-from ares.route import Route
-from managers.speed import SpeedManager, SpeedTable
-from managers.speed_profile import (G, KINDS, MIN_RAMP_MPS2, SpeedProfileParams, sections, speed_limits,
-                                    speed_profile, speed_sections)
-from tests.random_routes import routes
+from ares import cli
+from ares.core import config
+from ares.core.clock import ManualClock
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import PathMatch
+from ares.core.route import Route
+from managers.speed import (
+    KINDS,
+    MIN_RAMP_MPS2,
+    G,
+    SpeedProfileParams,
+    SpeedTable,
+    sections,
+    speed_limits,
+    speed_profile,
+    speed_sections,
+)
+from managers.speed_node import SpeedManager
+from tests.helpers.random_routes import routes
 
 PARAMS = SpeedProfileParams()
 VEHICLE = config.load_vehicle("ares_shuttle")
@@ -39,6 +50,7 @@ def straight_into_a_turn(grade: float = 0.0, straight: float = 100.0, radius: fl
 
 
 # ---- the profile --------------------------------------------------------------------------------
+
 
 def test_the_speed_in_a_turn_is_sqrt_of_lateral_acceleration_times_radius():
     # R = 20 m, a_lat = 0.35 m/s²: v = sqrt(7) = 2.6458 m/s, below the 3.5 m/s cruise
@@ -66,7 +78,7 @@ def test_braking_before_a_turn_stays_within_the_deceleration():
 
 def test_a_descent_brakes_earlier_and_a_climb_later():
     flat = straight_into_a_turn(0.0)
-    down = straight_into_a_turn(-0.03)       # downhill towards the turn
+    down = straight_into_a_turn(-0.03)  # downhill towards the turn
     up = straight_into_a_turn(+0.03)
     v_flat = speed_limits(flat, PARAMS, VEHICLE, grade=True)
     v_down = speed_limits(down, PARAMS, VEHICLE, grade=True)
@@ -84,7 +96,7 @@ def test_a_descent_brakes_earlier_and_a_climb_later():
 
 
 def test_a_steep_descent_still_lets_the_profile_slow_down():
-    steep = straight_into_a_turn(-0.2, straight=200.0)    # g·20 % is four times the braking budget
+    steep = straight_into_a_turn(-0.2, straight=200.0)  # g·20 % is four times the braking budget
     v = speed_limits(steep, PARAMS, VEHICLE, grade=True)
     on_the_descent = steep.s[:-1] < 195.0
     drop = (v[:-1] ** 2 - v[1:] ** 2)[on_the_descent]
@@ -94,12 +106,13 @@ def test_a_steep_descent_still_lets_the_profile_slow_down():
 
 # ---- the sections -------------------------------------------------------------------------------
 
+
 def check_sections(route: Route, profile: np.ndarray, found) -> None:
     end = route.length if route.closed else route.s[-1]
     assert [sec.index for sec in found] == list(range(len(found)))
     assert found[0].s_start == 0.0 and found[-1].s_end == pytest.approx(end)
     for a, b in zip(found, found[1:]):
-        assert a.s_end == b.s_start                         # contiguous, in order
+        assert a.s_end == b.s_start  # contiguous, in order
     for sec in found:
         assert sec.s_end >= sec.s_start and sec.kind in KINDS
         inside = (route.s >= sec.s_start) & (route.s <= sec.s_end)
@@ -143,10 +156,25 @@ def test_sections_cover_any_route_contiguously_below_its_profile(route):
 
 # ---- the node -----------------------------------------------------------------------------------
 
+
 def match_at(s: float, t: float) -> PathMatch:
-    return PathMatch(t=t, index=0, s=s, lap=0, xte=0.0, heading_error=0.0, zones=[], force_odometry=False,
-                     distance_to_end_m=None, ahead_x=[], ahead_y=[], ahead_yaw=[], ahead_curvature=[],
-                     ahead_speed=[], ahead_s=[])
+    return PathMatch(
+        t=t,
+        index=0,
+        s=s,
+        lap=0,
+        xte=0.0,
+        heading_error=0.0,
+        zones=[],
+        force_odometry=False,
+        distance_to_end_m=None,
+        ahead_x=[],
+        ahead_y=[],
+        ahead_yaw=[],
+        ahead_curvature=[],
+        ahead_speed=[],
+        ahead_s=[],
+    )
 
 
 def test_the_node_publishes_the_sections_and_the_limits_where_the_vehicle_is(run_config):
@@ -165,7 +193,7 @@ def test_the_node_publishes_the_sections_and_the_limits_where_the_vehicle_is(run
             bus.publish("path/match", match_at(s, t))
         node.step_once(t)
 
-    step(0.0)       # no match yet: the sections, no limits
+    step(0.0)  # no match yet: the sections, no limits
     assert [m for _, m in limits.drain()] == []
     sent = [m for _, m in listed.drain()]
     assert len(sent) == 1 and len(sent[0].sections) == len(table.sections) and sent[0].closed
@@ -173,7 +201,7 @@ def test_the_node_publishes_the_sections_and_the_limits_where_the_vehicle_is(run
 
     cruise = next(sec for sec in table.sections if sec.kind == "cruise" and sec.s_end - sec.s_start > 50.0)
     s = cruise.s_start + 10.0
-    for k in range(1, 21):          # 1 s at 20 Hz
+    for k in range(1, 21):  # 1 s at 20 Hz
         step(round(k * 0.05, 9), s)
     got = [m for _, m in limits.drain()]
     assert len(got) == 20
@@ -209,6 +237,7 @@ def test_an_open_route_has_no_section_after_its_last():
 
 # ---- `ares route profile` -----------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("suffix", [".png", ".svg"])
 def test_route_profile_draws_the_picture_and_prints_a_summary(tmp_path, capsys, suffix):
     out = tmp_path / f"profile{suffix}"
@@ -226,6 +255,6 @@ def test_route_profile_reads_a_route_file_and_refuses_a_bad_picture_name(tmp_pat
     out = tmp_path / "line.png"
     assert cli.main(["route", "profile", str(route), "--vehicle", "ares_shuttle", "--out", str(out)]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert out.exists() and summary["min_speed_mps"] == 0.0     # an open route stops at its end
+    assert out.exists() and summary["min_speed_mps"] == 0.0  # an open route stops at its end
     assert cli.main(["route", "profile", str(route), "--out", str(tmp_path / "line.jpg")]) != 0
     assert cli.main(["route", "profile", "no_such_tour", "--out", str(out)]) != 0

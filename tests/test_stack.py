@@ -1,6 +1,5 @@
 """The whole stack, as a newcomer runs it: real processes, a real router, the simulated shuttle."""
-import json
-from pathlib import Path
+
 import os
 import signal
 import subprocess
@@ -10,31 +9,18 @@ import time
 
 import pytest
 
-from ares import config
-from ares.clock import ScaledClock
-from ares.messages import DriveMode
-from ares.processes import for_run
-from ares.route import load_route
-from ares.stack import engage_automatic
-from ares.supervisor import Supervisor
-from tests.conftest import LIGHT_LIDARS, NO_LIDARS, REPO, make_run_config, free_port
-from tests.test_blackbox_stack import assert_300_s_recorded
+from ares.app.processes import for_run
+from ares.app.stack import engage_automatic
+from ares.app.supervisor import Supervisor
+from ares.core import config
+from ares.core.clock import ScaledClock
+from ares.core.localhost import free_port
+from ares.core.messages import DriveMode
+from ares.core.route import load_route
+from tests.helpers.records import assert_300_s_recorded
+from tests.helpers.stack import LIGHT_LIDARS, REPO, headless, make_run_config
 
 pytestmark = pytest.mark.stack
-
-
-def headless(*args: str, timeout_s: float = 600, lidars: Path = NO_LIDARS) -> dict:
-    env = {**os.environ, "ARES_RUNS_DIR": os.environ.get("ARES_TEST_RUNS_DIR", "/tmp/ares-test-runs")}
-    listen = f"tcp/127.0.0.1:{free_port()}"     # never the default ports of a stack running here
-    isolation = ["--listen", listen, "--api-port", str(free_port()), "--config", str(lidars)]
-    if "--store" not in args:   # keep test records out of the developer's data/
-        isolation += ["--store", os.path.join(env["ARES_RUNS_DIR"], f"blackbox-{os.getpid()}-{free_port()}.sqlite")]
-    proc = subprocess.run([sys.executable, "-m", "ares.cli", "run", "--headless", *isolation, *args],
-                          cwd=REPO, env=env, capture_output=True, text=True, timeout=timeout_s,
-                          stdin=subprocess.DEVNULL)
-    lines = proc.stdout.strip().splitlines()
-    assert proc.returncode == 0, f"exit {proc.returncode}\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
-    return json.loads(lines[-1])
 
 
 def test_the_tour_through_its_first_rtk_loss_zone_as_fast_as_the_processes_keep_up(tmp_path):
@@ -48,8 +34,8 @@ def test_the_tour_through_its_first_rtk_loss_zone_as_fast_as_the_processes_keep_
     assert result["ok"] and result["clock"] == "driven"
     assert result["controller_time_share"]["mpc"] >= 0.99 and result["mpc_solves"] > 2800
     assert result["distance_m"] > 800
-    assert result["xte_rmse_m"] <= 0.35          # the DBW paper's real vehicle: 0.347 m
-    assert result["xte_max_m"] <= 0.85           # ... and 0.863 m
+    assert result["xte_rmse_m"] <= 0.35  # the DBW paper's real vehicle: 0.347 m
+    assert result["xte_max_m"] <= 0.85  # ... and 0.863 m
     # localization: the UKF estimate drives the controller (ARES paper §3.1)
     assert result["loc_rmse_rtk_m"] <= 0.05
     assert result["yaw_rmse_deg"] <= 1.0
@@ -57,7 +43,7 @@ def test_the_tour_through_its_first_rtk_loss_zone_as_fast_as_the_processes_keep_
     assert result["score_min_rtk"] >= 0.9
     assert result["score_max_deadzone"] <= 0.3
     assert result["loc_samples_rtk"] > 1000 and result["loc_samples_deadzone"] > 100
-    assert "road_detect_rate" not in result                  # the LiDARs were left out (tests/no_lidars.yaml)
+    assert "road_detect_rate" not in result  # the LiDARs were left out (tests/no_lidars.yaml)
     # the black box: 320 s of vehicle time, a record for every second (tests/test_blackbox_stack.py)
     assert_300_s_recorded(store, result)
 
@@ -65,8 +51,7 @@ def test_the_tour_through_its_first_rtk_loss_zone_as_fast_as_the_processes_keep_
 def test_perception_in_the_stack_sees_the_road_and_the_obstacles():
     # the first 190 m: kerbs, the narrow lane between rock walls, the climb onto the grass; obstacles
     # beside the path; the LiDARs light (tests/light_lidars.yaml)
-    result = headless("--seconds", "75", "--speed", "max", "--scenario", "obstacles_along_tour",
-                      lidars=LIGHT_LIDARS)
+    result = headless("--seconds", "75", "--speed", "max", "--scenario", "obstacles_along_tour", lidars=LIGHT_LIDARS)
     assert result["xte_max_m"] <= 0.85 and result["loc_rmse_rtk_m"] <= 0.05
     # at this light resolution over the first 250 m (100 s): detect 0.95, edge p50 0.040 m, centre p50
     # 0.033 m, recall 0.97 of 75 obstacle-frames, false occupied 0.004. The bounds leave room for frames
@@ -85,11 +70,12 @@ def test_the_simulator_driven_clock_gives_the_wall_clock_result(tmp_path):
     route = tmp_path / "s_bend.csv"
     # 30 m straight, a 90 degree bend of ~15 m radius, 24 m straight
     import math
+
     points = [(x, 0.0) for x in range(0, 30, 2)]
     points += [(30 + 15 * math.sin(a), 15 - 15 * math.cos(a)) for a in [i * math.pi / 40 for i in range(21)]]
     points += [(45.0, 15 + y) for y in range(2, 26, 2)]
     route.write_text("\n".join(f"{x:.3f},{y:.3f}" for x, y in points))
-    scaled = headless("--route", str(route), "--speed", "2")    # the wall clock, hurried: timers as at real time
+    scaled = headless("--route", str(route), "--speed", "2")  # the wall clock, hurried: timers as at real time
     fast = headless("--route", str(route), "--speed", "max")
     assert (scaled["clock"], fast["clock"]) == ("scaled", "driven")
     # the margins are for a shared, noisy machine, where real time is what varies (the clock
@@ -104,8 +90,9 @@ def test_a_hung_movement_manager_stops_the_vehicle_and_the_supervisor_brings_it_
     """The movement manager is the bridge's only source of commands: hung, the bridge's watchdog
     stops the shuttle (a hung control manager is the movement gate's missing input: a controlled
     stop, tests/test_movement_gate.py)."""
-    cfg = make_run_config(free_port(), {"blackbox_store": {"uri": str(tmp_path / "bb.sqlite")},
-                                        "api": {"port": free_port()}})
+    cfg = make_run_config(
+        free_port(), {"blackbox_store": {"uri": str(tmp_path / "bb.sqlite")}, "api": {"port": free_port()}}
+    )
     clock = ScaledClock(2.0)
     sup = Supervisor(cfg, for_run(True, cfg["lidars"]), tmp_path / "run", clock)
     stop = threading.Event()
@@ -125,7 +112,7 @@ def test_a_hung_movement_manager_stops_the_vehicle_and_the_supervisor_brings_it_
         assert truth.latest.v >= 2.0, "the shuttle never got going"
 
         speed_before = truth.latest.v
-        os.kill(sup.children["movement_manager"].pid, signal.SIGSTOP)   # hung: token and heartbeat go quiet
+        os.kill(sup.children["movement_manager"].pid, signal.SIGSTOP)  # hung: token and heartbeat go quiet
         killed = time.monotonic()
         while not car.latest.watchdog_tripped and time.monotonic() - killed < 5:
             time.sleep(0.02)
@@ -154,17 +141,21 @@ def test_a_receivers_log_from_the_south_across_a_zone_boundary_is_driven_end_to_
     drives in the north (the tour's origin); the other receivers' logs, a u-blox one across 12 E
     among them, are imported in tests/test_receiver_logs.py: driving one more adds nothing but
     time."""
-    from ares.route import Route
-    from tests.receiver_logs import MARINE_LOGGER, log_bytes, write_log
-    from tests.test_receiver_logs import PLACES, short_road
+    from ares.core.route import Route
+    from tests.helpers.gnss import PLACES, short_road
+    from tests.helpers.receiver_logs import MARINE_LOGGER, log_bytes, write_log
 
     rx, place = MARINE_LOGGER, "across 150 E, south"
     lat, lon, alt, heading = PLACES[place]
     log = tmp_path / f"{rx.talker}_{lat:.0f}.nmea"
     log.write_bytes(log_bytes(write_log(short_road(heading), lat, lon, alt, rx), rx))
     route_file = tmp_path / f"{log.stem}.csv"
-    imported = subprocess.run([sys.executable, "-m", "ares.cli", "route", "import", str(log),
-                               "-o", str(route_file)], cwd=REPO, capture_output=True, text=True)
+    imported = subprocess.run(
+        [sys.executable, "-m", "ares.cli", "route", "import", str(log), "-o", str(route_file)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
     assert imported.returncode == 0, imported.stderr
     result = headless("--route", str(route_file), "--speed", "max")
     route = Route.from_csv(route_file)

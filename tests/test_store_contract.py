@@ -1,4 +1,4 @@
-"""One contract for every black-box store engine (blackbox.store.RecordStore).
+"""One contract for every black-box store engine (blackbox.store.record_store.RecordStore).
 
 "sqlite" always runs, on a file in tmp_path. "mongo" runs only when ARES_TEST_MONGO_URI points
 at a MongoDB server (>= 7.0), each test in a throw-away database that is dropped afterwards;
@@ -8,6 +8,7 @@ The tests' clock is set about 30 days ahead of the real one: MongoDB's TTL monit
 the server's real clock, so data a week older than the test clock is still in the future for it
 and only the store's own purge removes it.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -18,18 +19,26 @@ import sys
 import threading
 import time
 import uuid
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 
 import orjson
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ares.messages import (DriveMode, EventLevel, Position, ProcessHealth, ProcessState, SensorHealth,
-                           StoredEvent, VehicleRecord)
-from blackbox.sqlite_store import SqliteStore
-from blackbox.store import RETENTION, StoreSettings, StoreUnavailable, User
-from blackbox.store_bench import T0, realistic_records
+from ares.core.messages import (
+    DriveMode,
+    EventLevel,
+    Position,
+    ProcessHealth,
+    ProcessState,
+    SensorHealth,
+    StoredEvent,
+    VehicleRecord,
+)
+from ares.tools.bench.blackbox_store import T0, realistic_records
+from blackbox.store.record_store import RETENTION, StoreSettings, StoreUnavailable, User
+from blackbox.store.sqlite_store import SqliteStore
 
 MONGO_URI = os.environ.get("ARES_TEST_MONGO_URI")
 MONGO_SKIP = "ARES_TEST_MONGO_URI not set: no MongoDB server to test against"
@@ -37,7 +46,7 @@ RUN_ID = uuid.uuid4().hex[:8]
 _databases = itertools.count()
 
 # whole hour, ~30 days ahead of the real clock (see the module docstring)
-BASE = (datetime.now(timezone.utc) + timedelta(days=30)).replace(minute=0, second=0, microsecond=0)
+BASE = (datetime.now(UTC) + timedelta(days=30)).replace(minute=0, second=0, microsecond=0)
 SQLITE_SETTINGS = StoreSettings(busy_timeout_s=0.5)
 
 
@@ -68,7 +77,8 @@ def store(engine, clock, tmp_path):
         yield s
         s.close()
     else:
-        from blackbox.mongo_store import MongoStore
+        from blackbox.store.mongo_store import MongoStore
+
         throwaway = StoreSettings(mongo_db=f"ares_test_{RUN_ID}_{next(_databases)}")
         s = MongoStore(MONGO_URI, now=clock, settings=throwaway)
         try:
@@ -80,21 +90,46 @@ def store(engine, clock, tmp_path):
 
 # ---- builders --------------------------------------------------------------------------------
 
+
 def record(vehicle: str, second: float, **fields) -> VehicleRecord:
     """A validated record `second` s after BASE (negative: before)."""
     base = dict(
-        vehicle_id=vehicle, time=BASE + timedelta(seconds=second), t=float(second),
-        position=Position(x=1.5 + second, y=-2.25, z=0.5, easting=440001.5, northing=4473997.75, zone=30,
-                          hemisphere="N", lat=40.41, lon=-3.71),
-        speed_mps=3.25, steering_wheel_deg=-10.5, mode=DriveMode.AUTOMATIC, scores={"odometry": 0.875},
-        controller="mpc", sensors={"gnss": SensorHealth(rate_hz=5.0, ok=True)},
-        processes={"gnss": ProcessHealth(state=ProcessState.RUNNING, restarts=1)})
+        vehicle_id=vehicle,
+        time=BASE + timedelta(seconds=second),
+        t=float(second),
+        position=Position(
+            x=1.5 + second,
+            y=-2.25,
+            z=0.5,
+            easting=440001.5,
+            northing=4473997.75,
+            zone=30,
+            hemisphere="N",
+            lat=40.41,
+            lon=-3.71,
+        ),
+        speed_mps=3.25,
+        steering_wheel_deg=-10.5,
+        mode=DriveMode.AUTOMATIC,
+        scores={"odometry": 0.875},
+        controller="mpc",
+        sensors={"gnss": SensorHealth(rate_hz=5.0, ok=True)},
+        processes={"gnss": ProcessHealth(state=ProcessState.RUNNING, restarts=1)},
+    )
     return VehicleRecord(**{**base, **fields})
 
 
 def event(vehicle: str, second: float, kind: str = "mode_change", **fields) -> StoredEvent:
-    base = dict(vehicle_id=vehicle, time=BASE + timedelta(seconds=second), t=float(second), source="dbw_bridge",
-                kind=kind, level=EventLevel.WARNING, message=f"{kind} at {second}", data={"from": "READY", "n": 2})
+    base = dict(
+        vehicle_id=vehicle,
+        time=BASE + timedelta(seconds=second),
+        t=float(second),
+        source="dbw_bridge",
+        kind=kind,
+        level=EventLevel.WARNING,
+        message=f"{kind} at {second}",
+        data={"from": "READY", "n": 2},
+    )
     return StoredEvent(**{**base, **fields})
 
 
@@ -115,6 +150,7 @@ def at(second: float) -> datetime:
 
 # ---- records ---------------------------------------------------------------------------------
 
+
 def test_insert_and_latest(store):
     assert store.latest("shuttle01") is None
     records = [record("shuttle01", s, speed_mps=float(s)) for s in (0, 1, 2)]
@@ -129,7 +165,7 @@ def test_range_is_half_open_ordered_and_pages(store):
     # inserted out of order: the store returns them in time order
     store.insert_records([record("v", s) for s in reversed(range(100))])
     docs = store.records("v", at(10), at(50), limit=1000)
-    assert seconds_of(docs) == list(range(10, 50))          # start included, end excluded
+    assert seconds_of(docs) == list(range(10, 50))  # start included, end excluded
     assert docs[0] == expected(record("v", 10))
     assert store.count_records("v", at(10), at(50)) == 40
     pages = [store.records("v", at(10), at(50), skip=skip, limit=15) for skip in (0, 15, 30, 45)]
@@ -167,7 +203,7 @@ def test_vehicles_are_kept_apart(store):
     assert store.latest("b")["time"] == at(19)
     assert store.latest("c") is None
     store.insert_events([event("c", 1.0)])
-    assert store.vehicles() == ["a", "b", "c"]          # a vehicle known by its events only
+    assert store.vehicles() == ["a", "b", "c"]  # a vehicle known by its events only
 
 
 def test_records_json_matches_records(store):
@@ -181,29 +217,38 @@ def test_records_json_matches_records(store):
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(present=st.sets(st.integers(0, 60), max_size=40),
-       start=st.floats(-5, 65, allow_nan=False), span=st.floats(0, 70, allow_nan=False),
-       skip=st.integers(0, 10), limit=st.integers(0, 50))
+@given(
+    present=st.sets(st.integers(0, 60), max_size=40),
+    start=st.floats(-5, 65, allow_nan=False),
+    span=st.floats(0, 70, allow_nan=False),
+    skip=st.integers(0, 10),
+    limit=st.integers(0, 50),
+)
 def test_range_queries_match_a_model(store, present, start, span, skip, limit):
-    vehicle = uuid.uuid4().hex            # a fresh vehicle per example, in the one store
+    vehicle = uuid.uuid4().hex  # a fresh vehicle per example, in the one store
     store.insert_records([record(vehicle, s) for s in present])
-    start_t = at(start).replace(microsecond=at(start).microsecond // 1000 * 1000)   # BSON keeps ms
+    start_t = at(start).replace(microsecond=at(start).microsecond // 1000 * 1000)  # BSON keeps ms
     end_t = start_t + timedelta(milliseconds=round(span * 1000))
     inside = sorted(s for s in present if start_t <= at(s) < end_t)
-    assert seconds_of(store.records(vehicle, start_t, end_t, skip=skip, limit=limit)) == inside[skip:skip + limit]
+    assert seconds_of(store.records(vehicle, start_t, end_t, skip=skip, limit=limit)) == inside[skip : skip + limit]
     assert store.count_records(vehicle, start_t, end_t) == len(inside)
 
 
 # ---- events ----------------------------------------------------------------------------------
 
+
 def test_events_range_kinds_and_paging(store):
-    events = [event("v", 0.125, "mode_change"), event("v", 0.5, "watchdog", level=EventLevel.FAULT),
-              event("v", 1.25, "process_restart"), event("v", 2.0, "mode_change"),
-              event("w", 1.0, "mode_change")]
+    events = [
+        event("v", 0.125, "mode_change"),
+        event("v", 0.5, "watchdog", level=EventLevel.FAULT),
+        event("v", 1.25, "process_restart"),
+        event("v", 2.0, "mode_change"),
+        event("w", 1.0, "mode_change"),
+    ]
     assert store.insert_events(events) == 5
     assert store.insert_events([]) == 0
     docs = store.events("v", at(0), at(2))
-    assert docs == [expected(e) for e in events[:3]]         # end excluded, other vehicle apart
+    assert docs == [expected(e) for e in events[:3]]  # end excluded, other vehicle apart
     assert docs[1]["level"] == "fault"
     assert seconds_of(store.events("v", at(0), at(10), kinds=["mode_change"])) == [0.125, 2.0]
     assert seconds_of(store.events("v", at(0), at(10), kinds=["watchdog", "process_restart"])) == [0.5, 1.25]
@@ -215,8 +260,8 @@ def test_events_range_kinds_and_paging(store):
 def test_a_retried_event_batch_adds_nothing(store):
     batch = [event("v", 3.0, "mode_change"), event("v", 3.0, "watchdog"), event("v", 4.5)]
     assert store.insert_events(batch) == 3
-    assert store.insert_events(batch) == 0                           # retried after an uncertain failure
-    assert store.insert_events([batch[2], event("v", 5.0)]) == 1       # overlapping
+    assert store.insert_events(batch) == 0  # retried after an uncertain failure
+    assert store.insert_events([batch[2], event("v", 5.0)]) == 1  # overlapping
     assert seconds_of(store.events("v", at(0), at(10))) == [3.0, 3.0, 4.5, 5.0]
 
 
@@ -227,10 +272,11 @@ def test_events_of_one_instant_keep_their_order(store):
 
 # ---- users -----------------------------------------------------------------------------------
 
+
 def test_users_put_get_list_and_replace(store):
     assert store.get_user("ana") is None
     assert store.list_users() == []
-    created = datetime(2026, 1, 2, 3, 4, 5, tzinfo=timezone.utc)
+    created = datetime(2026, 1, 2, 3, 4, 5, tzinfo=UTC)
     ana = User(name="ana", role="auditor", password_hash="$argon2id$v=19$a", created=created)
     bob = User(name="bob", role="admin", password_hash="$argon2id$v=19$b", created=created)
     store.put_user(bob)
@@ -245,15 +291,16 @@ def test_users_put_get_list_and_replace(store):
 
 # ---- retention -------------------------------------------------------------------------------
 
+
 def test_retention_removes_only_what_is_older_than_seven_days(store, clock):
     week = RETENTION.total_seconds()
-    clock.t = BASE - timedelta(days=2)                     # nothing is old yet while inserting
-    old, edge, young = -week - 3600, -week, -week + 1      # 8 days - 1 h ago, exactly 7 days, just under
+    clock.t = BASE - timedelta(days=2)  # nothing is old yet while inserting
+    old, edge, young = -week - 3600, -week, -week + 1  # 8 days - 1 h ago, exactly 7 days, just under
     store.insert_records([record("v", s) for s in (old, old + 1, edge, young, 0)])
     store.insert_events([event("v", s) for s in (old, edge + 0.5, 0)])
     clock.t = BASE
     removed = store.purge_expired()
-    assert removed == 3                                    # two records, one event
+    assert removed == 3  # two records, one event
     assert seconds_of(store.records("v", at(-2 * week), at(1))) == [edge, young, 0]
     assert seconds_of(store.events("v", at(-2 * week), at(1))) == [edge + 0.5, 0]
     assert store.purge_expired() == 0
@@ -290,15 +337,16 @@ def test_sqlite_locked_by_another_process_is_unavailable_then_recovers(tmp_path,
     path = tmp_path / "blackbox.sqlite"
     store = SqliteStore(str(path), now=clock, settings=SQLITE_SETTINGS)
     store.insert_records([record("v", 0)])
-    proc = subprocess.Popen([sys.executable, "-c", LOCKER, str(path)], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", LOCKER, str(path)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
     try:
         assert _read_line(proc) == "locked"
         started = time.monotonic()
         with pytest.raises(StoreUnavailable):
             store.insert_records([record("v", 1)])
         waited = time.monotonic() - started
-        assert waited >= 0.4, waited                        # waited for the lock before giving up
+        assert waited >= 0.4, waited  # waited for the lock before giving up
         with pytest.raises(StoreUnavailable):
             store.put_user(User("ana", "auditor", "h", BASE))
         # WAL: readers are not blocked by the writer's lock
@@ -325,7 +373,7 @@ def test_sqlite_restart_keeps_the_data(tmp_path, clock):
     first.put_user(user)
     first.close()
     with pytest.raises(StoreUnavailable):
-        first.latest("v")                                   # a closed store says so
+        first.latest("v")  # a closed store says so
     second = SqliteStore(path, now=clock, settings=SQLITE_SETTINGS)
     try:
         assert second.count_records("v", at(0), at(10)) == 10
@@ -339,11 +387,12 @@ def test_sqlite_restart_keeps_the_data(tmp_path, clock):
 
 def test_sqlite_file_from_before_unique_events_is_deduplicated_on_opening(tmp_path, clock):
     import sqlite3
+
     path = str(tmp_path / "blackbox.sqlite")
     first = SqliteStore(path, now=clock, settings=SQLITE_SETTINGS)
     first.insert_events([event("v", 1.5), event("v", 2.5)])
     first.close()
-    with sqlite3.connect(path) as conn:         # as such a file was: no unique index, a duplicate
+    with sqlite3.connect(path) as conn:  # as such a file was: no unique index, a duplicate
         conn.execute("DROP INDEX events_once")
         conn.execute("INSERT INTO events SELECT * FROM events WHERE ts = (SELECT min(ts) FROM events)")
     conn.close()
@@ -360,12 +409,12 @@ def test_sqlite_purges_on_insert_at_most_once_a_minute(tmp_path, clock):
     try:
         week = RETENTION.total_seconds()
         clock.t = BASE
-        store.insert_records([record("v", 0)])                     # first insert: purge runs (nothing old)
+        store.insert_records([record("v", 0)])  # first insert: purge runs (nothing old)
         clock.t = BASE + timedelta(seconds=30)
-        store.insert_records([record("v", -week - 100)])           # already expired, but the purge is not due
+        store.insert_records([record("v", -week - 100)])  # already expired, but the purge is not due
         assert store.count_records("v", at(-2 * week), at(100)) == 2
         clock.t = BASE + timedelta(seconds=61)
-        store.insert_records([record("v", 1)])                     # due: the expired record goes
+        store.insert_records([record("v", 1)])  # due: the expired record goes
         assert seconds_of(store.records("v", at(-2 * week), at(100))) == [0, 1]
     finally:
         store.close()
@@ -374,10 +423,10 @@ def test_sqlite_purges_on_insert_at_most_once_a_minute(tmp_path, clock):
 def test_sqlite_statement_past_the_query_timeout_is_unavailable(tmp_path, clock):
     store = SqliteStore(str(tmp_path / "blackbox.sqlite"), now=lambda: T0, settings=SQLITE_SETTINGS)
     try:
-        for first in range(0, 30_000, 5000):        # enough rows for the statement to be checked on its way
+        for first in range(0, 30_000, 5000):  # enough rows for the statement to be checked on its way
             store.insert_records(realistic_records("v", first, 5000))
         end = T0 + timedelta(seconds=30_000)
-        store._query_timeout_s = 1e-6                       # every statement is already late
+        store._query_timeout_s = 1e-6  # every statement is already late
         with pytest.raises(StoreUnavailable, match="interrupted"):
             store.records("v", T0, end, limit=30_000)
         store._query_timeout_s = 10.0
@@ -395,7 +444,7 @@ def test_sqlite_threads_share_one_store(tmp_path, clock):
             for first in range(0, 200, 20):
                 store.insert_records([record(vehicle, s) for s in range(first, first + 20)])
                 assert len(store.records(vehicle, at(0), at(1000))) == first + 20
-        except Exception as exc:                            # reported to the main thread
+        except Exception as exc:  # reported to the main thread
             errors.append(exc)
 
     threads = [threading.Thread(target=work, args=(f"v{i}",)) for i in range(4)]

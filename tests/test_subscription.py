@@ -1,14 +1,15 @@
 """What a subscriber knows about a topic: the latest message, its age and the rate, all from the
 messages' own stamps against the receiver's clock (deterministic: in-memory bus, manual clock)."""
+
 from __future__ import annotations
 
 import math
 
 import pytest
 
-from ares.clock import ManualClock
-from ares.membus import MemoryNetwork
-from ares.messages import GnssSentences
+from ares.core.clock import ManualClock
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import GnssSentences
 
 
 @pytest.fixture
@@ -22,13 +23,13 @@ def test_age_and_rate_come_from_the_stamps(setup):
     clock, pub, sub_bus = setup
     sub = sub_bus.subscribe("sensors/gnss", max_age=0.5)
     assert sub.age() == math.inf and sub.fresh() is None and sub.rate_hz() == 0.0 and not sub.rate_ok(1.0)
-    for k in range(21):                     # 20 Hz for a second
+    for k in range(21):  # 20 Hz for a second
         clock.set(k * 0.05)
         pub.publish("sensors/gnss", GnssSentences(t=clock.now(), sentences=["$GPGGA"]))
     assert sub.age() == pytest.approx(0.0) and sub.fresh() is not None
     assert sub.rate_hz(window_s=1.0) == pytest.approx(20.0)
     assert sub.rate_ok(10.0, window_s=1.0) and not sub.rate_ok(40.0, window_s=1.0)
-    clock.set(1.6)                          # then silence
+    clock.set(1.6)  # then silence
     assert sub.age() == pytest.approx(0.6) and sub.fresh() is None and sub.fresh(max_age=1.0) is not None
     assert sub.rate_hz(window_s=0.5) == 0.0
 
@@ -37,7 +38,7 @@ def test_a_message_delivered_late_is_as_old_as_its_stamp_says(setup):
     clock, pub, sub_bus = setup
     sub = sub_bus.subscribe("sensors/gnss", max_age=1.0)
     clock.set(10.0)
-    pub.publish("sensors/gnss", GnssSentences(t=8.5, sentences=[]))     # produced 1.5 s ago
+    pub.publish("sensors/gnss", GnssSentences(t=8.5, sentences=[]))  # produced 1.5 s ago
     assert sub.latest is not None and sub.age() == pytest.approx(1.5) and sub.fresh() is None
 
 

@@ -1,4 +1,4 @@
-"""The supervisor with real processes: ticker nodes (ares/bench/ticker.py) over the router the
+"""The supervisor with real processes: ticker nodes (ares/tools/bench/ticker.py) over the router the
 supervisor hosts itself, on a free port.
 
 The test config uses a 1 s liveliness lease and a 2 s heartbeat staleness so that both
@@ -7,6 +7,7 @@ while a process busy-looping with the GIL keeps its token well past the lease an
 heartbeat gives it away. The supervisor is stepped from the test (its run() loop is used by
 the service/signal test), so every measured time is what the supervisor itself noticed.
 """
+
 from __future__ import annotations
 
 import json
@@ -19,14 +20,14 @@ from pathlib import Path
 
 import pytest
 
-from ares import config
-from ares.bus import Bus
-from ares.clock import ManualClock, WallClock
-from ares.messages import EventLevel, ProcessState, SupervisorState
-from ares.processes import Process
-from ares.supervisor import Supervisor
-from tests.conftest import make_run_config
-from ares.bench.ticker import CONTROL_DIR_ENV
+from ares.app.processes import Process
+from ares.app.supervisor import Supervisor
+from ares.core import config
+from ares.core.bus import Bus
+from ares.core.clock import ManualClock, WallClock
+from ares.core.messages import EventLevel, ProcessState, SupervisorState
+from ares.tools.bench.ticker import CONTROL_DIR_ENV
+from tests.helpers.stack import make_run_config
 
 pytestmark = [pytest.mark.stack, pytest.mark.timeout(60)]
 
@@ -72,7 +73,9 @@ class Harness:
         self.seen_events: list = []
         self.states = observer.subscribe("supervisor/state")
         self.token_changes: list[tuple[float, str, bool]] = []
-        self._watch = observer.watch_alive(lambda name, alive: self.token_changes.append((time.monotonic(), name, alive)))
+        self._watch = observer.watch_alive(
+            lambda name, alive: self.token_changes.append((time.monotonic(), name, alive))
+        )
 
     def child(self, name: str):
         return self.sup.children[name]
@@ -109,11 +112,11 @@ def harness(tmp_path, port, monkeypatch):
         for name, command in (commands or {}).items():
             (control_dir / name).write_text(command)
         cfg = make_run_config(port, config.deep_merge(TEST_OVERRIDES, overrides or {}))
-        table = [Process(n, "ares.bench.ticker:Ticker", safety_relevant=(i == 0)) for i, n in enumerate(names)]
+        table = [Process(n, "ares.tools.bench.ticker:Ticker", safety_relevant=(i == 0)) for i, n in enumerate(names)]
         sup = Supervisor(cfg, table, tmp_path / "run", WallClock())
         made.append(sup)
         observer = Bus(cfg, "observer")
-        made.insert(0, observer)                    # closed before the router it talks to
+        made.insert(0, observer)  # closed before the router it talks to
         h = Harness(sup, observer, control_dir)
         sup.start()
         return h
@@ -136,7 +139,7 @@ def test_starts_all_and_reports_them_running(harness, tmp_path):
         p = status[name]
         assert p.state is RUNNING and p.restarts == 0 and p.last_failure == "" and p.last_exit_code is None
         assert p.heartbeat_age_s is not None and p.heartbeat_age_s < TEST_OVERRIDES["heartbeat"]["stale_after_s"]
-        assert os.getpgid(pid) == pid                       # its own process group
+        assert os.getpgid(pid) == pid  # its own process group
         env = dict(kv.split("=", 1) for kv in Path(f"/proc/{pid}/environ").read_text().split("\0") if "=" in kv)
         assert env["ARES_PROCESS_NAME"] == name
         assert env["ARES_RUN_CONFIG"] == str(tmp_path / "run" / "config.json")
@@ -145,8 +148,10 @@ def test_starts_all_and_reports_them_running(harness, tmp_path):
     assert status["alpha"].safety_relevant and not status["beta"].safety_relevant
     assert json.loads((tmp_path / "run" / "config.json").read_text()) == h.sup.cfg
     # the observer sees the same on supervisor/state, published at ~2 Hz even with no change
-    h.drive(lambda: h.states.latest is not None and all(p.state is RUNNING for p in h.states.latest.processes),
-            what="supervisor/state showing all running")
+    h.drive(
+        lambda: h.states.latest is not None and all(p.state is RUNNING for p in h.states.latest.processes),
+        what="supervisor/state showing all running",
+    )
     assert {p.name: p.pid for p in h.states.latest.processes} == dict(zip(("alpha", "beta", "gamma"), pids))
     before = h.states.count
     end = time.monotonic() + 1.6
@@ -168,7 +173,7 @@ def test_sigkilled_process_is_running_again(harness):
     assert h.child("bystander").pid == bystander and h.child("bystander").restarts == 0
     h.drive(lambda: h.restart_events("victim"), timeout_s=3, what="the restart event")
     [event] = h.restart_events("victim")
-    assert event.source == "supervisor" and event.level is EventLevel.FAULT    # victim is safety-relevant
+    assert event.source == "supervisor" and event.level is EventLevel.FAULT  # victim is safety-relevant
     assert event.data["reason"] == "killed by SIGKILL" and "killed by SIGKILL" in event.message
 
 
@@ -180,7 +185,7 @@ def test_sigstopped_process_is_noticed_by_its_lease_and_restarted(harness):
     h.drive(lambda: h.child("frozen").state is RESTARTING, what="the frozen process noticed")
     # the lease (1 s) runs out before the heartbeat is stale (2 s): the token gave it away
     assert h.child("frozen").last_failure == "liveliness token lost"
-    assert not pid_alive(old)                       # a hung process is killed, not abandoned
+    assert not pid_alive(old)  # a hung process is killed, not abandoned
     assert h.child("frozen").last_exit_code == -signal.SIGKILL
     h.drive(lambda: h.child("frozen").state is RUNNING, what="restarted")
     assert h.child("frozen").pid != old and h.child("frozen").restarts == 1
@@ -195,7 +200,7 @@ def test_busy_looping_process_keeps_its_token_but_is_noticed_by_its_heartbeat(ha
     h.drive(lambda: h.child("spinner").heartbeat_age(time.monotonic()) > 1.3, what="heartbeat silent > lease")
     assert h.child("spinner").token_seen and h.child("spinner").token_lost_at is None
     h.drive(lambda: h.child("spinner").state is RESTARTING, what="the spinner noticed")
-    h.control("spinner", None)                      # let the next incarnation run normally
+    h.control("spinner", None)  # let the next incarnation run normally
     assert h.child("spinner").last_failure.startswith("heartbeat stale for ")
     assert float(h.child("spinner").last_failure.split()[3]) >= 2.0
     last_heartbeat = h.child("spinner").last_heartbeat
@@ -214,14 +219,14 @@ def test_crashing_process_is_restarted_with_growing_backoff(harness):
     h.drive(lambda: h.states.latest is not None, what="observer connected")
     crasher = h.child("crasher")
     h.control("crasher", "exit 3")
-    gaps = []                                       # failure noticed -> process started again
+    gaps = []  # failure noticed -> process started again
     for n in range(1, 4):
         h.drive(lambda: crasher.state is RESTARTING, what=f"crash {n}")
         failed_at = time.monotonic()
         assert crasher.last_exit_code == 3 and crasher.last_failure == "exited with code 3"
         if n == 3:
             h.control("crasher", None)
-        h.drive(lambda: crasher.restarts == n, what=f"restart {n}")
+        h.drive(lambda n=n: crasher.restarts == n, what=f"restart {n}")
         gaps.append(time.monotonic() - failed_at)
     print(f"\nbackoff gaps: {[round(g, 2) for g in gaps]}")
     for gap, backoff in zip(gaps, [0.2, 0.5, 1.0]):
@@ -243,7 +248,7 @@ def test_crashing_process_is_restarted_with_growing_backoff(harness):
 def test_stop_leaves_no_process_of_the_run_alive(harness):
     h = harness("plain", "stubborn", "parent", commands={"stubborn": "ignore-term", "parent": "grandchild"})
     h.all_running()
-    os.kill(h.child("plain").pid, signal.SIGKILL)       # an earlier incarnation must be gone too
+    os.kill(h.child("plain").pid, signal.SIGKILL)  # an earlier incarnation must be gone too
     h.drive(lambda: h.child("plain").restarts == 1 and h.child("plain").state is RUNNING, what="plain restarted")
     pids = {c.name: c.pid for c in h.sup.children.values()}
     grandchild = int((h.control_dir / "parent.grandchild").read_text())
@@ -253,14 +258,14 @@ def test_stop_leaves_no_process_of_the_run_alive(harness):
     took = time.monotonic() - started
     stuck = [p for p in [*pids.values(), grandchild] if pid_alive(p)]
     assert stuck == []
-    assert took >= 1.0                              # waited stop_timeout_s for the stubborn one, then SIGKILL
+    assert took >= 1.0  # waited stop_timeout_s for the stubborn one, then SIGKILL
     status = {p.name: p for p in h.sup.status().processes}
     assert all(p.state is STOPPED and p.pid is None for p in status.values())
     assert status["stubborn"].last_exit_code == -signal.SIGKILL
-    assert status["plain"].last_exit_code == 0      # left cleanly on SIGTERM
+    assert status["plain"].last_exit_code == 0  # left cleanly on SIGTERM
     assert h.sup.stopped and h.sup.bus.session.is_closed()
-    h.sup.stop()                                    # idempotent
-    h.sup.step()                                    # and stepping afterwards does nothing
+    h.sup.stop()  # idempotent
+    h.sup.step()  # and stepping afterwards does nothing
     assert h.sup.status().processes[0].state is STOPPED
 
 
@@ -281,14 +286,14 @@ def test_status_service_answers_and_a_signal_stops_the_run_loop(harness):
         except BaseException as exc:
             errors.append(exc)
         finally:
-            os.kill(os.getpid(), signal.SIGUSR1)    # like Ctrl-C reaching the main thread
+            os.kill(os.getpid(), signal.SIGUSR1)  # like Ctrl-C reaching the main thread
 
-    previous = signal.signal(signal.SIGUSR1, lambda *_: h.sup.stop())   # stop() from a signal handler
+    previous = signal.signal(signal.SIGUSR1, lambda *_: h.sup.stop())  # stop() from a signal handler
     thread = threading.Thread(target=client)
     try:
         thread.start()
         started = time.monotonic()
-        h.sup.run()                                 # returns once the signal's stop() is done
+        h.sup.run()  # returns once the signal's stop() is done
         took = time.monotonic() - started
     finally:
         signal.signal(signal.SIGUSR1, previous)
@@ -314,13 +319,14 @@ def test_process_without_a_first_heartbeat_is_failed_after_the_grace(harness):
 
 
 def test_joins_an_external_router_when_not_embedded(router, tmp_path, port):
-    cfg = config.deep_merge(router, {"bus": {"embedded_router": False}})   # the port is the router's: hosting would fail
-    sup = Supervisor(cfg, [Process("solo", "ares.bench.ticker:Ticker", safety_relevant=False)],
-                     tmp_path / "run", WallClock())
+    cfg = config.deep_merge(router, {"bus": {"embedded_router": False}})  # the port is the router's: hosting would fail
+    sup = Supervisor(
+        cfg, [Process("solo", "ares.tools.bench.ticker:Ticker", safety_relevant=False)], tmp_path / "run", WallClock()
+    )
     try:
         sup.start()
         drive(sup, lambda: sup.children["solo"].state is RUNNING, what="solo running through the external router")
-        assert sup.children["solo"].token_seen      # its token reached us through that router
+        assert sup.children["solo"].token_seen  # its token reached us through that router
     finally:
         sup.stop()
 
@@ -337,18 +343,20 @@ def test_a_taken_router_port_is_a_clear_error(tmp_path):
 SUPERVISOR_SCRIPT = """
 import sys, time
 from pathlib import Path
-from ares.clock import WallClock
-from ares.processes import Process
-from ares.supervisor import Supervisor
-from tests.conftest import free_port, make_run_config
+from ares.core.clock import WallClock
+from ares.app.processes import Process
+from ares.app.supervisor import Supervisor
+from ares.core.localhost import free_port
+from tests.helpers.stack import make_run_config
 run_dir, port = Path(sys.argv[1]), int(sys.argv[2])
 # two tickers on the plain loop, and the REST API on the asyncio one (its parent watch is a task)
 cfg = make_run_config(port, {"blackbox_store": {"uri": str(run_dir / "bb.sqlite")}, "api": {"port": free_port()}})
-table = [Process(n, "ares.bench.ticker:Ticker", False) for n in ("alpha", "beta")]
-table.append(Process("api", "blackbox.api_server:ApiServer", False))
+table = [Process(n, "ares.tools.bench.ticker:Ticker", False) for n in ("alpha", "beta")]
+table.append(Process("api", "blackbox.api.api_node:ApiServer", False))
 sup = Supervisor(cfg, table, run_dir, WallClock())
 sup.start()
-while not all(c.pid for c in sup.children.values()) or not all(c.state.value == "running" for c in sup.children.values()):
+children = sup.children.values()
+while not all(c.pid for c in children) or not all(c.state.value == "running" for c in children):
     sup.step()
     time.sleep(0.05)
 (run_dir / "pids").write_text(" ".join(str(c.pid) for c in sup.children.values()))
@@ -364,7 +372,8 @@ def test_a_killed_supervisor_leaves_no_orphan(tmp_path, port, monkeypatch):
     import subprocess
     import sys
 
-    from tests.conftest import REPO
+    from tests.helpers.stack import REPO
+
     monkeypatch.setenv(CONTROL_DIR_ENV, str(tmp_path))
     sup = subprocess.Popen([sys.executable, "-c", SUPERVISOR_SCRIPT, str(tmp_path), str(port)], cwd=REPO)
     try:
@@ -386,17 +395,21 @@ def test_a_killed_supervisor_leaves_no_orphan(tmp_path, port, monkeypatch):
 def test_a_process_alive_but_silent_on_a_declared_output_is_reported_not_restarted(tmp_path, port):
     """Silence is judged from the process's heartbeat: its stamp against what it says it last
     published, both on the process's own clock."""
-    sup = Supervisor(make_run_config(port), [Process("path_manager", "managers.path:PathManager", True)],
-                     tmp_path / "run", ManualClock(50.0))    # its own clock plays no part
+    sup = Supervisor(
+        make_run_config(port),
+        [Process("path_manager", "managers.path_node:PathManager", True)],
+        tmp_path / "run",
+        ManualClock(50.0),
+    )  # its own clock plays no part
     try:
         events = sup.bus.subscribe("events", queue=10)
         child = sup.children["path_manager"]
         child.state = RUNNING
         child.outputs = {"path/match": (20.0, None)}
         sup._check_silence(child)
-        assert child.silent == []                   # never published yet: waiting for its inputs
+        assert child.silent == []  # never published yet: waiting for its inputs
         child.outputs = {"path/match": (20.0, 10.0)}
-        child.outputs_at = 11.9                     # 1.9 s: within max(10 periods, silent_min_s = 2 s)
+        child.outputs_at = 11.9  # 1.9 s: within max(10 periods, silent_min_s = 2 s)
         sup._check_silence(child)
         assert child.silent == []
         child.outputs_at = 12.1

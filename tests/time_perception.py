@@ -3,6 +3,7 @@ returns, ~120,000 of them road), in this process. Measured and printed, never as
 
     python -m tests.time_perception [repeats]
 """
+
 from __future__ import annotations
 
 import statistics
@@ -15,7 +16,7 @@ from perception.cloud_filters import BodyBox, CloudFilterParams, ghost_mask, kee
 from perception.extrinsics import apply, inverse
 from perception.heightmap import ground_mask
 from perception.occupancy import OccupancyMapper, OccupancyParams
-from tests import lidar_scene
+from tests.helpers import lidar_scene
 
 
 def timed(repeats: int, fn) -> tuple[float, float]:
@@ -37,25 +38,29 @@ def main(repeats: int = 50) -> None:
     keep = keep_mask(frame.points, frame.sensor, origins, body, params)
     kept, sensor = frame.points[keep], frame.sensor[keep]
     not_self = ~self_hit_mask(frame.points, body, params.self_hit.margin_m)
-    centre = np.array([1.4, 0.0, 0.0], np.float32)               # the heightmap's grid around the body
+    centre = np.array([1.4, 0.0, 0.0], np.float32)  # the heightmap's grid around the body
     ground = ground_mask(kept - centre)
     setup_start = time.perf_counter()
     mapper = OccupancyMapper(OccupancyParams(), origins)
     setup_ms = (time.perf_counter() - setup_start) * 1e3
-    print(f"frame: {len(frame.points)} returns ({frame.ground.sum()} road, {frame.body.sum()} on the body); "
-          f"after the filters {len(kept)}; occupancy set-up {setup_ms:.0f} ms, "
-          f"{len(mapper.tracer.pair_cell)} (bin, cell) pairs")
+    print(
+        f"frame: {len(frame.points)} returns ({frame.ground.sum()} road, {frame.body.sum()} on the body); "
+        f"after the filters {len(kept)}; occupancy set-up {setup_ms:.0f} ms, "
+        f"{len(mapper.tracer.pair_cell)} (bin, cell) pairs"
+    )
     steps = {
         f"extrinsics.apply ({roof.sum()} roof points)": lambda: apply(lidar_scene.MOUNTS[0], roof_in_sensor_frame),
         "cloud_filters.self_hit_mask": lambda: self_hit_mask(frame.points, body, params.self_hit.margin_m),
         "cloud_filters.ghost_mask (after self hits)": lambda: ghost_mask(
-            frame.points[not_self], frame.sensor[not_self], origins, body),
+            frame.points[not_self], frame.sensor[not_self], origins, body
+        ),
         "cloud_filters.keep_mask (both)": lambda: keep_mask(frame.points, frame.sensor, origins, body, params),
         "heightmap.ground_mask": lambda: ground_mask(kept - centre),
         "occupancy OccupancyMapper.cells": lambda: mapper.cells(kept, ground, sensor),
         f"  the same, all {len(frame.points)} returns": lambda: mapper.cells(frame.points, frame.ground, frame.sensor),
         "  of which FreeSpaceTracer.free": lambda: mapper.tracer.free(
-            kept[:, 0], kept[:, 1], sensor, np.ones(len(kept), bool), np.zeros(mapper.grid.size, bool)),
+            kept[:, 0], kept[:, 1], sensor, np.ones(len(kept), bool), np.zeros(mapper.grid.size, bool)
+        ),
     }
     for name, fn in steps.items():
         p50, p90 = timed(repeats, fn)

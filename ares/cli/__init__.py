@@ -49,6 +49,7 @@
 endpoint of the run configuration, or --router) and look under the configured vehicle id (or
 --vehicle-id). A client session fails at once when no router listens there.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -59,7 +60,17 @@ import sys
 from . import bench, blackbox, bus_tools, compare, inspect, mission, perception, route, run
 from .args import CliError, Command
 
-COMMAND_GROUPS = (run, compare, inspect, bus_tools, mission, bench, route, blackbox, perception)   # as `ares --help` lists them
+COMMAND_GROUPS = (
+    run,
+    compare,
+    inspect,
+    bus_tools,
+    mission,
+    bench,
+    route,
+    blackbox,
+    perception,
+)  # as `ares --help` lists them
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,6 +81,7 @@ def _parser_and_commands() -> tuple[argparse.ArgumentParser, dict[str, Command]]
     parser = argparse.ArgumentParser(prog="ares", description="ARES supervisory stack for autonomous shuttles.")
     try:
         from importlib.metadata import version
+
         parser.add_argument("--version", action="version", version=f"ares {version('ares')}")
     except Exception:
         pass
@@ -84,20 +96,23 @@ def main(argv: list[str] | None = None) -> int:
     parser, commands = _parser_and_commands()
     try:
         args = parser.parse_args(argv)
-    except SystemExit as exc:     # --help, or a usage error already printed by argparse
+    except SystemExit as exc:  # --help, or a usage error already printed by argparse
         return int(exc.code or 0) if not isinstance(exc.code, str) else 2
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
     if args.command != "node":
-        logging.basicConfig(level=os.environ.get("ARES_LOG_LEVEL", "WARNING").upper(), stream=sys.stderr,
-                            format="%(levelname)s %(name)s: %(message)s")
+        logging.basicConfig(
+            level=os.environ.get("ARES_LOG_LEVEL", "WARNING").upper(),
+            stream=sys.stderr,
+            format="%(levelname)s %(name)s: %(message)s",
+        )
     try:
         return commands[args.command](args)
     except CliError as exc:
         print(f"ares: error: {exc}", file=sys.stderr)
         return 1
-    except BrokenPipeError:       # e.g. `ares echo ... | head`
+    except BrokenPipeError:  # e.g. `ares echo ... | head`
         try:
             sys.stdout = open(os.devnull, "w")
         except OSError:

@@ -1,5 +1,6 @@
 """What the command groups share: argument types, the connection options, the user-facing
 error, and the client-mode session on the running stack's router."""
+
 from __future__ import annotations
 
 import argparse
@@ -8,7 +9,7 @@ from collections.abc import Callable
 
 ENDPOINT_RE = re.compile(r"^[a-z][a-z0-9+-]*/\S+$")
 
-Command = Callable[[argparse.Namespace], int]     # a command's implementation: arguments in, exit code out
+Command = Callable[[argparse.Namespace], int]  # a command's implementation: arguments in, exit code out
 
 
 class CliError(Exception):
@@ -16,6 +17,7 @@ class CliError(Exception):
 
 
 # ---- argument types --------------------------------------------------------------------------
+
 
 def positive_float(text: str) -> float:
     try:
@@ -68,19 +70,29 @@ def vehicle_id(text: str) -> str:
 
 # ---- connecting to the running stack ---------------------------------------------------------
 
+
 def add_connection_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--router", type=endpoint, metavar="ENDPOINT",
-                   help="router to connect to (default: bus.router of the run configuration)")
-    p.add_argument("--vehicle-id", type=vehicle_id, metavar="ID",
-                   help="vehicle id whose keys to look at (default: vehicle_id of the configuration)")
+    p.add_argument(
+        "--router",
+        type=endpoint,
+        metavar="ENDPOINT",
+        help="router to connect to (default: bus.router of the run configuration)",
+    )
+    p.add_argument(
+        "--vehicle-id",
+        type=vehicle_id,
+        metavar="ID",
+        help="vehicle id whose keys to look at (default: vehicle_id of the configuration)",
+    )
 
 
 def connect(args: argparse.Namespace, process: str):
     """A client-mode Bus on the running stack's router."""
     import zenoh
 
-    from ares import config
-    from ares.bus import Bus
+    from ares.core import config
+    from ares.core.bus import Bus
+
     try:
         cfg = config.current()
     except (config.ConfigError, OSError, ValueError) as exc:
@@ -93,5 +105,7 @@ def connect(args: argparse.Namespace, process: str):
     try:
         return Bus(cfg, process, mode="client")
     except zenoh.ZError as exc:
-        raise CliError(f"no Zenoh router reachable at {router} ({str(exc).split(' at ')[0].strip()}). "
-                       "Is the stack running? Start it with `ares run`, or pass --router ENDPOINT.") from None
+        raise CliError(
+            f"no Zenoh router reachable at {router} ({str(exc).split(' at ')[0].strip()}). "
+            "Is the stack running? Start it with `ares run`, or pass --router ENDPOINT."
+        ) from None

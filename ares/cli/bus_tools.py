@@ -1,5 +1,6 @@
 """The commands that talk to a running stack over its router: `ares topics`, `ares echo`,
 `ares driver`, `ares auto`."""
+
 from __future__ import annotations
 
 import argparse
@@ -14,44 +15,66 @@ from .args import CliError, Command, add_connection_args, connect, positive_floa
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
-    topics = subparsers.add_parser("topics", help="list the keys seen on the bus, their rates and schemas",
-                                   description="List every key under ares/<vehicle_id>/** seen during a few "
-                                               "seconds, with message count, rate and schema, and the live processes.")
-    topics.add_argument("--seconds", type=positive_float, default=2.0, metavar="S",
-                        help="how long to listen (default 2)")
+    topics = subparsers.add_parser(
+        "topics",
+        help="list the keys seen on the bus, their rates and schemas",
+        description="List every key under ares/<vehicle_id>/** seen during a few "
+        "seconds, with message count, rate and schema, and the live processes.",
+    )
+    topics.add_argument(
+        "--seconds", type=positive_float, default=2.0, metavar="S", help="how long to listen (default 2)"
+    )
     topics.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_connection_args(topics)
 
-    echo = subparsers.add_parser("echo", help="print the messages on a topic as JSON lines",
-                                 description="Print the messages on a topic (e.g. dbw/car_state), a full key "
-                                             "or a wildcard (heartbeat/*, ares/*/events), one JSON object per line.")
-    echo.add_argument("key", metavar="KEY", help="topic relative to ares/<vehicle_id>/, or a full key starting with ares/")
+    echo = subparsers.add_parser(
+        "echo",
+        help="print the messages on a topic as JSON lines",
+        description="Print the messages on a topic (e.g. dbw/car_state), a full key "
+        "or a wildcard (heartbeat/*, ares/*/events), one JSON object per line.",
+    )
+    echo.add_argument(
+        "key", metavar="KEY", help="topic relative to ares/<vehicle_id>/, or a full key starting with ares/"
+    )
     echo.add_argument("--count", type=positive_int, metavar="N", help="stop after N messages")
     echo.add_argument("--seconds", type=positive_float, metavar="S", help="stop after S seconds")
     add_connection_args(echo)
 
-    driver = subparsers.add_parser("driver", help="act as the simulated shuttle's driver (button, pedals, steering wheel)",
-                                   description="Inject a driver action into the simulated shuttle. Any pedal or "
-                                               "steering-wheel action switches the drive-by-wire bridge to Manual; "
-                                               "the button goes Manual -> Ready (and back).")
+    driver = subparsers.add_parser(
+        "driver",
+        help="act as the simulated shuttle's driver (button, pedals, steering wheel)",
+        description="Inject a driver action into the simulated shuttle. Any pedal or "
+        "steering-wheel action switches the drive-by-wire bridge to Manual; "
+        "the button goes Manual -> Ready (and back).",
+    )
     driver.add_argument("action", choices=["button", "throttle", "brake", "steer", "release"])
-    driver.add_argument("value", type=float, nargs="?", default=0.0,
-                        help="pedal position 0..1, or steering-wheel angle in degrees")
-    driver.add_argument("--duration", type=positive_float, default=2.0, metavar="S",
-                        help="how long the driver keeps it up, stack seconds (default 2)")
+    driver.add_argument(
+        "value", type=float, nargs="?", default=0.0, help="pedal position 0..1, or steering-wheel angle in degrees"
+    )
+    driver.add_argument(
+        "--duration",
+        type=positive_float,
+        default=2.0,
+        metavar="S",
+        help="how long the driver keeps it up, stack seconds (default 2)",
+    )
     add_connection_args(driver)
 
-    auto = subparsers.add_parser("auto", help="ask the drive-by-wire bridge for Automatic mode (set_automatic_mode)",
-                                 description="Request Automatic mode. The bridge accepts only in Ready, i.e. after "
-                                             "the Auto/Manual button (`ares driver button`).")
+    auto = subparsers.add_parser(
+        "auto",
+        help="ask the drive-by-wire bridge for Automatic mode (set_automatic_mode)",
+        description="Request Automatic mode. The bridge accepts only in Ready, i.e. after "
+        "the Auto/Manual button (`ares driver button`).",
+    )
     add_connection_args(auto)
     return {"topics": cmd_topics, "echo": cmd_echo, "driver": cmd_driver, "auto": cmd_auto}
 
 
 def cmd_topics(args: argparse.Namespace) -> int:
-    from ares import topics
+    from ares.core import topics
+
     bus = connect(args, "cli_topics")
-    seen: dict[str, list] = {}      # key -> [count, encoding, bytes]
+    seen: dict[str, list] = {}  # key -> [count, encoding, bytes]
     lock = threading.Lock()
 
     def on_sample(sample) -> None:  # Zenoh thread: count and return
@@ -84,15 +107,33 @@ def cmd_topics(args: argparse.Namespace) -> int:
         expected = entry.schema if entry is not None else None
         note = ""
         if expected is None:
-            note = "not in the topic table (ares/topics.py)"
+            note = "not in the topic table (ares/core/topics.py)"
         elif schema and schema != expected.schema_name():
             note = f"expected {expected.schema_name()}"
-        rows.append({"topic": topic, "key": key, "count": count, "rate_hz": round(count / elapsed, 2),
-                     "schema": schema or (expected.schema_name() if expected else "?"),
-                     "encoding": encoding, "bytes": size, "note": note})
+        rows.append(
+            {
+                "topic": topic,
+                "key": key,
+                "count": count,
+                "rate_hz": round(count / elapsed, 2),
+                "schema": schema or (expected.schema_name() if expected else "?"),
+                "encoding": encoding,
+                "bytes": size,
+                "note": note,
+            }
+        )
     if args.json:
-        print(json.dumps({"prefix": bus.prefix, "router": bus.cfg["bus"]["router"], "seconds": round(elapsed, 3),
-                          "topics": rows, "alive": alive}))
+        print(
+            json.dumps(
+                {
+                    "prefix": bus.prefix,
+                    "router": bus.cfg["bus"]["router"],
+                    "seconds": round(elapsed, 3),
+                    "topics": rows,
+                    "alive": alive,
+                }
+            )
+        )
     else:
         print(f"{bus.prefix}/** via {bus.cfg['bus']['router']}, {elapsed:.1f} s")
         if rows:
@@ -100,16 +141,19 @@ def cmd_topics(args: argparse.Namespace) -> int:
             print(f"{'TOPIC':<{width}}  {'MSGS':>7}  {'RATE_HZ':>8}  {'BYTES':>6}  SCHEMA")
             for r in rows:
                 note = f"  ({r['note']})" if r["note"] else ""
-                print(f"{r['topic']:<{width}}  {r['count']:>7}  {r['rate_hz']:>8.1f}  {r['bytes']:>6}  {r['schema']}{note}")
+                columns = f"{r['count']:>7}  {r['rate_hz']:>8.1f}  {r['bytes']:>6}"
+                print(f"{r['topic']:<{width}}  {columns}  {r['schema']}{note}")
         else:
             print("(no messages)")
         print(f"live processes ({len(alive)}): {', '.join(alive) if alive else '-'}")
     if not rows and not alive:
-        print(f"ares: nothing seen under {bus.prefix}/** in {elapsed:.1f} s; is the stack running "
-              f"with vehicle id {bus.vehicle_id!r}?", file=sys.stderr)
+        print(
+            f"ares: nothing seen under {bus.prefix}/** in {elapsed:.1f} s; is the stack running "
+            f"with vehicle id {bus.vehicle_id!r}?",
+            file=sys.stderr,
+        )
         return 1
     return 0
-
 
 
 def _raw(payload: bytes):
@@ -123,15 +167,15 @@ def _raw(payload: bytes):
         return {"raw": text}
 
 
-
 def render_sample(key: str, encoding: str, payload: bytes) -> dict:
     """One received sample as a JSON-ready dict: decoded and validated when the topic's
     schema is known, raw otherwise."""
     import pydantic
 
-    from ares import schema as wire
-    from ares import topics
-    parts = key.split("/", 2)       # ares/<vehicle_id>/<topic>, this vehicle's or another's
+    from ares.core import schema as wire
+    from ares.core import topics
+
+    parts = key.split("/", 2)  # ares/<vehicle_id>/<topic>, this vehicle's or another's
     out: dict = {"key": key}
     _, _, named = encoding.partition(";")
     entry = topics.find(parts[2]) if len(parts) == 3 and parts[0] == "ares" else None
@@ -151,25 +195,30 @@ def render_sample(key: str, encoding: str, payload: bytes) -> dict:
         msg = wire.decode(payload, schema)
     except pydantic.ValidationError as exc:
         out["error"] = "invalid: " + "; ".join(
-            f"{'.'.join(str(p) for p in e['loc']) or '<root>'}: {e['msg']}" for e in exc.errors(include_url=False)[:3])
+            f"{'.'.join(str(p) for p in e['loc']) or '<root>'}: {e['msg']}" for e in exc.errors(include_url=False)[:3]
+        )
         out.update(_raw(payload))
         return out
     except wire.BulkDecodeError as exc:
         out["error"] = f"invalid: {exc}"
         out["bytes"] = len(payload)
         return out
-    if wire.is_bulk(schema):    # the header, and each array's shape instead of its values
-        out["msg"] = {**msg.header_fields(), "arrays": {name: {"dtype": getattr(msg, name).dtype.str,
-                                                               "shape": list(getattr(msg, name).shape)}
-                                                        for name in msg.ARRAYS}}
+    if wire.is_bulk(schema):  # the header, and each array's shape instead of its values
+        out["msg"] = {
+            **msg.header_fields(),
+            "arrays": {
+                name: {"dtype": getattr(msg, name).dtype.str, "shape": list(getattr(msg, name).shape)}
+                for name in msg.ARRAYS
+            },
+        }
     else:
         out["msg"] = msg.model_dump(mode="json")
     return out
 
 
-
 def cmd_echo(args: argparse.Namespace) -> int:
     import zenoh
+
     key_arg = args.key.strip().strip("/")
     if not key_arg:
         raise CliError("empty key")
@@ -217,9 +266,9 @@ def cmd_echo(args: argparse.Namespace) -> int:
     return 0
 
 
-
 def _call(args: argparse.Namespace, service: str, request=None):
-    from ares.bus import ServiceError
+    from ares.core.bus import ServiceError
+
     bus = connect(args, "cli")
     try:
         return bus.call(service, request)
@@ -229,18 +278,18 @@ def _call(args: argparse.Namespace, service: str, request=None):
         bus.close()
 
 
-
 def cmd_driver(args: argparse.Namespace) -> int:
-    from ares.messages import DriverCommand
-    reply = _call(args, "sim/driver", DriverCommand(action=args.action.upper(), value=args.value,
-                                                    duration_s=args.duration))
+    from ares.core.messages import DriverCommand
+
+    reply = _call(
+        args, "sim/driver", DriverCommand(action=args.action.upper(), value=args.value, duration_s=args.duration)
+    )
     print(reply.detail)
     return 0 if reply.ok else 1
 
 
-
 def cmd_auto(args: argparse.Namespace) -> int:
     reply = _call(args, "set_automatic_mode")
-    print(f"{'accepted' if reply.accepted else 'refused'}: mode {reply.mode.value}{': ' + reply.reason if reply.reason else ''}")
+    reason = f": {reply.reason}" if reply.reason else ""
+    print(f"{'accepted' if reply.accepted else 'refused'}: mode {reply.mode.value}{reason}")
     return 0 if reply.accepted else 1
-

@@ -8,6 +8,7 @@ the other (the machine's two cores are the stack's); `auto` lets the control man
 table shows the figures that tell controllers apart; the picture, the cross-track error of each
 along the route with the stretches where road reactive control drove shaded.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,33 +21,59 @@ from pathlib import Path
 from .args import CliError, Command, positive_float, positive_int
 
 CONTROLLER_CHOICES = ("auto", "mpc", "rrc", "pure_pursuit")
-FIGURES = ("distance_m", "lap_time_s", "xte_rmse_m", "xte_max_m", "xte_max_at_m", "xte_rmse_rrc_m", "xte_max_rrc_m",
-           "lat_accel_max_mps2", "jerk_rms_mps3", "switches", "controller_time_share", "mpc_solve_p50_ms",
-           "mpc_deadline_misses", "loc_max_deadzone_m")
+FIGURES = (
+    "distance_m",
+    "lap_time_s",
+    "xte_rmse_m",
+    "xte_max_m",
+    "xte_max_at_m",
+    "xte_rmse_rrc_m",
+    "xte_max_rrc_m",
+    "lat_accel_max_mps2",
+    "jerk_rms_mps3",
+    "switches",
+    "controller_time_share",
+    "mpc_solve_p50_ms",
+    "mpc_deadline_misses",
+    "loc_max_deadzone_m",
+)
 
 
 def controllers(text: str) -> list[str]:
     names = [n.strip() for n in text.split(",") if n.strip()]
     bad = [n for n in names if n not in CONTROLLER_CHOICES]
     if bad or not names:
-        raise argparse.ArgumentTypeError(f"controllers are a comma-separated list of {', '.join(CONTROLLER_CHOICES)}; "
-                                         f"got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"controllers are a comma-separated list of {', '.join(CONTROLLER_CHOICES)}; got {text!r}"
+        )
     return names
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
-    p = subparsers.add_parser("compare", help="headless runs with each controller in turn, figures side by side",
-                              description="The same headless run (--speed max) with each controller pinned in turn "
-                                          "(auto: the control manager chooses); prints the figures side by side "
-                                          "and draws the cross-track error along the route.")
-    p.add_argument("--controllers", type=controllers, default=["mpc", "pure_pursuit"], metavar="LIST",
-                   help="comma-separated, of auto, mpc, rrc, pure_pursuit (default mpc,pure_pursuit)")
+    p = subparsers.add_parser(
+        "compare",
+        help="headless runs with each controller in turn, figures side by side",
+        description="The same headless run (--speed max) with each controller pinned in turn "
+        "(auto: the control manager chooses); prints the figures side by side "
+        "and draws the cross-track error along the route.",
+    )
+    p.add_argument(
+        "--controllers",
+        type=controllers,
+        default=["mpc", "pure_pursuit"],
+        metavar="LIST",
+        help="comma-separated, of auto, mpc, rrc, pure_pursuit (default mpc,pure_pursuit)",
+    )
     p.add_argument("--route", metavar="NAME|FILE", help="as ares run --route")
     p.add_argument("--vehicle", metavar="NAME", help="as ares run --vehicle")
     p.add_argument("--scenario", metavar="NAME|FILE", help="as ares run --scenario")
     p.add_argument("--laps", type=positive_int, metavar="N", help="laps per run (default 1)")
-    p.add_argument("--mission", choices=["tour", "drive"], default="drive",
-                   help="as ares run --mission (default drive: comparisons are about control, not stops)")
+    p.add_argument(
+        "--mission",
+        choices=["tour", "drive"],
+        default="drive",
+        help="as ares run --mission (default drive: comparisons are about control, not stops)",
+    )
     p.add_argument("--seconds", type=positive_float, metavar="S", help="vehicle seconds per run instead of laps")
     p.add_argument("--config", action="append", default=[], metavar="FILE", help="as ares run --config")
     p.add_argument("--out", metavar="PNG", help="the picture (default: compare-<time>.png in the runs folder)")
@@ -55,8 +82,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
 
 
 def run_one(controller: str, args: argparse.Namespace, run_dir: Path) -> dict:
-    cmd = [sys.executable, "-m", "ares.cli", "run", "--headless", "--speed", "max", "--controller", controller,
-           "--run-dir", str(run_dir)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ares.cli",
+        "run",
+        "--headless",
+        "--speed",
+        "max",
+        "--controller",
+        controller,
+        "--run-dir",
+        str(run_dir),
+    ]
     for flag in ("route", "vehicle", "scenario", "laps", "seconds", "mission"):
         value = getattr(args, flag)
         if value is not None:
@@ -67,18 +105,21 @@ def run_one(controller: str, args: argparse.Namespace, run_dir: Path) -> dict:
     done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
     if not lines:
-        raise CliError(f"the run with {controller} ended without a result (exit {done.returncode}); its logs are in "
-                       f"{run_dir}")
+        raise CliError(
+            f"the run with {controller} ended without a result (exit {done.returncode}); its logs are in {run_dir}"
+        )
     result = json.loads(lines[-1])
-    if not result.get("ok"):        # a controller that could not finish is a result too: its figures until then
+    if not result.get("ok"):  # a controller that could not finish is a result too: its figures until then
         print(f"[compare] {controller} did not finish: {result.get('error')}", file=sys.stderr, flush=True)
     return result
 
 
 def table(results: dict[str, dict]) -> str:
     names = list(results)
-    rows = [["figure", *names],
-            ["finished", *("yes" if results[n].get("ok") else "no: " + _short(results[n].get("error", "")) for n in names)]]
+    rows = [
+        ["figure", *names],
+        ["finished", *("yes" if results[n].get("ok") else "no: " + _short(results[n].get("error", "")) for n in names)],
+    ]
     for key in FIGURES:
         values = [results[n].get(key) for n in names]
         if all(v is None for v in values):
@@ -89,7 +130,7 @@ def table(results: dict[str, dict]) -> str:
 
 
 def _short(error: str, width: int = 40) -> str:
-    return error if len(error) <= width else error[:width - 1] + "…"
+    return error if len(error) <= width else error[: width - 1] + "…"
 
 
 def _cell(value) -> str:
@@ -103,18 +144,25 @@ def _cell(value) -> str:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from ares.compare_figure import write_comparison_png
-    from ares.stack import default_run_dir
+    from ares.app.stack import default_run_dir
+    from ares.tools.figures.compare import write_comparison_png
+
     base = default_run_dir()
     results: dict[str, dict] = {}
     for controller in args.controllers:
         results[controller] = run_one(controller, args, base / f"compare-{controller}")
     out = Path(args.out) if args.out else base / f"compare-{time.strftime('%Y%m%d-%H%M%S')}.png"
-    traces = {name: Path(r["run_dir"]) / "trace.npz" for name, r in results.items()
-              if (Path(r["run_dir"]) / "trace.npz").exists()}
+    traces = {
+        name: Path(r["run_dir"]) / "trace.npz"
+        for name, r in results.items()
+        if (Path(r["run_dir"]) / "trace.npz").exists()
+    }
     first = next(iter(results.values()))
-    picture = write_comparison_png(out, traces, title=f"{first.get('route', '')}, {first.get('vehicle', '')}") \
-        if traces else None
+    picture = (
+        write_comparison_png(out, traces, title=f"{first.get('route', '')}, {first.get('vehicle', '')}")
+        if traces
+        else None
+    )
     print(table(results))
     print(f"picture: {picture}")
     if args.json:

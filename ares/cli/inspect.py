@@ -1,5 +1,6 @@
 """Commands that read the stack's own description: `describe`, `config check|show`, `replay`,
 `calibrate`. None of them needs a running stack."""
+
 from __future__ import annotations
 
 import argparse
@@ -11,19 +12,29 @@ from .args import CliError, Command, non_negative_int, positive_float, positive_
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     describe = subparsers.add_parser(
-        "describe", help="every process's inputs, outputs, services and parameters, and the topic graph",
+        "describe",
+        help="every process's inputs, outputs, services and parameters, and the topic graph",
         description="Print each process's contract (inputs, outputs with their rates, services, parameters with "
-                    "their defaults, units and ranges) from its node class, and the topic graph. "
-                    "docs/nodes.md is `ares describe --markdown`.")
+        "their defaults, units and ranges) from its node class, and the topic graph. "
+        "docs/nodes.md is `ares describe --markdown`.",
+    )
     describe.add_argument("name", nargs="?", metavar="NODE", help="one process (default: all)")
     describe.add_argument("--json", action="store_true", help="one JSON object")
     describe.add_argument("--markdown", action="store_true", help="the Markdown of docs/nodes.md")
-    describe.add_argument("--config", action="append", default=[], metavar="FILE",
-                          help="resolve rates and parameters with this configuration file")
+    describe.add_argument(
+        "--config",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="resolve rates and parameters with this configuration file",
+    )
 
-    cfg = subparsers.add_parser("config", help="check a configuration file, show the merged configuration",
-                                description="Configuration files are YAML overrides of the defaults, section by "
-                                            "section; `ares config show` prints every key with its meaning.")
+    cfg = subparsers.add_parser(
+        "config",
+        help="check a configuration file, show the merged configuration",
+        description="Configuration files are YAML overrides of the defaults, section by "
+        "section; `ares config show` prints every key with its meaning.",
+    )
     cfg_sub = cfg.add_subparsers(dest="config_action", metavar="ACTION")
     check = cfg_sub.add_parser("check", help="validate configuration files (exit 2 on an error)")
     check.add_argument("files", nargs="+", metavar="FILE")
@@ -32,45 +43,79 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     show.add_argument("--json", action="store_true", help="JSON instead of commented YAML")
 
     replay = subparsers.add_parser(
-        "replay", help="process replay: feed a node's recorded inputs back and compare its outputs",
+        "replay",
+        help="process replay: feed a node's recorded inputs back and compare its outputs",
         description="Replay recordings of `replay.record` processes through the current code and compare the "
-                    "outputs with the recorded ones (`check`), or make the current outputs the expected ones "
-                    "(`update`, after an intended change of behaviour).")
+        "outputs with the recorded ones (`check`), or make the current outputs the expected ones "
+        "(`update`, after an intended change of behaviour).",
+    )
     replay.add_argument("action", choices=["check", "update"])
     replay.add_argument("files", nargs="+", metavar="FILE", help="recordings (*.jsonl.gz)")
 
     calibrate = subparsers.add_parser(
-        "calibrate", help="re-run the experiments that chose parameters",
+        "calibrate",
+        help="re-run the experiments that chose parameters",
         description="odometry: the odometry score's a, b, c (docs/odometry_score.md). lidars: the LiDARs' "
-                    "extrinsics, found against each other in a simulated warehouse from a wrong first guess and "
-                    "compared with the profile's (ARES §3.4.1; ares/harness/lidar_calibration.py). road: road "
-                    "detection's β (eqs. 7-10) and knobs, searched on simulated frames over every verge of the tour "
-                    "(docs/road_detection.md; ares/harness/road_betas.py). rrc-view: where road reactive control "
-                    "reads the road at the vehicle, compared on simulated frames through the tour's tight bends and "
-                    "plain stretches (docs/control.md; ares/harness/rrc_view.py).")
+        "extrinsics, found against each other in a simulated warehouse from a wrong first guess and "
+        "compared with the profile's (ARES §3.4.1; ares/tools/harness/calibration_warehouse.py). road: road "
+        "detection's β (eqs. 7-10) and knobs, searched on simulated frames over every verge of the tour "
+        "(docs/road_detection.md; ares/tools/harness/road_betas.py). rrc-view: where road reactive control "
+        "reads the road at the vehicle, compared on simulated frames through the tour's tight bends and "
+        "plain stretches (docs/control.md; ares/tools/harness/rrc_view.py).",
+    )
     calibrate.add_argument("what", choices=["odometry", "lidars", "road", "rrc-view"])
     calibrate.add_argument("--laps", type=positive_float, default=1.0, metavar="N", help="odometry: laps to drive")
-    calibrate.add_argument("--seed", type=non_negative_int, default=None, metavar="S",
-                           help="odometry: the closed loop's; lidars: the scans' noise and the first guess; road, "
-                                "rrc-view: the frames' poses and the LiDARs' noise (default 0)")
-    calibrate.add_argument("--samples", type=positive_int, default=4, metavar="N",
-                           help="road: sequences of frames per stretch of the tour (default 4)")
-    calibrate.add_argument("--vehicle", default="ares_shuttle", metavar="NAME",
-                           help="lidars: a profile in ares/config/vehicles/ or a YAML file (default: ares_shuttle)")
-    calibrate.add_argument("--offset-m", type=positive_float, default=0.10, metavar="M",
-                           help="lidars: how far off the first guess is (default: 0.10)")
-    calibrate.add_argument("--offset-deg", type=positive_float, default=3.0, metavar="DEG",
-                           help="lidars: how much the first guess is turned (default: 3)")
-    calibrate.add_argument("--write", metavar="PATH",
-                           help="lidars: write the profile with the calibrated extrinsics here (.yaml); road: a "
-                                "configuration file with the chosen values (.yaml, for --config)")
-    calibrate.add_argument("--json", action="store_true",
-                           help="lidars, road, rrc-view: print one JSON object instead of the table")
+    calibrate.add_argument(
+        "--seed",
+        type=non_negative_int,
+        default=None,
+        metavar="S",
+        help="odometry: the closed loop's; lidars: the scans' noise and the first guess; road, "
+        "rrc-view: the frames' poses and the LiDARs' noise (default 0)",
+    )
+    calibrate.add_argument(
+        "--samples",
+        type=positive_int,
+        default=4,
+        metavar="N",
+        help="road: sequences of frames per stretch of the tour (default 4)",
+    )
+    calibrate.add_argument(
+        "--vehicle",
+        default="ares_shuttle",
+        metavar="NAME",
+        help="lidars: a profile in ares/core/config/vehicles/ or a YAML file (default: ares_shuttle)",
+    )
+    calibrate.add_argument(
+        "--offset-m",
+        type=positive_float,
+        default=0.10,
+        metavar="M",
+        help="lidars: how far off the first guess is (default: 0.10)",
+    )
+    calibrate.add_argument(
+        "--offset-deg",
+        type=positive_float,
+        default=3.0,
+        metavar="DEG",
+        help="lidars: how much the first guess is turned (default: 3)",
+    )
+    calibrate.add_argument(
+        "--write",
+        metavar="PATH",
+        help="lidars: write the profile with the calibrated extrinsics here (.yaml); road: a "
+        "configuration file with the chosen values (.yaml, for --config)",
+    )
+    calibrate.add_argument(
+        "--json", action="store_true", help="lidars, road, rrc-view: print one JSON object instead of the table"
+    )
     return {"describe": cmd_describe, "config": cmd_config, "replay": cmd_replay, "calibrate": cmd_calibrate}
 
 
 def _build(files: list[str]) -> dict:
-    from ares import config, run_config
+    from ares.app import run_config
+    from ares.core import config
+
     try:
         return run_config.build(tuple(files))
     except config.ConfigError as exc:
@@ -78,7 +123,8 @@ def _build(files: list[str]) -> dict:
 
 
 def cmd_describe(args: argparse.Namespace) -> int:
-    from ares import contracts, processes
+    from ares.app import contracts, processes
+
     cfg = _build(args.config)
     chosen = processes.PROCESSES
     if args.name:
@@ -102,7 +148,9 @@ def cmd_describe(args: argparse.Namespace) -> int:
 
 
 def cmd_config(args: argparse.Namespace) -> int:
-    from ares import config, run_config
+    from ares.app import run_config
+    from ares.core import config
+
     if args.config_action not in ("check", "show"):
         raise CliError("which action? try `ares config check FILE` or `ares config show`")
     try:
@@ -124,17 +172,24 @@ def commented_yaml(cfg: dict, model) -> str:
     """The configuration as YAML, each key with its unit and meaning as a comment."""
     import yaml
 
-    from ares import config
+    from ares.core import config
+
     lines: list[str] = []
 
     def emit(data: dict, current, indent: int) -> None:
         fields = getattr(current, "model_fields", {}) if current is not None else {}
         for key, value in data.items():
             field = fields.get(key)
-            nested = config._model_in(field.annotation) if field is not None else None
+            nested = config.model_in(field.annotation) if field is not None else None
             extra = field.json_schema_extra if field is not None and isinstance(field.json_schema_extra, dict) else {}
-            note = " ".join(p for p in ((f"[{extra['unit']}]" if extra.get("unit") else ""),
-                                        (field.description or "") if field is not None else "") if p)
+            note = " ".join(
+                p
+                for p in (
+                    (f"[{extra['unit']}]" if extra.get("unit") else ""),
+                    (field.description or "") if field is not None else "",
+                )
+                if p
+            )
             comment = f"  # {note}" if note else ""
             pad = "  " * indent
             if isinstance(value, dict) and value and (nested is not None or key == "vehicle_profile"):
@@ -150,7 +205,8 @@ def commented_yaml(cfg: dict, model) -> str:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from ares import replay
+    from ares.core import replay
+
     failed = 0
     for path in args.files:
         try:
@@ -175,25 +231,30 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.what == "road":
         return _calibrate_road(args)
     if args.what == "rrc-view":
-        from ares.harness import rrc_view
+        from ares.tools.harness import rrc_view
+
         report = rrc_view.run(args.seed or 0, verbose=not args.json)
         print(json.dumps(report) if args.json else rrc_view.table(report))
         return 0
-    from ares.harness.odometry_score import calibrate
+    from ares.tools.harness.odometry_score import calibrate
+
     calibrate(args.laps, args.seed)
     return 0
 
 
 def _calibrate_lidars(args: argparse.Namespace) -> int:
-    from ares import config
-    from ares.harness import lidar_calibration
+    from ares.core import config
+    from ares.tools.harness import calibration_warehouse as lidar_calibration
+
     if args.write and not args.write.endswith((".yaml", ".yml")):
-        print(f"ares calibrate: --write {args.write}: the profile must be a .yaml file (so that --vehicle takes it)",
-              file=sys.stderr)
+        print(
+            f"ares calibrate: --write {args.write}: the profile must be a .yaml file (so that --vehicle takes it)",
+            file=sys.stderr,
+        )
         return 2
     try:
         report = lidar_calibration.calibrate(args.vehicle, args.seed or 0, args.offset_m, args.offset_deg)
-    except (config.ConfigError, ValueError) as exc:      # an unknown or invalid profile, no LiDARs to calibrate
+    except (config.ConfigError, ValueError) as exc:  # an unknown or invalid profile, no LiDARs to calibrate
         print(f"ares calibrate: {exc}", file=sys.stderr)
         return 2
     if args.write:
@@ -208,7 +269,8 @@ def _calibrate_lidars(args: argparse.Namespace) -> int:
 
 
 def _calibrate_road(args: argparse.Namespace) -> int:
-    from ares.harness import road_betas
+    from ares.tools.harness import road_betas
+
     if args.write and not args.write.endswith((".yaml", ".yml")):
         print(f"ares calibrate: --write {args.write}: a configuration file must be .yaml", file=sys.stderr)
         return 2

@@ -1,4 +1,5 @@
 """`ares mission start|pause|resume|cancel|status`: the mission manager's action from a terminal."""
+
 from __future__ import annotations
 
 import argparse
@@ -10,26 +11,39 @@ from .args import CliError, Command, add_connection_args, connect, positive_floa
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     mission = subparsers.add_parser(
-        "mission", help="start, pause, resume, cancel the mission or see its status",
+        "mission",
+        help="start, pause, resume, cancel the mission or see its status",
         description="The mission manager's services on the running stack. `start` sends a goal: the POIs named "
-                    "(in order), every POI of the route ahead (none named), or a drive round the route without "
-                    "stopping (--drive); a new goal pre-empts the one that runs. `status` prints the feedback.")
+        "(in order), every POI of the route ahead (none named), or a drive round the route without "
+        "stopping (--drive); a new goal pre-empts the one that runs. `status` prints the feedback.",
+    )
     mission.add_argument("action", choices=["start", "pause", "resume", "cancel", "status"])
     mission.add_argument("pois", nargs="*", metavar="POI", help="start: the POIs to serve, in order")
     mission.add_argument("--drive", action="store_true", help="start: round the route without stopping")
-    mission.add_argument("--repeat", action="store_true", help="start: round again after the last POI (a closed "
-                                                               "route), until canceled")
-    mission.add_argument("--operator", default=None, metavar="NAME",
-                         help="the name the black box keeps with the command (default: your login name)")
-    mission.add_argument("--seconds", type=positive_float, default=3.0, metavar="S",
-                         help="status: how long to wait for the mission's feedback (default 3)")
+    mission.add_argument(
+        "--repeat", action="store_true", help="start: round again after the last POI (a closed route), until canceled"
+    )
+    mission.add_argument(
+        "--operator",
+        default=None,
+        metavar="NAME",
+        help="the name the black box keeps with the command (default: your login name)",
+    )
+    mission.add_argument(
+        "--seconds",
+        type=positive_float,
+        default=3.0,
+        metavar="S",
+        help="status: how long to wait for the mission's feedback (default 3)",
+    )
     add_connection_args(mission)
     return {"mission": cmd_mission}
 
 
 def cmd_mission(args: argparse.Namespace) -> int:
-    from ares.bus import ServiceError
-    from ares.messages import MissionGoal, MissionRequest
+    from ares.core.bus import ServiceError
+    from ares.core.messages import MissionGoal, MissionRequest
+
     if args.action != "start" and (args.pois or args.drive or args.repeat):
         raise CliError(f"`ares mission {args.action}` takes no POIs, --drive or --repeat")
     operator = args.operator or getpass.getuser()
@@ -39,8 +53,10 @@ def cmd_mission(args: argparse.Namespace) -> int:
             return _status(bus, args.seconds)
         try:
             if args.action == "start":
-                reply = bus.call("mission/goal", MissionGoal(operator=operator, pois=args.pois or None,
-                                                             drive=args.drive, repeat=args.repeat))
+                reply = bus.call(
+                    "mission/goal",
+                    MissionGoal(operator=operator, pois=args.pois or None, drive=args.drive, repeat=args.repeat),
+                )
             else:
                 reply = bus.call(f"mission/{args.action}", MissionRequest(operator=operator))
         except ServiceError as exc:
@@ -53,6 +69,7 @@ def cmd_mission(args: argparse.Namespace) -> int:
 
 def _status(bus, seconds: float) -> int:
     import time
+
     sub = bus.subscribe("mission/status")
     deadline = time.monotonic() + seconds
     while sub.latest is None and time.monotonic() < deadline:

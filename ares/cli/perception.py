@@ -2,11 +2,12 @@
 
 The scan is taken as the roof 64-layer sensor's (an HDL-64E, like KITTI's) on the chosen
 vehicle: at the profile's roof mount in x and y, at --sensor-height above the road, and goes
-through what a frame of the stack goes through (perception/lidar_pipeline.py: self-hit and ghost
+through what a frame of the stack goes through (perception/lidar_perception.py: self-hit and ghost
 filters, heightmap ground removal, occupancy grid, road detection). Rings come from the file
 when it has them, else from the point order or the elevation (perception/rings.py). Prints one
-JSON line and draws the frame from above (ares/scan_figure.py).
+JSON line and draws the frame from above (ares/tools/figures/scan.py).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -18,34 +19,48 @@ from pathlib import Path
 
 from .args import CliError, Command, positive_float
 
-DEFAULT_VEHICLE = "techs4agecar"    # a car, as KITTI's is
+DEFAULT_VEHICLE = "techs4agecar"  # a car, as KITTI's is
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
-    perception = subparsers.add_parser("perception", help="run perception on recorded data",
-                                       description="The perception pipeline outside the stack.")
+    perception = subparsers.add_parser(
+        "perception", help="run perception on recorded data", description="The perception pipeline outside the stack."
+    )
     sub = perception.add_subparsers(dest="perception", metavar="ACTION")
     scan = sub.add_parser(
-        "scan", help="one LiDAR scan from a file (KITTI .bin, .pcd, .ply) through filters, ground, grid and road",
+        "scan",
+        help="one LiDAR scan from a file (KITTI .bin, .pcd, .ply) through filters, ground, grid and road",
         description="Run one scan through the self-hit and ghost filters, heightmap ground removal, the "
-                    "occupancy grid and road detection, as if the vehicle's roof 64-layer sensor had taken it. "
-                    "Prints one JSON line (points, stage times, ground share, cells, boundaries, offset, "
-                    "heading, confidence) and writes a top view. Exit 2 when the file gives no usable scan.")
-    scan.add_argument("file", metavar="FILE", help="KITTI Velodyne .bin (float32 x, y, z, intensity), .pcd or .ply; "
-                                                   "sensor frame, x forward, y left, z up, metres")
-    scan.add_argument("--sensor-height", type=positive_float, metavar="M",
-                      help="sensor above the road (default: KITTI's, 1.73, for .bin; else the profile's roof "
-                           "mount)")
-    scan.add_argument("--vehicle", default=DEFAULT_VEHICLE, metavar="NAME",
-                      help="vehicle profile: a name in ares/config/vehicles/ or a YAML file "
-                           f"(default: {DEFAULT_VEHICLE})")
+        "occupancy grid and road detection, as if the vehicle's roof 64-layer sensor had taken it. "
+        "Prints one JSON line (points, stage times, ground share, cells, boundaries, offset, "
+        "heading, confidence) and writes a top view. Exit 2 when the file gives no usable scan.",
+    )
+    scan.add_argument(
+        "file",
+        metavar="FILE",
+        help="KITTI Velodyne .bin (float32 x, y, z, intensity), .pcd or .ply; "
+        "sensor frame, x forward, y left, z up, metres",
+    )
+    scan.add_argument(
+        "--sensor-height",
+        type=positive_float,
+        metavar="M",
+        help="sensor above the road (default: KITTI's, 1.73, for .bin; else the profile's roof mount)",
+    )
+    scan.add_argument(
+        "--vehicle",
+        default=DEFAULT_VEHICLE,
+        metavar="NAME",
+        help=f"vehicle profile: a name in ares/core/config/vehicles/ or a YAML file (default: {DEFAULT_VEHICLE})",
+    )
     scan.add_argument("--out", metavar="PNG", help="top view to write (default: FILE's name + .scan.png, here)")
     return {"perception": cmd_perception}
 
 
 def cmd_perception(args: argparse.Namespace) -> int:
-    from ares.config import ConfigError
+    from ares.core.config import ConfigError
     from perception.scan_file import ScanFileError
+
     if args.perception != "scan":
         raise CliError("which action? try `ares perception scan FILE`")
     try:
@@ -57,14 +72,15 @@ def cmd_perception(args: argparse.Namespace) -> int:
     return 0
 
 
-def scan_report(file: str, vehicle_name: str = DEFAULT_VEHICLE, sensor_height_m: float | None = None,
-                out: str | None = None) -> dict:
+def scan_report(
+    file: str, vehicle_name: str = DEFAULT_VEHICLE, sensor_height_m: float | None = None, out: str | None = None
+) -> dict:
     """Run the scan in `file` through the pipeline; the JSON-ready report."""
     import numpy as np
 
-    from ares.config import LIDAR_MODELS, ConfigError, LidarMount, load_vehicle
-    from ares.scan_figure import write_scan_png
-    from perception.lidar_pipeline import LidarPipeline, SensorSweep
+    from ares.core.config import LIDAR_MODELS, ConfigError, LidarMount, load_vehicle
+    from ares.tools.figures.scan import write_scan_png
+    from perception.lidar_perception import LidarPipeline, SensorSweep
     from perception.occupancy import FREE, OCCUPIED, UNKNOWN
     from perception.rings import recover_rings
     from perception.scan_file import KITTI_SENSOR_HEIGHT_M, read_scan
@@ -98,10 +114,13 @@ def scan_report(file: str, vehicle_name: str = DEFAULT_VEHICLE, sensor_height_m:
     lap()
     road = frame.road
     picture = Path(out) if out else Path.cwd() / f"{path.stem}.scan.png"
-    title = (f"{path.name}: {len(scan.points)} points, sensor {sensor_height_m:g} m up on {vehicle.name}; "
-             f"road {'found' if road.found else 'not found'} (confidence {road.confidence:.2f})")
-    write_scan_png(picture, frame, pipeline.mapper.grid, pipeline.body, pipeline.origins[:, :2],
-                   pipeline.params.road, title)
+    title = (
+        f"{path.name}: {len(scan.points)} points, sensor {sensor_height_m:g} m up on {vehicle.name}; "
+        f"road {'found' if road.found else 'not found'} (confidence {road.confidence:.2f})"
+    )
+    write_scan_png(
+        picture, frame, pipeline.mapper.grid, pipeline.body, pipeline.origins[:, :2], pipeline.params.road, title
+    )
     picture_ms = lap()
 
     cells = np.bincount(frame.grid.ravel(), minlength=256)
@@ -115,11 +134,18 @@ def scan_report(file: str, vehicle_name: str = DEFAULT_VEHICLE, sensor_height_m:
         "points_after_filters": len(frame.points),
         "removed": frame.removed,
         "stage_ms": frame.stage_ms,
-        "read_ms": read_ms, "rings_ms": rings_ms, "setup_ms": setup_ms, "picture_ms": picture_ms,
+        "read_ms": read_ms,
+        "rings_ms": rings_ms,
+        "setup_ms": setup_ms,
+        "picture_ms": picture_ms,
         "ground_share": round(float(frame.ground.mean()), 4) if len(frame.ground) else 0.0,
         "cells": {"occupied": int(cells[OCCUPIED]), "free": int(cells[FREE]), "unknown": int(cells[UNKNOWN])},
-        "boundaries": {"left": road.model.left is not None, "right": road.model.right is not None,
-                       "left_points": len(road.left_points), "right_points": len(road.right_points)},
+        "boundaries": {
+            "left": road.model.left is not None,
+            "right": road.model.right is not None,
+            "left_points": len(road.left_points),
+            "right_points": len(road.right_points),
+        },
         "road_found": bool(road.found),
         "lateral_offset_m": _number(road.lateral_offset_m),
         "heading_rad": _number(road.heading_rad),

@@ -1,4 +1,5 @@
 """`ares run` (the whole stack, supervised) and `ares node` (one of its processes)."""
+
 from __future__ import annotations
 
 import argparse
@@ -15,67 +16,123 @@ def speed(text: str) -> float | str:
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
-    run = subparsers.add_parser("run", help="run the whole stack (simulated shuttle, embedded router)",
-                                description="Run the whole stack: router, simulator and every process, supervised.")
-    run.add_argument("--headless", action="store_true", help="unattended: engage Automatic, drive --laps laps, print one JSON result line")
-    run.add_argument("--manual", action="store_true",
-                     help="do not engage Automatic mode (interactive runs): drive with the sim/driver service")
+    run = subparsers.add_parser(
+        "run",
+        help="run the whole stack (simulated shuttle, embedded router)",
+        description="Run the whole stack: router, simulator and every process, supervised.",
+    )
+    run.add_argument(
+        "--headless",
+        action="store_true",
+        help="unattended: engage Automatic, drive --laps laps, print one JSON result line",
+    )
+    run.add_argument(
+        "--manual",
+        action="store_true",
+        help="do not engage Automatic mode (interactive runs): drive with the sim/driver service",
+    )
     run.add_argument("--laps", type=positive_int, metavar="N", help="laps of the tour to drive headless (default 1)")
-    run.add_argument("--speed", type=speed, default=1.0, metavar="X",
-                     help="clock speed: simulated seconds per wall second (default 1), or `max`: as fast as "
-                          "every process keeps up (the simulator drives the clock), or `paced`: the same, but never "
-                          "faster than real time (a machine too small for the stack runs it slower instead of "
-                          "starving the simulated sensors into faults; scripts/run.sh's default)")
-    run.add_argument("--config", action="append", default=[], metavar="FILE",
-                     help="a YAML file of configuration overrides (repeatable; later files win); "
-                          "`ares config show` prints every key")
-    run.add_argument("--route", metavar="NAME|FILE", help="a built-in tour (ares/config/tours/: default, campus), a tour's "
-                                                      "YAML, or an open route (CSV of x,y[,z] metres)")
-    run.add_argument("--scenario", metavar="NAME|FILE",
-                     help="simulated obstacles and faults: a built-in scenario (ares/config/scenarios/) or a YAML file")
-    run.add_argument("--mission", choices=["tour", "drive", "none"],
-                     help="the goal the mission manager sets itself: tour (stop at every POI: doors, ramp, "
-                          "passengers), drive (round the route without stopping) or none (`ares mission start`); "
-                          "default: the scenario's, else mission_manager.autostart (tour)")
-    run.add_argument("--controller", choices=["auto", "mpc", "rrc", "pure_pursuit"],
-                     help="pin one controller for comparisons (default auto: the control manager chooses)")
+    run.add_argument(
+        "--speed",
+        type=speed,
+        default=1.0,
+        metavar="X",
+        help="clock speed: simulated seconds per wall second (default 1), or `max`: as fast as "
+        "every process keeps up (the simulator drives the clock), or `paced`: the same, but never "
+        "faster than real time (a machine too small for the stack runs it slower instead of "
+        "starving the simulated sensors into faults; scripts/run.sh's default)",
+    )
+    run.add_argument(
+        "--config",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="a YAML file of configuration overrides (repeatable; later files win); "
+        "`ares config show` prints every key",
+    )
+    run.add_argument(
+        "--route",
+        metavar="NAME|FILE",
+        help="a built-in tour (ares/core/config/tours/: default, campus), a tour's "
+        "YAML, or an open route (CSV of x,y[,z] metres)",
+    )
+    run.add_argument(
+        "--scenario",
+        metavar="NAME|FILE",
+        help="simulated obstacles and faults: a built-in scenario (ares/core/config/scenarios/) or a YAML file",
+    )
+    run.add_argument(
+        "--mission",
+        choices=["tour", "drive", "none"],
+        help="the goal the mission manager sets itself: tour (stop at every POI: doors, ramp, "
+        "passengers), drive (round the route without stopping) or none (`ares mission start`); "
+        "default: the scenario's, else mission_manager.autostart (tour)",
+    )
+    run.add_argument(
+        "--controller",
+        choices=["auto", "mpc", "rrc", "pure_pursuit"],
+        help="pin one controller for comparisons (default auto: the control manager chooses)",
+    )
     run.add_argument("--vehicle", metavar="NAME", help="vehicle profile (config/vehicles/NAME.yaml)")
     run.add_argument("--passengers", type=non_negative_int, metavar="N", help="passengers on board")
     run.add_argument("--vehicle-id", type=vehicle_id, metavar="ID", help="vehicle id in the bus keys")
-    run.add_argument("--router", type=endpoint, metavar="ENDPOINT",
-                     help="use this external router instead of hosting the embedded one")
-    run.add_argument("--listen", type=endpoint, metavar="ENDPOINT",
-                     help="where the embedded router listens (default: bus.router, tcp/127.0.0.1:7447)")
+    run.add_argument(
+        "--router",
+        type=endpoint,
+        metavar="ENDPOINT",
+        help="use this external router instead of hosting the embedded one",
+    )
+    run.add_argument(
+        "--listen",
+        type=endpoint,
+        metavar="ENDPOINT",
+        help="where the embedded router listens (default: bus.router, tcp/127.0.0.1:7447)",
+    )
     run.add_argument("--run-dir", metavar="DIR", help="where the run's config and logs go")
     run.add_argument("--api-port", type=int, metavar="PORT", help="port of the REST API (default: api.port, 8443)")
-    run.add_argument("--store", metavar="URI",
-                     help="black box store for the recorder and the API: a mongodb:// URI or the embedded "
-                          "store's file (default: blackbox_store.uri, else data/blackbox.sqlite)")
-    run.add_argument("--fleet", type=positive_int, metavar="N",
-                     help="N simulated shuttles on one router (ids shuttle01, shuttle02, ...; APIs on consecutive "
-                          "ports), for the fleet page; interactive only")
-    run.add_argument("--seconds", type=positive_float, metavar="S",
-                     help="headless: drive for S seconds of vehicle time (the tour repeats as needed) instead of --laps")
+    run.add_argument(
+        "--store",
+        metavar="URI",
+        help="black box store for the recorder and the API: a mongodb:// URI or the embedded "
+        "store's file (default: blackbox_store.uri, else data/blackbox.sqlite)",
+    )
+    run.add_argument(
+        "--fleet",
+        type=positive_int,
+        metavar="N",
+        help="N simulated shuttles on one router (ids shuttle01, shuttle02, ...; APIs on consecutive "
+        "ports), for the fleet page; interactive only",
+    )
+    run.add_argument(
+        "--seconds",
+        type=positive_float,
+        metavar="S",
+        help="headless: drive for S seconds of vehicle time (the tour repeats as needed) instead of --laps",
+    )
 
-    node = subparsers.add_parser("node", help="run one process of the stack in the foreground",
-                                 description="Run one process of the process table in the foreground.")
+    node = subparsers.add_parser(
+        "node",
+        help="run one process of the stack in the foreground",
+        description="Run one process of the process table in the foreground.",
+    )
     node.add_argument("name", metavar="NAME", help="process name (see the process table)")
     return {"run": cmd_run, "node": cmd_node}
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    try:
-        from ares import stack
-    except ModuleNotFoundError as exc:
-        if exc.name == "ares.stack":
-            raise CliError("the stack runner (ares.stack) is not installed in this checkout") from None
-        raise
-    return int(stack.run(args) or 0)
+    from ares.app import stack
+
+    if not args.headless:
+        return int(stack.run(args) or 0)
+    from ares.tools import headless
+
+    return int(stack.run(args, headless.drive) or 0)
 
 
 def cmd_node(args: argparse.Namespace) -> int:
-    from ares import processes
-    from ares.node import PROCESS_ENV, run_node
+    from ares.app import processes
+    from ares.core.node import PROCESS_ENV, run_node
+
     try:
         spec = processes.by_name(args.name)
     except KeyError as exc:

@@ -14,17 +14,18 @@ Both have a transport delay (paper §5.1: 100 ms steering, 320 ms throttle), a f
 lag, and the steering has static friction. Their parameters live in the vehicle profile
 (`actuators:` block) and were tuned so that the closed loop with the board's 10 Hz PID
 (`dbw_pid:` block, control/pid.py) reproduces the step responses the paper measured;
-ares/harness/step_response.py runs that closed loop and measures the figures.
+ares/tools/harness/step_response.py runs that closed loop and measures the figures.
 """
+
 from __future__ import annotations
 
 import math
 from collections import deque
 
-from ares.config import SteeringActuatorParams, TractionActuatorParams
+from ares.core.config import SteeringActuatorParams, TractionActuatorParams
 
-GRAVITY = 9.81          # m/s^2
-AIR_DENSITY = 1.2       # kg/m^3
+GRAVITY = 9.81  # m/s^2
+AIR_DENSITY = 1.2  # kg/m^3
 
 
 class _TransportDelay:
@@ -61,6 +62,7 @@ def _lag(current: float, target: float, tau: float, dt: float) -> float:
 
 # ---- steering ---------------------------------------------------------------------------
 
+
 class SteeringActuator:
     """DC motor turning the steering column (the Opel Corsa power-steering motor of §4.1).
 
@@ -93,8 +95,7 @@ class SteeringActuator:
         self._integrate(0.5 * (self.rate_deg_s + new_rate), new_rate, dt)
         return self.angle_deg
 
-    def turn_by_hand(self, target_deg: float, dt: float, time_constant_s: float,
-                     max_rate_deg_s: float) -> float:
+    def turn_by_hand(self, target_deg: float, dt: float, time_constant_s: float, max_rate_deg_s: float) -> float:
         """A driver turns the wheel (the motor is back-driven, the board's effort is ignored)."""
         self._delay(0.0, dt)  # keep the board's dead time running, with nothing in it
         rate = (target_deg - self.angle_deg) / max(time_constant_s, dt)
@@ -120,6 +121,7 @@ class SteeringActuator:
 
 # ---- traction ---------------------------------------------------------------------------
 
+
 class TractionActuator:
     """AC traction motor, its controller and the brakes, driving the longitudinal speed.
 
@@ -132,7 +134,8 @@ class TractionActuator:
         current limit F_max when driving and up to F_regen when it opposes the motion
         (regenerative braking, which the DBW paper found enough to slow the car). Released
         throttle (v_sync = 0) is therefore a gentle regenerative brake that fades to nothing
-        at standstill; rolling backwards, the motor pushes forwards against the roll. The slip stiffness is why the closed loop depends only mildly on the load:
+        at standstill; rolling backwards, the motor pushes forwards against the roll. The slip
+        stiffness is why the closed loop depends only mildly on the load:
         the motor behaves much like a speed source; a heavier vehicle only slows its pole m/k_slip.
       * The friction brake adds brake · max_brake_force against the motion. Force is monotonic
         in effort, which keeps the board's PID loop well behaved through zero effort.
@@ -147,8 +150,9 @@ class TractionActuator:
     A throttle too weak for the slope lets the vehicle roll back, as it would.
     """
 
-    def __init__(self, params: TractionActuatorParams, empty_mass_kg: float, passenger_mass_kg: float,
-                 passengers: int = 0):
+    def __init__(
+        self, params: TractionActuatorParams, empty_mass_kg: float, passenger_mass_kg: float, passengers: int = 0
+    ):
         self.dead_time_s = params.dead_time_s
         self.time_constant_s = params.time_constant_s
         self.full_effort_speed_mps = params.full_effort_speed_mps
@@ -163,7 +167,7 @@ class TractionActuator:
         self.passenger_mass_kg = float(passenger_mass_kg)
         self.passengers = int(passengers)
         self._delay = _TransportDelay(self.dead_time_s)
-        self.effort = 0.0        # lagged effort acting on motor and brake
+        self.effort = 0.0  # lagged effort acting on motor and brake
         self.v = 0.0
         self.accel = 0.0
 
@@ -187,15 +191,17 @@ class TractionActuator:
         slope = math.atan(grade)
         v0 = self.v
         # Friction-like forces: available to oppose motion (or to hold at standstill).
-        friction = (max(-self.effort, 0.0) * self.max_brake_force_n
-                    + self.rolling_resistance * m * GRAVITY * math.cos(slope))
+        friction = max(-self.effort, 0.0) * self.max_brake_force_n + self.rolling_resistance * m * GRAVITY * math.cos(
+            slope
+        )
         if v0 == 0.0 and self.effort <= 0.0:
             friction += self.parking_hold_force_n
-        active = (self.motor_force(v0) - m * GRAVITY * math.sin(slope)
-                  - 0.5 * AIR_DENSITY * self.drag_area_m2 * v0 * abs(v0))
+        active = (
+            self.motor_force(v0) - m * GRAVITY * math.sin(slope) - 0.5 * AIR_DENSITY * self.drag_area_m2 * v0 * abs(v0)
+        )
 
         if v0 == 0.0 and abs(active) <= friction:
-            v1 = 0.0                                    # held by brakes / rolling resistance
+            v1 = 0.0  # held by brakes / rolling resistance
         else:
             direction = math.copysign(1.0, v0) if v0 != 0.0 else math.copysign(1.0, active)
             v1 = v0 + (active - direction * friction) / m * dt

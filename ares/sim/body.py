@@ -12,18 +12,20 @@ who needs the ramp waits until it is deployed. While someone passes, the entranc
 A late passenger steps into the doorway as the doors begin to close, which the mission must
 answer by opening them again.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ares.config import ScenarioPassengers
+from ares.core.config import ScenarioPassengers
 
 
 @dataclass
 class Travel:
     """A door or ramp: its position and where it is going."""
+
     travel_s: float
-    position: float = 0.0           # 0 closed / stowed, 1 open / deployed
+    position: float = 0.0  # 0 closed / stowed, 1 open / deployed
     target: float = 0.0
 
     def step(self, dt: float) -> None:
@@ -49,16 +51,17 @@ RAMP_NAMES = ("stowed", "deploying", "deployed", "stowing")
 
 @dataclass(frozen=True)
 class Person:
-    alighting: bool                 # leaving the shuttle (else boarding)
+    alighting: bool  # leaving the shuttle (else boarding)
     needs_ramp: bool = False
 
 
 @dataclass
 class Visit:
     """The people at one POI for this stop, in the order they pass the entrance."""
+
     queue: list[Person]
-    late: int                       # boarding as the doors begin to close
-    passing_left_s: float = 0.0     # the one in the entrance now
+    late: int  # boarding as the doors begin to close
+    passing_left_s: float = 0.0  # the one in the entrance now
 
 
 @dataclass
@@ -74,14 +77,14 @@ class BodySim:
         self.doors = Travel(self.door_travel_s)
         self.ramp = Travel(self.ramp_travel_s)
         self.visit: Visit | None = None
-        self.served: set[str] = set()                   # POIs whose people have been served (once each)
+        self.served: set[str] = set()  # POIs whose people have been served (once each)
         self._was_closing = False
 
     # ---- the actuators --------------------------------------------------------------------------
     def command(self, doors: str | None, ramp: str | None, media: bool) -> None:
         if doors == "open":
             self.doors.target = 1.0
-        elif doors == "close" and self.ramp.position <= 0.0:    # never close on the ramp
+        elif doors == "close" and self.ramp.position <= 0.0:  # never close on the ramp
             self.doors.target = 0.0
         if ramp == "deploy" and self.doors.position >= 1.0:
             self.ramp.target = 1.0
@@ -106,7 +109,7 @@ class BodySim:
     def step(self, dt: float, poi_here: str | None) -> None:
         """One step, with the POI the shuttle stands at (None: none, or moving)."""
         if self.doors.target < self.doors.position and self.ramp.position > 0.0:
-            self.doors.target = 1.0                     # the interlock: doors stay open over a ramp
+            self.doors.target = 1.0  # the interlock: doors stay open over a ramp
         if self.ramp.target > 0 and self.doors.position < 1.0:
             self.ramp.target = 0.0
         self.doors.step(dt)
@@ -114,15 +117,17 @@ class BodySim:
         if poi_here is not None and self.visit is None and poi_here in self.stops and poi_here not in self.served:
             who = self.stops[poi_here]
             self.served.add(poi_here)
-            self.visit = Visit(queue=[Person(alighting=True) for _ in range(who.alighting)]
-                               + [Person(alighting=False, needs_ramp=i < who.on_ramp) for i in range(who.boarding)],
-                               late=who.late)
+            self.visit = Visit(
+                queue=[Person(alighting=True) for _ in range(who.alighting)]
+                + [Person(alighting=False, needs_ramp=i < who.on_ramp) for i in range(who.boarding)],
+                late=who.late,
+            )
         visit = self.visit
         if visit is None:
             return
         closing = self.door_state == "closing"
         if closing and not self._was_closing and visit.late > 0:
-            visit.late -= 1                         # someone runs for it: into the closing doorway
+            visit.late -= 1  # someone runs for it: into the closing doorway
             self._pass(Person(alighting=False))
         self._was_closing = closing
         if visit.passing_left_s > 0.0:
@@ -130,7 +135,7 @@ class BodySim:
             return
         if not visit.queue:
             if visit.late == 0 and self.door_state == "closed":
-                self.visit = None                   # everyone served and the doors shut: the stop is over
+                self.visit = None  # everyone served and the doors shut: the stop is over
             return
         if self.door_state != "open" or (visit.queue[0].needs_ramp and self.ramp_state != "deployed"):
             return

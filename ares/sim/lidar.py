@@ -18,6 +18,7 @@ the world, the moving obstacles and the shuttle's own body; what a real sensor a
 Points are in the sensor's frame (x forward, y left, z up); rings numbered from the lowest laser.
 Motion during the 100 ms sweep is not modelled: each sweep is taken from one pose.
 """
+
 from __future__ import annotations
 
 import math
@@ -26,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from ares.config import LidarMount, Params, VehicleProfile, param
+from ares.core.config import LidarMount, Params, VehicleProfile, param
 from ares.sim.world import MATERIAL_IDS, REFLECTIVITY, Mesh, box_mesh, cylinder_mesh
 
 FULL_REACH_REFLECTIVITY = 0.8
@@ -35,28 +36,46 @@ COVER_RANGE_M = 0.03
 
 class LidarSimParams(Params):
     """The simulated LiDARs (ares/sim/lidar.py)."""
+
     rate_hz: float = param(10.0, "revolutions per second", unit="Hz", gt=0)
-    azimuth_decimation: int = param(1, "fire every n-th azimuth step of the datasheet (1 = full resolution; "
-                                       "tests run lighter)", ge=1)
+    azimuth_decimation: int = param(
+        1, "fire every n-th azimuth step of the datasheet (1 = full resolution; tests run lighter)", ge=1
+    )
     dropout: float = param(0.005, "share of returns lost at random", ge=0, lt=1)
     intensity_sigma: float = param(0.05, "relative noise on the intensity", ge=0)
     ghosts_per_sweep: float = param(8.0, "mean spurious near-field points per sweep and sensor", ge=0)
     ghost_range_m: tuple[float, float] = param((0.6, 3.0), "ghosts appear between these ranges", unit="m")
-    ghost_half_angle_deg: float = param(60.0, "... within this angle either side of the sensor's front", unit="deg",
-                                        gt=0, le=180)
+    ghost_half_angle_deg: float = param(
+        60.0, "... within this angle either side of the sensor's front", unit="deg", gt=0, le=180
+    )
     roadside_objects: bool = param(True, "trees and poles beside the road")
-    raycast_threads: int = param(1, "open3d threads per cast (0: all cores); in a run the other processes need "
-                                    "the second core more than the caster does (one thread: 38 ms of CPU a frame, "
-                                    "all: 56 ms for 36 ms of wall time)", ge=0)
+    raycast_threads: int = param(
+        1,
+        "open3d threads per cast (0: all cores); in a run the other processes need "
+        "the second core more than the caster does (one thread: 38 ms of CPU a frame, "
+        "all: 56 ms for 36 ms of wall time)",
+        ge=0,
+    )
     seed: int = param(11, "seed of the LiDARs' random streams (noise, dropouts, ghosts, roadside objects)", ge=0)
 
 
 def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """R = Rz(yaw) Ry(pitch) Rx(roll): a frame rotated by these angles, REP-103 signs."""
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
+    cr, sr, cp, sp, cy, sy = (
+        math.cos(roll),
+        math.sin(roll),
+        math.cos(pitch),
+        math.sin(pitch),
+        math.cos(yaw),
+        math.sin(yaw),
+    )
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
 
 
 def rotate_into(out: np.ndarray, vectors: np.ndarray, matrix: np.ndarray) -> None:
@@ -85,14 +104,21 @@ def housing(mount: LidarMount) -> Mesh:
 def body_parts(vehicle: VehicleProfile) -> list[Mesh]:
     """The shuttle's body as the LiDARs see it, in the vehicle frame: a box of its shape (rear axle
     at x = 0) and, for a roof sensor, its mast."""
-    overhang = (vehicle.length_m - vehicle.wheelbase_m) / 2
     height = vehicle.height_m or 2.0
     clearance = vehicle.ground_clearance_m
-    parts = [box_mesh((vehicle.wheelbase_m / 2, 0.0, clearance), (vehicle.length_m, vehicle.width_m, height - clearance),
-                      0.0, "body")]
+    parts = [
+        box_mesh(
+            (vehicle.wheelbase_m / 2, 0.0, clearance),
+            (vehicle.length_m, vehicle.width_m, height - clearance),
+            0.0,
+            "body",
+        )
+    ]
     roof = vehicle.lidars.get("roof")
     if roof is not None and roof.xyz_m[2] - 0.14 > height:
-        parts.append(cylinder_mesh((roof.xyz_m[0], roof.xyz_m[1], height), 0.03, roof.xyz_m[2] - 0.14 - height, "metal"))
+        parts.append(
+            cylinder_mesh((roof.xyz_m[0], roof.xyz_m[1], height), 0.03, roof.xyz_m[2] - 0.14 - height, "metal")
+        )
     return parts
 
 
@@ -112,8 +138,9 @@ class Sweep:
 class SimulatedLidar:
     """One sensor on the vehicle."""
 
-    def __init__(self, name: str, mount: LidarMount, vehicle: VehicleProfile, params: LidarSimParams,
-                 rng: np.random.Generator):
+    def __init__(
+        self, name: str, mount: LidarMount, vehicle: VehicleProfile, params: LidarSimParams, rng: np.random.Generator
+    ):
         self.name = name
         self.mount = mount
         self.sheet = mount.datasheet()
@@ -123,13 +150,14 @@ class SimulatedLidar:
         elevation = np.radians(self.sheet.elevations_deg())
         self.step = math.radians(self.sheet.azimuth_step_deg) * params.azimuth_decimation
         azimuth = np.arange(0.0, 2 * math.pi - 1e-9, self.step)
-        el, az = np.meshgrid(elevation, azimuth, indexing="ij")           # ring-major, like a real packet order
+        el, az = np.meshgrid(elevation, azimuth, indexing="ij")  # ring-major, like a real packet order
         self.ring = np.repeat(np.arange(len(elevation), dtype=np.uint8), len(azimuth))
         self.elevation = el.ravel()
         self.azimuth = az.ravel()
         ce = np.cos(self.elevation)
-        self.dirs0 = np.stack([ce * np.cos(self.azimuth), ce * np.sin(self.azimuth), np.sin(self.elevation)],
-                              axis=1).astype(np.float32)
+        self.dirs0 = np.stack(
+            [ce * np.cos(self.azimuth), ce * np.sin(self.azimuth), np.sin(self.elevation)], axis=1
+        ).astype(np.float32)
         self.blocked = False
         others = [housing(m) for n, m in vehicle.lidars.items() if n != name]
         body = Mesh.join(body_parts(vehicle) + others)
@@ -143,14 +171,15 @@ class SimulatedLidar:
         own = body_scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
         t_body = own["t_hit"].numpy()
         stopped = np.isfinite(t_body)
-        self.leaving = np.flatnonzero(~stopped)          # the rays that reach the world
+        self.leaving = np.flatnonzero(~stopped)  # the rays that reach the world
         self.leaving_dirs = np.ascontiguousarray(self.dirs0[self.leaving])
         self.leaving_ring = self.ring[self.leaving]
         self.body_t = t_body[stopped]
         self.body_dirs = self.dirs0[stopped]
         self.body_ring = self.ring[stopped]
-        self.body_incidence = np.abs(np.einsum("ij,ij->i", own["primitive_normals"].numpy()[stopped],
-                                               rays[stopped, 3:]))
+        self.body_incidence = np.abs(
+            np.einsum("ij,ij->i", own["primitive_normals"].numpy()[stopped], rays[stopped, 3:])
+        )
 
     @property
     def rays_per_sweep(self) -> int:
@@ -160,14 +189,20 @@ class SimulatedLidar:
         """Unit vectors of every ray in the sensor frame, the revolution turned by an offset."""
         return (self.dirs0 @ rotation(0.0, 0.0, azimuth_offset).T.astype(np.float32)).astype(np.float32)
 
-    def sweep(self, world_scene, vehicle_rotation: np.ndarray, vehicle_position: np.ndarray,
-              obstacles_scene=None, material_of=None) -> Sweep:
+    def sweep(
+        self,
+        world_scene,
+        vehicle_rotation: np.ndarray,
+        vehicle_position: np.ndarray,
+        obstacles_scene=None,
+        material_of=None,
+    ) -> Sweep:
         """One revolution from the vehicle's pose. `material_of(geometry_ids, primitive_ids)` gives
         each world hit's material (World.material_of)."""
         if self.blocked:
             return self._empty()
         rng = self.rng
-        spin = rotation(0.0, 0.0, rng.uniform(0.0, self.step))       # firing azimuths vary a little per turn
+        spin = rotation(0.0, 0.0, rng.uniform(0.0, self.step))  # firing azimuths vary a little per turn
         to_world = (vehicle_rotation @ self.rotation @ spin).astype(np.float32)
         dirs = self.leaving_dirs
         rays = np.empty((len(dirs), 6), dtype=np.float32)
@@ -197,8 +232,11 @@ class SimulatedLidar:
         ring = np.concatenate([self.leaving_ring[world], self.body_ring])
         m = len(t)
         reflectivity = REFLECTIVITY[material]
-        intensity = reflectivity * np.maximum(incidence, 0.05) * (
-            1.0 + self.params.intensity_sigma * rng.standard_normal(m, dtype=np.float32))
+        intensity = (
+            reflectivity
+            * np.maximum(incidence, 0.05)
+            * (1.0 + self.params.intensity_sigma * rng.standard_normal(m, dtype=np.float32))
+        )
         reach = self.sheet.max_range_m * np.sqrt(np.minimum(reflectivity / FULL_REACH_REFLECTIVITY, 1.0))
         r = t + self.sheet.range_sigma_m * rng.standard_normal(m, dtype=np.float32)
         keep = (r >= self.sheet.min_range_m) & (t <= reach) & (rng.random(m, dtype=np.float32) >= self.params.dropout)
@@ -206,11 +244,13 @@ class SimulatedLidar:
         rotate_into(points, dirs[keep], spin.astype(np.float32))
         points *= r[keep, None]
         ghosts = self._ghosts()
-        return Sweep(x=np.concatenate([points[:, 0], ghosts[0]]).astype(np.float32),
-                     y=np.concatenate([points[:, 1], ghosts[1]]).astype(np.float32),
-                     z=np.concatenate([points[:, 2], ghosts[2]]).astype(np.float32),
-                     intensity=np.concatenate([np.clip(intensity[keep], 0.0, 1.0), ghosts[3]]).astype(np.float32),
-                     ring=np.concatenate([ring[keep], ghosts[4]]).astype(np.uint8))
+        return Sweep(
+            x=np.concatenate([points[:, 0], ghosts[0]]).astype(np.float32),
+            y=np.concatenate([points[:, 1], ghosts[1]]).astype(np.float32),
+            z=np.concatenate([points[:, 2], ghosts[2]]).astype(np.float32),
+            intensity=np.concatenate([np.clip(intensity[keep], 0.0, 1.0), ghosts[3]]).astype(np.float32),
+            ring=np.concatenate([ring[keep], ghosts[4]]).astype(np.uint8),
+        )
 
     def _ghosts(self):
         p, rng = self.params, self.rng
@@ -220,8 +260,7 @@ class SimulatedLidar:
         az = rng.uniform(-1.0, 1.0, k) * math.radians(p.ghost_half_angle_deg)
         r = rng.uniform(max(p.ghost_range_m[0], self.sheet.min_range_m), p.ghost_range_m[1], k)
         ce = np.cos(elevation[ring])
-        return (r * ce * np.cos(az), r * ce * np.sin(az), r * np.sin(elevation[ring]),
-                rng.uniform(0.0, 0.1, k), ring)
+        return (r * ce * np.cos(az), r * ce * np.sin(az), r * np.sin(elevation[ring]), rng.uniform(0.0, 0.1, k), ring)
 
     def _empty(self) -> Sweep:
         # behind the cover every ray returns at a few centimetres, below the minimum range

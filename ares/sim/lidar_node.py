@@ -6,26 +6,28 @@ into the world (ares/sim/world.py). It runs beside the physics process so that t
 machine's cores; at --speed max it is one more participant of the lockstep. What the obstacles
 really are goes out on sim/world, for the evaluation only.
 """
+
 from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
 
-from ares.config import Scenario, load_scenario
-from ares.messages import Ack, EventLevel, LidarFault, PointCloud, VehicleTruth, WorldTruth
-from ares.node import Input, Node, Output, service
-from ares.route import load_route
+from ares.core.config import Scenario, load_scenario
+from ares.core.messages import Ack, EventLevel, LidarFault, PointCloud, VehicleTruth, WorldTruth
+from ares.core.node import Input, Node, Output, service
+from ares.core.route import load_route
 from ares.sim.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
 from ares.sim.obstacles import ObstacleField
 from ares.sim.params import SimParams
 from ares.sim.road import roughness_for
 from ares.sim.world import World
 
-OBSTACLE_REACH_M = 130.0        # beyond the longest LiDAR range
+OBSTACLE_REACH_M = 130.0  # beyond the longest LiDAR range
 
 
 class LidarSimulator(Node):
     """Three simulated LiDARs in the world built from the route, with the scenario's obstacles."""
+
     name = "lidar_sim"
     Params = LidarSimParams
     sections = {"sim": SimParams}
@@ -38,13 +40,18 @@ class LidarSimulator(Node):
     def setup(self) -> None:
         sim: SimParams = self.shared["sim"]
         self.route = load_route(self.core)
-        self.world = World(self.route, roughness_for(self.route, sim, self.vehicle.wheelbase_m),
-                           seed=self.params.seed, roadside_objects=self.params.roadside_objects)
+        self.world = World(
+            self.route,
+            roughness_for(self.route, sim, self.vehicle.wheelbase_m),
+            seed=self.params.seed,
+            roadside_objects=self.params.roadside_objects,
+        )
         self.scenario: Scenario | None = load_scenario(self.core.scenario) if self.core.scenario else None
         self.obstacles = ObstacleField(self.scenario, self.route, self.world.centre_height)
-        self.sensors = {name: SimulatedLidar(name, mount, self.vehicle, self.params,
-                                             np.random.default_rng([self.params.seed, i]))
-                        for i, (name, mount) in enumerate(self.vehicle.lidars.items())}
+        self.sensors = {
+            name: SimulatedLidar(name, mount, self.vehicle, self.params, np.random.default_rng([self.params.seed, i]))
+            for i, (name, mount) in enumerate(self.vehicle.lidars.items())
+        }
         self.outputs_by_sensor = {"roof": self.roof, "front_left": self.front_left, "front_right": self.front_right}
         self.faults_done: set[int] = set()
         if not self.sensors:
@@ -56,15 +63,22 @@ class LidarSimulator(Node):
         if sensor is None:
             return Ack(t=self.clock.now(), ok=False, detail=f"this vehicle has no {request.sensor} LiDAR")
         self._set_blocked(request.sensor, request.blocked, "on command")
-        return Ack(t=self.clock.now(), ok=True, detail=f"{request.sensor} {'covered' if request.blocked else 'uncovered'}")
+        return Ack(
+            t=self.clock.now(), ok=True, detail=f"{request.sensor} {'covered' if request.blocked else 'uncovered'}"
+        )
 
     def _set_blocked(self, name: str, blocked: bool, why: str) -> None:
         sensor = self.sensors[name]
         if sensor.blocked == blocked:
             return
         sensor.blocked = blocked
-        self.event("lidar_fault", f"simulated {name} LiDAR {'covered' if blocked else 'uncovered'} ({why})",
-                   EventLevel.WARNING if blocked else EventLevel.INFO, sensor=name, blocked=blocked)
+        self.event(
+            "lidar_fault",
+            f"simulated {name} LiDAR {'covered' if blocked else 'uncovered'} ({why})",
+            EventLevel.WARNING if blocked else EventLevel.INFO,
+            sensor=name,
+            blocked=blocked,
+        )
 
     def _faults(self, now: float) -> None:
         if self.scenario is None:
@@ -86,7 +100,7 @@ class LidarSimulator(Node):
         truth: VehicleTruth | None = self.truth.fresh(now)
         if truth is None:
             return
-        stamp = truth.t         # the sweep is taken from this pose: it carries the pose's time
+        stamp = truth.t  # the sweep is taken from this pose: it carries the pose's time
         progress = truth.lap * self.route.length + truth.s if self.route.closed else truth.s
         for name in self.obstacles.update(stamp, progress):
             self.event("obstacle_moving", f"scenario obstacle {name} starts moving", obstacle=name)
@@ -98,8 +112,22 @@ class LidarSimulator(Node):
             obstacle_scene.add_triangles(o3d.core.Tensor(mesh.vertices), o3d.core.Tensor(mesh.triangles))
         for name, sensor in self.sensors.items():
             sweep = sensor.sweep(self.world.scene, rotation, position, obstacle_scene, self.world.material_of)
-            self.outputs_by_sensor[name].put(PointCloud(t=stamp, sensor=name, frame=f"lidar/{name}", x=sweep.x,
-                                                        y=sweep.y, z=sweep.z, intensity=sweep.intensity,
-                                                        ring=sweep.ring))
-        self.world_truth.put(WorldTruth(t=stamp, obstacles=self.obstacles.boxes(stamp),
-                                        blocked_lidars=[n for n, s in self.sensors.items() if s.blocked]))
+            self.outputs_by_sensor[name].put(
+                PointCloud(
+                    t=stamp,
+                    sensor=name,
+                    frame=f"lidar/{name}",
+                    x=sweep.x,
+                    y=sweep.y,
+                    z=sweep.z,
+                    intensity=sweep.intensity,
+                    ring=sweep.ring,
+                )
+            )
+        self.world_truth.put(
+            WorldTruth(
+                t=stamp,
+                obstacles=self.obstacles.boxes(stamp),
+                blocked_lidars=[n for n, s in self.sensors.items() if s.blocked],
+            )
+        )

@@ -6,26 +6,27 @@ the route, and stays at the path's end. `along_tour` places obstacles of several
 along the tour, alternately left and right of the path the shuttle drives, skipping
 intersections, road openings and narrow stretches.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from ares.config import OBSTACLE_SIZES, Scenario, ScenarioAlongTour, ScenarioObstacle, ScenarioPlace
-from ares.messages import ObstacleBox
-from ares.route import OPEN_ZONES, Route
+from ares.core.config import OBSTACLE_SIZES, Scenario, ScenarioAlongTour, ScenarioObstacle, ScenarioPlace
+from ares.core.messages import ObstacleBox
+from ares.core.route import OPEN_ZONES, Route
 from ares.sim.world import CROSSFALL, Mesh, box_mesh
 
 
 @dataclass
 class PlacedObstacle:
     spec: ScenarioObstacle
-    xy: np.ndarray              # (k, 2) the path in the local frame
-    yaw_along: np.ndarray       # heading of each leg (a standing obstacle faces along the road)
-    base_z: np.ndarray          # ground height at each path point
+    xy: np.ndarray  # (k, 2) the path in the local frame
+    yaw_along: np.ndarray  # heading of each leg (a standing obstacle faces along the road)
+    base_z: np.ndarray  # ground height at each path point
     started_at: float | None = None
 
     @property
@@ -42,15 +43,19 @@ class PlacedObstacle:
         leave = 0.0
         for i, place in enumerate(self.spec.path):
             arrive = leave if i == 0 else leave + legs[i - 1] / self.spec.speed_mps
-            if i > 0 and tau < arrive:          # on the leg from place i-1 to place i
+            if i > 0 and tau < arrive:  # on the leg from place i-1 to place i
                 f = (tau - leave) / (arrive - leave) if arrive > leave else 1.0
                 x, y = self.xy[i - 1] + f * (self.xy[i] - self.xy[i - 1])
                 z = self.base_z[i - 1] + f * (self.base_z[i] - self.base_z[i - 1])
                 return float(x), float(y), float(z), float(self.yaw_along[i])
             leave = arrive + place.wait_s
-            if tau < leave or i == len(self.spec.path) - 1:     # standing at place i
-                return (float(self.xy[i, 0]), float(self.xy[i, 1]), float(self.base_z[i]),
-                        float(self.yaw_along[max(i, 1) if len(self.xy) > 1 else 0]))
+            if tau < leave or i == len(self.spec.path) - 1:  # standing at place i
+                return (
+                    float(self.xy[i, 0]),
+                    float(self.xy[i, 1]),
+                    float(self.base_z[i]),
+                    float(self.yaw_along[max(i, 1) if len(self.xy) > 1 else 0]),
+                )
         raise AssertionError("unreachable: the last place ends the walk")
 
 
@@ -73,8 +78,9 @@ class ObstacleField:
             half = float(self.route.width[self.route.index_at(place.s)]) / 2
             zs.append(float(self.ground(place.s)) - CROSSFALL * min(abs(place.offset_m), half))
         xy = np.array(xy)
-        heading = [yaws[0]] + [math.atan2(b[1] - a[1], b[0] - a[0]) if np.any(b != a) else yaws[0]
-                               for a, b in zip(xy[:-1], xy[1:])]
+        heading = [yaws[0]] + [
+            math.atan2(b[1] - a[1], b[0] - a[0]) if np.any(b != a) else yaws[0] for a, b in zip(xy[:-1], xy[1:])
+        ]
         return PlacedObstacle(spec, xy, np.array(heading), np.array(zs))
 
     def update(self, t: float, vehicle_progress_m: float) -> list[str]:
@@ -84,9 +90,11 @@ class ObstacleField:
             if ob.started_at is not None or not ob.moving:
                 continue
             spec = ob.spec
-            if (spec.start_t_s is not None and t >= spec.start_t_s) or (
-                    spec.start_when_vehicle_at_s is not None and vehicle_progress_m >= spec.start_when_vehicle_at_s) or (
-                    spec.start_t_s is None and spec.start_when_vehicle_at_s is None):
+            if (
+                (spec.start_t_s is not None and t >= spec.start_t_s)
+                or (spec.start_when_vehicle_at_s is not None and vehicle_progress_m >= spec.start_when_vehicle_at_s)
+                or (spec.start_t_s is None and spec.start_when_vehicle_at_s is None)
+            ):
                 ob.started_at = t
                 started.append(spec.name)
         return started
@@ -96,8 +104,19 @@ class ObstacleField:
         for ob in self.obstacles:
             x, y, _, yaw = ob.where(t)
             length, width, height = ob.spec.size()
-            out.append(ObstacleBox(name=ob.spec.name, kind=ob.spec.kind, x=x, y=y, yaw=yaw, length_m=length,
-                                   width_m=width, height_m=height, moving=ob.moving))
+            out.append(
+                ObstacleBox(
+                    name=ob.spec.name,
+                    kind=ob.spec.kind,
+                    x=x,
+                    y=y,
+                    yaw=yaw,
+                    length_m=length,
+                    width_m=width,
+                    height_m=height,
+                    moving=ob.moving,
+                )
+            )
         return out
 
     def mesh_near(self, t: float, x: float, y: float, reach_m: float) -> Mesh | None:

@@ -1,17 +1,20 @@
 """The `sim` section: rates, noise, passengers and the hardware's own behaviour of the simulated shuttle."""
+
 from __future__ import annotations
 
-from ares.config import Params, param
+from ares.core.config import Params, param
 
 
 class SimGnssParams(Params):
     """The simulated RTK receiver (ARES §3.1)."""
+
     rtk_sigma_m: float = param(0.007, "horizontal noise with RTK corrections (~5e-5 m^2 covariance)", unit="m", gt=0)
     float_sigma_m: float = param(0.7, "horizontal error without corrections (~0.5 m^2 covariance)", unit="m", gt=0)
     rtk_sigma_alt_m: float = param(0.015, "vertical noise with RTK corrections", unit="m", gt=0)
     float_sigma_alt_m: float = param(1.2, "vertical error without corrections", unit="m", gt=0)
-    float_bias_tau_s: float = param(40.0, "uncorrected error wanders: first-order Gauss-Markov bias ...",
-                                    unit="s", gt=0)
+    float_bias_tau_s: float = param(
+        40.0, "uncorrected error wanders: first-order Gauss-Markov bias ...", unit="s", gt=0
+    )
     float_white_fraction: float = param(0.3, "... plus white noise with this share of float_sigma_m", ge=0, le=1)
     no_rtk_fix_quality: int = param(1, "GGA fix quality without corrections (1 GPS, 2 DGPS); 4 with RTK", ge=1, le=8)
     rtk_hdop: float = param(0.7, "HDOP with RTK corrections", gt=0)
@@ -41,21 +44,26 @@ class SuspensionParams(Params):
 
 class DriverParams(Params):
     """The human of VehiclePlant.step_manual."""
-    steering_time_constant_s: float = param(0.3, "how fast the hand approaches the wheel angle it wants",
-                                            unit="s", gt=0)
+
+    steering_time_constant_s: float = param(
+        0.3, "how fast the hand approaches the wheel angle it wants", unit="s", gt=0
+    )
     steering_max_rate_deg_s: float = param(360.0, "fastest turn of the wheel by hand", unit="deg/s", gt=0)
-    torque_threshold_deg: float = param(2.0, "the column's torque sensor fires while the hand leads the wheel by more",
-                                        unit="deg", gt=0)
+    torque_threshold_deg: float = param(
+        2.0, "the column's torque sensor fires while the hand leads the wheel by more", unit="deg", gt=0
+    )
 
 
 class SimBodyParams(Params):
     """Doors, ramp and the people passing them (ares/sim/body.py)."""
+
     rate_hz: float = param(10.0, "the body's sensors report this often", unit="Hz", gt=0)
     door_travel_s: float = param(2.5, "doors: closed to open (or back)", unit="s", gt=0)
     ramp_travel_s: float = param(6.0, "ramp: stowed to deployed (or back)", unit="s", gt=0)
     per_person_s: float = param(2.0, "one person through the entrance", unit="s", gt=0)
-    at_poi_m: float = param(3.0, "standing this close to a POI's stop point, the shuttle is at it (for its people)",
-                            unit="m", gt=0)
+    at_poi_m: float = param(
+        3.0, "standing this close to a POI's stop point, the shuttle is at it (for its people)", unit="m", gt=0
+    )
 
 
 class SimParams(Params):
@@ -71,12 +79,14 @@ class SimParams(Params):
     imu: SimImuParams = param(doc="the IMU", factory=SimImuParams)
     can: SimCanParams = param(doc="the CAN bus", factory=SimCanParams)
     road_roughness_m: float = param(0.02, "RMS height of the road surface's undulations", unit="m", ge=0)
-    roughness_wavelength_m: tuple[float, float] = param((1.5, 15.0), "road undulations between these wavelengths",
-                                                        unit="m")
+    roughness_wavelength_m: tuple[float, float] = param(
+        (1.5, 15.0), "road undulations between these wavelengths", unit="m"
+    )
     suspension: SuspensionParams = param(doc="body bounce over the roughness", factory=SuspensionParams)
     driver: DriverParams = param(doc="the simulated human driver", factory=DriverParams)
     body: SimBodyParams = param(doc="doors, ramp and passengers", factory=SimBodyParams)
     actuator_timeout_s: float = param(0.5, "the DBW board brakes if the bridge goes quiet this long", unit="s", gt=0)
     parking_brake_effort: float = param(0.3, "a vehicle left in Manual with nobody driving is parked", ge=0, le=1)
-    max_catch_up_steps: int = param(50, "after a stall, jump ahead rather than replay more physics steps than this",
-                                    ge=1)
+    max_catch_up_steps: int = param(
+        50, "after a stall, jump ahead rather than replay more physics steps than this", ge=1
+    )

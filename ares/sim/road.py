@@ -4,13 +4,14 @@ Its large-scale shape is the route's elevation profile: the height at arc length
 the Route itself, the grade from `grade_at`. On top of it, RoadRoughness is the small-scale
 surface the suspension feels.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from ares.route import Route
+from ares.core.route import Route
 
 
 def grade_at(route: Route, s: float) -> float:
@@ -24,15 +25,20 @@ def grade_at(route: Route, s: float) -> float:
     return float(route.grade[i] + f * (route.grade[j] - route.grade[i]))
 
 
-ROUGHNESS_STREAM = 1   # the surface has its own random stream: the plant and the world draw the same one
+ROUGHNESS_STREAM = 1  # the surface has its own random stream: the plant and the world draw the same one
 
 
-def roughness_for(route: Route, sim, wheelbase_m: float) -> "RoadRoughness":
+def roughness_for(route: Route, sim, wheelbase_m: float) -> RoadRoughness:
     """The road surface of this route and simulation (the same in the plant and the world)."""
-    return RoadRoughness(sim.road_roughness_m, wheelbase_m, sim.roughness_wavelength_m,
-                         sim.suspension.natural_hz, sim.suspension.damping_ratio,
-                         np.random.default_rng([sim.seed, ROUGHNESS_STREAM]),
-                         period_m=route.length if route.closed else None)
+    return RoadRoughness(
+        sim.road_roughness_m,
+        wheelbase_m,
+        sim.roughness_wavelength_m,
+        sim.suspension.natural_hz,
+        sim.suspension.damping_ratio,
+        np.random.default_rng([sim.seed, ROUGHNESS_STREAM]),
+        period_m=route.length if route.closed else None,
+    )
 
 
 class RoadRoughness:
@@ -43,27 +49,36 @@ class RoadRoughness:
     undulations are larger, as in real road profiles) and scaled so the surface RMS is
     `sigma_m`. On a closed tour each wavelength is rounded to a whole number of waves per lap,
     so the surface joins itself at the start line. The 3-D world the LiDARs see
-    (ares/sim/world.py) is built from the same surface, so the wheels ride what the sensors see. The body follows through a second-order suspension, which gives
+    (ares/sim/world.py) is built from the same surface, so the wheels ride what the sensors see.
+    The body follows through a second-order suspension, which gives
     the IMU its vertical acceleration; the height difference between the front and rear axle
     tilts the body (pitch jitter). Nothing moves while the vehicle stands still.
     """
 
     N_WAVES = 12
 
-    def __init__(self, sigma_m: float, wheelbase_m: float, wavelength_m: tuple[float, float],
-                 natural_hz: float, damping_ratio: float, rng: np.random.Generator, period_m: float | None = None):
+    def __init__(
+        self,
+        sigma_m: float,
+        wheelbase_m: float,
+        wavelength_m: tuple[float, float],
+        natural_hz: float,
+        damping_ratio: float,
+        rng: np.random.Generator,
+        period_m: float | None = None,
+    ):
         self.wheelbase_m = wheelbase_m
         lam = np.geomspace(wavelength_m[0], wavelength_m[1], self.N_WAVES)
         if period_m:
             lam = period_m / np.maximum(np.round(period_m / lam), 1.0)
-        self.k = 2.0 * np.pi / lam                       # rad per metre
+        self.k = 2.0 * np.pi / lam  # rad per metre
         amp = lam / lam.max()
-        rms = math.sqrt(float(np.sum(amp ** 2)) / 2.0)
+        rms = math.sqrt(float(np.sum(amp**2)) / 2.0)
         self.amp = amp * (sigma_m / rms if rms > 0 else 0.0)
         self.phase = rng.uniform(0.0, 2.0 * np.pi, self.N_WAVES)
         self.wn = 2.0 * math.pi * natural_hz
         self.zeta = damping_ratio
-        self.z_body = 0.0          # body height over the mean road surface
+        self.z_body = 0.0  # body height over the mean road surface
         self.vz_body = 0.0
         self.az_body = 0.0
 
@@ -87,9 +102,8 @@ class RoadRoughness:
         h = self.height(distance_m)
         hdot = self.slope(distance_m) * v
         # Suspension: spring and damper between the road under the wheel and the body.
-        self.az_body = (self.wn ** 2 * (h - self.z_body)
-                        + 2.0 * self.zeta * self.wn * (hdot - self.vz_body))
-        self.vz_body += self.az_body * dt            # semi-implicit Euler: stable at 100 Hz
+        self.az_body = self.wn**2 * (h - self.z_body) + 2.0 * self.zeta * self.wn * (hdot - self.vz_body)
+        self.vz_body += self.az_body * dt  # semi-implicit Euler: stable at 100 Hz
         self.z_body += self.vz_body * dt
 
     def pitch_jitter(self, distance_m: float) -> float:

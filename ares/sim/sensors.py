@@ -16,7 +16,7 @@ few millimetres of white noise; inside an `rtk_loss` zone of the route (4G lost,
 the receiver falls back to an uncorrected fix whose error wanders: a first-order Gauss-Markov
 bias with a time constant of tens of seconds plus some white noise, so that consecutive
 positions drift together rather than jump. The local (x, y) is a UTM offset from the stack's
-`origin_utm` (ares.geodesy.LocalFrame converts to latitude/longitude). A GST sentence
+`origin_utm` (ares.core.geodesy.LocalFrame converts to latitude/longitude). A GST sentence
 carries the receiver's own error estimate (standard deviations of lat/lon/alt), which is
 where a real receiver reports its covariance.
 
@@ -25,24 +25,25 @@ pitch < 0 and the accelerometer's x axis reads +g·|sin(pitch)|. The yaw carries
 offset of a badly calibrated magnetometer (the reason the ARES odometry computes yaw from
 consecutive GNSS positions instead).
 """
+
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
-from ares import nmea
-from ares.config import ScenarioFault
-from ares.geodesy import LocalFrame
-from ares.geometry import wrap_angle
-from ares.route import Route
+from ares.core import nmea_framing as nmea
+from ares.core.config import ScenarioFault
+from ares.core.geodesy import LocalFrame
+from ares.core.geometry import wrap_angle
+from ares.core.route import Route
 from ares.sim.actuators import GRAVITY
 from ares.sim.params import SimCanParams, SimGnssParams, SimImuParams, SimParams
 from ares.sim.vehicle import VehicleState
 
-
 # ---- NMEA fields ----------------------------------------------------------------------------
+
 
 def _nmea_time(time_of_day_s: float) -> str:
     t = time_of_day_s % 86400.0
@@ -68,13 +69,20 @@ def _nmea_angle(value_deg: float, degree_digits: int) -> tuple[str, bool]:
 
 # ---- GNSS -----------------------------------------------------------------------------------
 
+
 class GnssSensor:
     """A dual-frequency RTK receiver at the vehicle's reference point (rear-axle centre)."""
-    faults: Sequence[ScenarioFault] = ()     # the scenario's sensor errors (SensorSuite sets them)
 
+    faults: Sequence[ScenarioFault] = ()  # the scenario's sensor errors (SensorSuite sets them)
 
-    def __init__(self, route: Route, params: SimGnssParams, frame: LocalFrame,
-                 rng: np.random.Generator | None = None, noise: bool = True):
+    def __init__(
+        self,
+        route: Route,
+        params: SimGnssParams,
+        frame: LocalFrame,
+        rng: np.random.Generator | None = None,
+        noise: bool = True,
+    ):
         g = params
         self.route = route
         self.frame = frame
@@ -88,7 +96,7 @@ class GnssSensor:
         self.bias_tau_s = g.float_bias_tau_s
         # Split the uncorrected variance between the wandering bias and the white part.
         self.white_share = g.float_white_fraction
-        self.bias_share = math.sqrt(max(1.0 - g.float_white_fraction ** 2, 0.0))
+        self.bias_share = math.sqrt(max(1.0 - g.float_white_fraction**2, 0.0))
         self.no_rtk_quality = g.no_rtk_fix_quality
         self.hdop = {"rtk": g.rtk_hdop, "float": g.float_hdop}
         self.satellites = {"rtk": g.rtk_satellites, "float": g.float_satellites}
@@ -110,8 +118,10 @@ class GnssSensor:
         gnss_no_corrections (or gnss_outage) faults."""
         if self.route.in_zone(s, "rtk_loss"):
             return False
-        return not any(f.kind in ("gnss_no_corrections", "gnss_outage") and f.active(t if t is not None else 0.0, s)
-                       for f in self.faults)
+        return not any(
+            f.kind in ("gnss_no_corrections", "gnss_outage") and f.active(t if t is not None else 0.0, s)
+            for f in self.faults
+        )
 
     def fix_available(self, s: float, t: float) -> bool:
         """The receiver has a fix at all (not inside a scenario's gnss_outage)."""
@@ -146,24 +156,26 @@ class GnssSensor:
         lat_txt, north = _nmea_angle(lat, 2)
         lon_txt, east = _nmea_angle(lon, 3)
         age, station = ("1.0", "0001") if rtk else ("", "")
-        gga = (f"GPGGA,{hhmmss},{lat_txt},{'N' if north else 'S'},{lon_txt},{'E' if east else 'W'},"
-               f"{quality},{int(self.satellites[kind]):02d},{float(self.hdop[kind]):.1f},"
-               f"{alt:.3f},M,0.000,M,{age},{station}")
+        gga = (
+            f"GPGGA,{hhmmss},{lat_txt},{'N' if north else 'S'},{lon_txt},{'E' if east else 'W'},"
+            f"{quality},{int(self.satellites[kind]):02d},{float(self.hdop[kind]):.1f},"
+            f"{alt:.3f},M,0.000,M,{age},{station}"
+        )
         sig_h = self.rtk_sigma if rtk else self.float_sigma
         sig_v = self.rtk_sigma_alt if rtk else self.float_sigma_alt
         # GST: RMS of range residuals, error ellipse (semi-major, semi-minor, orientation),
         # then the 1-sigma errors of latitude, longitude and altitude in metres.
-        gst = (f"GPGST,{hhmmss},{sig_h:.3f},{sig_h:.3f},{sig_h:.3f},0.0,"
-               f"{sig_h:.3f},{sig_h:.3f},{sig_v:.3f}")
+        gst = f"GPGST,{hhmmss},{sig_h:.3f},{sig_h:.3f},{sig_h:.3f},0.0,{sig_h:.3f},{sig_h:.3f},{sig_v:.3f}"
         return {"sentences": [nmea.sentence(gga), nmea.sentence(gst)]}
 
 
 # ---- IMU ------------------------------------------------------------------------------------
 
+
 class ImuSensor:
     """An IMU with a magnetometer yaw: attitude, angular rates and specific force."""
-    faults: Sequence[ScenarioFault] = ()     # the scenario's sensor errors (SensorSuite sets them)
 
+    faults: Sequence[ScenarioFault] = ()  # the scenario's sensor errors (SensorSuite sets them)
 
     def __init__(self, params: SimImuParams, rng: np.random.Generator | None = None, noise: bool = True):
         self._last: dict | None = None
@@ -187,7 +199,7 @@ class ImuSensor:
     def measure(self, state: VehicleState) -> dict:
         frozen = any(f.kind == "freeze_imu" and f.active(state.t) for f in self.faults)
         if frozen and self._last is not None:
-            return dict(self._last)                     # a stuck driver repeats its last reading
+            return dict(self._last)  # a stuck driver repeats its last reading
         self._last = self._measure(state)
         return dict(self._last)
 
@@ -206,7 +218,7 @@ class ImuSensor:
             "yaw": wrap_angle(yaw),
             "roll": float(roll + self._n(self.attitude_sigma)),
             "pitch": float(pitch + self._n(self.attitude_sigma)),
-            "gyro_x": float(gyro[0]),                # roll rate: the model has no roll
+            "gyro_x": float(gyro[0]),  # roll rate: the model has no roll
             "gyro_y": float(state.pitch_rate + gyro[1]),
             "gyro_z": float(state.yaw_rate + gyro[2] + self.bias_rad_s(state.t)),
             "accel_x": float(accel_x + acc[0]),
@@ -217,13 +229,15 @@ class ImuSensor:
 
 # ---- CAN ------------------------------------------------------------------------------------
 
+
 class CanSensor:
     """What the vehicle's CAN bus reports: encoder wheel speed, steering angle, pedals."""
-    faults: Sequence[ScenarioFault] = ()     # the scenario's sensor errors (SensorSuite sets them)
 
+    faults: Sequence[ScenarioFault] = ()  # the scenario's sensor errors (SensorSuite sets them)
 
-    def __init__(self, params: SimCanParams, wheel_radius_m: float,
-                 rng: np.random.Generator | None = None, noise: bool = True):
+    def __init__(
+        self, params: SimCanParams, wheel_radius_m: float, rng: np.random.Generator | None = None, noise: bool = True
+    ):
         self.noise = noise
         self.rng = rng if rng is not None else np.random.default_rng(2)
         self.wheel_radius_m = float(wheel_radius_m)
@@ -231,8 +245,9 @@ class CanSensor:
         self.steer_sigma = params.steer_sigma_deg
 
     def measure(self, state: VehicleState) -> dict:
-        omega = state.wheel_speed_rad_s * (1.0 + sum(f.scale for f in self.faults
-                                                      if f.kind == "wheel_speed_scale" and f.active(state.t)))
+        omega = state.wheel_speed_rad_s * (
+            1.0 + sum(f.scale for f in self.faults if f.kind == "wheel_speed_scale" and f.active(state.t))
+        )
         # An encoder that sees no pulses reads exactly zero: noise only while the wheels turn.
         if self.noise and omega != 0.0:
             omega += (self.speed_sigma / self.wheel_radius_m) * self.rng.standard_normal()
@@ -250,16 +265,25 @@ class CanSensor:
 
 # ---- all three --------------------------------------------------------------------------------
 
+
 class SensorSuite:
     """The three sensors of one vehicle, each with its own random stream from one seed."""
 
-    def __init__(self, route: Route, sim: SimParams, frame: LocalFrame, wheel_radius_m: float,
-                 seed: int | None = None, noise: bool = True, faults: Sequence[ScenarioFault] = ()):
+    def __init__(
+        self,
+        route: Route,
+        sim: SimParams,
+        frame: LocalFrame,
+        wheel_radius_m: float,
+        seed: int | None = None,
+        noise: bool = True,
+        faults: Sequence[ScenarioFault] = (),
+    ):
         base = sim.seed if seed is None else int(seed)
         gnss_rng, imu_rng, can_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(base).spawn(3))
         self.gnss = GnssSensor(route, sim.gnss, frame, gnss_rng, noise)
         self.imu = ImuSensor(sim.imu, imu_rng, noise)
         self.can = CanSensor(sim.can, wheel_radius_m, can_rng, noise)
-        # a scenario's sensor errors (ares.config.ScenarioFault): each sensor reads the kinds it has
+        # a scenario's sensor errors (ares.core.config.ScenarioFault): each sensor reads the kinds it has
         for sensor in (self.gnss, self.imu, self.can):
             sensor.faults = list(faults)

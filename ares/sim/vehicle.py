@@ -12,6 +12,7 @@ x axis, counter-clockwise; body x forward, y left, z up. Hence pitch is positive
 climbing a grade gives a negative pitch (the `grade` field, dz/ds, has the intuitive sign).
 A positive wheel/steering angle turns left.
 """
+
 from __future__ import annotations
 
 import math
@@ -19,15 +20,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ares import config as ares_config
-from ares.config import VehicleProfile
-from ares.geometry import wrap_angle
-from ares.route import Route
+from ares.core import config as ares_config
+from ares.core.config import VehicleProfile
+from ares.core.geometry import wrap_angle
+from ares.core.route import Route
 from ares.sim.actuators import SteeringActuator, TractionActuator
 from ares.sim.params import SimParams
 from ares.sim.road import grade_at, roughness_for
 
-PHYSICS_DT = 0.01       # 100 Hz physics
+PHYSICS_DT = 0.01  # 100 Hz physics
 # Below BLEND_LOW_MPS the plant is the kinematic bicycle, above BLEND_HIGH_MPS the dynamic one;
 # in between their lateral states are mixed with a smoothstep, so nothing jumps.
 BLEND_LOW_MPS = 1.5
@@ -37,20 +38,27 @@ BLEND_HIGH_MPS = 3.0
 @dataclass(frozen=True)
 class LateralParams:
     """The dynamic bicycle's figures: CG to front / rear axle, cornering stiffnesses, mass, I_z."""
+
     l_f: float
     l_r: float
-    c_f: float | None           # None (no tyre figures in the profile): the kinematic bicycle at every speed
+    c_f: float | None  # None (no tyre figures in the profile): the kinematic bicycle at every speed
     c_r: float | None
     mass: float
     i_z: float | None
 
     @classmethod
-    def of(cls, profile: VehicleProfile, mass_kg: float) -> "LateralParams":
+    def of(cls, profile: VehicleProfile, mass_kg: float) -> LateralParams:
         """The profile's figures at a laden mass (the inertia grows with the mass)."""
         l_f = profile.k_cg * profile.wheelbase_m
         i_z = None if profile.yaw_inertia_kgm2 is None else profile.yaw_inertia_kgm2 * mass_kg / profile.empty_mass_kg
-        return cls(l_f, profile.wheelbase_m - l_f, profile.cornering_stiffness_front_n_per_rad,
-                   profile.cornering_stiffness_rear_n_per_rad, mass_kg, i_z)
+        return cls(
+            l_f,
+            profile.wheelbase_m - l_f,
+            profile.cornering_stiffness_front_n_per_rad,
+            profile.cornering_stiffness_rear_n_per_rad,
+            mass_kg,
+            i_z,
+        )
 
     @property
     def dynamic(self) -> bool:
@@ -59,7 +67,7 @@ class LateralParams:
     def understeer_gradient(self) -> float:
         """K (s^2/m^2) of the steady-state yaw rate r = v δ / (L (1 + K v^2))."""
         wheelbase = self.l_f + self.l_r
-        return self.mass / wheelbase ** 2 * (self.l_r / self.c_f - self.l_f / self.c_r)
+        return self.mass / wheelbase**2 * (self.l_r / self.c_f - self.l_f / self.c_r)
 
 
 def lateral_step(p: LateralParams, v_y: float, r: float, v: float, delta: float, dt: float) -> tuple[float, float]:
@@ -85,7 +93,7 @@ def lateral_step(p: LateralParams, v_y: float, r: float, v: float, delta: float,
     a11 = -(p.c_f + p.c_r) / (p.mass * v)
     a12 = -(p.c_f * p.l_f - p.c_r * p.l_r) / (p.mass * v) - v
     a21 = -(p.c_f * p.l_f - p.c_r * p.l_r) / (p.i_z * v)
-    a22 = -(p.c_f * p.l_f ** 2 + p.c_r * p.l_r ** 2) / (p.i_z * v)
+    a22 = -(p.c_f * p.l_f**2 + p.c_r * p.l_r**2) / (p.i_z * v)
     b1, b2 = p.c_f / p.mass, p.c_f * p.l_f / p.i_z
     m11, m12, m21, m22 = 1.0 - dt * a11, -dt * a12, -dt * a21, 1.0 - dt * a22
     rhs1, rhs2 = v_y + dt * b1 * delta, r + dt * b2 * delta
@@ -96,38 +104,38 @@ def lateral_step(p: LateralParams, v_y: float, r: float, v: float, delta: float,
 
 
 def loaded_profile(profile: VehicleProfile | str) -> VehicleProfile:
-    """A vehicle profile, given by its name in ares/config/vehicles or already loaded."""
+    """A vehicle profile, given by its name in ares/core/config/vehicles or already loaded."""
     return ares_config.load_vehicle(profile) if isinstance(profile, str) else profile
 
 
 @dataclass
 class VehicleState:
     t: float = 0.0
-    x: float = 0.0                  # rear-axle centre, local frame (m)
+    x: float = 0.0  # rear-axle centre, local frame (m)
     y: float = 0.0
     z: float = 0.0
-    yaw: float = 0.0                # rad, CCW from x (east)
-    pitch: float = 0.0              # rad, REP-103: positive nose down
+    yaw: float = 0.0  # rad, CCW from x (east)
+    pitch: float = 0.0  # rad, REP-103: positive nose down
     roll: float = 0.0
-    v: float = 0.0                  # longitudinal speed of the rear-axle centre (m/s)
-    yaw_rate: float = 0.0           # rad/s
-    lateral_velocity: float = 0.0   # v_y of the centre of gravity, body frame (m/s, + to the left)
-    pitch_rate: float = 0.0         # rad/s
-    accel: float = 0.0              # longitudinal acceleration dv/dt (m/s^2)
-    lateral_accel: float = 0.0      # dv_y/dt + v · yaw_rate at the CG (m/s^2, positive to the left)
-    vertical_accel: float = 0.0     # body bounce over the road (m/s^2), without gravity
-    grade: float = 0.0              # slope of the road along the heading, dz/dx (positive uphill)
+    v: float = 0.0  # longitudinal speed of the rear-axle centre (m/s)
+    yaw_rate: float = 0.0  # rad/s
+    lateral_velocity: float = 0.0  # v_y of the centre of gravity, body frame (m/s, + to the left)
+    pitch_rate: float = 0.0  # rad/s
+    accel: float = 0.0  # longitudinal acceleration dv/dt (m/s^2)
+    lateral_accel: float = 0.0  # dv_y/dt + v · yaw_rate at the CG (m/s^2, positive to the left)
+    vertical_accel: float = 0.0  # body bounce over the road (m/s^2), without gravity
+    grade: float = 0.0  # slope of the road along the heading, dz/dx (positive uphill)
     steering_wheel_deg: float = 0.0
-    wheel_angle_rad: float = 0.0    # front wheel angle δ = α / steering_ratio
+    wheel_angle_rad: float = 0.0  # front wheel angle δ = α / steering_ratio
     wheel_speed_rad_s: float = 0.0  # driven front wheels: v / (cos δ · r), DBW eq. 14
-    s: float = 0.0                  # progress along the route (m)
-    odometer: float = 0.0           # distance travelled (m)
-    steer_effort: float = 0.0       # efforts last applied by the board
+    s: float = 0.0  # progress along the route (m)
+    odometer: float = 0.0  # distance travelled (m)
+    steer_effort: float = 0.0  # efforts last applied by the board
     drive_effort: float = 0.0
-    throttle_pedal: float = 0.0     # driver model: pedal positions in [0, 1]
+    throttle_pedal: float = 0.0  # driver model: pedal positions in [0, 1]
     brake_pedal: float = 0.0
-    steering_torque: bool = False   # a driver is forcing the steering wheel
-    manual: bool = False            # the last step was driven by a human
+    steering_torque: bool = False  # a driver is forcing the steering wheel
+    manual: bool = False  # the last step was driven by a human
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -145,8 +153,15 @@ class VehiclePlant:
     `step_manual()` is one step with a human driving (pedals and steering wheel).
     """
 
-    def __init__(self, route: Route, vehicle_profile: VehicleProfile | str, sim: SimParams = SimParams(),
-                 passengers: int | None = None, seed: int | None = None, s0: float = 0.0):
+    def __init__(
+        self,
+        route: Route,
+        vehicle_profile: VehicleProfile | str,
+        sim: SimParams = SimParams(),
+        passengers: int | None = None,
+        seed: int | None = None,
+        s0: float = 0.0,
+    ):
         profile = loaded_profile(vehicle_profile)
         self.route = route
         self.profile = profile
@@ -155,13 +170,18 @@ class VehiclePlant:
         self.wheel_radius_m = profile.wheel_radius_m
         self.steering_ratio = profile.steering_ratio
         self.steering = SteeringActuator(profile.actuators.steering, self.steering_ratio, profile.max_wheel_angle_rad)
-        self.traction = TractionActuator(profile.actuators.traction, profile.empty_mass_kg, profile.passenger_mass_kg,
-                                         sim.passengers if passengers is None else passengers)
+        self.traction = TractionActuator(
+            profile.actuators.traction,
+            profile.empty_mass_kg,
+            profile.passenger_mass_kg,
+            sim.passengers if passengers is None else passengers,
+        )
         self.driver = sim.driver
-        self._lateral: LateralParams | None = None          # made again when the laden mass changes
+        self._lateral: LateralParams | None = None  # made again when the laden mass changes
         self.rng = np.random.default_rng(sim.seed if seed is None else seed)
-        self.roughness = roughness_for(route, sim if seed is None else sim.model_copy(update={"seed": seed}),
-                                       self.wheelbase_m)
+        self.roughness = roughness_for(
+            route, sim if seed is None else sim.model_copy(update={"seed": seed}), self.wheelbase_m
+        )
         self.state = VehicleState()
         self.place_on_route(s0)
 
@@ -201,8 +221,9 @@ class VehiclePlant:
         st.manual = False
         return self._advance(dt)
 
-    def step_manual(self, throttle_pedal: float, brake_pedal: float,
-                    steering_wheel_target_deg: float, dt: float = PHYSICS_DT) -> VehicleState:
+    def step_manual(
+        self, throttle_pedal: float, brake_pedal: float, steering_wheel_target_deg: float, dt: float = PHYSICS_DT
+    ) -> VehicleState:
         """One physics step with a human driving.
 
         The driver turns the steering wheel towards `steering_wheel_target_deg` (a human arm:
@@ -215,13 +236,16 @@ class VehiclePlant:
         brake = min(max(float(brake_pedal), 0.0), 1.0)
         before = self.steering.angle_deg
         st.steering_wheel_deg = self.steering.turn_by_hand(
-            float(steering_wheel_target_deg), dt, self.driver.steering_time_constant_s,
-            self.driver.steering_max_rate_deg_s)
+            float(steering_wheel_target_deg),
+            dt,
+            self.driver.steering_time_constant_s,
+            self.driver.steering_max_rate_deg_s,
+        )
         effort = -brake if brake > 0.0 else throttle
         self.traction.step(effort, dt, st.grade)
         st.steer_effort, st.drive_effort = 0.0, effort
         st.throttle_pedal, st.brake_pedal = throttle, brake
-        st.steering_torque = (abs(steering_wheel_target_deg - before) > self.driver.torque_threshold_deg)
+        st.steering_torque = abs(steering_wheel_target_deg - before) > self.driver.torque_threshold_deg
         st.manual = True
         return self._advance(dt)
 
@@ -232,9 +256,9 @@ class VehiclePlant:
         v = self.traction.v
         delta = math.radians(st.steering_wheel_deg) / self.steering_ratio
         v_mid = 0.5 * (v_prev + v)
-        v_h = v_mid * math.cos(math.atan(st.grade))   # s and x, y are horizontal distances
+        v_h = v_mid * math.cos(math.atan(st.grade))  # s and x, y are horizontal distances
         lateral = self._lateral
-        if lateral is None or lateral.mass != self.traction.mass_kg:      # passengers on or off
+        if lateral is None or lateral.mass != self.traction.mass_kg:  # passengers on or off
             lateral = self._lateral = LateralParams.of(self.profile, self.traction.mass_kg)
         v_y_prev = st.lateral_velocity
         v_y, yaw_rate = lateral_step(lateral, v_y_prev, st.yaw_rate, v_h, delta, dt)

@@ -17,6 +17,7 @@ triangle mesh with a material per triangle (its reflectivity gives the LiDAR int
 
 The truth of the world (`road_edges`) is for the evaluation only: no stack process sees it.
 """
+
 from __future__ import annotations
 
 import math
@@ -26,15 +27,25 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from ares.route import Route
+from ares.core.route import Route
 from ares.sim.road import RoadRoughness
 
-CROSSFALL = 0.025          # the road falls 2.5 % from its crown to each edge
-VERGE_REACH_M = 10.0       # how far beyond the edge the verge mesh goes
+CROSSFALL = 0.025  # the road falls 2.5 % from its crown to each edge
+VERGE_REACH_M = 10.0  # how far beyond the edge the verge mesh goes
 
 # materials: name -> reflectivity (0..1), the intensity a return gets at normal incidence
-MATERIALS = {"asphalt": 0.12, "concrete": 0.35, "grass": 0.28, "rock": 0.40, "soil": 0.22,
-             "bark": 0.30, "metal": 0.60, "foliage": 0.25, "body": 0.50, "cover": 0.05}
+MATERIALS = {
+    "asphalt": 0.12,
+    "concrete": 0.35,
+    "grass": 0.28,
+    "rock": 0.40,
+    "soil": 0.22,
+    "bark": 0.30,
+    "metal": 0.60,
+    "foliage": 0.25,
+    "body": 0.50,
+    "cover": 0.05,
+}
 MATERIAL_IDS = {name: i for i, name in enumerate(MATERIALS)}
 REFLECTIVITY = np.array(list(MATERIALS.values()), dtype=np.float32)
 
@@ -42,33 +53,75 @@ REFLECTIVITY = np.array(list(MATERIALS.values()), dtype=np.float32)
 # beyond the road's edge, h metres above it. Eight points each, so strips of any two kinds join.
 _A, _C, _G, _R, _S = "asphalt", "concrete", "grass", "rock", "soil"
 VERGES: dict[str, list[tuple[float, float, str, float]]] = {
-    "grass": [(0.3, 0.024, _G, 0.03), (0.7, 0.056, _G, 0.04), (1.2, 0.096, _G, 0.05), (2.0, 0.16, _G, 0.05),
-              (3.0, 0.24, _G, 0.06), (5.0, 0.40, _G, 0.06), (7.5, 0.60, _G, 0.06), (10.0, 0.80, _G, 0.06)],
-    "rock_wall": [(0.1, 0.25, _R, 0.0), (0.3, 1.2, _R, 0.05), (0.5, 2.4, _R, 0.08), (0.8, 3.6, _R, 0.1),
-                  (1.5, 4.6, _R, 0.1), (3.0, 5.2, _R, 0.1), (6.0, 5.6, _R, 0.1), (10.0, 6.0, _R, 0.1)],
-    "ravine": [(0.2, -0.15, _S, 0.0), (0.6, -0.8, _S, 0.05), (1.2, -2.0, _S, 0.1), (2.5, -4.0, _S, 0.1),
-               (4.0, -5.5, _S, 0.1), (6.0, -6.5, _S, 0.1), (8.0, -7.0, _S, 0.1), (10.0, -7.2, _S, 0.1)],
-    "kerb": [(0.0, 0.12, _C, 0.0), (0.3, 0.123, _C, 0.0), (1.0, 0.13, _C, 0.0), (2.0, 0.14, _C, 0.0),
-             (2.2, 0.20, _G, 0.02), (4.0, 0.30, _G, 0.05), (7.0, 0.45, _G, 0.05), (10.0, 0.60, _G, 0.05)],
-    "open": [(0.5, 0.0, _A, 0.0), (1.0, 0.0, _A, 0.0), (2.0, 0.0, _A, 0.0), (3.0, 0.0, _A, 0.0),
-             (4.5, 0.0, _A, 0.0), (6.0, 0.0, _A, 0.0), (8.0, 0.0, _A, 0.0), (10.0, 0.0, _A, 0.0)],
+    "grass": [
+        (0.3, 0.024, _G, 0.03),
+        (0.7, 0.056, _G, 0.04),
+        (1.2, 0.096, _G, 0.05),
+        (2.0, 0.16, _G, 0.05),
+        (3.0, 0.24, _G, 0.06),
+        (5.0, 0.40, _G, 0.06),
+        (7.5, 0.60, _G, 0.06),
+        (10.0, 0.80, _G, 0.06),
+    ],
+    "rock_wall": [
+        (0.1, 0.25, _R, 0.0),
+        (0.3, 1.2, _R, 0.05),
+        (0.5, 2.4, _R, 0.08),
+        (0.8, 3.6, _R, 0.1),
+        (1.5, 4.6, _R, 0.1),
+        (3.0, 5.2, _R, 0.1),
+        (6.0, 5.6, _R, 0.1),
+        (10.0, 6.0, _R, 0.1),
+    ],
+    "ravine": [
+        (0.2, -0.15, _S, 0.0),
+        (0.6, -0.8, _S, 0.05),
+        (1.2, -2.0, _S, 0.1),
+        (2.5, -4.0, _S, 0.1),
+        (4.0, -5.5, _S, 0.1),
+        (6.0, -6.5, _S, 0.1),
+        (8.0, -7.0, _S, 0.1),
+        (10.0, -7.2, _S, 0.1),
+    ],
+    "kerb": [
+        (0.0, 0.12, _C, 0.0),
+        (0.3, 0.123, _C, 0.0),
+        (1.0, 0.13, _C, 0.0),
+        (2.0, 0.14, _C, 0.0),
+        (2.2, 0.20, _G, 0.02),
+        (4.0, 0.30, _G, 0.05),
+        (7.0, 0.45, _G, 0.05),
+        (10.0, 0.60, _G, 0.05),
+    ],
+    "open": [
+        (0.5, 0.0, _A, 0.0),
+        (1.0, 0.0, _A, 0.0),
+        (2.0, 0.0, _A, 0.0),
+        (3.0, 0.0, _A, 0.0),
+        (4.5, 0.0, _A, 0.0),
+        (6.0, 0.0, _A, 0.0),
+        (8.0, 0.0, _A, 0.0),
+        (10.0, 0.0, _A, 0.0),
+    ],
 }
-ROAD_FRACTIONS = (-1.0, -0.5, 0.0, 0.5, 1.0)     # lateral vertices of the road, in half-widths
-BOUNDARY_VERGES = ("grass", "rock_wall", "ravine", "kerb")   # "open" has no boundary
+ROAD_FRACTIONS = (-1.0, -0.5, 0.0, 0.5, 1.0)  # lateral vertices of the road, in half-widths
+BOUNDARY_VERGES = ("grass", "rock_wall", "ravine", "kerb")  # "open" has no boundary
 
 
 @dataclass
 class Mesh:
-    vertices: np.ndarray        # (n, 3) float32
-    triangles: np.ndarray       # (m, 3) uint32
-    material: np.ndarray        # (m,) uint8, MATERIAL_IDS
+    vertices: np.ndarray  # (n, 3) float32
+    triangles: np.ndarray  # (m, 3) uint32
+    material: np.ndarray  # (m,) uint8, MATERIAL_IDS
 
     @staticmethod
-    def join(parts: list["Mesh"]) -> "Mesh":
+    def join(parts: list[Mesh]) -> Mesh:
         offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
-        return Mesh(np.vstack([p.vertices for p in parts]).astype(np.float32),
-                    np.vstack([p.triangles + o for p, o in zip(parts, offsets)]).astype(np.uint32),
-                    np.concatenate([p.material for p in parts]).astype(np.uint8))
+        return Mesh(
+            np.vstack([p.vertices for p in parts]).astype(np.float32),
+            np.vstack([p.triangles + o for p, o in zip(parts, offsets)]).astype(np.uint32),
+            np.concatenate([p.material for p in parts]).astype(np.uint8),
+        )
 
 
 def box_mesh(centre, size, yaw: float, material: str) -> Mesh:
@@ -92,15 +145,17 @@ def sphere_mesh(centre, radius: float, material: str, resolution: int = 6) -> Me
 def _placed(v: np.ndarray, tri: np.ndarray, centre, yaw: float, material: str) -> Mesh:
     c, s = math.cos(yaw), math.sin(yaw)
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return Mesh((v @ rot.T + np.asarray(centre, dtype=float)).astype(np.float32), tri.astype(np.uint32),
-                np.full(len(tri), MATERIAL_IDS[material], dtype=np.uint8))
+    return Mesh(
+        (v @ rot.T + np.asarray(centre, dtype=float)).astype(np.float32),
+        tri.astype(np.uint32),
+        np.full(len(tri), MATERIAL_IDS[material], dtype=np.uint8),
+    )
 
 
 class World:
     """The static world of one route: terrain and roadside objects, and a raycasting scene."""
 
-    def __init__(self, route: Route, roughness: RoadRoughness | None, seed: int = 7,
-                 roadside_objects: bool = True):
+    def __init__(self, route: Route, roughness: RoadRoughness | None, seed: int = 7, roadside_objects: bool = True):
         self.route = route
         self.roughness = roughness
         self.rng = np.random.default_rng([seed, 2])
@@ -122,7 +177,7 @@ class World:
         r = self.route
         s = r.s.copy()
         heading = np.unwrap(r.yaw)
-        if r.closed:   # the yaw of a sample is its segment's: average the two segments meeting there
+        if r.closed:  # the yaw of a sample is its segment's: average the two segments meeting there
             mid = 0.5 * (heading + np.roll(heading, 1))
             mid[0] = 0.5 * (heading[0] + heading[-1] - 2 * np.pi * round((heading[-1] - heading[0]) / (2 * np.pi)))
         else:
@@ -133,7 +188,7 @@ class World:
         r = self.route
         s, heading = self._stations()
         n = len(s)
-        normal = np.stack([-np.sin(heading), np.cos(heading)], axis=1)      # to the left
+        normal = np.stack([-np.sin(heading), np.cos(heading)], axis=1)  # to the left
         half = r.width / 2.0
         zc = self.centre_height(s)
         # the inner side of a tight bend cannot reach further than its centre of curvature
@@ -142,7 +197,7 @@ class World:
         room_right = np.where(r.curvature < 0, room, np.inf)
 
         kinds = [r.verge_at(si) for si in s]
-        cols_lat, cols_h, strip_mat = [], [], []   # per lateral vertex column: offset, height; per strip: material
+        cols_lat, cols_h, strip_mat = [], [], []  # per lateral vertex column: offset, height; per strip: material
         # left verge, outermost first
         left = [VERGES[k[0]] for k in kinds]
         for p in range(7, -1, -1):
@@ -152,7 +207,7 @@ class World:
             cols_h.append(-CROSSFALL * half + h)
             if p > 0:
                 strip_mat.append(np.array([MATERIAL_IDS[lv[p][2]] for lv in left]))
-        strip_mat.append(np.array([MATERIAL_IDS[lv[0][2]] for lv in left]))   # edge -> first verge point
+        strip_mat.append(np.array([MATERIAL_IDS[lv[0][2]] for lv in left]))  # edge -> first verge point
         for i, f in enumerate(ROAD_FRACTIONS):
             cols_lat.append(-f * half)
             cols_h.append(-CROSSFALL * np.abs(f) * half)
@@ -165,7 +220,7 @@ class World:
             cols_lat.append(-np.minimum(half + d, room_right))
             cols_h.append(-CROSSFALL * half + h)
             strip_mat.append(np.array([MATERIAL_IDS[rv[p][2]] for rv in right]))
-        lat = np.stack(cols_lat, axis=1)           # (n, m) lateral offset, + left
+        lat = np.stack(cols_lat, axis=1)  # (n, m) lateral offset, + left
         hgt = np.stack(cols_h, axis=1) + zc[:, None]
         m = lat.shape[1]
         xy = np.stack([r.x, r.y], axis=1)[:, None, :] + lat[..., None] * normal[:, None, :]
@@ -194,7 +249,7 @@ class World:
                 d = self.rng.uniform(2.5, 7.0)
                 px, py = x - sign * math.sin(yaw) * (half + d), y + sign * math.cos(yaw) * (half + d)
                 near, _ = tree.query([px, py])
-                if near < half + 2.0:        # on or by another stretch of road (the crossing, a hairpin)
+                if near < half + 2.0:  # on or by another stretch of road (the crossing, a hairpin)
                     continue
                 base = float(self.centre_height(s0)) - CROSSFALL * half + _profile_height(kind, d) - 0.05
                 if self.rng.random() < 0.7:

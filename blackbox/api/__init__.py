@@ -30,10 +30,20 @@ Endpoints, all under /api/v1 (roles: ROLES_* in dependencies.py):
     GET  /vehicles/{id}/reliability?start&end&t_hours              auditor, operator, fleet
     GET  /users, POST /users                       admin
 """
+
 from blackbox.api.app import create_app
 from blackbox.api.repository import CSV_COLUMNS, RECORD_FIELDS
-from blackbox.api.server import serve, uvicorn_config
 from blackbox.api.settings import PREFIX, TOKEN_PATH, ApiSettings, LimitSettings
+from blackbox.api.uvicorn_server import serve, uvicorn_config
 
-__all__ = ["create_app", "serve", "uvicorn_config", "ApiSettings", "LimitSettings", "PREFIX", "TOKEN_PATH",
-           "CSV_COLUMNS", "RECORD_FIELDS"]
+__all__ = [
+    "create_app",
+    "serve",
+    "uvicorn_config",
+    "ApiSettings",
+    "LimitSettings",
+    "PREFIX",
+    "TOKEN_PATH",
+    "CSV_COLUMNS",
+    "RECORD_FIELDS",
+]

@@ -1,8 +1,10 @@
 """create_app: the FastAPI application over a record store, its services, middleware, error
 handlers and routers."""
+
 import logging
+from collections.abc import Callable
 from functools import partial
-from typing import Any, Callable
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -11,23 +13,30 @@ from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
 from starlette.concurrency import run_in_threadpool
 
-from ares.clock import Clock
+from ares.core.clock import Clock
+from blackbox.api.credentials import Passwords, Tokens, load_secret
 from blackbox.api.dependencies import Services
+from blackbox.api.live_hub import LiveHub
 from blackbox.api.models import STORE_RETRY_AFTER_S
 from blackbox.api.repository import Repository
-from blackbox.api.routes import auth, commands, events, health, live as live_routes, pages, records, users, vehicles
+from blackbox.api.routes import auth, commands, events, health, pages, records, users, vehicles
+from blackbox.api.routes import live as live_routes
+from blackbox.api.security import Guard, SecurityMiddleware, security_headers
 from blackbox.api.settings import PREFIX, TOKEN_PATH, ApiSettings, state_dir
-from blackbox.auth import Passwords, Tokens, load_secret
-from blackbox.live import LiveHub
-from blackbox.security import Guard, SecurityMiddleware, security_headers
-from blackbox.store import RecordStore, StoreUnavailable
+from blackbox.store.record_store import RecordStore, StoreUnavailable
 
 log = logging.getLogger(__name__)
 
 
-def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock: Clock | None = None,
-               call: Callable[[str, Any], Any] | None = None, live: LiveHub | None = None,
-               route: dict | None = None) -> FastAPI:
+def create_app(
+    store: RecordStore,
+    settings: ApiSettings,
+    vehicle_id: str,
+    clock: Clock | None = None,
+    call: Callable[[str, Any], Any] | None = None,
+    live: LiveHub | None = None,
+    route: dict | None = None,
+) -> FastAPI:
     """The API over `store`, serving the black box of `vehicle_id` (whose events the API's own events
     are; stack time from `clock`); `call`: the stack's services on its bus (blocking; the command
     routes run it in a thread); `live`: the bus state for the pages; `route`: the vehicle's route
@@ -35,17 +44,23 @@ def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock
     sdir = state_dir(settings, store)
     services = Services(
         repository=Repository(store, settings.limits, vehicle_id, (clock or Clock.from_env()).now),
-        tokens=Tokens(settings.auth, load_secret(settings.auth, sdir)), passwords=Passwords(settings.auth.argon2),
-        guard=Guard(settings.rate_limit, settings.blacklist), settings=settings, vehicle_id=vehicle_id, call=call,
-        live=live, route=route)
+        tokens=Tokens(settings.auth, load_secret(settings.auth, sdir)),
+        passwords=Passwords(settings.auth.argon2),
+        guard=Guard(settings.rate_limit, settings.blacklist),
+        settings=settings,
+        vehicle_id=vehicle_id,
+        call=call,
+        live=live,
+        route=route,
+    )
 
     app = FastAPI(
         title="ARES black box API",
         version="1",
         description="Read-only access to the shuttle's black box: records of the last 7 days, events, "
-                    "reliability figures. Authenticate at /api/v1/auth/token (OAuth2 password form) and "
-                    "send the token as `Authorization: Bearer <token>`; renew it before it expires. A method "
-                    "a path does not have is answered 405 with an `Allow` header listing those it has.",
+        "reliability figures. Authenticate at /api/v1/auth/token (OAuth2 password form) and "
+        "send the token as `Authorization: Bearer <token>`; renew it before it expires. A method "
+        "a path does not have is answered 405 with an `Allow` header listing those it has.",
         docs_url="/docs" if settings.docs else None,
         redoc_url="/redoc" if settings.docs else None,
         telemetry={"tracing": False, "metrics": False, "logs": False, "operation_spans": False},
@@ -55,23 +70,34 @@ def create_app(store: RecordStore, settings: ApiSettings, vehicle_id: str, clock
         form_limits={"max_fields": 8, "max_files": 0, "max_part_size": 4096},
     )
     app.state.services = services
-    app.state.state_dir = sdir              # the TLS certificate's home (blackbox.api.server)
+    app.state.state_dir = sdir  # the TLS certificate's home (blackbox.api.uvicorn_server)
 
     if settings.cors_origins:
-        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["GET", "POST"],
-                           allow_headers=["Authorization", "Content-Type"], allow_credentials=False, max_age=600)
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST"],
+            allow_headers=["Authorization", "Content-Type"],
+            allow_credentials=False,
+            max_age=600,
+        )
     # added last: outermost, so refusals and CORS answers carry the security headers too;
     # the blacklisting is stored off the event loop
-    app.add_middleware(SecurityMiddleware, guard=services.guard, headers=security_headers(settings.headers),
-                       page_headers=security_headers(settings.headers, page=True), page_paths=pages.PAGE_PATHS,
-                       page_prefixes=pages.PAGE_PREFIXES,
-                       token_path=TOKEN_PATH,
-                       on_blacklist=partial(run_in_threadpool, services.repository.record_blacklisting))
+    app.add_middleware(
+        SecurityMiddleware,
+        guard=services.guard,
+        headers=security_headers(settings.headers),
+        page_headers=security_headers(settings.headers, page=True),
+        page_paths=pages.PAGE_PATHS,
+        page_prefixes=pages.PAGE_PREFIXES,
+        token_path=TOKEN_PATH,
+        on_blacklist=partial(run_in_threadpool, services.repository.record_blacklisting),
+    )
 
     app.add_exception_handler(StoreUnavailable, store_down)
     app.add_exception_handler(RequestValidationError, invalid)
 
-    methods: dict[str, set[str]] = {}       # path -> its methods
+    methods: dict[str, set[str]] = {}  # path -> its methods
     for routes in (health, auth, vehicles, records, events, users, commands, live_routes):
         router = routes.build_router(services)
         app.include_router(router, prefix=PREFIX)
@@ -100,22 +126,35 @@ class MethodNotAllowed:
         self.allow = allow
 
     async def __call__(self, scope, receive, send) -> None:
-        response = JSONResponse({"detail": f"method {scope['method']} not allowed here (allowed: {self.allow})"},
-                                status_code=405, headers={"Allow": self.allow})
+        response = JSONResponse(
+            {"detail": f"method {scope['method']} not allowed here (allowed: {self.allow})"},
+            status_code=405,
+            headers={"Allow": self.allow},
+        )
         await response(scope, receive, send)
 
 
 # ---- errors: one shape for all -------------------------------------------------------------------
 
+
 async def store_down(_request: Request, exc: StoreUnavailable) -> JSONResponse:
     log.warning("store unavailable: %s", exc)
-    return JSONResponse({"detail": "the black box store is unavailable; retry later"}, status_code=503,
-                        headers={"Retry-After": str(STORE_RETRY_AFTER_S)})
+    return JSONResponse(
+        {"detail": "the black box store is unavailable; retry later"},
+        status_code=503,
+        headers={"Retry-After": str(STORE_RETRY_AFTER_S)},
+    )
 
 
 async def invalid(_request: Request, exc: RequestValidationError) -> JSONResponse:
-    problems = [{"loc": [str(p) if not isinstance(p, int) else p for p in e.get("loc", ())],
-                 "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))} for e in exc.errors()]
+    problems = [
+        {
+            "loc": [str(p) if not isinstance(p, int) else p for p in e.get("loc", ())],
+            "msg": str(e.get("msg", "")),
+            "type": str(e.get("type", "")),
+        }
+        for e in exc.errors()
+    ]
     first = problems[0] if problems else None
     where = ".".join(str(p) for p in first["loc"][1:]) if first else ""
     detail = f"invalid {where or 'request'}: {first['msg']}" if first else "invalid request"

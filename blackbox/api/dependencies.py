@@ -1,48 +1,52 @@
 """What route handlers depend on: the application's services, the caller's role (`allow`), and
 the path and query parameters several routes share."""
+
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import datetime, timezone
-from typing import Annotated, Any, Callable
+from datetime import UTC, datetime
+from typing import Annotated, Any
 
 from fastapi import HTTPException, Path, Query, Security
 from fastapi.security import OAuth2PasswordBearer
 from pydantic import AwareDatetime, BeforeValidator
 
-from ares.config import VEHICLE_ID_PATTERN      # what a stack's vehicle id may be: the ids of its records
+from ares.core.config import VEHICLE_ID_PATTERN  # what a stack's vehicle id may be: the ids of its records
+from blackbox.api.credentials import AuthError, Claims, Passwords, Tokens
+from blackbox.api.live_hub import LiveHub
 from blackbox.api.repository import Repository
+from blackbox.api.security import Guard
 from blackbox.api.settings import TOKEN_PATH, ApiSettings, LimitSettings
-from blackbox.auth import AuthError, Claims, Passwords, Tokens
-from blackbox.live import LiveHub
-from blackbox.security import Guard
 
 # who may call what (the roles of ARES §3.9's three GUIs, plus user administration)
-ROLES_LIVE = ("fleet", "auditor", "operator")           # vehicles and their latest state
-ROLES_RECORDS = ("auditor", "operator")                 # browse records
-ROLES_EXPORT = ("auditor",)                             # export records (the black box interface)
-ROLES_EVENTS = ("auditor", "operator", "fleet")         # events and reliability summaries
+ROLES_LIVE = ("fleet", "auditor", "operator")  # vehicles and their latest state
+ROLES_RECORDS = ("auditor", "operator")  # browse records
+ROLES_EXPORT = ("auditor",)  # export records (the black box interface)
+ROLES_EVENTS = ("auditor", "operator", "fleet")  # events and reliability summaries
 ROLES_ADMIN = ("admin",)
-ROLES_COMMAND = ("operator",)                           # the vehicle's services (re-arm, and the mission's to come)
+ROLES_COMMAND = ("operator",)  # the vehicle's services (re-arm, and the mission's to come)
 
 
 # ---- the application's services ------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Services:
     """What the routes work with, built once per application by create_app and handed to each
     route module's build_router: no per-request lookup on the hot paths, no global state (tests
     build as many applications as they like)."""
+
     repository: Repository
     tokens: Tokens
     passwords: Passwords
     guard: Guard
     settings: ApiSettings
-    vehicle_id: str             # the stack's own, the example id of the schema
+    vehicle_id: str  # the stack's own, the example id of the schema
     # the stack's services on its bus: (name, request) -> reply; None outside a stack (tests of the
     # records alone, `ares api serve` over a store): the command routes then answer 503
     call: Callable[[str, Any], Any] | None = None
-    live: LiveHub | None = None         # the live gateway (None outside a stack: its routes answer 503)
-    route: dict | None = None           # the vehicle's route for the maps (None outside a stack)
+    live: LiveHub | None = None  # the live gateway (None outside a stack: its routes answer 503)
+    route: dict | None = None  # the vehicle's route for the maps (None outside a stack)
 
 
 # ---- authentication ------------------------------------------------------------------------------
@@ -52,10 +56,14 @@ bearer = OAuth2PasswordBearer(tokenUrl=TOKEN_PATH, auto_error=False)
 
 def allow(tokens: Tokens, *roles: str) -> Callable:
     """A dependency: the caller's claims when its bearer token is valid and its role one of `roles`."""
+
     async def check(token: Annotated[str | None, Security(bearer)]) -> Claims:
         if not token:
-            raise HTTPException(401, "not authenticated: send Authorization: Bearer <token> "
-                                     "(get one at /api/v1/auth/token)", headers={"WWW-Authenticate": "Bearer"})
+            raise HTTPException(
+                401,
+                "not authenticated: send Authorization: Bearer <token> (get one at /api/v1/auth/token)",
+                headers={"WWW-Authenticate": "Bearer"},
+            )
         try:
             claims = tokens.verify(token)
         except AuthError as exc:
@@ -63,6 +71,7 @@ def allow(tokens: Tokens, *roles: str) -> Callable:
         if claims.role not in roles:
             raise HTTPException(403, f"role {claims.role!r} may not do this (needs {' or '.join(roles)})")
         return claims
+
     return check
 
 
@@ -82,29 +91,42 @@ def rfc3339(value: Any) -> Any:
     if m is None:
         raise ValueError("not an RFC 3339 date-time with a UTC offset, e.g. 2026-01-31T08:00:00Z")
     if m[1] == "0000":
-        return datetime.min.replace(tzinfo=timezone.utc)
+        return datetime.min.replace(tzinfo=UTC)
     if m[4] == "60":
         offset = (int(m[6]) * 60 + int(m[7])) * (-1 if m[5] == "-" else 1) if m[5] else 0
         if (int(m[2]) * 60 + int(m[3]) - offset) % 1440 != 23 * 60 + 59:
             raise ValueError("a leap second (:60) is 23:59:60 UTC")
-        return f"{value[:m.start(4)]}59.999999{value[m.end(0) - (6 if m[5] else 1):]}"
+        return f"{value[: m.start(4)]}59.999999{value[m.end(0) - (6 if m[5] else 1) :]}"
     return value
 
 
-Start = Annotated[AwareDatetime | None, BeforeValidator(rfc3339), Query(
-    description="window start, inclusive, with a UTC offset (default: end - 1 h). Records are kept 7 days: an "
-                "earlier start is served from the oldest kept, and the answer says `clipped`")]
-End = Annotated[AwareDatetime | None, BeforeValidator(rfc3339), Query(
-    description="window end, exclusive (default: now); at or before the start: nothing is served, and the answer "
-                "says `clipped`")]
+Start = Annotated[
+    AwareDatetime | None,
+    BeforeValidator(rfc3339),
+    Query(
+        description="window start, inclusive, with a UTC offset (default: end - 1 h). Records are kept 7 days: an "
+        "earlier start is served from the oldest kept, and the answer says `clipped`"
+    ),
+]
+End = Annotated[
+    AwareDatetime | None,
+    BeforeValidator(rfc3339),
+    Query(
+        description="window end, exclusive (default: now); at or before the start: nothing is served, and the answer "
+        "says `clipped`"
+    ),
+]
 
 
 # the three below carry the settings into the schema (an example, bounds): route modules that
 # use them build their router from the settings (build_router)
 
+
 def vehicle_id_path(example: str):
-    return Annotated[str, Path(pattern=VEHICLE_ID_PATTERN, examples=[example],
-                               description="vehicle id (as in ares/<vehicle_id>/...)")]
+    return Annotated[
+        str,
+        Path(pattern=VEHICLE_ID_PATTERN, examples=[example], description="vehicle id (as in ares/<vehicle_id>/...)"),
+    ]
 
 
 def page_query(limits: LimitSettings):

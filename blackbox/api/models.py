@@ -1,8 +1,9 @@
 """What the REST API sends and accepts: response and request models, the documented error
 responses, and the one JSON encoding of its responses.
 
-Records and events are ares.messages' own models: the record schema is defined once, there.
+Records and events are ares.core.messages' own models: the record schema is defined once, there.
 """
+
 from datetime import datetime
 from typing import Any, Literal
 
@@ -10,9 +11,9 @@ import orjson
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
-from ares.messages import DriveMode, StoredEvent, VehicleRecord
+from ares.core.messages import DriveMode, StoredEvent, VehicleRecord
 from blackbox import reliability as rel
-from blackbox.auth import MAX_PASSWORD_CHARS, ROLES, USERNAME_RE
+from blackbox.api.credentials import MAX_PASSWORD_CHARS, ROLES, USERNAME_RE
 
 JSON_OPTIONS = orjson.OPT_NAIVE_UTC | orjson.OPT_UTC_Z
 
@@ -38,6 +39,7 @@ class FieldProblem(BaseModel):
 
 class ApiError(BaseModel):
     """Every error: a sentence for humans, and for 422 the offending parameters."""
+
     detail: str
     errors: list[FieldProblem] | None = None
 
@@ -50,8 +52,10 @@ class Health(BaseModel):
 
 class LoginForm(BaseModel):
     """The OAuth2 password form of POST /auth/token (application/x-www-form-urlencoded)."""
-    model_config = ConfigDict(extra="forbid", json_schema_extra={
-        "examples": [{"username": "alice", "password": "a long passphrase"}]})
+
+    model_config = ConfigDict(
+        extra="forbid", json_schema_extra={"examples": [{"username": "alice", "password": "a long passphrase"}]}
+    )
 
     username: str = Field(min_length=1, max_length=64)
     password: str = Field(min_length=1, max_length=MAX_PASSWORD_CHARS)
@@ -76,14 +80,21 @@ class VehicleList(BaseModel):
 
 
 # VehicleRecord with every field optional: what a page with a field selection holds. Derived
-# from VehicleRecord, so the record schema is still defined once (ares.messages).
+# from VehicleRecord, so the record schema is still defined once (ares.core.messages).
 VehicleRecordFields = create_model(
-    "VehicleRecordFields", __config__=ConfigDict(extra="forbid"),
-    **{name: (f.annotation | None, Field(None, description=f.description)) for name, f in VehicleRecord.model_fields.items()})
+    "VehicleRecordFields",
+    __config__=ConfigDict(extra="forbid"),
+    **{
+        name: (f.annotation | None, Field(None, description=f.description))
+        for name, f in VehicleRecord.model_fields.items()
+    },
+)
 
 
-WINDOW_DOC = ("the window served, [start, end), in UTC: a start before the retention (the last 7 days) is moved "
-              "up to it, and an empty or reversed window serves nothing (end = start)")
+WINDOW_DOC = (
+    "the window served, [start, end), in UTC: a start before the retention (the last 7 days) is moved "
+    "up to it, and an empty or reversed window serves nothing (end = start)"
+)
 CLIPPED_DOC = "true when the window served is not the one asked for (see start, end)"
 
 
@@ -96,7 +107,7 @@ class RecordsPage(BaseModel):
     page_size: int
     total: int = Field(description="records in the window")
     fields: list[str] | None = Field(None, description="the selected fields (null: all)")
-    records: list[VehicleRecordFields]      # type: ignore[valid-type]
+    records: list[VehicleRecordFields]  # type: ignore[valid-type]
 
 
 class EventsPage(BaseModel):
@@ -137,20 +148,24 @@ class UserInfo(BaseModel):
 
 class NewUser(BaseModel):
     """A user to create; new_user_model gives the password its configured minimum length."""
+
     model_config = ConfigDict(extra="forbid")
 
     name: str = Field(pattern=USERNAME_RE.pattern)
-    role: Literal[ROLES]     # type: ignore[valid-type]
+    role: Literal[ROLES]  # type: ignore[valid-type]
     password: str = Field(min_length=1, max_length=MAX_PASSWORD_CHARS)
 
 
 def new_user_model(min_password_length: int) -> type[NewUser]:
     """NewUser whose schema says the configured shortest password (auth.min_password_length)."""
-    example = {"name": "carol", "role": "auditor",
-               "password": "a long passphrase".ljust(min_password_length, ".")}
-    return create_model("NewUser", __base__=NewUser, __doc__=NewUser.__doc__,
-                        __config__=ConfigDict(extra="forbid", json_schema_extra={"examples": [example]}),
-                        password=(str, Field(min_length=min_password_length, max_length=MAX_PASSWORD_CHARS)))
+    example = {"name": "carol", "role": "auditor", "password": "a long passphrase".ljust(min_password_length, ".")}
+    return create_model(
+        "NewUser",
+        __base__=NewUser,
+        __doc__=NewUser.__doc__,
+        __config__=ConfigDict(extra="forbid", json_schema_extra={"examples": [example]}),
+        password=(str, Field(min_length=min_password_length, max_length=MAX_PASSWORD_CHARS)),
+    )
 
 
 # Every error answer of the API, documented on the operations that can give it. A method a path
@@ -159,22 +174,27 @@ ERROR_DESCRIPTIONS = {
     400: "Malformed body: not parseable, too many form fields, or a form field over 4 kB",
     401: "Not authenticated: no token, or an expired, malformed or forged one (send Authorization: Bearer <token>)",
     403: "Forbidden: the token's role may not do this, or the client address is blacklisted "
-         "after an abnormal flow of requests (then with Retry-After)",
+    "after an abnormal flow of requests (then with Retry-After)",
     404: "Unknown vehicle",
     409: "Conflict: the user already exists, or the vehicle refused the command in its present state",
     413: "Request body too large (any request's: over api.limits.max_body_bytes)",
     422: "Invalid parameters or body: a value outside its documented type, format, range, pattern or "
-         "enumeration (the offending ones in `errors`)",
+    "enumeration (the offending ones in `errors`)",
     429: "Rate limited: retry after the Retry-After header's seconds",
     503: "The black box store is unavailable: retry after the Retry-After header's seconds",
 }
 
-STORE_RETRY_AFTER_S = 5          # a store that is down: try again in this long
+STORE_RETRY_AFTER_S = 5  # a store that is down: try again in this long
 
 RETRY_AFTER = {"description": "seconds to wait before trying again", "schema": {"type": "integer", "minimum": 0}}
 ERROR_HEADERS = {
-    401: {"WWW-Authenticate": {"description": "the scheme to authenticate with", "required": True,
-                               "schema": {"type": "string", "const": "Bearer"}}},
+    401: {
+        "WWW-Authenticate": {
+            "description": "the scheme to authenticate with",
+            "required": True,
+            "schema": {"type": "string", "const": "Bearer"},
+        }
+    },
     403: {"Retry-After": RETRY_AFTER},
     429: {"Retry-After": {**RETRY_AFTER, "required": True}},
     503: {"Retry-After": {**RETRY_AFTER, "required": True}},
@@ -184,6 +204,11 @@ ERROR_HEADERS = {
 def error_responses(*codes: int) -> dict:
     """The `responses` of a route that may answer `codes` (as ApiError)."""
     # any request can be answered 403 (blacklist), 413 (a body too large) and 429 (rate limit)
-    return {code: {"model": ApiError, "description": ERROR_DESCRIPTIONS[code],
-                   **({"headers": ERROR_HEADERS[code]} if code in ERROR_HEADERS else {})}
-            for code in sorted({*codes, 403, 413, 429})}
+    return {
+        code: {
+            "model": ApiError,
+            "description": ERROR_DESCRIPTIONS[code],
+            **({"headers": ERROR_HEADERS[code]} if code in ERROR_HEADERS else {}),
+        }
+        for code in sorted({*codes, 403, 413, 429})
+    }

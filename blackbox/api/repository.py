@@ -5,44 +5,47 @@ those need (the time window, record fields, event kinds).
 Nothing here changes a record or an event: the API's only writes are users and its own
 security events (an address blacklisted).
 """
+
 import csv
 import io
 import logging
 import time
-from datetime import datetime, timedelta, timezone
-from typing import Any, Callable, Iterator, NamedTuple
+from collections.abc import Callable, Iterator
+from datetime import UTC, datetime, timedelta
+from typing import Any, NamedTuple
 
 from fastapi import HTTPException
 
-from ares.messages import EventLevel, StoredEvent, VehicleRecord
+from ares.core.messages import EventLevel, StoredEvent, VehicleRecord
 from blackbox import reliability as rel
+from blackbox.api.credentials import Passwords, UserError, add_user
 from blackbox.api.models import json_bytes
+from blackbox.api.security import blacklist_event
 from blackbox.api.settings import LimitSettings
-from blackbox.auth import Passwords, UserError, add_user
-from blackbox.security import blacklist_event
-from blackbox.store import RETENTION, RecordStore, StoreUnavailable, User
+from blackbox.store.record_store import RETENTION, RecordStore, StoreUnavailable, User
 
 log = logging.getLogger(__name__)
 
 RECORD_FIELDS = tuple(VehicleRecord.model_fields)
-ALWAYS_SELECTED = ("time",)                             # a selection without the time would be a bag of values
+ALWAYS_SELECTED = ("time",)  # a selection without the time would be a bag of values
 
 
 def _utc(dt: datetime) -> datetime:
-    return dt.astimezone(timezone.utc)
+    return dt.astimezone(UTC)
 
 
 def _utc_clamped(dt: datetime) -> tuple[datetime, bool]:
     """(`dt` in UTC, True); a date-time whose UTC reading falls outside the years 1-9999
     (0001-01-01T00:00+01:00, 9999-12-31T23:59-01:00): (the earliest or latest there is, False)."""
     try:
-        return dt.astimezone(timezone.utc), True
+        return dt.astimezone(UTC), True
     except OverflowError:
-        return (datetime.min if dt.year == 1 else datetime.max).replace(tzinfo=timezone.utc), False
+        return (datetime.min if dt.year == 1 else datetime.max).replace(tzinfo=UTC), False
 
 
 class Window(NamedTuple):
     """A time window as served: [start, end), in UTC; `clipped` when it is not the one asked for."""
+
     start: datetime
     end: datetime
     clipped: bool
@@ -51,13 +54,12 @@ class Window(NamedTuple):
 class Repository:
     """Every store call of the API, and its caches: the latest record per vehicle, the vehicle list."""
 
-    def __init__(self, store: RecordStore, limits: LimitSettings, own_vehicle_id: str,
-                 stack_time: Callable[[], float]):
+    def __init__(self, store: RecordStore, limits: LimitSettings, own_vehicle_id: str, stack_time: Callable[[], float]):
         self.store = store
         self.limits = limits
-        self.own_vehicle_id = own_vehicle_id    # whose events the API's own events are
-        self.stack_time = stack_time            # t of the events the API writes
-        self._latest: dict[str, tuple[float, bytes, dict]] = {}    # vehicle -> (expires, JSON, record)
+        self.own_vehicle_id = own_vehicle_id  # whose events the API's own events are
+        self.stack_time = stack_time  # t of the events the API writes
+        self._latest: dict[str, tuple[float, bytes, dict]] = {}  # vehicle -> (expires, JSON, record)
         self._vehicles: tuple[float, list[str]] = (0.0, [])
         self.grace = timedelta(seconds=limits.start_grace_s)
 
@@ -84,8 +86,11 @@ class Repository:
     def require_vehicle(self, vehicle_id: str) -> None:
         # a vehicle recorded since the cache was filled must not look unknown: re-read once
         if vehicle_id not in self.vehicles() and vehicle_id not in self.vehicles(fresh=True):
-            raise HTTPException(404, f"unknown vehicle {vehicle_id!r}: the black box holds nothing for it "
-                                     "(GET /api/v1/vehicles lists the known ones)")
+            raise HTTPException(
+                404,
+                f"unknown vehicle {vehicle_id!r}: the black box holds nothing for it "
+                "(GET /api/v1/vehicles lists the known ones)",
+            )
 
     def cached_latest(self, vehicle_id: str) -> tuple[bytes, dict] | None:
         hit = self._latest.get(vehicle_id)
@@ -132,14 +137,23 @@ class Repository:
         clipped = (served_start, served_end) != (asked_start, asked_end) or not (exact_start and exact_end)
         return Window(served_start, served_end, clipped)
 
-    def records_page(self, vehicle_id: str, window: Window, page: int, page_size: int,
-                     fields: list[str] | None) -> bytes:
+    def records_page(
+        self, vehicle_id: str, window: Window, page: int, page_size: int, fields: list[str] | None
+    ) -> bytes:
         """The page as JSON. Every field (no selection): the stored documents are spliced in as
         they are, which is ~5x faster than decoding them into dicts and encoding them again."""
         start, end = window.start, window.end
         total = self.store.count_records(vehicle_id, start, end)
-        head = {"vehicle_id": vehicle_id, "start": start, "end": end, "clipped": window.clipped, "page": page,
-                "page_size": page_size, "total": total, "fields": fields}
+        head = {
+            "vehicle_id": vehicle_id,
+            "start": start,
+            "end": end,
+            "clipped": window.clipped,
+            "page": page,
+            "page_size": page_size,
+            "total": total,
+            "fields": fields,
+        }
         skip = (page - 1) * page_size
         if fields is None:
             records = self.store.records_json(vehicle_id, start, end, skip=skip, limit=page_size)
@@ -156,27 +170,36 @@ class Repository:
             if len(rows) < batch:
                 return
             last = rows[-1]["time"]
-            cursor = (last if last.tzinfo else last.replace(tzinfo=timezone.utc)) + timedelta(microseconds=1)
+            cursor = (last if last.tzinfo else last.replace(tzinfo=UTC)) + timedelta(microseconds=1)
 
     def export(self, vehicle_id: str, window: Window, fmt: str) -> Iterator[bytes]:
         """The export file of the window in `fmt` (csv or jsonl), chunk by chunk."""
         return export_chunks(self.iter_records(vehicle_id, window.start, window.end, self.limits.export_batch), fmt)
 
-    def events_page(self, vehicle_id: str, window: Window, kinds: list[str] | None,
-                    page: int, page_size: int) -> dict:
+    def events_page(self, vehicle_id: str, window: Window, kinds: list[str] | None, page: int, page_size: int) -> dict:
         start, end = window.start, window.end
-        rows = self.store.events(vehicle_id, start, end, kinds=kinds, skip=(page - 1) * page_size,
-                                 limit=page_size + 1)
+        rows = self.store.events(vehicle_id, start, end, kinds=kinds, skip=(page - 1) * page_size, limit=page_size + 1)
         fields = StoredEvent.model_fields
-        return {"vehicle_id": vehicle_id, "start": start, "end": end, "clipped": window.clipped, "page": page,
-                "page_size": page_size, "has_more": len(rows) > page_size,
-                "events": [{k: e.get(k) for k in fields} for e in rows[:page_size]]}
+        return {
+            "vehicle_id": vehicle_id,
+            "start": start,
+            "end": end,
+            "clipped": window.clipped,
+            "page": page,
+            "page_size": page_size,
+            "has_more": len(rows) > page_size,
+            "events": [{k: e.get(k) for k in fields} for e in rows[:page_size]],
+        }
 
     def fault_times(self, vehicle_id: str, start: datetime, end: datetime) -> list[datetime]:
         out, skip, batch = [], 0, self.limits.reliability_batch
         while True:
             rows = self.store.events(vehicle_id, start, end, skip=skip, limit=batch)
-            out += [_utc(e["time"]) for e in rows if getattr(e.get("level"), "value", e.get("level")) == EventLevel.FAULT.value]
+            out += [
+                _utc(e["time"])
+                for e in rows
+                if getattr(e.get("level"), "value", e.get("level")) == EventLevel.FAULT.value
+            ]
             if len(rows) < batch:
                 return out
             skip += batch
@@ -191,10 +214,18 @@ class Repository:
             for r in self.iter_records(vehicle_id, start, end, self.limits.reliability_batch):
                 count += 1
                 yield r
+
         until = min(end, _utc(self.store.now()))
         tally = rel.tally_window(counted(), faults, until=max(until, start))
-        return {"vehicle_id": vehicle_id, "start": start, "end": end, "clipped": window.clipped, "records": count,
-                "open_failures": tally.open_failures, **tally.figures(t_hours).as_dict()}
+        return {
+            "vehicle_id": vehicle_id,
+            "start": start,
+            "end": end,
+            "clipped": window.clipped,
+            "records": count,
+            "open_failures": tally.open_failures,
+            **tally.figures(t_hours).as_dict(),
+        }
 
     def authenticate(self, passwords: Passwords, name: str, password: str) -> User | None:
         return passwords.authenticate(self.store, name, password)
@@ -214,13 +245,19 @@ class Repository:
         """Log and store the event that tells those responsible; a store that is down loses only the event."""
         log.warning("REST API: %s blacklisted for %g s (%s)", ip, duration_s, reason)
         try:
-            self.store.insert_events([blacklist_event(self.own_vehicle_id, ip, reason, duration_s,
-                                                      _utc(self.store.now()), self.stack_time())])
+            self.store.insert_events(
+                [
+                    blacklist_event(
+                        self.own_vehicle_id, ip, reason, duration_s, _utc(self.store.now()), self.stack_time()
+                    )
+                ]
+            )
         except StoreUnavailable as exc:
             log.error("could not record the blacklisting of %s: %s", ip, exc)
 
 
 # ---- parameters ----------------------------------------------------------------------------------
+
 
 def parse_fields(text: str | None) -> list[str] | None:
     """The comma-separated field selection (the schema's array of RECORD_FIELDS, style form, not
@@ -231,8 +268,10 @@ def parse_fields(text: str | None) -> list[str] | None:
     names = text.split(",")
     unknown = [n for n in names if n not in RECORD_FIELDS]
     if unknown:
-        raise HTTPException(422, f"unknown field(s) {', '.join(repr(n) for n in unknown)}; "
-                                 f"fields of a record: {', '.join(RECORD_FIELDS)}")
+        raise HTTPException(
+            422,
+            f"unknown field(s) {', '.join(repr(n) for n in unknown)}; fields of a record: {', '.join(RECORD_FIELDS)}",
+        )
     if len(set(names)) < len(names):
         raise HTTPException(422, "a field is named twice in fields")
     return [*ALWAYS_SELECTED, *(n for n in names if n not in ALWAYS_SELECTED)]
@@ -246,11 +285,22 @@ def parse_kinds(text: str | None) -> list[str] | None:
 
 # ---- export formats ------------------------------------------------------------------------------
 
-CSV_SCALARS = ("vehicle_id", "time", "t", "speed_mps", "steering_wheel_deg", "mode", "controller",
-               "awareness_level", "mission_state", "events")
-CSV_POSITION = tuple(f"position.{k}" for k in ("x", "y", "z", "easting", "northing", "zone", "hemisphere",
-                                                "lat", "lon"))
-CSV_MAPPINGS = ("scores", "sensors", "processes")     # keys vary per record: one JSON cell each
+CSV_SCALARS = (
+    "vehicle_id",
+    "time",
+    "t",
+    "speed_mps",
+    "steering_wheel_deg",
+    "mode",
+    "controller",
+    "awareness_level",
+    "mission_state",
+    "events",
+)
+CSV_POSITION = tuple(
+    f"position.{k}" for k in ("x", "y", "z", "easting", "northing", "zone", "hemisphere", "lat", "lon")
+)
+CSV_MAPPINGS = ("scores", "sensors", "processes")  # keys vary per record: one JSON cell each
 CSV_COLUMNS = (*CSV_SCALARS, *CSV_POSITION, *CSV_MAPPINGS)
 
 
@@ -258,7 +308,7 @@ def _cell(value: Any) -> Any:
     if value is None:
         return ""
     if isinstance(value, datetime):
-        return value.astimezone(timezone.utc).isoformat().replace("+00:00", "Z")
+        return value.astimezone(UTC).isoformat().replace("+00:00", "Z")
     if isinstance(value, (dict, list)):
         return json_bytes(value).decode()
     return getattr(value, "value", value)
@@ -266,9 +316,11 @@ def _cell(value: Any) -> Any:
 
 def csv_row(record: dict) -> list:
     position = record.get("position") or {}
-    return ([_cell(record.get(k)) for k in CSV_SCALARS]
-            + [_cell(position.get(k.split(".", 1)[1])) for k in CSV_POSITION]
-            + [_cell(record.get(k) or {}) for k in CSV_MAPPINGS])
+    return (
+        [_cell(record.get(k)) for k in CSV_SCALARS]
+        + [_cell(position.get(k.split(".", 1)[1])) for k in CSV_POSITION]
+        + [_cell(record.get(k) or {}) for k in CSV_MAPPINGS]
+    )
 
 
 def export_chunks(rows: Iterator[dict], fmt: str, chunk_records: int = 500) -> Iterator[bytes]:

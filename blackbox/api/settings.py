@@ -1,16 +1,17 @@
 """The REST API's settings (the `api:` section of the stack configuration), where the API
 keeps its own state, and where it is served (PREFIX)."""
+
 import os
 from pathlib import Path
 from typing import Any
 
 from pydantic import model_validator
 
-from ares.config import Params, param
-from blackbox.auth import AuthSettings
-from blackbox.live import LiveSettings
-from blackbox.security import BlacklistSettings, HeaderSettings, RateLimitSettings
-from blackbox.tls import TlsSettings
+from ares.core.config import Params, param
+from blackbox.api.credentials import AuthSettings
+from blackbox.api.live_hub import LiveSettings
+from blackbox.api.security import BlacklistSettings, HeaderSettings, RateLimitSettings
+from blackbox.api.tls import TlsSettings
 
 # fixed, not configurable: clients, the supervisor (api_url) and the token scheme rely on it
 PREFIX = "/api/v1"
@@ -19,9 +20,13 @@ TOKEN_PATH = f"{PREFIX}/auth/token"
 
 class LimitSettings(Params):
     default_window_s: float = param(3600.0, "start/end omitted: the last hour", unit="s", gt=0)
-    start_grace_s: float = param(300.0, "a start up to this long before the 7-day retention is served as asked, "
-                                        "not clipped (a client's \"now - 7 days\" computed a moment earlier)",
-                                 unit="s", ge=0)
+    start_grace_s: float = param(
+        300.0,
+        "a start up to this long before the 7-day retention is served as asked, "
+        'not clipped (a client\'s "now - 7 days" computed a moment earlier)',
+        unit="s",
+        ge=0,
+    )
     default_page_size: int = param(100, "items per page when not asked", ge=1)
     max_page_size: int = param(1000, "most items per page", ge=1, le=10000)
     max_page: int = param(100_000, "highest page number", ge=1)
@@ -29,26 +34,30 @@ class LimitSettings(Params):
     reliability_batch: int = param(5000, "records per store query while computing reliability", ge=1)
     max_t_hours: float = param(100_000.0, "largest t of R(t)", unit="h", gt=0)
     max_body_bytes: int = param(8192, "request bodies are a login form or a new user: small", unit="B", ge=256)
-    latest_cache_s: float = param(1.0, "latest record per vehicle cached this long (a record is written each "
-                                       "second)", unit="s", ge=0.0, le=1.0)
-    vehicles_cache_s: float = param(5.0, "known vehicle ids (an unknown id re-reads them once before 404)",
-                                    unit="s", ge=0.0)
+    latest_cache_s: float = param(
+        1.0, "latest record per vehicle cached this long (a record is written each second)", unit="s", ge=0.0, le=1.0
+    )
+    vehicles_cache_s: float = param(
+        5.0, "known vehicle ids (an unknown id re-reads them once before 404)", unit="s", ge=0.0
+    )
 
 
 class ApiSettings(Params):
     """The `api` section: the black box's REST API, the vehicle's only outside service (ARES §3.8)."""
+
     host: str = param("127.0.0.1", "where it listens; deployment: the VPN-facing address (0.0.0.0 in its container)")
     port: int = param(8443, "HTTPS port", ge=0, le=65535)
-    state_dir: str | None = param(None, "token key (api_secret) and self-signed certificate; null: next to the "
-                                        "embedded store's file")
-    docs: bool = param(False, "interactive /docs and /redoc (their scripts need a looser CSP); /openapi.json is "
-                              "always served")
+    state_dir: str | None = param(
+        None, "token key (api_secret) and self-signed certificate; null: next to the embedded store's file"
+    )
+    docs: bool = param(
+        False, "interactive /docs and /redoc (their scripts need a looser CSP); /openapi.json is always served"
+    )
     access_log: bool = param(False, "one log line per request costs ~20 % of the latest endpoint's throughput")
     log_level: str = param("info", "uvicorn's log level")
     keep_alive_s: int = param(5, "HTTP keep-alive", unit="s", ge=1, le=300)
     limit_concurrency: int | None = param(1000, "connections+requests in flight beyond this get 503", ge=1)
-    cors_origins: list[str] = param(doc="browsers' cross-origin calls: closed unless origins are listed",
-                                    factory=list)
+    cors_origins: list[str] = param(doc="browsers' cross-origin calls: closed unless origins are listed", factory=list)
     limits: LimitSettings = param(doc="query limits and caches", factory=LimitSettings)
     auth: AuthSettings = param(doc="tokens and passwords", factory=AuthSettings)
     tls: TlsSettings = param(doc="HTTPS", factory=TlsSettings)
@@ -70,9 +79,9 @@ class ApiSettings(Params):
                 f"rate_limit and blacklist disagree: a client keeping to its rate limit (client_burst "
                 f"{rl.client_burst:g} + client_per_s {rl.client_per_s:g}/s) may send {most:g} requests in "
                 f"abuse_window_s ({bl.abuse_window_s:g} s), more than blacklist.abuse_requests_per_s "
-                f"({bl.abuse_requests_per_s:g}/s) allows: it would be blacklisted")
+                f"({bl.abuse_requests_per_s:g}/s) allows: it would be blacklisted"
+            )
         return self
-
 
 
 def state_dir(settings: ApiSettings, store: Any) -> Path:

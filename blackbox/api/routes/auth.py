@@ -1,12 +1,13 @@
 """POST /auth/token (OAuth2 password form -> bearer token) and POST /auth/renew (a valid token
 -> a fresh one). Failed logins count towards the client's blacklisting."""
+
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Form, HTTPException, Request
 
+from blackbox.api.credentials import ROLES, Claims
 from blackbox.api.dependencies import Services, allow
 from blackbox.api.models import LoginForm, Token, error_responses
-from blackbox.auth import ROLES, Claims
 
 
 def build_router(services: Services) -> APIRouter:

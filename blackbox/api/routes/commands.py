@@ -12,6 +12,7 @@ The only way a person outside the vehicle reaches its services, and only with an
 token (ARES §3.8: nothing outside may drive the vehicle: a goal, a pause, a re-arm are requests
 the managers may refuse). A refusal is answered 409 with the manager's reason.
 """
+
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException
@@ -19,23 +20,24 @@ from fastapi.responses import Response
 from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
-from ares.bus import ServiceError
-from ares.messages import BodyRequest, MissionGoal, MissionRequest, Msg, RearmRequest
+from ares.core.bus import ServiceError
+from ares.core.messages import BodyRequest, MissionGoal, MissionRequest, Msg, RearmRequest
+from blackbox.api.credentials import Claims
 from blackbox.api.dependencies import ROLES_COMMAND, Services, allow, vehicle_id_path
 from blackbox.api.models import error_responses, json_response
-from blackbox.auth import Claims
 
 
 class CommandReply(BaseModel):
     accepted: bool
     reason: str
     operator: str
-    goal_id: int | None = None      # mission commands: the goal concerned
-    state: str | None = None        # ... and the mission's state after
+    goal_id: int | None = None  # mission commands: the goal concerned
+    state: str | None = None  # ... and the mission's state after
 
 
 class GoalBody(BaseModel):
     """A mission goal: the POIs in order, every POI of the route ahead (null), or a drive."""
+
     pois: list[str] | None = None
     drive: bool = False
     repeat: bool = False
@@ -43,6 +45,7 @@ class GoalBody(BaseModel):
 
 class BodyBody(BaseModel):
     """The doors and the ramp: open or close, deploy or stow (null: leave as it is)."""
+
     doors: Literal["open", "close"] | None = None
     ramp: Literal["deploy", "stow"] | None = None
 
@@ -54,8 +57,9 @@ def build_router(services: Services) -> APIRouter:
 
     async def forward(vehicle_id: str, service: str, request: Msg, who: str, manager: str) -> Response:
         if vehicle_id != services.vehicle_id:
-            raise HTTPException(404, f"vehicle {vehicle_id!r} is not this API's: commands go to "
-                                     f"{services.vehicle_id!r} only")
+            raise HTTPException(
+                404, f"vehicle {vehicle_id!r} is not this API's: commands go to {services.vehicle_id!r} only"
+            )
         if services.call is None:
             raise HTTPException(503, "this API serves records only: it is not on a vehicle's bus")
         try:
@@ -67,29 +71,40 @@ def build_router(services: Services) -> APIRouter:
             body.update(goal_id=reply.goal_id, state=reply.state)
         return json_response(body, 200 if reply.accepted else 409)
 
-    @router.post("/vehicles/{vehicle_id}/rearm", response_model=CommandReply,
-                 responses=error_responses(401, 404, 409, 422, 503))
+    @router.post(
+        "/vehicles/{vehicle_id}/rearm", response_model=CommandReply, responses=error_responses(401, 404, 409, 422, 503)
+    )
     async def rearm(vehicle_id: VehicleId, claims: Operator) -> Response:
-        return await forward(vehicle_id, "movement/rearm", RearmRequest(operator=claims.name), claims.name,
-                             "movement manager")
+        return await forward(
+            vehicle_id, "movement/rearm", RearmRequest(operator=claims.name), claims.name, "movement manager"
+        )
 
-    @router.post("/vehicles/{vehicle_id}/mission", response_model=CommandReply,
-                 responses=error_responses(401, 404, 409, 422, 503))
+    @router.post(
+        "/vehicles/{vehicle_id}/mission",
+        response_model=CommandReply,
+        responses=error_responses(401, 404, 409, 422, 503),
+    )
     async def mission_goal(vehicle_id: VehicleId, goal: GoalBody, claims: Operator) -> Response:
         if goal.drive and goal.pois:
             raise HTTPException(422, "a drive goal has no POIs")
         request = MissionGoal(operator=claims.name, pois=goal.pois, drive=goal.drive, repeat=goal.repeat)
         return await forward(vehicle_id, "mission/goal", request, claims.name, "mission manager")
 
-    @router.post("/vehicles/{vehicle_id}/mission/{action}", response_model=CommandReply,
-                 responses=error_responses(401, 404, 409, 422, 503))
-    async def mission_action(vehicle_id: VehicleId, action: Literal["pause", "resume", "cancel"],
-                             claims: Operator) -> Response:
-        return await forward(vehicle_id, f"mission/{action}", MissionRequest(operator=claims.name), claims.name,
-                             "mission manager")
+    @router.post(
+        "/vehicles/{vehicle_id}/mission/{action}",
+        response_model=CommandReply,
+        responses=error_responses(401, 404, 409, 422, 503),
+    )
+    async def mission_action(
+        vehicle_id: VehicleId, action: Literal["pause", "resume", "cancel"], claims: Operator
+    ) -> Response:
+        return await forward(
+            vehicle_id, f"mission/{action}", MissionRequest(operator=claims.name), claims.name, "mission manager"
+        )
 
-    @router.post("/vehicles/{vehicle_id}/body", response_model=CommandReply,
-                 responses=error_responses(401, 404, 409, 422, 503))
+    @router.post(
+        "/vehicles/{vehicle_id}/body", response_model=CommandReply, responses=error_responses(401, 404, 409, 422, 503)
+    )
     async def body(vehicle_id: VehicleId, asked: BodyBody, claims: Operator) -> Response:
         if asked.doors is None and asked.ramp is None:
             raise HTTPException(422, "ask something of the doors or the ramp")

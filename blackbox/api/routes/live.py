@@ -13,6 +13,7 @@ token expires: the page renews its token and opens a new stream. Each user has a
 at most (429 beyond); the frames are built from what the bus left in memory, so a slow browser
 only slows its own stream. Outside a stack (`ares api`) the gateway answers 503.
 """
+
 import asyncio
 import time
 from typing import Annotated
@@ -21,10 +22,10 @@ import orjson
 from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.responses import StreamingResponse
 
+from blackbox.api.credentials import Claims
 from blackbox.api.dependencies import ROLES_LIVE, ROLES_RECORDS, Services, allow, vehicle_id_path
+from blackbox.api.live_hub import LiveHub
 from blackbox.api.models import error_responses, json_response
-from blackbox.auth import Claims
-from blackbox.live import LiveHub
 
 SSE_HEADERS = {"X-Accel-Buffering": "no", "Cache-Control": "no-store"}
 
@@ -65,7 +66,7 @@ def build_router(services: Services) -> APIRouter:
             raise HTTPException(429, f"too many live streams: {refused}", headers={"Retry-After": "5"})
 
         async def frames():
-            seq = max(gateway.event_seq - 50, 0)        # a new page sees the recent events
+            seq = max(gateway.event_seq - 50, 0)  # a new page sees the recent events
             period = 1.0 / hz
             while time.time() < claims.expires and not await request.is_disconnected():
                 started = time.monotonic()
@@ -77,11 +78,15 @@ def build_router(services: Services) -> APIRouter:
                 await asyncio.sleep(max(period - (time.monotonic() - started), 0.0))
             yield b"event: expired\ndata: {}\n\n"
 
-        return SlotStream(frames(), lambda: gateway.close_stream(claims.name), media_type="text/event-stream",
-                          headers=SSE_HEADERS)
+        return SlotStream(
+            frames(), lambda: gateway.close_stream(claims.name), media_type="text/event-stream", headers=SSE_HEADERS
+        )
 
-    @router.get("/live/vehicles/{vehicle_id}", responses=error_responses(401, 403, 404, 422, 429, 503),
-                response_class=StreamingResponse)
+    @router.get(
+        "/live/vehicles/{vehicle_id}",
+        responses=error_responses(401, 403, 404, 422, 429, 503),
+        response_class=StreamingResponse,
+    )
     async def vehicle_stream(request: Request, vehicle_id: VehicleId, claims: Viewer, hz: Hz = rate):
         gateway = hub()
         if not gateway.knows(vehicle_id) and vehicle_id != services.vehicle_id:
@@ -90,6 +95,7 @@ def build_router(services: Services) -> APIRouter:
         def build(seq):
             frame = gateway.frame(vehicle_id) or {"vehicle_id": vehicle_id, "wall_ms": time.time() * 1e3}
             return frame, gateway.events_since(seq, vehicle_id)
+
         return stream(request, claims, hz, build)
 
     @router.get("/live/fleet", responses=error_responses(401, 403, 422, 429, 503), response_class=StreamingResponse)
@@ -98,6 +104,7 @@ def build_router(services: Services) -> APIRouter:
 
         def build(seq):
             return {"vehicles": gateway.fleet_frame(), "wall_ms": time.time() * 1e3}, gateway.events_since(seq)
+
         return stream(request, claims, hz, build)
 
     @router.get("/route", responses=error_responses(401, 403, 503))

@@ -13,6 +13,7 @@ The pages hold no data: they log in at /api/v1/auth/token and read the API with 
 page refuses a role it is not for, and the API refuses what the role may not read). Nothing is
 fetched from the internet at run time (vehicles have patchy 4G).
 """
+
 from pathlib import Path
 
 from fastapi import FastAPI
@@ -34,8 +35,13 @@ def render(name: str) -> str:
     """A page: the frame filled with its title, library and content."""
     title, (css, js) = PAGES[name]
     page = (WEB / "pages" / "frame.html").read_text()
-    for key, value in (("main", (WEB / "pages" / f"{name}.main.html").read_text().strip()), ("title", title),
-                       ("library_css", css), ("library_js", js), ("name", name)):
+    for key, value in (
+        ("main", (WEB / "pages" / f"{name}.main.html").read_text().strip()),
+        ("title", title),
+        ("library_css", css),
+        ("library_js", js),
+        ("name", name),
+    ):
         page = page.replace("{{" + key + "}}", value)
     return page
 
@@ -53,6 +59,7 @@ def mount(app: FastAPI) -> None:
 def _page(html: str):
     async def page() -> HTMLResponse:
         return HTMLResponse(html)
+
     return page
 
 

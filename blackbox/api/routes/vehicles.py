@@ -1,15 +1,16 @@
 """GET /vehicles (the fleet the black box holds) and GET /vehicles/{id}/latest (a vehicle's
 latest record)."""
+
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
-from ares.messages import VehicleRecord
+from ares.core.messages import VehicleRecord
+from blackbox.api.credentials import Claims
 from blackbox.api.dependencies import ROLES_LIVE, Services, allow, vehicle_id_path
 from blackbox.api.models import VehicleList, error_responses, json_response
-from blackbox.auth import Claims
 
 
 def build_router(services: Services) -> APIRouter:
@@ -23,7 +24,9 @@ def build_router(services: Services) -> APIRouter:
     def vehicles(_: Live) -> Response:
         return json_response({"vehicles": repo.vehicle_summaries()})
 
-    @router.get("/vehicles/{vehicle_id}/latest", response_model=VehicleRecord, responses=error_responses(401, 404, 422, 503))
+    @router.get(
+        "/vehicles/{vehicle_id}/latest", response_model=VehicleRecord, responses=error_responses(401, 404, 422, 503)
+    )
     async def latest(vehicle_id: VehicleId, _: Live) -> Response:
         # the hot path of every dashboard: a cache hit stays on the event loop, no thread hop
         hit = repo.cached_latest(vehicle_id) or await run_in_threadpool(repo.latest, vehicle_id)

@@ -1,0 +1,73 @@
+"""Every process of the stack, in one declarative table (started in this order).
+
+Each entry names the node class it runs (`module:Class`, imported when first needed: `ares run`
+reads the classes' contracts and parameters to validate the configuration, and each child process
+imports its own class through `python -m ares.core.launch`); the class holds the process's
+contract: its inputs, outputs with their rates, services and parameters (`ares describe`).
+`safety_relevant` processes are the ones whose loss must bring the vehicle to a safe state;
+`sim_only` ones run only in simulation; `lidars` ones only with the LiDARs (the core setting
+`lidars`); `nice` lowers the CPU priority of those that must yield to the driving ones.
+The embedded Zenoh router is not listed: the supervisor hosts it in its own session.
+
+Adding a manager is one file (its node class) and one line here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ares.core.launch import load
+from ares.core.node import Node
+
+
+@dataclass(frozen=True)
+class Process:
+    name: str
+    node: str  # "module:Class" of its ares.core.node.Node subclass
+    safety_relevant: bool
+    sim_only: bool = False
+    lidars: bool = False  # runs only with the LiDARs (core `lidars`)
+    nice: int = 0
+
+    def node_class(self) -> type[Node]:
+        return load(self.node)
+
+
+PROCESSES: list[Process] = [
+    Process("sim", "ares.sim.simulator_node:Simulator", safety_relevant=True, sim_only=True),
+    # the simulated LiDARs stand for hardware, whose work is not the vehicle computer's: they yield
+    Process(
+        "lidar_sim", "ares.sim.lidar_node:LidarSimulator", safety_relevant=True, sim_only=True, lidars=True, nice=5
+    ),
+    Process("gnss", "perception.gnss_node:GnssNode", safety_relevant=True),
+    Process("localization", "perception.localization_node:LocalizationNode", safety_relevant=True),
+    Process("odometry_manager", "managers.odometry_node:OdometryManager", safety_relevant=True),
+    Process("path_manager", "managers.path_node:PathManager", safety_relevant=True),
+    Process("speed_manager", "managers.speed_node:SpeedManager", safety_relevant=True),
+    Process("lidar_perception", "perception.lidar_perception_node:LidarPerception", safety_relevant=True, lidars=True),
+    Process("dbw_bridge", "control.dbw_bridge_node:DbwBridge", safety_relevant=True),
+    # every controller computes all the time; the control manager forwards one candidate to the bridge
+    Process("mpc", "control.mpc_node:MpcNode", safety_relevant=True),
+    Process("rrc", "control.rrc_node:RrcNode", safety_relevant=True, lidars=True),
+    Process("pure_pursuit", "control.pure_pursuit_node:PurePursuitNode", safety_relevant=True),
+    Process("control_manager", "managers.control_node:ControlManager", safety_relevant=True),
+    # nothing moves unless every manager allows it: the gate is the bridge's only source of commands
+    Process("obstacle_manager", "managers.obstacle_node:ObstacleManager", safety_relevant=True, lidars=True),
+    Process("mission_manager", "managers.mission_node:MissionManager", safety_relevant=True),
+    Process("awareness_manager", "managers.awareness_node:AwarenessManager", safety_relevant=True),
+    Process("movement_manager", "managers.movement_node:MovementManager", safety_relevant=True),
+    # the black box: losing it never stops the vehicle (the recorder spools; see blackbox/recorder.py)
+    Process("blackbox", "blackbox.recorder_node:Recorder", safety_relevant=False, nice=5),
+    Process("api", "blackbox.api.api_node:ApiServer", safety_relevant=False, nice=5),
+]
+
+
+def by_name(name: str) -> Process:
+    for spec in PROCESSES:
+        if spec.name == name:
+            return spec
+    raise KeyError(f"unknown process {name!r}; known: {', '.join(p.name for p in PROCESSES)}")
+
+
+def for_run(simulate: bool, lidars: bool = True) -> list[Process]:
+    return [p for p in PROCESSES if (simulate or not p.sim_only) and (lidars or not p.lidars)]

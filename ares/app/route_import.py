@@ -1,0 +1,528 @@
+"""Route files from a recorded drive (`ares route import`): the ARES path manager's global path
+is "recorded from the real vehicle" (DESIGN §3) — this turns such a recording into a route.
+
+Input: a CSV of x,y[,z] metres in the local frame, or an NMEA log as a receiver or logger writes
+it (the format is told from the content). In a log, comment and header lines (any text, any
+encoding), CRLF line ends, NMEA 4 tag blocks and timestamp prefixes are allowed; every sentence
+is parsed strictly (perception.nmea_parser) and counted: positions come from the GGA fixes (from RMC,
+else GLL, when a log has none), one per epoch; sentences without a position and lines without
+a fix are skipped; a line with a bad checksum or broken fields is skipped under its reason (or,
+with `strict`, fails the import naming the line). Steps:
+
+1. projection to a local frame: the configured origin's when the drive lies within its reach,
+   else one at the drive's first fix (a drive recorded anywhere on Earth). Every fix is
+   projected in the origin's UTM zone, so a drive across a zone boundary stays continuous; the
+   route file records the origin, and a run that drives the route uses it;
+2. de-duplication of standstill fixes: a vehicle waiting at a stop yields hundreds of nearly
+   identical fixes, which would make a tangle of tiny zig-zags; a point closer than
+   `min_step_m` to the last kept one is dropped (order is kept);
+3. resampling to even spacing along the path (a whole number of equal steps), first at a fine
+   step for the filter, at the end at the route's spacing (default 0.5 m);
+4. smoothing: a quadratic Savitzky-Golay filter over a window of a few metres on x and y.
+   Being quadratic, it follows an arc of radius R with a small bias (under a centimetre for
+   R >= 8 m with the default 5 m window, which lets through about what a 2.5 m moving average
+   would), while averaging the millimetre RTK noise of the fixes in the window. The window is
+   not shorter because consumers differentiate the path twice: curvature sets the speed
+   profile, and with a 3 m window RTK noise alone reads as curves of 15-30 m radius on
+   straights. z gets a longer window: the grade the simulator feels is dz/ds, which amplifies
+   altitude noise;
+5. yaw from the neighbouring poses (central differences).
+
+The output is a CSV with '# ares route: ...' and '# origin: ...' comments and the header
+x,y,z,yaw, which Route.from_csv reads back. A recording whose end comes back to its start is reported as a
+closed loop; the file stays an open route (its two ends simply meet).
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import os
+import re
+import tempfile
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from ares.core import config
+from ares.core.config import Params, UtmOrigin, param
+from ares.core.geodesy import FrameError, LocalFrame, origin_at
+from ares.core.route import RouteError, origin_comment
+from perception.gnss import RTK_FIXED
+from perception.nmea_parser import Gga, NmeaError, Other, Position, address, parse_sentence
+
+FORMATS = ("auto", "csv", "nmea")
+SMOOTHING_STEP_M = 0.1  # resampling step the smoothing filter works on
+DETECT_LINES = 2000  # lines looked at to tell NMEA from CSV
+POSITION_KINDS = ("GGA", "RMC", "GLL")  # in order of preference: GGA has quality and altitude
+# where a sentence starts after a logger's prefix (a timestamp, a port name, then a space, a comma
+# or a semicolon): "$GNGGA," or "!AIVDM,"
+_SENTENCE_START = re.compile(rb"(?:^|[\s,;])([$!](?:[A-Z0-9]{5}|P[A-Z0-9]{1,8})[,*])")
+
+
+class RouteImportError(RouteError):
+    """A recording that cannot be turned into a route; the message names the line."""
+
+
+class RouteImportSettings(Params):
+    """The `route_import` section: `ares route import`, a recorded drive -> a route file."""
+
+    spacing_m: float = param(0.5, "distance between route points", unit="m", gt=0)
+    min_step_m: float = param(0.1, "standstill: drop fixes closer than this to the last kept one", unit="m", gt=0)
+    smooth_window_m: float = param(
+        5.0, "quadratic Savitzky-Golay on x, y: removes mm RTK noise, keeps arcs of R >= 8 m", unit="m", gt=0
+    )
+    smooth_polyorder: int = param(2, "order of the smoothing polynomial", ge=1, le=5)
+    z_window_m: float = param(10.0, "longer on z: the grade dz/ds amplifies altitude noise", unit="m", gt=0)
+    loop_close_m: float = param(5.0, "end this close to the start: reported as a closed loop", unit="m", gt=0)
+
+
+@dataclass
+class ImportResult:
+    source: str
+    fmt: str  # "csv" or "nmea"
+    points_in: int  # CSV rows or GGA fixes read
+    kept: int  # after standstill de-duplication
+    xyz: np.ndarray  # the route's points, evenly spaced
+    yaw: np.ndarray
+    spacing_m: float
+    closed_loop: bool
+    loop_gap_m: float  # distance from the last point to the first
+    log: NmeaLog | None = None  # what an NMEA log held, line by line
+    origin: UtmOrigin | None = None  # the route's frame (NMEA); a CSV is in the configured one
+    origin_source: str = ""  # "configured" or "first fix"
+    output: str = ""
+
+    @property
+    def length_m(self) -> float:
+        return float(np.sum(np.hypot(np.diff(self.xyz[:, 0]), np.diff(self.xyz[:, 1]))))
+
+    @property
+    def step_m(self) -> float:
+        """The actual spacing: the length over a whole number of steps, close to spacing_m."""
+        return self.length_m / max(len(self.xyz) - 1, 1)
+
+    def summary(self) -> str:
+        """What was used and what was skipped, by sentence type and reason: a few lines."""
+        unit = f"{self.log.used} fixes" if self.log else "points"
+        lines = [
+            f"{self.source}{f' -> {self.output}' if self.output else ''}: {self.points_in} {unit} in, "
+            f"{self.kept} kept ({self.points_in - self.kept} standstill/duplicates dropped), "
+            f"{len(self.xyz)} route points every {self.step_m:.2f} m, length {self.length_m:.1f} m"
+        ]
+        if self.closed_loop:
+            lines.append(f"closed loop detected (end {self.loop_gap_m:.2f} m from start), written as an open route")
+        if self.origin is not None:
+            o = self.origin
+            lines.append(
+                f"origin ({'the configured one' if self.origin_source == 'configured' else 'the first fix'}): "
+                f"UTM {o.zone}{o.hemisphere} {o.easting:.2f} E {o.northing:.2f} N, altitude "
+                f"{o.altitude_m:.1f} m; a run that drives this route uses it"
+            )
+        if self.log is not None:
+            lines += self.log.report()
+        return "\n  ".join(lines)
+
+
+# ---- reading --------------------------------------------------------------------------------
+
+
+def sentence_of(line: bytes) -> bytes | None:
+    """The NMEA sentence in a log line, without a tag block or a logger's prefix (a timestamp,
+    a port name) before it; None for a comment, header or other text line."""
+    line = line.strip()
+    if line.startswith(b"\\"):  # NMEA 4 tag block: \s:GPS1,c:1700000000*5A\$GPGGA,...
+        end = line.find(b"\\", 1)
+        line = line[end + 1 :] if end > 0 else line
+    if line[:1] in (b"$", b"!"):
+        return line
+    m = _SENTENCE_START.search(line)
+    return line[m.start(1) :] if m else None
+
+
+def _is_csv_row(line: bytes) -> bool:
+    cells = line.split(b",")
+    try:
+        return len(cells) >= 2 and all(math.isfinite(float(c)) for c in cells)
+    except ValueError:
+        return False
+
+
+def detect_format(data: bytes) -> str | None:
+    """'nmea' when more of the first lines hold NMEA sentences than x,y rows, 'csv' when rows
+    win; comments, headers and blank lines count for neither. None when there is neither."""
+    sentences = rows = 0
+    for raw in data.splitlines()[:DETECT_LINES]:
+        line = raw.strip().lstrip(b"\xef\xbb\xbf")
+        if not line:
+            continue
+        if sentence_of(line) is not None:
+            sentences += 1
+        elif _is_csv_row(line):
+            rows += 1
+    if sentences == rows == 0:
+        return None
+    return "nmea" if sentences > rows else "csv"
+
+
+def read_csv_points(data: bytes, source: str) -> np.ndarray:
+    """x,y[,z] rows (a 4th column, yaw, is accepted and recomputed later); a header line and
+    '#' comments are allowed."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RouteImportError(f"{source}: not a text file (byte {exc.start} is not UTF-8)") from None
+    points = []
+    first_row = True
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        cells = [c.strip() for c in stripped.split(",")]
+        try:
+            values = [float(c) for c in cells]
+        except ValueError:
+            if first_row and not any(c and (c[0].isdigit() or c[0] in "+-.") for c in cells):
+                first_row = False
+                continue  # a header such as x,y,z
+            raise RouteImportError(f"{source}:{lineno}: expected numbers x,y[,z], got {stripped[:80]!r}") from None
+        first_row = False
+        if len(values) not in (2, 3, 4):
+            raise RouteImportError(f"{source}:{lineno}: expected 2 or 3 numbers x,y[,z], got {len(values)}")
+        if not all(math.isfinite(v) for v in values):
+            raise RouteImportError(f"{source}:{lineno}: not a finite number in {stripped[:80]!r}")
+        points.append((values[0], values[1], values[2] if len(values) >= 3 else 0.0))
+    return np.array(points, dtype=float).reshape(-1, 3)
+
+
+@dataclass
+class NmeaLog:
+    """What an NMEA log held: the positions used, and every other line counted."""
+
+    used: str  # the sentence type the positions come from: GGA, RMC or GLL
+    fixes: list[tuple[int, Position]]  # (line number, position), file order, one per epoch
+    sentences: collections.Counter  # valid sentences, by address (GNGGA, GPGSV, SDDPT, PUBX)
+    no_fix: collections.Counter  # position sentences saying the receiver had no fix, by type
+    bad: collections.Counter  # rejected lines, by reason
+    first_bad: dict[str, int]  # reason -> line number of its first line
+    text_lines: int  # comments, headers, other text
+    same_epoch: int  # a second position of an epoch already used (another talker)
+    far: int = 0  # fixes beyond the frame's reach (set by the projection)
+    non_rtk: int = 0  # GGA fixes without RTK fixed: metre-level errors
+    no_altitude: int = 0  # fixes without altitude (interpolated between neighbours)
+
+    def report(self) -> list[str]:
+        unused = {a: n for a, n in self.sentences.items() if a[-3:] not in (self.used, "GST")}
+        other_positions = sorted(a for a in unused if a[-3:] in POSITION_KINDS)
+        lines = []
+        if unused:
+            lines.append(
+                "skipped, no position used: "
+                + _counts(unused)
+                + (f" ({', '.join(other_positions)}: positions taken from {self.used})" if other_positions else "")
+            )
+        gst = {a: n for a, n in self.sentences.items() if a[-3:] == "GST"}
+        if gst:
+            lines.append(f"error statistics not needed for a route: {_counts(gst)}")
+        if self.no_fix:
+            lines.append("skipped, no fix: " + _counts(self.no_fix))
+        if self.same_epoch:
+            lines.append(f"skipped, same epoch as the fix before (another talker): {self.same_epoch}")
+        if self.text_lines:
+            lines.append(f"skipped, comment or header lines: {self.text_lines}")
+        if self.bad:
+            lines.append(
+                "skipped, bad lines: "
+                + ", ".join(f"{r} {n} (first: line {self.first_bad[r]})" for r, n in sorted(self.bad.items()))
+            )
+        if self.far:
+            lines.append(f"skipped, fixes beyond the frame's reach: {self.far}")
+        if self.no_altitude:
+            lines.append(
+                f"{self.no_altitude} fixes without altitude: z interpolated"
+                if self.no_altitude < len(self.fixes)
+                else "no altitude in the log: the route is flat (z = 0)"
+            )
+        if self.non_rtk:
+            lines.append(f"warning: {self.non_rtk} fixes without RTK (quality != {RTK_FIXED}), errors up to metres")
+        if self.used != "GGA":
+            lines.append(f"warning: positions from {self.used} carry no fix quality: their accuracy is unknown")
+        return lines
+
+
+def _counts(counter: Mapping[str, int]) -> str:
+    return ", ".join(f"{k} {n}" for k, n in sorted(counter.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
+def log_lines(data: bytes) -> Iterator[tuple[int, bytes | None]]:
+    """(line number, its sentence or None for a text line), blank lines left out."""
+    for lineno, raw in enumerate(data.splitlines(), start=1):
+        line = raw.strip().lstrip(b"\xef\xbb\xbf") if lineno == 1 else raw.strip()
+        if line:
+            yield lineno, sentence_of(line)
+
+
+def read_nmea_log(data: bytes, source: str, strict: bool = False) -> NmeaLog:
+    """Every line of a log counted; the positions of the preferred sentence type, one per epoch.
+    With `strict`, a bad line raises RouteImportError naming it."""
+    found: dict[str, list[tuple[int, Position]]] = {kind: [] for kind in POSITION_KINDS}
+    sentences: collections.Counter[str] = collections.Counter()
+    no_fix: collections.Counter[str] = collections.Counter()
+    bad: collections.Counter[str] = collections.Counter()
+    first_bad: dict[str, int] = {}
+    text_lines = 0
+    for lineno, line in log_lines(data):
+        if line is None:
+            text_lines += 1
+            continue
+        try:
+            sentence = parse_sentence(line)
+        except NmeaError as exc:
+            if exc.reason == "no fix":  # the receiver saying it has no position yet: not a bad line
+                no_fix[_kind_of(line)] += 1
+                continue
+            if strict:
+                raise RouteImportError(f"{source}:{lineno}: {exc.reason}: {exc}") from None
+            bad[exc.reason] += 1
+            first_bad.setdefault(exc.reason, lineno)
+            continue
+        sentences[address(sentence)] += 1
+        if not isinstance(sentence, Other) and sentence.kind in found:
+            found[sentence.kind].append((lineno, sentence))
+    used = next((kind for kind in POSITION_KINDS if found[kind]), "GGA")
+    fixes: list[tuple[int, Position]] = []
+    same_epoch = 0
+    for lineno, fix in found[used]:
+        # receivers that send GPGGA and GNGGA of one epoch: the first of the epoch is kept
+        last = fixes[-1][1] if fixes else None
+        if last is not None and fix.time and fix.time == last.time and fix.talker != last.talker:
+            same_epoch += 1
+            continue
+        fixes.append((lineno, fix))
+    return NmeaLog(
+        used=used,
+        fixes=fixes,
+        sentences=sentences,
+        no_fix=no_fix,
+        bad=bad,
+        first_bad=first_bad,
+        text_lines=text_lines,
+        same_epoch=same_epoch,
+    )
+
+
+def _kind_of(line: bytes) -> str:
+    """GGA, RMC, GLL of a no-fix line (its address passed the checks before the fix did)."""
+    return line[3:6].decode("ascii", "replace")
+
+
+def frame_for(log: NmeaLog, configured: UtmOrigin) -> tuple[UtmOrigin, str]:
+    """The route's origin: the configured one when the drive's first fix lies within its reach
+    (routes of one site share its frame), else the first fix itself."""
+    first = log.fixes[0][1]
+    try:
+        LocalFrame(configured).project(first.lat, first.lon, None)
+        return configured, "configured"
+    except FrameError:
+        altitude = next((f.altitude_m for _, f in log.fixes if f.altitude_m is not None), 0.0)
+        return origin_at(first.lat, first.lon, altitude, reach_km=configured.reach_km), "first fix"
+
+
+def project_fixes(log: NmeaLog, frame: LocalFrame, source: str, strict: bool = False) -> np.ndarray:
+    """x, y, z of the log's fixes in the frame; fixes beyond its reach counted (or, with
+    `strict`, an error); missing altitudes interpolated between their neighbours."""
+    points = []
+    for lineno, fix in log.fixes:
+        try:
+            p = frame.project(fix.lat, fix.lon, fix.altitude_m)
+        except FrameError as exc:
+            if strict:
+                raise RouteImportError(f"{source}:{lineno}: {exc.reason}: {exc}") from None
+            log.far += 1
+            continue
+        if isinstance(fix, Gga) and fix.quality != RTK_FIXED:
+            log.non_rtk += 1
+        points.append((p.x, p.y, math.nan if p.z is None else p.z))
+    xyz = np.array(points, dtype=float).reshape(-1, 3)
+    missing = np.isnan(xyz[:, 2])
+    log.no_altitude = int(missing.sum())
+    if missing.all():
+        xyz[:, 2] = 0.0
+    elif missing.any():
+        index = np.arange(len(xyz))
+        xyz[missing, 2] = np.interp(index[missing], index[~missing], xyz[~missing, 2])
+    return xyz
+
+
+# ---- geometry -------------------------------------------------------------------------------
+
+
+def drop_standstill(points: np.ndarray, min_step_m: float) -> np.ndarray:
+    """Keep a point only if it lies at least min_step_m (horizontally) from the last kept one."""
+    if len(points) == 0:
+        return points
+    keep = [0]
+    last = points[0, :2]
+    for i in range(1, len(points)):
+        if math.hypot(points[i, 0] - last[0], points[i, 1] - last[1]) >= min_step_m:
+            keep.append(i)
+            last = points[i, :2]
+    return points[keep]
+
+
+def smooth(values: np.ndarray, spacing_m: float, window_m: float, polyorder: int) -> np.ndarray:
+    """Savitzky-Golay over about window_m of evenly spaced samples (odd length, shrunk to fit
+    a short route; left alone when too short to fit the polynomial)."""
+    n = int(round(window_m / spacing_m))
+    n = n + 1 if n % 2 == 0 else n
+    n = min(n, len(values) if len(values) % 2 == 1 else len(values) - 1)
+    if n <= polyorder or n < 3:
+        return values.copy()
+    # mode="interp": the ends are fitted by the same polynomial, not padded with mirror images
+    return savgol_filter(values, n, polyorder, mode="interp")
+
+
+def resample_even(points: np.ndarray, spacing_m: float) -> np.ndarray:
+    """Points at equal steps along the polyline, from its first to its last point: the step is
+    the length divided by a whole number of steps, as close to spacing_m as that allows (a
+    plain fixed-step resampling would leave a stub of a last segment, and a wild last yaw)."""
+    step = np.hypot(np.diff(points[:, 0]), np.diff(points[:, 1]))
+    points = points[np.concatenate([[True], step > 1e-9])]
+    if len(points) < 2:
+        raise RouteError("a route needs at least two distinct points")
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(points[:, 0]), np.diff(points[:, 1])))])
+    n = max(int(round(s[-1] / spacing_m)), 1)
+    s_new = np.linspace(0.0, s[-1], n + 1)
+    return np.column_stack([np.interp(s_new, s, points[:, k]) for k in range(points.shape[1])])
+
+
+def build_route(points: np.ndarray, settings: RouteImportSettings) -> tuple[np.ndarray, np.ndarray]:
+    """De-duplicated points -> (evenly spaced smoothed xyz, yaw).
+
+    The filter runs on a fine resampling (SMOOTHING_STEP_M), so that its window means the same
+    length of road whatever the output spacing, and every fix inside the window counts."""
+    fine = min(settings.spacing_m, SMOOTHING_STEP_M)
+    even = resample_even(points, fine)
+    smoothed = np.column_stack(
+        [
+            smooth(even[:, 0], fine, settings.smooth_window_m, settings.smooth_polyorder),
+            smooth(even[:, 1], fine, settings.smooth_window_m, settings.smooth_polyorder),
+            smooth(even[:, 2], fine, settings.z_window_m, settings.smooth_polyorder),
+        ]
+    )
+    xyz = resample_even(smoothed, settings.spacing_m)
+    yaw = np.arctan2(np.gradient(xyz[:, 1]), np.gradient(xyz[:, 0]))
+    return xyz, yaw
+
+
+def write_route_csv(path: Path, xyz: np.ndarray, yaw: np.ndarray, comments: list[str]) -> None:
+    """Written to a temporary file and renamed, so a failure never leaves half a route."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = [f"# {c}" for c in comments] + ["x,y,z,yaw"]
+    lines += [f"{x:.4f},{y:.4f},{z:.4f},{a:.5f}" for (x, y, z), a in zip(xyz, yaw)]
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write("\n".join(lines) + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+# ---- the whole import -----------------------------------------------------------------------
+
+
+def import_route(
+    source: str | Path,
+    output: str | Path | None = None,
+    fmt: str = "auto",
+    spacing_m: float | None = None,
+    strict: bool = False,
+    cfg: Mapping | None = None,
+) -> ImportResult:
+    """Read a recording, build the route, write it to `output` (if given)."""
+    source = Path(source)
+    if fmt not in FORMATS:
+        raise RouteImportError(f"unknown format {fmt!r}; one of {', '.join(FORMATS)}")
+    cfg = cfg if cfg is not None else config.current()
+    settings = config.section(cfg, "route_import", RouteImportSettings)
+    if spacing_m is not None:
+        if not (spacing_m > 0 and math.isfinite(spacing_m)):
+            raise RouteImportError(f"spacing must be a positive number of metres, got {spacing_m}")
+        settings = settings.model_copy(update={"spacing_m": float(spacing_m)})
+    try:
+        data = source.read_bytes()
+    except OSError as exc:
+        raise RouteImportError(f"{source}: cannot read: {exc.strerror}") from None
+    name = source.name
+    if b"\x00" in data[:65536]:
+        raise RouteImportError(f"{name}: not a text file (byte {data.index(bytes(1))} is NUL)")
+    if fmt == "auto":
+        fmt = detect_format(data)
+        if fmt is None:
+            raise RouteImportError(
+                f"{name}: no points: neither NMEA sentences nor rows of x,y[,z] metres "
+                f"in its first {DETECT_LINES} lines"
+            )
+    log = origin = None
+    origin_source = ""
+    if fmt == "nmea":
+        log = read_nmea_log(data, name, strict)
+        if not log.fixes:
+            detail = f" ({_counts(log.no_fix)} without a fix)" if log.no_fix else ""
+            raise RouteImportError(f"{name}: no usable position (GGA, RMC or GLL) in the log{detail}")
+        origin, origin_source = frame_for(log, config.core(cfg).origin_utm)
+        points = project_fixes(log, LocalFrame(origin), name, strict)
+        if len(points) == 0:
+            raise RouteImportError(f"{name}: no fix within {origin.reach_km:g} km of the route's origin")
+    else:
+        points = read_csv_points(data, name)
+        if len(points) == 0:
+            raise RouteImportError(f"{name}: no points (expected lines of x,y[,z] metres)")
+    kept = drop_standstill(points, settings.min_step_m)
+    if len(kept) < 2:
+        raise RouteImportError(
+            f"{name}: the recording never moves: all {len(points)} points lie within "
+            f"{settings.min_step_m:g} m of the first"
+        )
+    xyz, yaw = build_route(kept, settings)
+    gap = float(math.hypot(xyz[-1, 0] - xyz[0, 0], xyz[-1, 1] - xyz[0, 1]))
+    length = float(np.sum(np.hypot(np.diff(xyz[:, 0]), np.diff(xyz[:, 1]))))
+    # a loop must be long compared with the gap, or a short back-and-forth would count
+    closed = gap <= settings.loop_close_m and length > 10 * settings.loop_close_m
+    result = ImportResult(
+        source=name,
+        fmt=fmt,
+        points_in=len(points),
+        kept=len(kept),
+        xyz=xyz,
+        yaw=yaw,
+        spacing_m=settings.spacing_m,
+        closed_loop=closed,
+        loop_gap_m=gap,
+        log=log,
+        origin=origin,
+        origin_source=origin_source,
+    )
+    if output is not None:
+        output = Path(output)
+        comments = [
+            f"ares route: source={name}, points={len(xyz)}, length_m={result.length_m:.2f}",
+            f"format={fmt}, points_in={len(points)}, kept={len(kept)}, spacing_m={settings.spacing_m:g}, "
+            f"closed_loop={'yes (written as an open route)' if closed else 'no'}",
+        ]
+        if origin is not None:
+            comments.append(origin_comment(origin))
+        try:
+            write_route_csv(output, xyz, yaw, comments)
+        except OSError as exc:
+            raise RouteImportError(f"{output}: cannot write: {exc.strerror}") from None
+        result.output = str(output)
+    return result

@@ -1,0 +1,208 @@
+"""Benchmark of the embedded black-box store: ingest rate and the one-hour query.
+
+- ingest_records_per_s: realistic VehicleRecord models (built beforehand, as the event register
+  holds them) written with insert_records in batches of `batch`, into a fresh store file under
+  a temporary directory; the time counted is insert_records' only (JSON encoding + SQLite);
+- query_hour_p50_ms: median time of records_json(vehicle, start, start + 1 h, limit=3600) at
+  random starting seconds, with `records_present` 1 Hz records of that vehicle in the store
+  (default 7 days = 604,800, the retention window full): the hour as the JSON the API serves
+  its record pages in. The same file is filled on after the ingest measurement, still through
+  insert_records;
+- query_hour_dicts_p50_ms: the same hour with records() as Python dicts (what the exports and
+  the reliability figures iterate over).
+
+Run: python -m ares.tools.bench.blackbox_store [--records N] [--queries N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import sqlite3
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+from ares.core.messages import DriveMode, Position, ProcessHealth, ProcessState, SensorHealth, VehicleRecord
+from blackbox.store.record_store import RETENTION
+from blackbox.store.sqlite_store import SqliteStore
+
+GOALS = {"ingest_records_per_s": 5000.0, "query_hour_p50_ms": 20.0}
+VEHICLE = "shuttle01"
+T0 = datetime(2026, 5, 1, tzinfo=UTC)  # first record of the bench's week
+
+# what a record lists once the whole stack runs: today's processes and the ones to come
+PROCESSES = [
+    "sim",
+    "gnss",
+    "localization",
+    "odometry_manager",
+    "path_manager",
+    "dbw_bridge",
+    "controller",
+    "obstacle_manager",
+    "speed_manager",
+    "control_manager",
+    "mission_manager",
+    "self_awareness",
+    "event_register",
+    "rest_api",
+]
+SENSORS = {"gnss": 5.0, "imu": 50.0, "can": 20.0, "lidar_top": 10.0, "lidar_left": 10.0, "lidar_right": 10.0}
+
+
+def realistic_records(vehicle_id: str, first: int, count: int, seed: int = 0) -> list[VehicleRecord]:
+    """`count` consecutive 1 Hz records from second `first` after T0, with varying values.
+    The fixed parts (sensors, processes) are shared and the rest assembled without validation
+    (model_construct): building 600k fully validated models would dominate the bench's run
+    time and is not what is measured."""
+    rng = random.Random(seed + first)
+    sensors = {name: SensorHealth(rate_hz=hz, ok=True) for name, hz in SENSORS.items()}
+    processes = {name: ProcessHealth(state=ProcessState.RUNNING, restarts=rng.randint(0, 2)) for name in PROCESSES}
+    out = []
+    for i in range(first, first + count):
+        x, y = 150.0 * rng.random(), 80.0 * rng.random()
+        position = Position.model_construct(
+            x=x,
+            y=y,
+            z=1.5 * rng.random(),
+            easting=440000.0 + x,
+            northing=4474000.0 + y,
+            zone=30,
+            hemisphere="N",
+            lat=40.41 + y * 9e-6,
+            lon=-3.71 + x * 1.2e-5,
+        )
+        out.append(
+            VehicleRecord.model_construct(
+                vehicle_id=vehicle_id,
+                time=T0 + timedelta(seconds=i),
+                t=float(i),
+                position=position,
+                speed_mps=4.0 * rng.random(),
+                steering_wheel_deg=rng.uniform(-400.0, 400.0),
+                mode=DriveMode.AUTOMATIC,
+                scores={"odometry": rng.random(), "road": rng.random(), "obstacle": 1.0},
+                controller=rng.choice(["mpc", "rrc"]),
+                sensors=sensors,
+                processes=processes,
+                awareness_level=0,
+                mission_state="NEXT_POI",
+                events=rng.randint(0, 1),
+            )
+        )
+    return out
+
+
+def run_store_bench(
+    progress: Callable[[str], None] | None = None,
+    *,
+    records_present: int = 7 * 86400,
+    ingest_records: int = 50_000,
+    batch: int = 500,
+    queries: int = 50,
+    seed: int = 1,
+    directory: str | None = None,
+) -> dict:
+    say = progress or (lambda _msg: None)
+    ingest_records = min(ingest_records, records_present)
+    rng = random.Random(seed)
+    with tempfile.TemporaryDirectory(prefix="ares-store-bench-", dir=directory) as tmp:
+        path = Path(tmp) / "blackbox.sqlite"
+        # the clock puts the oldest record exactly at the retention edge: the purge run by the
+        # inserts keeps all of them
+        store = SqliteStore(str(path), now=lambda: T0 + RETENTION)
+        try:
+            # 1. ingest into the fresh file
+            say(f"ingest: {ingest_records} records in batches of {batch} into a fresh file")
+            elapsed = 0.0
+            for first in range(0, ingest_records, batch):
+                chunk = realistic_records(VEHICLE, first, min(batch, ingest_records - first), seed)
+                started = time.perf_counter()
+                store.insert_records(chunk)
+                elapsed += time.perf_counter() - started
+            ingest_rate = ingest_records / elapsed
+
+            # 2. fill the rest of the window through the same API
+            started_fill = time.perf_counter()
+            fill_elapsed = 0.0
+            step = max(records_present // 10, batch)
+            next_report = ingest_records + step
+            for first in range(ingest_records, records_present, batch):
+                chunk = realistic_records(VEHICLE, first, min(batch, records_present - first), seed)
+                started = time.perf_counter()
+                store.insert_records(chunk)
+                fill_elapsed += time.perf_counter() - started
+                if first + batch >= next_report:
+                    say(
+                        f"filling: {first + batch}/{records_present} records "
+                        f"({time.perf_counter() - started_fill:.0f} s)"
+                    )
+                    next_report += step
+            present = store.count_records(VEHICLE, T0, T0 + timedelta(seconds=records_present))
+
+            # 3. one-hour queries at random starting seconds
+            hour = min(3600, records_present)
+            say(f"queries: {queries} x one hour among {present} records")
+            times_ms, json_times_ms = [], []
+            for _ in range(queries):
+                start = T0 + timedelta(seconds=rng.randrange(0, records_present - hour + 1))
+                started = time.perf_counter()
+                docs = store.records(VEHICLE, start, start + timedelta(hours=1), limit=3600)
+                times_ms.append((time.perf_counter() - started) * 1000.0)
+                if len(docs) != hour:
+                    raise RuntimeError(f"hour query returned {len(docs)} records, expected {hour}")
+                del docs
+                # the same hour as JSON bytes, for a handler that sends it on (no dicts built)
+                start = T0 + timedelta(seconds=rng.randrange(0, records_present - hour + 1))
+                started = time.perf_counter()
+                raw = store.records_json(VEHICLE, start, start + timedelta(hours=1), limit=3600)
+                json_times_ms.append((time.perf_counter() - started) * 1000.0)
+                if raw.count(b'"vehicle_id"') != hour:
+                    raise RuntimeError(f"hour query (JSON) did not return {hour} records")
+            record_bytes = len(realistic_records(VEHICLE, 0, 1, seed)[0].model_dump_json())
+            file_mb = sum(p.stat().st_size for p in Path(tmp).iterdir()) / 2**20
+        finally:
+            store.close()
+    times_ms.sort()
+    json_times_ms.sort()
+    return {
+        "ingest_records_per_s": round(ingest_rate, 1),
+        "query_hour_p50_ms": round(statistics.median(json_times_ms), 3),
+        "query_hour_p95_ms": round(json_times_ms[min(len(json_times_ms) - 1, int(0.95 * len(json_times_ms)))], 3),
+        "query_hour_dicts_p50_ms": round(statistics.median(times_ms), 3),
+        "fill_records_per_s": round((records_present - ingest_records) / fill_elapsed, 1) if fill_elapsed else None,
+        "engine": f"sqlite {sqlite3.sqlite_version}",
+        "records_present": present,
+        "record_bytes": record_bytes,
+        "file_mb": round(file_mb, 1),
+        "batch": batch,
+        "ingest_records": ingest_records,
+        "queries": queries,
+        "goals": GOALS,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--records", type=int, default=7 * 86400, help="1 Hz records present for the queries")
+    parser.add_argument("--ingest", type=int, default=50_000, help="records timed for the ingest rate")
+    parser.add_argument("--queries", type=int, default=50)
+    parser.add_argument("--dir", default=None, help="where the temporary store file goes")
+    args = parser.parse_args()
+    result = run_store_bench(
+        lambda msg: print(msg, flush=True),
+        records_present=args.records,
+        ingest_records=args.ingest,
+        queries=args.queries,
+        directory=args.dir,
+    )
+    print(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,178 @@
+"""Control manager: which controller's candidate reaches the drive-by-wire bridge (ARES §3.6, §4).
+
+Every controller computes all the time and publishes its candidate on its own topic: the MPC,
+road reactive control and pure pursuit. This process is the only publisher of control/setpoint.
+managers/control.py decides, each cycle, in a fixed order of trust: the odometry
+controller where the path manager forces it or while the odometry score deserves it; the RRC
+while road detection is confident; otherwise a controlled stop. Hysteresis, a minimum dwell and a
+curvature ramp at the steering's rate make the switches few and bumpless.
+
+The odometry controller is `odometry_controller` (the MPC by default); when its candidate is
+missing or it asks for a hand-over (a solver that keeps failing), the other odometry controller
+(pure pursuit) stands in for it under the same trust. `pinned` (`ares run --controller`) lets one
+controller drive alone, for comparisons.
+
+The forwarded speed never exceeds the speed manager's limit where the vehicle is (when fresh).
+Every switch is an event (kind `controller_switch`, with from, to and cause), which the black box
+keeps; control/status says who is in charge and why, every cycle.
+
+Thresholds (docs/control_manager.md): the odometry score is ~1 with RTK and falls below 0.3
+within 1.4 s of losing it (docs/odometry_score.md), so odometry is trusted from 0.8 and kept down
+to 0.5; road detection's confidence is trusted from 0.6 and kept down to 0.4.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from ares.core.config import Params, param
+from ares.core.messages import ControlCandidate, ControllerStatus, Setpoint
+from ares.core.node import Input, Node, Output
+from managers.control import Candidate, ControlSelector, Inputs, Mode, SelectionParams
+
+ODOMETRY_CONTROLLERS = ("mpc", "pure_pursuit")
+CONTROLLERS = ("mpc", "rrc", "pure_pursuit")
+
+
+class ControlManagerParams(Params):
+    rate_hz: float = param(
+        50.0,
+        "loop and setpoint rate: a candidate waits at most one period here on its way to "
+        "the bridge (at 25 km/h, 20 Hz's extra 50 ms made both controllers weave)",
+        unit="Hz",
+        gt=0,
+    )
+    odometry_controller: Literal["mpc", "pure_pursuit"] = param(
+        "mpc", "the controller trusted while the odometry deserves it; the other stands in for it"
+    )
+    pinned: Literal["mpc", "rrc", "pure_pursuit"] | None = param(
+        None, "only this controller drives (comparisons: ares run --controller); null: the order of trust"
+    )
+    candidate_max_age_s: float = param(
+        0.5,
+        "an older candidate is never forwarded (the MPC solves at 10 Hz; at --speed 5 this is 0.1 s of wall time)",
+        unit="s",
+        gt=0,
+    )
+    input_timeout_s: float = param(
+        1.0, "an older odometry score, road detection or path match counts as missing", unit="s", gt=0
+    )
+    score_enter: float = param(0.8, "odometry score from which the odometry controller is trusted", ge=0, le=1)
+    score_exit: float = param(0.5, "... and below which it loses the trust", ge=0, le=1)
+    road_enter: float = param(0.15, "road detection confidence from which the RRC is trusted", ge=0, le=1)
+    road_exit: float = param(0.04, "... and below which it loses the trust", ge=0, le=1)
+    min_dwell_s: float = param(
+        1.0, "least time a controller stays in charge before a better one may take over", unit="s", ge=0
+    )
+    steering_rate_share: float = param(
+        1.0, "the curvature ramps at this share of the steering motor's rate", gt=0, le=1
+    )
+    stop_decel_mps2: float = param(1.0, "a controlled stop's deceleration", unit="m/s^2", gt=0)
+    finish_distance_m: float = param(0.5, "an open route is finished this close to its end", unit="m", gt=0)
+
+
+class ControlManager(Node):
+    """Forwards the candidate that deserves trust: the MPC, road reactive control, or a controlled stop."""
+
+    name = "control_manager"
+    Params = ControlManagerParams
+    mpc = Input("control/candidate/mpc", max_age="candidate_max_age_s", doc="the MPC's (v, kappa)")
+    rrc = Input("control/candidate/rrc", max_age="candidate_max_age_s", doc="road reactive control's (v, kappa)")
+    pure_pursuit = Input(
+        "control/candidate/pure_pursuit", max_age="candidate_max_age_s", doc="pure pursuit's (v, kappa)"
+    )
+    score = Input("odometry/score", max_age="input_timeout_s", doc="trust in the pose (eq. 6)")
+    road = Input("perception/road", max_age="input_timeout_s", doc="road detection's confidence")
+    match = Input("path/match", max_age="input_timeout_s", doc="forced odometry zones; the errors; the route's end")
+    limits = Input("speed/limits", max_age="input_timeout_s", doc="the speed limit where the vehicle is")
+    setpoint = Output("control/setpoint", rate="rate_hz", doc="(v, kappa) to the drive-by-wire bridge")
+    status = Output("control/status", rate="rate_hz", doc="who is in charge, why, and the errors")
+
+    def setup(self) -> None:
+        p, vehicle = self.params, self.vehicle
+        pinned = None if p.pinned is None else (Mode.RRC if p.pinned == "rrc" else Mode.ODOMETRY)
+        self.selector = ControlSelector(
+            SelectionParams(
+                score_enter=p.score_enter,
+                score_exit=p.score_exit,
+                road_enter=p.road_enter,
+                road_exit=p.road_exit,
+                min_dwell_s=p.min_dwell_s,
+                max_kappa_rate=vehicle.max_curvature_rate * p.steering_rate_share,
+                stop_decel_mps2=p.stop_decel_mps2,
+                pinned=pinned,
+            )
+        )
+        primary = p.pinned if p.pinned in ODOMETRY_CONTROLLERS else p.odometry_controller
+        # pinned: no stand-in (a comparison must show the pinned controller alone)
+        self.odometry_order = [primary] if p.pinned else [primary, *(c for c in ODOMETRY_CONTROLLERS if c != primary)]
+        self.in_charge = "stop"
+        self.switches = 0
+
+    def _odometry_candidate(self, now: float) -> tuple[str, ControlCandidate] | None:
+        for name in self.odometry_order:
+            cand = getattr(self, name).fresh(now)
+            if cand is not None and not cand.handover:
+                return name, cand
+        return None
+
+    def step(self, now: float) -> None:
+        score, road, match, limits = (
+            self.score.fresh(now),
+            self.road.fresh(now),
+            self.match.fresh(now),
+            self.limits.fresh(now),
+        )
+        odometry = self._odometry_candidate(now)
+        rrc = self.rrc.fresh(now)
+        decision = self.selector.step(
+            now,
+            Inputs(
+                odometry_score=None if score is None else score.score,
+                road_confidence=None if road is None or not road.found else road.confidence,
+                force_odometry=bool(match is not None and match.force_odometry),
+                odometry=None if odometry is None else Candidate(odometry[1].v, odometry[1].kappa),
+                rrc=None if rrc is None else Candidate(rrc.v, rrc.kappa, rrc.stop_only),
+            ),
+        )
+        controller = {Mode.ODOMETRY: odometry[0] if odometry else "stop", Mode.RRC: "rrc"}.get(decision.mode, "stop")
+        if controller != self.in_charge:
+            cause = decision.cause if decision.switched else "stand_in"
+            reason = (
+                decision.reason
+                if decision.switched
+                else f"{self.in_charge} has no fresh candidate or hands over: {controller} stands in"
+            )
+            self.switches += 1
+            self.event(
+                "controller_switch",
+                f"{self.in_charge} -> {controller}: {reason}",
+                **{"from": self.in_charge, "to": controller, "cause": cause, "reason": reason},
+            )
+            self.in_charge = controller
+        v = decision.v
+        if limits is not None:
+            v = min(v, limits.limit_mps)
+        finished = bool(
+            match is not None
+            and match.distance_to_end_m is not None
+            and match.distance_to_end_m < self.params.finish_distance_m
+        )
+        if finished:
+            v = 0.0
+        self.setpoint.put(Setpoint(t=now, v=v, kappa=decision.kappa, source=controller))
+        self.status.put(
+            ControllerStatus(
+                t=now,
+                controller=controller,
+                mode=decision.mode.value,
+                reason=decision.reason,
+                s=None if match is None else match.s,
+                xte=None if match is None else match.xte,
+                heading_error=None if match is None else match.heading_error,
+                target_speed=v,
+                odometry_score=None if score is None else score.score,
+                road_confidence=None if road is None else road.confidence,
+                finished=finished,
+            )
+        )
