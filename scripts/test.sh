@@ -1,25 +1,43 @@
 #!/usr/bin/env bash
-# Set up, then run every test (tests/): without arguments in two parts (the in-process tests on
-# both cores with pytest-xdist, then the whole-stack tests one by one); with arguments
-# `python -m pytest -q "$@"` from the repository root (paths relative to the repository). Exits with pytest's
-# code; "no tests collected" (5) counts as a failure.
+# Set up, then run every check and every test. Without arguments:
+#   1. the static checks: ruff (lint and format), mypy (strict on the core); import-linter's layers are
+#      a test (tests/test_layers.py);
+#   2. the tests that run in one process (most of them, the in-process stack among them) on both
+#      cores (pytest-xdist, `-m "not stack"`);
+#   3. the tests that start whole stacks of processes, one at a time (`-m stack`: each wants both cores);
+# then the time pytest took, both parts added up. With arguments: `python -m pytest -q "$@"` from the
+# repository root (paths relative to it), no static checks. Exits non-zero if anything failed;
+# "no tests collected" (5) counts as a failure.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$ROOT/scripts/setup.sh"
 cd "$ROOT"
-rc=0
+BIN="$ROOT/.venv/bin"
+say() { echo "[test] $*" >&2; }
+
 if [ "$#" -gt 0 ]; then
-  "$ROOT/.venv/bin/python" -m pytest -q "$@" || rc=$?
-else
-  # the whole suite in two parts: the tests that run in one process (most of them) on both cores;
-  # then those that start whole stacks of processes, one at a time (each stack wants both cores)
-  "$ROOT/.venv/bin/python" -m pytest -q -m "not stack" -n 2 || rc=$?
-  stack_rc=0
-  "$ROOT/.venv/bin/python" -m pytest -q -m stack || stack_rc=$?
-  if [ "$rc" -eq 0 ]; then rc=$stack_rc; fi
+  rc=0
+  "$BIN/python" -m pytest -q "$@" || rc=$?
+  if [ "$rc" -eq 5 ]; then say "no tests were collected: that is a failure"; exit 1; fi
+  exit "$rc"
 fi
-if [ "$rc" -eq 5 ]; then
-  echo "[test] no tests were collected: that is a failure" >&2
-  exit 1
-fi
+
+checks_rc=0
+say "ruff check";            "$BIN/ruff" check --quiet . || checks_rc=1
+say "ruff format --check";   "$BIN/ruff" format --check --quiet . || checks_rc=1
+say "mypy";                  "$BIN/mypy" || checks_rc=1
+
+seconds() { date +%s.%N; }
+rc=0
+start=$(seconds)
+"$BIN/python" -m pytest -q -m "not stack" -n 2 || rc=$?
+middle=$(seconds)
+stack_rc=0
+"$BIN/python" -m pytest -q -m stack || stack_rc=$?
+end=$(seconds)
+if [ "$rc" -eq 0 ]; then rc=$stack_rc; fi
+awk -v a="$start" -v b="$middle" -v c="$end" 'BEGIN {
+  printf "[test] pytest: %.0f s in one process + %.0f s whole stacks = %.0f s (budget 480 s)\n", b - a, c - b, c - a }' >&2
+if [ "$rc" -eq 5 ]; then say "no tests were collected: that is a failure"; rc=1; fi
+if [ "$checks_rc" -ne 0 ]; then say "the static checks failed (above)"; [ "$rc" -ne 0 ] || rc=1; fi
 exit "$rc"

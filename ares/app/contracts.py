@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Mapping
-from typing import Any
+from typing import Any, TypedDict
 
 from pydantic import BaseModel
+from pydantic.config import JsonValue
 
 from ares.app import supervisor
 from ares.app.processes import PROCESSES, Process
@@ -26,7 +27,59 @@ SUPERVISOR = "supervisor"
 CLOCK_FOR_STEPPERS, CLOCK_FOR_OTHERS = "sim/clock/*", "sim/clock"
 
 
-def contract(spec: Process, cfg: Mapping) -> dict:
+# a contract as data, as `ares describe --json` prints it and the tables below are made from it
+class InputRow(TypedDict):
+    topic: str
+    schema: str
+    max_age_s: float | None
+    queue: int
+    doc: str
+
+
+class OutputRow(TypedDict):
+    topic: str
+    schema: str
+    rate_hz: float | None
+    encoding: str
+    reliable: bool
+    doc: str
+
+
+class ServiceRow(TypedDict):
+    name: str
+    request: str
+    reply: str
+    doc: str
+
+
+class ParameterRow(TypedDict):
+    name: str
+    type: str
+    value: JsonValue
+    unit: JsonValue  # what param() put in the field's json_schema_extra
+    range: str | None
+    doc: str
+
+
+class Contract(TypedDict):
+    process: str
+    node: str
+    doc: str
+    loop_hz: float
+    loop_param: str | None
+    safety_relevant: bool
+    sim_only: bool
+    steps: bool
+    drives_clock: bool
+    inputs: list[InputRow]
+    outputs: list[OutputRow]
+    services: list[ServiceRow]
+    calls: list[str]
+    sections: list[str]
+    parameters: list[ParameterRow]
+
+
+def contract(spec: Process, cfg: Mapping[str, Any]) -> Contract:
     """One process's contract, with the values of `cfg`."""
     cls = spec.node_class()
     params = config.section(cfg, cls.section(), cls.Params)
@@ -83,9 +136,9 @@ def contract(spec: Process, cfg: Mapping) -> dict:
     }
 
 
-def parameters(model: type[BaseModel], prefix: str, values: BaseModel | None = None) -> list[dict]:
+def parameters(model: type[BaseModel], prefix: str, values: BaseModel | None = None) -> list[ParameterRow]:
     """Every leaf parameter of a section, flattened to dotted names, with its current value."""
-    rows = []
+    rows: list[ParameterRow] = []
     for name, field in model.model_fields.items():
         value = getattr(values, name) if values is not None else field.get_default(call_default_factory=True)
         nested = config.model_in(field.annotation)
@@ -120,11 +173,11 @@ def _type_name(annotation: Any) -> str:
     return text or str(annotation).replace("typing.", "")
 
 
-def all_contracts(cfg: Mapping, processes: Iterable[Process] = PROCESSES) -> list[dict]:
+def all_contracts(cfg: Mapping[str, Any], processes: Iterable[Process] = PROCESSES) -> list[Contract]:
     return [contract(spec, cfg) for spec in processes]
 
 
-def graph(contracts: list[dict]) -> dict[str, dict[str, list[str]]]:
+def graph(contracts: list[Contract]) -> dict[str, dict[str, list[str]]]:
     """topic -> {"publishers": [...], "subscribers": [...]}, the supervisor and every node's
     implicit outputs (events, heartbeat) included."""
     out: dict[str, dict[str, list[str]]] = {}
@@ -160,7 +213,7 @@ def problems(topic_graph: dict[str, dict[str, list[str]]]) -> list[str]:
     return found
 
 
-def fed_by(contracts: list[dict], source: str) -> list[str]:
+def fed_by(contracts: list[Contract], source: str) -> list[str]:
     """Every process that steps and that `source`'s outputs feed, directly or through others, in
     table order: the processes the simulator waits for at --speed max."""
     outputs = {c["process"]: {o["topic"] for o in c["outputs"]} for c in contracts}
@@ -183,7 +236,7 @@ def fed_by(contracts: list[dict], source: str) -> list[str]:
 # ---- as text -----------------------------------------------------------------------------------
 
 
-def _cell(value: Any) -> str:
+def _cell(value: object) -> str:
     if value is None:
         return "-"
     if isinstance(value, float):
@@ -193,7 +246,7 @@ def _cell(value: Any) -> str:
     return str(value).replace("|", "\\|").replace("\n", " ")
 
 
-def _table(headers: list[str], rows: list[list[Any]]) -> list[str]:
+def _table(headers: list[str], rows: list[list[object]]) -> list[str]:
     if not rows:
         return ["(none)", ""]
     lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
@@ -201,7 +254,7 @@ def _table(headers: list[str], rows: list[list[Any]]) -> list[str]:
     return lines + [""]
 
 
-def markdown(c: dict) -> list[str]:
+def markdown(c: Contract) -> list[str]:
     loop = (
         f"{c['loop_hz']:g} Hz" + (f" (`{c['loop_param']}`)" if c["loop_param"] else "")
         if c["steps"]
@@ -252,7 +305,7 @@ def graph_markdown(topic_graph: dict[str, dict[str, list[str]]]) -> list[str]:
         "`clock/done`: every process; the clock topics at `--speed max` only; the drawing leaves those out).",
         "",
     ]
-    rows = []
+    rows: list[list[object]] = []
     for topic, ends in topic_graph.items():
         entry = topics.find(topic)
         rows.append(
@@ -274,7 +327,7 @@ def graph_markdown(topic_graph: dict[str, dict[str, list[str]]]) -> list[str]:
     return lines + ["```", ""]
 
 
-def common_markdown(cfg: Mapping) -> list[str]:
+def common_markdown(cfg: Mapping[str, Any]) -> list[str]:
     """The sections every process reads (core) and those of the composition layer."""
     from ares.app.run_config import COMPOSITION_SECTIONS
 
@@ -304,7 +357,7 @@ def common_markdown(cfg: Mapping) -> list[str]:
     )
 
 
-def _section_rows(model: type[BaseModel], name: str, value: Any) -> list[dict]:
+def _section_rows(model: type[BaseModel], name: str, value: object) -> list[ParameterRow]:
     field = model.model_fields[name]
     nested = config.model_in(field.annotation)
     if nested is not None and isinstance(value, BaseModel):
@@ -322,7 +375,7 @@ def _section_rows(model: type[BaseModel], name: str, value: Any) -> list[dict]:
     ]
 
 
-def nodes_markdown(cfg: Mapping, processes: Iterable[Process] = PROCESSES) -> str:
+def nodes_markdown(cfg: Mapping[str, Any], processes: Iterable[Process] = PROCESSES) -> str:
     """docs/nodes.md: every process's tables with the default configuration, and the topic graph."""
     contracts = all_contracts(cfg, processes)
     lines = [

@@ -28,8 +28,8 @@ import logging
 import re
 import threading
 import time
-from collections.abc import Callable
-from typing import Generic, TypeVar
+from collections.abc import Callable, Iterator, Mapping
+from typing import TYPE_CHECKING, Any, Generic, TypeVar, cast
 
 import orjson
 import pydantic
@@ -38,7 +38,10 @@ from ares.core import schema, topics
 from ares.core.clock import Clock, WallClock
 from ares.core.config import VEHICLE_ID_PATTERN, BusSettings
 from ares.core.messages import ServiceErrorReply
-from ares.core.schema import Msg
+from ares.core.schema import Msg, Payload
+
+if TYPE_CHECKING:
+    import zenoh  # imported where used: a process on the in-memory bus never loads it
 
 VEHICLE_ID = re.compile(VEHICLE_ID_PATTERN)  # what subscribe_fleet takes from a key
 
@@ -48,6 +51,10 @@ M = TypeVar("M", bound=Msg)
 
 ALIVE = "alive"
 SERVICE_PREFIX = "srv"
+
+Reply = Callable[[Payload, str], None]  # answers a query with (payload, encoding)
+Query = tuple[Payload, Reply, Reply]  # (request payload, reply, reply_err)
+Answer = tuple[bool, str, Payload]  # (ok, encoding, payload) of one reply
 
 
 class ServiceError(RuntimeError):
@@ -72,12 +79,12 @@ class ServiceInbox:
     def __init__(self, capacity: int, max_wait_s: float):
         self.capacity = capacity
         self.max_wait_s = max_wait_s
-        self._queue: collections.deque = collections.deque()
+        self._queue: collections.deque[tuple[float, Query]] = collections.deque()
         self._lock = threading.Lock()
         self.refused = 0
         self.expired = 0
 
-    def offer(self, query) -> bool:
+    def offer(self, query: Query) -> bool:
         """Queue a (payload, reply, reply_err) query; False (not queued) when full."""
         with self._lock:
             if len(self._queue) >= self.capacity:
@@ -86,7 +93,7 @@ class ServiceInbox:
             self._queue.append((time.monotonic(), query))
             return True
 
-    def take(self):
+    def take(self) -> Query | None:
         """The oldest query still worth answering, or None."""
         while True:
             with self._lock:
@@ -121,9 +128,7 @@ class RejectCounter:
         return sum(self.by_reason.values())
 
 
-def decode(
-    payload: bytes | bytearray | memoryview, encoding: str, expected: type[M] | None, topic: str, rejects: RejectCounter
-) -> M | None:
+def decode(payload: Payload, encoding: str, expected: type[M] | None, topic: str, rejects: RejectCounter) -> M | None:
     """Validate one received payload against the topic's schema; None when rejected."""
     if expected is None:
         rejects.reject("unknown topic", topic)
@@ -169,7 +174,7 @@ class Subscription(Generic[M]):
         self.tap = tap  # process replay's recorder: given here, so it misses nothing
         self._stamps: collections.deque[float] = collections.deque(maxlen=1024)  # rates of up to 500 Hz over 2 s
         self._first_stamp: float | None = None
-        self._queue: collections.deque | None = collections.deque(maxlen=queue) if queue else None
+        self._queue: collections.deque[tuple[str, M]] | None = collections.deque(maxlen=queue) if queue else None
         self._on_message = on_message
         # what arrived since the last latch: only what a step can still use (the latest value, or
         # as many as the queue holds), so a node that stalls holds no more than one step's worth;
@@ -266,7 +271,7 @@ class Publisher(Generic[M]):
         self.topic, self.schema = topic, entry.schema
         self.last_stamp: float | None = None
         self.count = 0
-        self.tap: Callable[[str, bytes], None] | None = None  # process replay's recorder
+        self.tap: Callable[[str, Payload], None] | None = None  # process replay's recorder
         self._put = bus._declare_publisher(bus.key(topic), encoding_name(entry.schema), reliable)
 
     def put(self, msg: M) -> None:
@@ -284,13 +289,13 @@ class PublisherFamily:
     """The publishers of a family of keys (`sim/clock/*`), each made when first used:
     `family["localization"]` publishes on `sim/clock/localization`."""
 
-    def __init__(self, bus: BaseBus, pattern: str, tap: Callable[[str, bytes], None] | None = None):
+    def __init__(self, bus: BaseBus, pattern: str, tap: Callable[[str, Payload], None] | None = None):
         self.topic = pattern
         self._bus = bus
         self._tap = tap
-        self._made: dict[str, Publisher] = {}
+        self._made: dict[str, Publisher[Msg]] = {}
 
-    def __getitem__(self, name: str) -> Publisher:
+    def __getitem__(self, name: str) -> Publisher[Msg]:
         pub = self._made.get(name)
         if pub is None:
             pub = self._made[name] = self._bus.publisher(self.topic.replace("*", name))
@@ -310,12 +315,12 @@ class BaseBus:
         self.settings = settings
         self.service_timeout_s = settings.service_timeout_s
         self.rejects = RejectCounter(process)
-        self._publishers: dict[str, Publisher] = {}
+        self._publishers: dict[str, Publisher[Msg]] = {}
         # with the simulator driving the clock every message counts (a step must see what was sent
         # before it): no topic may drop under congestion, a slow reader slows the simulation instead
         self._every_message_counts = self.clock.mode == "driven"
-        self._subscriptions: list[Subscription] = []
-        self._services: list[tuple[str, ServiceInbox, Callable]] = []
+        self._subscriptions: list[Subscription[Msg]] = []
+        self._services: list[tuple[str, ServiceInbox, Callable[[Msg], Msg]]] = []
         self._queryables: list[object] = []
         self._fleet_subscriptions: list[object] = []
 
@@ -327,7 +332,7 @@ class BaseBus:
         return key[len(self.prefix) + 1 :] if key.startswith(self.prefix + "/") else key
 
     # ---- pub/sub ----------------------------------------------------------------------------
-    def publisher(self, topic: str, reliable: bool | None = None) -> Publisher:
+    def publisher(self, topic: str, reliable: bool | None = None) -> Publisher[Msg]:
         pub = self._publishers.get(topic)
         if pub is None:
             entry = topics.topic(topic)
@@ -350,7 +355,7 @@ class BaseBus:
         max_age: float | None = None,
         latched: bool = False,
         tap: Callable[[str, bytes | None], None] | None = None,
-    ) -> Subscription:
+    ) -> Subscription[Msg]:
         """Subscribe to a topic of the table, a family such as `heartbeat/*`, or a pattern of several
         topics (`sensors/*`: each message checked against its own topic's schema). `on_message` runs
         on a transport thread and must return at once."""
@@ -358,7 +363,7 @@ class BaseBus:
             topics.topic(topic)  # a KeyError naming the topic if it is not in the table
         elif not topics.matching(topic):
             raise KeyError(f"pattern {topic!r} matches no topic of the topic table (ares/core/topics.py)")
-        sub: Subscription = Subscription(
+        sub: Subscription[Msg] = Subscription(
             topic,
             self.clock,
             queue=queue,
@@ -411,7 +416,7 @@ class BaseBus:
         self._fleet_subscriptions.append(handle)  # held: a dropped subscriber is undeclared
         return handle
 
-    def unsubscribe(self, sub: Subscription) -> None:
+    def unsubscribe(self, sub: Subscription[Msg]) -> None:
         kept = [s for s in self._subscriptions if s is not sub]
         if len(kept) < len(self._subscriptions):
             self._subscriptions = kept
@@ -424,7 +429,7 @@ class BaseBus:
         topics.service(name)
         inbox = ServiceInbox(SERVICE_INBOX_CAPACITY, self.service_timeout_s)
 
-        def on_query(query) -> None:
+        def on_query(query: Query) -> None:
             if not inbox.offer(query):
                 self.rejects.reject("service busy", name)
                 err = ServiceErrorReply(
@@ -443,8 +448,7 @@ class BaseBus:
                 handled += 1
         return handled
 
-    def _answer(self, name: str, query, handler: Callable[[Msg], Msg]) -> None:
-        """query: (payload bytes, reply(payload, encoding), reply_err(payload, encoding))."""
+    def _answer(self, name: str, query: Query, handler: Callable[[Msg], Msg]) -> None:
         raw, reply, reply_err = query
         entry = topics.service(name)
         try:
@@ -497,7 +501,7 @@ class BaseBus:
         raise ServiceError(name, f"no reply within {timeout_s:.1f} s (process dead or hung?)")
 
     # ---- transport (subclasses) -------------------------------------------------------------
-    def _declare_publisher(self, key: str, encoding: str, reliable: bool) -> Callable[[bytes], None]:
+    def _declare_publisher(self, key: str, encoding: str, reliable: bool) -> Callable[[Payload], None]:
         raise NotImplementedError
 
     def _declare_subscriber(self, key: str, on_payload: Callable[[str, str, bytes], None]) -> object:
@@ -506,12 +510,12 @@ class BaseBus:
     def _undeclare(self, handle: object) -> None:
         raise NotImplementedError
 
-    def _declare_queryable(self, key: str, on_query: Callable[[tuple], None]) -> object:
+    def _declare_queryable(self, key: str, on_query: Callable[[Query], None]) -> object:
         """Calls on_query((payload, reply(payload, encoding), reply_err(payload, encoding))) for
         each request, on the transport's thread."""
         raise NotImplementedError
 
-    def _query(self, key: str, payload: bytes, encoding: str, timeout_s: float):
+    def _query(self, key: str, payload: Payload, encoding: str, timeout_s: float) -> Iterator[Answer]:
         """Yields (ok, encoding, payload) of each reply."""
         raise NotImplementedError
 
@@ -528,7 +532,7 @@ class BaseBus:
 # ---- Zenoh ------------------------------------------------------------------------------------
 
 
-def zenoh_config(settings: BusSettings, mode: str | None = None, listen: list[str] | None = None):
+def zenoh_config(settings: BusSettings, mode: str | None = None, listen: list[str] | None = None) -> zenoh.Config:
     """A Zenoh config from the stack's `bus:` section. Multicast scouting is always off: a
     fleet shares one network, and vehicles must only meet through their routers."""
     import json
@@ -550,62 +554,70 @@ def zenoh_config(settings: BusSettings, mode: str | None = None, listen: list[st
     return cfg
 
 
-def bus_settings(cfg: dict) -> BusSettings:
+def bus_settings(cfg: Mapping[str, Any]) -> BusSettings:
     return BusSettings.model_validate(cfg.get("bus") or {})
 
 
 class Bus(BaseBus):
     """The bus over Zenoh: `cfg` is a run configuration (its vehicle_id and bus sections)."""
 
-    def __init__(self, cfg: dict, process: str, clock: Clock | None = None, session=None, mode: str | None = None):
+    def __init__(
+        self,
+        cfg: Mapping[str, Any],
+        process: str,
+        clock: Clock | None = None,
+        session: zenoh.Session | None = None,
+        mode: str | None = None,
+    ):
         import zenoh
 
-        self._zenoh = zenoh
         settings = bus_settings(cfg)
         super().__init__(cfg["vehicle_id"], process, clock, settings)
         self.cfg = cfg
         self.session = session or zenoh.open(zenoh_config(settings, mode=mode))
         self._owns_session = session is None
-        self._token = None
-        self._zenoh_publishers: dict[str, object] = {}
+        self._token: zenoh.LivelinessToken | None = None
+        self._zenoh_publishers: dict[str, zenoh.Publisher] = {}
 
-    def _declare_publisher(self, key: str, encoding: str, reliable: bool) -> Callable[[bytes], None]:
-        z = self._zenoh
+    def _declare_publisher(self, key: str, encoding: str, reliable: bool) -> Callable[[Payload], None]:
+        import zenoh
+
         # latest-value topics may drop under congestion; events and commands must not
-        congestion = z.CongestionControl.BLOCK if reliable else z.CongestionControl.DROP
-        pub = self.session.declare_publisher(key, encoding=z.Encoding(encoding), congestion_control=congestion)
+        congestion = zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP
+        pub = self.session.declare_publisher(key, encoding=zenoh.Encoding(encoding), congestion_control=congestion)
         self._zenoh_publishers[key] = pub
         return pub.put
 
     def matched(self, topic: str) -> bool:
         """Whether a subscriber anywhere on the network matches this bus's publisher of `topic`."""
         pub = self._zenoh_publishers.get(self.key(topic))
-        return pub is not None and pub.matching_status.matching
+        # zenoh 1.10's stub says bool, but the property gives a MatchingStatus
+        return pub is not None and cast("zenoh.MatchingStatus", pub.matching_status).matching
 
     def _declare_subscriber(self, key: str, on_payload: Callable[[str, str, bytes], None]) -> object:
-        def on_sample(sample) -> None:
+        def on_sample(sample: zenoh.Sample) -> None:
             on_payload(str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes())
 
         return self.session.declare_subscriber(key, on_sample)
 
     def _undeclare(self, handle: object) -> None:
-        handle.undeclare()
+        cast("zenoh.Subscriber[None]", handle).undeclare()
 
-    def _declare_queryable(self, key: str, on_query: Callable[[tuple], None]) -> object:
-        z = self._zenoh
+    def _declare_queryable(self, key: str, on_query: Callable[[Query], None]) -> object:
+        import zenoh
 
-        def on_zenoh_query(query) -> None:
+        def on_zenoh_query(query: zenoh.Query) -> None:
             raw = query.payload.to_bytes() if query.payload is not None else b""
 
-            def reply(payload: bytes, encoding: str) -> None:
+            def reply(payload: Payload, encoding: str) -> None:
                 try:
-                    query.reply(query.key_expr, payload, encoding=z.Encoding(encoding))
+                    query.reply(query.key_expr, payload, encoding=zenoh.Encoding(encoding))
                 finally:
                     query.drop()
 
-            def reply_err(payload: bytes, encoding: str) -> None:
+            def reply_err(payload: Payload, encoding: str) -> None:
                 try:
-                    query.reply_err(payload, encoding=z.Encoding(encoding))
+                    query.reply_err(payload, encoding=zenoh.Encoding(encoding))
                 finally:
                     query.drop()
 
@@ -613,12 +625,14 @@ class Bus(BaseBus):
 
         return self.session.declare_queryable(key, on_zenoh_query)
 
-    def _query(self, key: str, payload: bytes, encoding: str, timeout_s: float):
-        replies = self.session.get(key, payload=payload, encoding=self._zenoh.Encoding(encoding), timeout=timeout_s)
+    def _query(self, key: str, payload: Payload, encoding: str, timeout_s: float) -> Iterator[Answer]:
+        import zenoh
+
+        replies = self.session.get(key, payload=payload, encoding=zenoh.Encoding(encoding), timeout=timeout_s)
         for r in replies:
             if r.ok is not None:
                 yield True, str(r.ok.encoding), r.ok.payload.to_bytes()
-            else:
+            elif r.err is not None:  # a reply is one or the other
                 yield False, str(r.err.encoding), r.err.payload.to_bytes()
 
     # ---- liveliness -------------------------------------------------------------------------
@@ -632,10 +646,10 @@ class Bus(BaseBus):
 
     def watch_alive(self, on_change: Callable[[str, bool], None]) -> object:
         """Calls on_change(process, alive) as tokens appear and disappear (on a Zenoh thread)."""
-        z = self._zenoh
+        import zenoh
 
-        def on_sample(sample) -> None:
-            on_change(str(sample.key_expr).rsplit("/", 1)[-1], sample.kind == z.SampleKind.PUT)
+        def on_sample(sample: zenoh.Sample) -> None:
+            on_change(str(sample.key_expr).rsplit("/", 1)[-1], sample.kind == zenoh.SampleKind.PUT)
 
         return self.session.liveliness().declare_subscriber(self.key(f"{ALIVE}/*"), on_sample, history=True)
 

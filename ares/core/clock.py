@@ -24,6 +24,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Mapping
 from datetime import UTC, datetime
 
 MODE_ENV = "ARES_CLOCK_MODE"
@@ -62,7 +63,7 @@ class Clock:
         return {MODE_ENV: self.mode, UTC_EPOCH_ENV: repr(self.utc_epoch)}
 
     @staticmethod
-    def from_env(environ: dict | None = None) -> Clock:
+    def from_env(environ: Mapping[str, str] | None = None) -> Clock:
         e = os.environ if environ is None else environ
         mode = e.get(MODE_ENV, "wall")
         utc_epoch = float(e[UTC_EPOCH_ENV]) if e.get(UTC_EPOCH_ENV) else None

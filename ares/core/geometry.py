@@ -12,20 +12,23 @@ an exact product.)
 from __future__ import annotations
 
 import math
+from typing import TypeVar
 
 import numpy as np
 
 TWO_PI = 2.0 * math.pi
 
+Coord = TypeVar("Coord", float, np.ndarray)  # one point's coordinate, or an array of them
 
-def vehicle_to_local(x: float, y: float, yaw: float, xv, yv):
+
+def vehicle_to_local(x: float, y: float, yaw: float, xv: Coord, yv: Coord) -> tuple[Coord, Coord]:
     """Points of the vehicle frame (x ahead, y left; floats or arrays) in the local frame, the
     vehicle at (x, y) heading yaw."""
     c, s = math.cos(yaw), math.sin(yaw)
     return x + c * xv - s * yv, y + s * xv + c * yv
 
 
-def local_to_vehicle(x: float, y: float, yaw: float, xl, yl):
+def local_to_vehicle(x: float, y: float, yaw: float, xl: Coord, yl: Coord) -> tuple[Coord, Coord]:
     """Points of the local frame in the vehicle frame (the inverse of vehicle_to_local)."""
     c, s = math.cos(yaw), math.sin(yaw)
     dx, dy = xl - x, yl - y
@@ -74,8 +77,8 @@ def project_on_segments(
     ay: np.ndarray,
     ex: np.ndarray,
     ey: np.ndarray,
-    extend_back: np.ndarray,
-    extend_ahead: np.ndarray,
+    extend_back: np.ndarray | bool,
+    extend_ahead: np.ndarray | bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """project_on_segment for arrays of segments: arrays of t and of squared distances
     (extend_back and extend_ahead are boolean arrays, or one bool for every segment)."""

@@ -8,6 +8,7 @@ import signal
 import socket
 import subprocess
 import time
+from typing import Any
 
 _PICK = random.SystemRandom()  # not the global generator, which a test may have seeded
 
@@ -29,7 +30,7 @@ def free_port() -> int:
                 return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        return int(s.getsockname()[1])
 
 
 def _ephemeral_range() -> tuple[int, int]:
@@ -40,7 +41,7 @@ def _ephemeral_range() -> tuple[int, int]:
         return 49152, 65535  # the IANA range (macOS, Windows)
 
 
-def wait_for_port(port: int, timeout_s: float = 10.0, proc: subprocess.Popen | None = None) -> None:
+def wait_for_port(port: int, timeout_s: float = 10.0, proc: subprocess.Popen[Any] | None = None) -> None:
     """Until something listens on 127.0.0.1:port; TimeoutError after timeout_s, RuntimeError if
     `proc` (the process meant to listen) exits first."""
     deadline = time.monotonic() + timeout_s
@@ -55,7 +56,7 @@ def wait_for_port(port: int, timeout_s: float = 10.0, proc: subprocess.Popen | N
     raise TimeoutError(f"nothing listens on 127.0.0.1:{port} after {timeout_s:g} s")
 
 
-def stop_process(proc: subprocess.Popen, timeout_s: float = 3.0, group: bool = False) -> None:
+def stop_process(proc: subprocess.Popen[Any], timeout_s: float = 3.0, group: bool = False) -> None:
     """SIGTERM (its process group if `group`), then SIGKILL if it does not go within timeout_s."""
     for sig, wait_s in ((signal.SIGTERM, timeout_s), (signal.SIGKILL, 5.0)):
         if proc.poll() is not None:

@@ -29,10 +29,12 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
+from typing import cast
 
 from ares.core.bus import BaseBus, Publisher, PublisherFamily
 from ares.core.config import LockstepSettings
 from ares.core.messages import ClockDone, ClockTick
+from ares.core.schema import Msg
 
 log = logging.getLogger("ares.core.lockstep")
 
@@ -50,7 +52,7 @@ class LockstepMaster:
         bus: BaseBus,
         settings: LockstepSettings,
         start: float,
-        ticks: Publisher | None = None,
+        ticks: Publisher[Msg] | None = None,
         participant_ticks: PublisherFamily | None = None,
     ):
         self.bus = bus
@@ -66,7 +68,8 @@ class LockstepMaster:
         self._broadcast_at = -float("inf")
         bus.subscribe("clock/done", on_message=self._on_done)
 
-    def _on_done(self, _topic: str, done: ClockDone) -> None:  # a transport thread: record and return
+    def _on_done(self, _topic: str, msg: Msg) -> None:  # a transport thread: record and return
+        done = cast(ClockDone, msg)  # the topic table's schema of clock/done, checked on receipt
         with self._cond:
             p = self.participants.get(done.process)
             if p is None:
@@ -178,10 +181,10 @@ class Pacer:
         """Wall seconds to wait before stepping the clock from `now` to `target`, at wall time `wall`."""
         if self._anchor is None:
             self._anchor = (wall, now)
-        elif self._due(target) < wall - self.slack_s:
+        elif self._due(self._anchor, target) < wall - self.slack_s:
             self._anchor = (wall, target)  # behind: step now, and count from here
-        return max(self._due(target) - wall, 0.0)
+        return max(self._due(self._anchor, target) - wall, 0.0)
 
-    def _due(self, t: float) -> float:
-        wall0, t0 = self._anchor
+    def _due(self, anchor: tuple[float, float], t: float) -> float:
+        wall0, t0 = anchor
         return wall0 + (t - t0) / self.pace

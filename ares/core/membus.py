@@ -20,25 +20,27 @@ from __future__ import annotations
 import collections
 import fnmatch
 from collections.abc import Callable, Iterator
+from typing import Any
 
 from ares.core import topics
-from ares.core.bus import BaseBus, encoding_name
+from ares.core.bus import Answer, BaseBus, Query, encoding_name
 from ares.core.clock import Clock, ManualClock
 from ares.core.config import BusSettings
+from ares.core.schema import Payload
 
 
 class MemoryNetwork:
     def __init__(self, vehicle_id: str = "shuttle01"):
         self.vehicle_id = vehicle_id
         self._subscribers: list[tuple[str, Callable[[str, str, bytes], None]]] = []
-        self._services: dict[str, tuple[MemoryBus, Callable]] = {}  # key -> server, its on_query
+        self._services: dict[str, tuple[MemoryBus, Callable[[Query], None]]] = {}  # key -> server, its on_query
         self.alive: set[str] = set()
         self.published: collections.Counter[str] = collections.Counter()
 
-    def bus(self, process: str, clock: Clock | None = None, **settings) -> MemoryBus:
+    def bus(self, process: str, clock: Clock | None = None, **settings: Any) -> MemoryBus:
         return MemoryBus(self, process, clock or ManualClock(), BusSettings(**settings))
 
-    def put(self, key: str, encoding: str, payload: bytes) -> None:
+    def put(self, key: str, encoding: str, payload: Payload) -> None:
         self.published[key] += 1
         for pattern, callback in list(self._subscribers):
             if _matches(pattern, key):
@@ -59,7 +61,7 @@ class MemoryBus(BaseBus):
         self.network = network
         self.cfg = {"vehicle_id": network.vehicle_id, "bus": settings.model_dump()}
 
-    def _declare_publisher(self, key: str, encoding: str, reliable: bool) -> Callable[[bytes], None]:
+    def _declare_publisher(self, key: str, encoding: str, reliable: bool) -> Callable[[Payload], None]:
         return lambda payload: self.network.put(key, encoding, payload)
 
     def _declare_subscriber(self, key: str, on_payload: Callable[[str, str, bytes], None]) -> object:
@@ -71,15 +73,15 @@ class MemoryBus(BaseBus):
         if handle in self.network._subscribers:
             self.network._subscribers.remove(handle)
 
-    def _declare_queryable(self, key: str, on_query) -> object:
+    def _declare_queryable(self, key: str, on_query: Callable[[Query], None]) -> object:
         self.network._services[key] = (self, on_query)
         return key
 
-    def _query(self, key: str, payload: bytes, encoding: str, timeout_s: float) -> Iterator[tuple[bool, str, bytes]]:
+    def _query(self, key: str, payload: Payload, encoding: str, timeout_s: float) -> Iterator[Answer]:
         if key not in self.network._services:
             return
         owner, on_query = self.network._services[key]
-        answers: list[tuple[bool, str, bytes]] = []
+        answers: list[Answer] = []
         on_query((payload, lambda p, e: answers.append((True, e, p)), lambda p, e: answers.append((False, e, p))))
         owner.poll_services()
         yield from answers

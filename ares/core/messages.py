@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from datetime import datetime
 from enum import Enum
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Self
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -475,7 +475,7 @@ class MissionGoal(Msg):
     repeat: bool = False  # a closed route's tour: round again after the last POI, until canceled
 
     @model_validator(mode="after")
-    def _one_kind(self):
+    def _one_kind(self) -> Self:
         if self.drive and self.pois:
             raise ValueError("a drive goal has no POIs")
         return self

@@ -47,7 +47,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Generic, Self, TypeVar, cast, overload
 
 from ares.core import config, topics
 from ares.core.bus import BaseBus, Bus, Publisher, PublisherFamily, RejectCounter, Subscription
@@ -55,10 +55,14 @@ from ares.core.clock import Clock, DrivenClock
 from ares.core.config import Params
 from ares.core.messages import ClockDone, Event, EventLevel, Heartbeat
 from ares.core.recording import INCARNATION_ENV, StepRecorder, recording_path
+from ares.core.schema import Msg
 
 PROCESS_ENV = "ARES_PROCESS_NAME"
 NICE_ENV = "ARES_NICE"
 IMPLICIT_OUTPUTS = ("events", "heartbeat/*", "clock/done")  # what every node publishes undeclared
+
+Port = TypeVar("Port")  # what a declaration is on a node: its Subscription, Publisher, ...
+Handler = TypeVar("Handler", bound=Callable[..., Any])
 
 
 class ContractError(RuntimeError):
@@ -72,7 +76,7 @@ class NoParams(Params):
 # ---- declarations -----------------------------------------------------------------------------
 
 
-class _Port:
+class _Port(Generic[Port]):
     def __init__(self, topic: str, doc: str):
         try:
             self.entry = topics.topic(topic)
@@ -85,16 +89,20 @@ class _Port:
     def __set_name__(self, owner: type, name: str) -> None:
         self.attr = name
 
-    def __get__(self, node, owner=None):
+    @overload
+    def __get__(self, node: None, owner: type | None = None) -> Self: ...
+    @overload
+    def __get__(self, node: Node, owner: type | None = None) -> Port: ...
+    def __get__(self, node: Node | None, owner: type | None = None) -> Self | Port:
         if node is None:
             return self
-        return node._ports[self.attr]
+        return cast(Port, node._ports[self.attr])  # made from this declaration by Node.__init__
 
     @staticmethod
     def _resolve(value: float | str | None, params: Params, what: str) -> float | None:
         if value is None or isinstance(value, (int, float)):
             return value
-        found = params
+        found: Any = params  # then what each name leads to: the models type it, not this walk
         for part in value.split("."):  # "body.rate_hz": a parameter of a sub-section
             if not hasattr(found, part):
                 raise ContractError(f"{what} names parameter {value!r}, which {type(params).__name__} does not have")
@@ -102,7 +110,7 @@ class _Port:
         return float(found)
 
 
-class Input(_Port):
+class Input(_Port[Subscription[Msg]]):
     """A topic the node reads: `max_age` (seconds, or the name of a parameter) is how old its
     latest message may be and still count (Subscription.fresh); `queue` keeps every message."""
 
@@ -132,13 +140,17 @@ class InputGroup:
         for key, member in self.members.items():
             member.attr = f"{name}.{key}"
 
-    def __get__(self, node, owner=None):
+    @overload
+    def __get__(self, node: None, owner: type | None = None) -> Self: ...
+    @overload
+    def __get__(self, node: Node, owner: type | None = None) -> dict[str, Subscription[Msg]]: ...
+    def __get__(self, node: Node | None, owner: type | None = None) -> Self | dict[str, Subscription[Msg]]:
         if node is None:
             return self
-        return {key: node._ports[member.attr] for key, member in self.members.items()}
+        return {key: member.__get__(node) for key, member in self.members.items()}
 
 
-class Output(_Port):
+class Output(_Port[Publisher[Msg] | PublisherFamily]):
     """A topic the node publishes: `rate` (Hz, or the name of a parameter) when it is periodic."""
 
     def __init__(self, topic: str, *, rate: float | str | None = None, doc: str = ""):
@@ -151,12 +163,12 @@ class Output(_Port):
         return self._resolve(self.rate, params, f"output {self.topic}")
 
 
-def service(name: str) -> Callable:
+def service(name: str) -> Callable[[Handler], Handler]:
     """Marks a method as the handler of a service of the table (a request in, its reply out)."""
     topics.service(name)
 
-    def mark(method: Callable) -> Callable:
-        method.ares_service = name
+    def mark(method: Handler) -> Handler:
+        vars(method)["ares_service"] = name  # method.ares_service, which no Callable type declares
         return method
 
     return mark
@@ -166,9 +178,9 @@ def service(name: str) -> Callable:
 
 
 class Node:
-    name: ClassVar[str] = "node"
-    Params: ClassVar[type[Params]] = NoParams
-    sections: ClassVar[dict[str, type[Params]]] = {}  # other (shared) config sections it reads
+    name: str = "node"  # the class's; an instance has its process's name
+    Params: ClassVar[type[config.Params]] = NoParams
+    sections: ClassVar[dict[str, type[config.Params]]] = {}  # other (shared) config sections it reads
     rate: ClassVar[float | str] = "rate_hz"  # loop rate: Hz, or the name of a parameter
     steps: ClassVar[bool] = True  # works in periodic steps (latched inputs; a --speed max participant)
     calls: ClassVar[tuple[str, ...]] = ()  # the services it calls (any other call is refused)
@@ -200,7 +212,7 @@ class Node:
         return any(o.topic == "sim/clock" for o in cls.outputs())
 
     @classmethod
-    def loop_rate_hz(cls, params: Params) -> float:
+    def loop_rate_hz(cls, params: config.Params) -> float:
         return float(cls.rate) if isinstance(cls.rate, (int, float)) else float(getattr(params, cls.rate))
 
     @classmethod
@@ -210,7 +222,7 @@ class Node:
     # ---- construction -------------------------------------------------------------------------
     def __init__(
         self,
-        cfg: dict | None = None,
+        cfg: dict[str, Any] | None = None,
         *,
         clock: Clock | None = None,
         bus: BaseBus | None = None,
@@ -238,8 +250,8 @@ class Node:
         self._recorder = self._start_recorder() if self.name in self.core.replay.record else None
         took = self._recorder.took if self._recorder else None
         gave = self._recorder.gave if self._recorder else None
-        self._ports: dict[str, Subscription | Publisher] = {}
-        self._rated: list[tuple[Publisher, float]] = []
+        self._ports: dict[str, Subscription[Msg] | Publisher[Msg] | PublisherFamily] = {}
+        self._rated: list[tuple[Publisher[Msg], float]] = []
         for inp in self.inputs():
             self._ports[inp.attr] = raw_bus.subscribe(
                 inp.topic,
@@ -261,12 +273,13 @@ class Node:
         self._events = raw_bus.publisher("events")
         self._events.tap = gave
         self._heartbeats = raw_bus.publisher(f"heartbeat/{self.name}")
-        self._driven = isinstance(self.clock, DrivenClock)
-        if self._driven and not self.drives_clock():
+        clock = self.clock
+        self._driven = isinstance(clock, DrivenClock)
+        if isinstance(clock, DrivenClock) and not self.drives_clock():
             self._done = raw_bus.publisher("clock/done")
             # a participant hears the time when its step is due, and only then; others hear it now and then
             ticks = f"sim/clock/{self.name}" if self.name in self.core.lockstep.participants else "sim/clock"
-            raw_bus.subscribe(ticks, on_message=lambda _topic, tick: self.clock.advance(tick.t))
+            raw_bus.subscribe(ticks, on_message=lambda _topic, tick: clock.advance(tick.t))
         for name, method in self.services().items():
             raw_bus.serve(name, getattr(self, method))
 
@@ -306,7 +319,9 @@ class Node:
         pass
 
     # ---- helpers ----------------------------------------------------------------------------
-    def event(self, kind: str, message: str, level: EventLevel = EventLevel.INFO, **data) -> None:
+    def event(
+        self, kind: str, message: str, level: EventLevel = EventLevel.INFO, **data: str | float | int | bool | None
+    ) -> None:
         self.log.log(logging.WARNING if level != EventLevel.INFO else logging.INFO, "%s: %s", kind, message)
         self._events.put(
             Event(t=self.clock.now(), source=self.name, kind=kind, level=level, message=message, data=data)
@@ -470,7 +485,7 @@ class AsyncNode(Node):
             except asyncio.CancelledError:
                 pass
 
-    def _beat_ended(self, task: asyncio.Task) -> None:
+    def _beat_ended(self, task: asyncio.Task[None]) -> None:
         if not task.cancelled() and task.exception() is not None:
             self.log.error("the heartbeat task failed: stopping", exc_info=task.exception())
             self.request_stop()
@@ -501,7 +516,7 @@ class _DeclaredBus:
         self._node = node
         self._allowed = {o.topic for o in node.outputs()} | {t.replace("*", node.name) for t in IMPLICIT_OUTPUTS}
 
-    def publisher(self, topic: str, reliable: bool | None = None) -> Publisher:
+    def publisher(self, topic: str, reliable: bool | None = None) -> Publisher[Msg]:
         if topic not in self._allowed and not any(topics.covers(o.topic, topic) for o in self._node.outputs()):
             raise ContractError(
                 f"{self._node.name} publishes {topic!r} but its contract does not declare it: "
@@ -509,19 +524,28 @@ class _DeclaredBus:
             )
         return self._bus.publisher(topic, reliable)
 
-    def publish(self, topic: str, msg) -> None:
+    def publish(self, topic: str, msg: Msg) -> None:
         self.publisher(topic).put(msg)
 
-    def subscribe(self, topic: str, *args, **kwargs) -> Subscription:
+    def subscribe(
+        self,
+        topic: str,
+        queue: int = 0,
+        on_message: Callable[[str, Msg], None] | None = None,
+        *,
+        max_age: float | None = None,
+        latched: bool = False,
+        tap: Callable[[str, bytes | None], None] | None = None,
+    ) -> Subscription[Msg]:
         """Another subscription (with a callback, say) to a declared input."""
         if topic not in {i.topic for i in self._node.inputs()}:
             raise ContractError(
                 f"{self._node.name} subscribes to {topic!r} outside its contract: declare "
                 f"`Input({topic!r}, ...)` on {type(self._node).__name__} instead"
             )
-        return self._bus.subscribe(topic, *args, **kwargs)
+        return self._bus.subscribe(topic, queue, on_message, max_age=max_age, latched=latched, tap=tap)
 
-    def subscribe_fleet(self, topic: str, on_message) -> object:
+    def subscribe_fleet(self, topic: str, on_message: Callable[[str, str, Msg], None]) -> object:
         """A topic of every vehicle on the network, declared in `fleet_inputs`."""
         if topic not in self._node.fleet_inputs:
             raise ContractError(
@@ -530,7 +554,7 @@ class _DeclaredBus:
             )
         return self._bus.subscribe_fleet(topic, on_message)
 
-    def call(self, name: str, request=None, timeout_s: float | None = None):
+    def call(self, name: str, request: Msg | None = None, timeout_s: float | None = None) -> Msg:
         """A service the contract declares in `calls`."""
         if name not in self._node.calls:
             raise ContractError(
@@ -539,7 +563,7 @@ class _DeclaredBus:
             )
         return self._bus.call(name, request, timeout_s)
 
-    def serve(self, name: str, handler) -> None:
+    def serve(self, name: str, handler: Callable[[Msg], Msg]) -> None:
         raise ContractError(
             f"{self._node.name} offers service {name!r} outside its contract: mark the "
             "handler with @service(...) instead"

@@ -16,10 +16,10 @@ from typing import Any
 
 import orjson
 
-from ares.core.schema import MAGIC
+from ares.core.schema import MAGIC, Payload
 
 
-def as_record(payload: bytes) -> Any:
+def as_record(payload: Payload) -> Any:
     if payload[: len(MAGIC)] == MAGIC:
         return {"$bulk": base64.b64encode(payload).decode()}
     return orjson.loads(payload)
@@ -43,12 +43,12 @@ class StepRecorder:
     """What a node latched and published, one line per step: the node taps its subscriptions with
     took() and its publishers with gave(), and calls begin(now) and end() around each step."""
 
-    def __init__(self, path: Path, header: dict):
+    def __init__(self, path: Path, header: dict[str, Any]):
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
         self._file = gzip.open(path, "wb", compresslevel=6)
-        self._in: list = []
-        self._out: list = []
+        self._in: list[list[Any]] = []  # [topic, record]: JSON arrays
+        self._out: list[list[Any]] = []
         self._t: float | None = None
         self._steps = 0
         self._write(header)
@@ -56,7 +56,7 @@ class StepRecorder:
     def took(self, topic: str, payload: bytes | None) -> None:
         self._in.append([topic, None if payload is None else as_record(payload)])
 
-    def gave(self, topic: str, payload: bytes) -> None:
+    def gave(self, topic: str, payload: Payload) -> None:
         self._out.append([topic, as_record(payload)])
 
     def begin(self, now: float) -> None:
@@ -72,7 +72,7 @@ class StepRecorder:
         if self._steps % FLUSH_EVERY_STEPS == 0:
             self._file.flush()
 
-    def _write(self, obj: dict) -> None:
+    def _write(self, obj: dict[str, Any]) -> None:
         self._file.write(orjson.dumps(obj) + b"\n")
 
     def close(self) -> None:

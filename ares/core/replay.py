@@ -26,10 +26,12 @@ from typing import Any
 
 import orjson
 
+from ares.core.bus import Publisher
 from ares.core.clock import ManualClock
 from ares.core.launch import load
 from ares.core.membus import MemoryNetwork
 from ares.core.recording import as_payload, as_record
+from ares.core.schema import Payload
 
 log = logging.getLogger("ares.core.replay")
 
@@ -55,17 +57,17 @@ class ReplayResult:
     steps: int
     outputs: int
     mismatches: list[Mismatch] = field(default_factory=list)
-    replayed: list[list] = field(default_factory=list)  # per step: what the node published now
+    replayed: list[list[list[Any]]] = field(default_factory=list)  # per step: what the node published now
 
     @property
     def ok(self) -> bool:
         return not self.mismatches
 
 
-def read(path: str | Path) -> tuple[dict, list[dict]]:
+def read(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The header and the steps of a recording. One cut short (its process killed) is read up to
     its last complete line."""
-    lines = []
+    lines: list[dict[str, Any]] = []
     try:
         with gzip.open(path, "rb") as f:
             for line in f:
@@ -80,7 +82,9 @@ def read(path: str | Path) -> tuple[dict, list[dict]]:
     return lines[0], lines[1:]
 
 
-def replay(path: str | Path, config_overrides: dict | None = None, max_mismatches: int = 20) -> ReplayResult:
+def replay(
+    path: str | Path, config_overrides: dict[str, dict[str, Any]] | None = None, max_mismatches: int = 20
+) -> ReplayResult:
     header, frames = read(path)
     cfg = dict(header["config"])
     cfg["replay"] = {**cfg.get("replay", {}), "record": []}
@@ -89,13 +93,13 @@ def replay(path: str | Path, config_overrides: dict | None = None, max_mismatche
     clock = ManualClock(header["start"])
     network = MemoryNetwork(cfg["vehicle_id"])
     node = load(header["class"])(cfg, clock=clock, bus=network.bus(header["node"], clock), name=header["node"])
-    published: list = []
+    published: list[list[Any]] = []
 
-    def capture(topic: str, payload: bytes) -> None:
+    def capture(topic: str, payload: Payload) -> None:
         published.append([topic, as_record(payload)])
 
     for port in node._ports.values():
-        if hasattr(port, "put"):
+        if isinstance(port, Publisher):
             port.tap = capture
     node._events.tap = capture
     feeder = network.bus("replay", clock)
@@ -128,7 +132,7 @@ def update(path: str | Path) -> ReplayResult:
     return result
 
 
-def _compare(step: int, t: float | None, expected: list, got: list) -> list[Mismatch]:
+def _compare(step: int, t: float | None, expected: list[list[Any]], got: list[list[Any]]) -> list[Mismatch]:
     if len(expected) != len(got):
         return [Mismatch(step, t, "number of messages", [e[0] for e in expected], [g[0] for g in got])]
     found = []

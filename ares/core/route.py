@@ -118,7 +118,7 @@ class Route:
         return step
 
     def index_at(self, s: float) -> int:
-        return int(min(np.searchsorted(self.s, self.wrap_s(s), side="right") - 1, len(self.s) - 1))
+        return min(int(np.searchsorted(self.s, self.wrap_s(s), side="right")) - 1, len(self.s) - 1)
 
     def point_at(self, s: float) -> tuple[float, float, float, float]:
         """(x, y, z, yaw) at arc length s, interpolated along the segment."""
@@ -199,7 +199,7 @@ class Route:
             text = path.read_text()
         except OSError as exc:
             raise RouteError(f"{path}: cannot read: {exc.strerror}") from exc
-        columns = (2, 3)
+        columns: tuple[int, ...] = (2, 3)
         first_row = True
         for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
             if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):

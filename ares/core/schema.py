@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import struct
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import orjson
@@ -32,6 +32,8 @@ from pydantic import BaseModel, ConfigDict
 MAGIC = b"ARB1"
 ALIGN = 8
 _HEADER_LEN = struct.Struct("<I")
+
+Payload = bytes | bytearray  # what encode gives: a big bulk message stays a bytearray, one copy fewer
 
 
 class Msg(BaseModel):
@@ -44,11 +46,14 @@ class Msg(BaseModel):
         return cls.__name__
 
 
+M = TypeVar("M", bound=Msg)
+
+
 def encode_json(msg: Msg) -> bytes:
     return msg.model_dump_json().encode()
 
 
-def decode_json(payload: bytes | bytearray | memoryview, schema: type[Msg]) -> Msg:
+def decode_json(payload: Payload, schema: type[M]) -> M:
     return schema.model_validate_json(payload)
 
 
@@ -91,7 +96,7 @@ class BulkMsg(Msg):
     ARRAYS: ClassVar[dict[str, Array]] = {}
 
     @classmethod
-    def __pydantic_init_subclass__(cls, **kwargs):
+    def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
         super().__pydantic_init_subclass__(**kwargs)
         cls.ARRAYS = {
             name: spec for name, field in cls.model_fields.items() for spec in field.metadata if isinstance(spec, Array)
@@ -107,11 +112,14 @@ class BulkMsg(Msg):
                     data[name] = spec.check(name, data[name])
         return data
 
-    def header_fields(self) -> dict:
+    def header_fields(self) -> dict[str, Any]:
         return self.model_dump(exclude=set(self.ARRAYS))
 
 
-def encode_bulk(msg: BulkMsg) -> bytes:
+B = TypeVar("B", bound=BulkMsg)
+
+
+def encode_bulk(msg: BulkMsg) -> Payload:
     header = msg.header_fields()
     arrays = []
     offset = 0
@@ -119,7 +127,7 @@ def encode_bulk(msg: BulkMsg) -> bytes:
     for name in msg.ARRAYS:
         arr = np.ascontiguousarray(getattr(msg, name))
         arrays.append({"name": name, "dtype": arr.dtype.str, "shape": list(arr.shape), "offset": offset})
-        chunks.append((offset, memoryview(arr).cast("B")))
+        chunks.append((offset, arr.data.cast("B")))
         offset += -(-arr.nbytes // ALIGN) * ALIGN
     head = orjson.dumps({"fields": header, "arrays": arrays})
     start = -(-(len(MAGIC) + _HEADER_LEN.size + len(head)) // ALIGN) * ALIGN
@@ -132,7 +140,7 @@ def encode_bulk(msg: BulkMsg) -> bytes:
     return bytes(out) if len(out) < 65536 else out  # bytearray avoids one more copy of a big payload
 
 
-def decode_bulk(payload: bytes | bytearray | memoryview, schema: type[BulkMsg]) -> BulkMsg:
+def decode_bulk(payload: bytes | bytearray | memoryview, schema: type[B]) -> B:
     """The message, its arrays viewing `payload` (no copy). BulkDecodeError or
     pydantic.ValidationError on anything that does not match the schema."""
     view = memoryview(payload)
@@ -174,11 +182,11 @@ def decode_bulk(payload: bytes | bytearray | memoryview, schema: type[BulkMsg]) 
     return schema.model_validate(fields)
 
 
-def encode(msg: Msg) -> bytes | bytearray:
+def encode(msg: Msg) -> Payload:
     return encode_bulk(msg) if isinstance(msg, BulkMsg) else encode_json(msg)
 
 
-def decode(payload: bytes | bytearray | memoryview, schema: type[Msg]) -> Msg:
+def decode(payload: Payload, schema: type[M]) -> M:
     """Validate one payload against its schema; pydantic.ValidationError or BulkDecodeError."""
     if issubclass(schema, BulkMsg):
         return decode_bulk(payload, schema)

@@ -150,14 +150,12 @@ SERVICE_TABLE: list[Service] = [
 
 TOPICS: dict[str, Topic] = {t.name: t for t in TOPIC_TABLE}
 SERVICES: dict[str, Service] = {s.name: s for s in SERVICE_TABLE}
-SCHEMAS: dict[str, type[Msg]] = {
-    cls.schema_name(): cls
-    for cls in [
-        *(t.schema for t in TOPIC_TABLE),
-        *(c for s in SERVICE_TABLE for c in (s.request, s.reply)),
-        m.ServiceErrorReply,
-    ]
-}
+_EVERY_SCHEMA: list[type[Msg]] = [  # annotated: mypy would join type[Msg] and a model class to `object`
+    *(t.schema for t in TOPIC_TABLE),
+    *(c for s in SERVICE_TABLE for c in (s.request, s.reply)),
+    m.ServiceErrorReply,
+]
+SCHEMAS: dict[str, type[Msg]] = {cls.schema_name(): cls for cls in _EVERY_SCHEMA}
 
 
 def topic(name: str) -> Topic:

@@ -9,21 +9,26 @@ actions (ares.tools.scenario_driver), and returns the figures that `ares run` pr
 line, with a picture of the lap (ares.tools.figures.lap).
 
 The stack itself is started, watched and stopped by ares.app.stack.run, which calls `drive`.
+`Measurements` (what is measured, from which topics) and `Goal` (when the drive is done, or has
+failed) serve the in-process stack too (ares.tools.harness.in_process_stack), so that a test on
+the in-memory bus measures exactly what a headless run measures.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ares.app.stack import STARTUP_TIMEOUT_S, RunFailed, engage_automatic, wait_for
 from ares.core import config
-from ares.core.bus import Bus
+from ares.core.bus import BaseBus
 from ares.core.clock import Clock
-from ares.core.messages import DriveMode
+from ares.core.messages import DriveMode, MissionStatus
 from ares.core.route import Route
 from ares.tools.evaluation.control_eval import ControlTracker
 from ares.tools.evaluation.lap_eval import LapTracker, LocalizationTracker
@@ -35,120 +40,201 @@ from managers.speed import SpeedProfileParams, cruise_speed
 
 CLOCK_STALL_S = 30.0  # wall seconds without the clock moving: the run has stalled
 STANDSTILL_S = 60.0  # stack seconds without progress along the route: the shuttle is stuck
+LEFT_AUTOMATIC_CHECKS = 20  # out of Automatic this many checks in a row: the run has failed
+QUEUE = 4096  # messages a measured topic may hold between two takes
 
 
-def drive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path, inject) -> dict:
+class Measurements:
+    """What a headless run measures: the evaluations, fed from the topics they read."""
+
+    def __init__(self, cfg: dict, route: Route, bus: BaseBus, inject: Callable[[str, str], str] | None):
+        vehicle = config.core(cfg).vehicle_profile
+        self.cfg, self.route = cfg, route
+        self.perceiving = bool(vehicle.lidars) and cfg["lidars"]
+        self.lap = LapTracker(route)
+        self.localization = LocalizationTracker()
+        self.control = ControlTracker()
+        self.safety = SafetyTracker(vehicle.length_m, vehicle.width_m, vehicle.front_bumper_m)
+        self.perception = PerceptionTracker(route, front_bumper_x_m=(vehicle.length_m + vehicle.wheelbase_m) / 2)
+        scenario = config.load_scenario(cfg["scenario"]) if cfg["scenario"] else None
+        self.scenario = ScenarioDriver(scenario, bus, inject, self.safety)
+        self.truth = bus.subscribe("sim/truth", queue=QUEUE)
+        self.statuses = bus.subscribe("control/status", queue=QUEUE)
+        self.movement = bus.subscribe("movement/status", queue=QUEUE)
+        self.cars = bus.subscribe("dbw/car_state", queue=QUEUE)
+        self.mission = bus.subscribe("mission/status")
+        # what each evaluation learns from which topic, in this order at every take: the body and the
+        # gate before the truth (its motion is judged against them), the truth before what is matched to it
+        self._feeds: list[tuple[Any, Callable[[Any], None]]] = [
+            (bus.subscribe("body/state", queue=1024), self.safety.add_body),
+            (self.movement, self.safety.add_status),
+            (self.cars, self.safety.add_car),
+            (bus.subscribe("awareness/state", queue=1024), self.safety.add_awareness),
+            (self.truth, self._on_truth),
+        ]
+        if self.perceiving:
+            self._feeds += [
+                (bus.subscribe("sim/world", queue=1024), self._on_world),
+                (bus.subscribe("perception/road", queue=QUEUE), self.perception.add_road),
+                (bus.subscribe("perception/grid", queue=256), self.perception.add_grid),
+                (bus.subscribe("perception/lidar_status", queue=1024), self.perception.add_status),
+            ]
+        self._feeds += [
+            (bus.subscribe("localization/pose", queue=QUEUE), self._on_pose),
+            (bus.subscribe("odometry/score", queue=QUEUE), self._on_score),
+            (self.statuses, lambda st: self.control.add_status(st.t, st.controller)),
+            (bus.subscribe("control/candidate/mpc", queue=QUEUE), lambda c: self.control.add_mpc(c.solve_ms, c.fresh)),
+            (bus.subscribe("events", queue=QUEUE), self._on_event),
+        ]
+
+    def begin(self) -> None:
+        """The drive starts now: what came before it (standing, engaging) is not measured."""
+        self.truth.drain()
+
+    def take(self, now: float) -> None:
+        """The scenario's actions due by `now`, then everything published since the last take."""
+        self.scenario.step(now)
+        for subscription, handle in self._feeds:
+            for _, msg in subscription.drain():
+                handle(msg)
+        if self.perceiving:
+            self.perception.retry()
+
+    def _on_truth(self, msg: Any) -> None:
+        self.safety.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.v, msg.board_failsafe)
+        self.lap.update(msg.x, msg.y, msg.odometer_m)
+        self.localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
+        self.perception.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.s)
+        self.control.add_truth(msg.t, self.lap.xte[-1], msg.v, msg.yaw_rate, msg.accel)
+
+    def _on_world(self, world: Any) -> None:
+        self.perception.add_world(world)
+        self.safety.add_world(world)
+
+    def _on_pose(self, pose: Any) -> None:
+        self.localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)
+
+    def _on_score(self, score: Any) -> None:
+        self.localization.add_score(score.t, score.score)
+
+    def _on_event(self, event: Any) -> None:
+        self.safety.add_event(event)
+        if event.kind == "controller_switch":
+            self.control.add_switch(event.data)
+
+    def partial(self) -> dict:
+        """The figures of a drive that failed, up to the failure."""
+        return {
+            "route": self.route.name,
+            "vehicle": self.cfg["vehicle"],
+            **self.lap.summary(),
+            **self.control.summary(),
+            **self.safety.summary(),
+            **self.scenario.summary(),
+        }
+
+    def summary(self) -> dict:
+        """Every figure of the drive."""
+        return {
+            **self.lap.summary(),
+            **self.localization.summary(),
+            **self.control.summary(),
+            **(self.perception.summary() if self.perceiving else {}),
+            **self.safety.summary(),
+            **self.scenario.summary(),
+            "mission": mission_summary(self.mission.latest),
+        }
+
+    def save_trace(self, run_dir: Path) -> None:
+        """For `ares compare`: the error along the route and who drove, at the simulator's rate."""
+        np.savez_compressed(
+            run_dir / "trace.npz",
+            progress=np.array(self.lap.progress),
+            xte=np.array(self.lap.xte),
+            controller=np.array([c or "none" for c in self.control.in_charge()]),
+        )
+
+    def picture(self, path: Path, title: str) -> Path:
+        lap = self.lap
+        return write_lap_svg(
+            path, self.route, np.array(lap.xs), np.array(lap.ys), np.array(lap.progress), np.array(lap.xte), title
+        )
+
+
+class Goal:
+    """When a drive is done (N laps, an open route's end, or so many seconds) and when it has failed
+    (out of Automatic, standing for STANDSTILL_S where no manager says so, over its time limit)."""
+
+    def __init__(self, m: Measurements, t_start: float, laps: int = 1, seconds: float | None = None):
+        self.m, self.t_start, self.laps, self.seconds = m, t_start, laps, seconds
+        route = m.route
+        self.target_m = laps * route.length if route.closed else route.length
+        vehicle = config.core(m.cfg).vehicle_profile
+        cruise = cruise_speed(config.section(m.cfg, "speed_profile", SpeedProfileParams), vehicle, route)
+        self.time_limit_s = seconds + 60.0 if seconds is not None else 3.0 * self.target_m / (0.5 * cruise) + 60.0
+        self._left_automatic = 0
+        self._moved = (0.0, t_start)  # (travelled m, when): a shuttle that stops moving is stuck
+
+    def reached(self, now: float) -> bool:
+        """Whether the drive is done at `now`; RunFailed if it can no longer be."""
+        m, travelled = self.m, self.m.lap.travelled_m
+        car, status, truth = m.cars.latest, m.statuses.latest, m.truth.latest
+        if car is not None and car.mode != DriveMode.AUTOMATIC:
+            self._left_automatic += 1
+            if self._left_automatic > LEFT_AUTOMATIC_CHECKS:
+                raise RunFailed(f"the vehicle left Automatic mode ({car.mode.value}: {car.reason})")
+        else:
+            self._left_automatic = 0
+        if self.seconds is not None and now - self.t_start >= self.seconds:
+            return True
+        if m.route.closed and self.seconds is None and travelled >= self.target_m:
+            return True
+        if not m.route.closed and status is not None and status.finished and truth is not None and abs(truth.v) < 0.05:
+            return True
+        gate = m.movement.latest
+        held = (gate is not None and (gate.latched or gate.stopping or gate.limit_mps == 0.0)) or (
+            status is not None and status.controller == "stop" and self.seconds is not None
+        )
+        # standing where a manager says so is not stuck (a run of given seconds waits with it)
+        if travelled > self._moved[0] + 0.5 or held:
+            self._moved = (travelled, now)
+        elif now - self._moved[1] > STANDSTILL_S:
+            why = f": the control manager forwards {status.controller} ({status.reason})" if status else ""
+            raise RunFailed(
+                f"the shuttle has not moved for {STANDSTILL_S:g} s, at {travelled:.0f} of {self.target_m:.0f} m{why}"
+            )
+        if now - self.t_start > self.time_limit_s:
+            raise RunFailed(
+                f"did not finish within {self.time_limit_s:.0f} s of vehicle time "
+                f"({travelled:.0f} of {self.target_m:.0f} m)"
+            )
+        return False
+
+    def laps_driven(self) -> int:
+        if self.seconds is not None and self.m.route.closed:
+            return max(int(self.m.lap.travelled_m // self.m.route.length), 1)
+        return self.laps if self.m.route.closed else 0
+
+
+def drive(args, cfg, route: Route, bus: BaseBus, clock: Clock, stop, run_dir: Path, inject) -> dict:
     """Engage, drive and measure (see the module's docstring); RunFailed carries the figures up to a failure."""
-    laps = int(getattr(args, "laps", None) or 1)
-    seconds = getattr(args, "seconds", None)  # drive this long (vehicle time) instead of laps
-    truth = bus.subscribe("sim/truth", queue=4096)
     car_state = bus.subscribe("dbw/car_state")
-    wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
+    m = Measurements(cfg, route, bus, inject)
+    wait_for(lambda: m.truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
     engage_automatic(bus, car_state, stop)
     t_start = clock.now()
     wall_start = time.monotonic()
-    truth.drain()
-    tracker = LapTracker(route)
-    localization = LocalizationTracker()
-    vehicle = config.core(cfg).vehicle_profile
-    perceiving = bool(vehicle.lidars) and cfg["lidars"]
-    perception = PerceptionTracker(route, front_bumper_x_m=(vehicle.length_m + vehicle.wheelbase_m) / 2)
-    roads = bus.subscribe("perception/road", queue=4096) if perceiving else None
-    grids = bus.subscribe("perception/grid", queue=256) if perceiving else None
-    worlds = bus.subscribe("sim/world", queue=1024) if perceiving else None
-    lidar_status = bus.subscribe("perception/lidar_status", queue=1024) if perceiving else None
-    poses = bus.subscribe("localization/pose", queue=4096)
-    scores = bus.subscribe("odometry/score", queue=4096)
-    statuses = bus.subscribe("control/status", queue=4096)
-    mpc_candidates = bus.subscribe("control/candidate/mpc", queue=4096)
-    events = bus.subscribe("events", queue=4096)
-    control = ControlTracker()
-    safety = SafetyTracker(vehicle.length_m, vehicle.width_m, vehicle.front_bumper_m)
-    movement = bus.subscribe("movement/status", queue=4096)
-    bodies = bus.subscribe("body/state", queue=1024)
-    awareness = bus.subscribe("awareness/state", queue=1024)
-    mission = bus.subscribe("mission/status")
-    cars = bus.subscribe("dbw/car_state", queue=4096)
-    scenario = ScenarioDriver(config.load_scenario(cfg["scenario"]) if cfg["scenario"] else None, bus, inject, safety)
-    target_m = laps * route.length if route.closed else route.length
-    cruise = cruise_speed(config.section(cfg, "speed_profile", SpeedProfileParams), vehicle, route)
-    time_limit_s = 3.0 * target_m / (0.5 * cruise) + 60.0  # stack seconds
-    if seconds is not None:
-        time_limit_s = seconds + 60.0
-
-    def on_truth(msg) -> None:
-        safety.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.v, msg.board_failsafe)
-        tracker.update(msg.x, msg.y, msg.odometer_m)
-        localization.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.rtk_available, msg.v)
-        perception.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.s)
-        control.add_truth(msg.t, tracker.xte[-1], msg.v, msg.yaw_rate, msg.accel)
-
-    def on_world(world) -> None:
-        perception.add_world(world)
-        safety.add_world(world)
-
-    def on_event(event) -> None:
-        safety.add_event(event)
-        if event.kind == "controller_switch":
-            control.add_switch(event.data)
-
-    # what each tracker learns from which topic, in this order every loop: the body and the gate
-    # before the truth (its motion is judged against them), the truth before what is matched to it
-    feeds = [
-        (bodies, safety.add_body),
-        (movement, safety.add_status),
-        (cars, safety.add_car),
-        (awareness, safety.add_awareness),
-        (truth, on_truth),
-    ]
-    if perceiving:
-        feeds += [
-            (worlds, on_world),
-            (roads, perception.add_road),
-            (grids, perception.add_grid),
-            (lidar_status, perception.add_status),
-        ]
-    feeds += [
-        (poses, lambda pose: localization.add_pose(pose.t, pose.x, pose.y, pose.yaw)),
-        (scores, lambda score: localization.add_score(score.t, score.score)),
-        (statuses, lambda st: control.add_status(st.t, st.controller)),
-        (mpc_candidates, lambda cand: control.add_mpc(cand.solve_ms, cand.fresh)),
-        (events, on_event),
-    ]
-    left_automatic = 0
+    m.begin()
+    goal = Goal(m, t_start, int(getattr(args, "laps", None) or 1), getattr(args, "seconds", None))
     last_progress = 0.0
     clock_moved = (clock.now(), time.monotonic())  # a clock that stops moving is a stalled run
-    moved = (0.0, clock.now())  # (travelled m, when): a shuttle that stops moving is stuck
     try:
         while True:
             if stop.is_set():
                 raise RunFailed("interrupted")
-            scenario.step(clock.now())
-            for subscription, handle in feeds:
-                for _, msg in subscription.drain():
-                    handle(msg)
-            if perceiving:
-                perception.retry()
+            m.take(clock.now())
             now = clock.now()
-            if car_state.latest is not None and car_state.latest.mode != DriveMode.AUTOMATIC:
-                left_automatic += 1
-                if left_automatic > 20:
-                    raise RunFailed(
-                        f"the vehicle left Automatic mode ({car_state.latest.mode.value}: {car_state.latest.reason})"
-                    )
-            else:
-                left_automatic = 0
-            if seconds is not None and now - t_start >= seconds:
-                break
-            if route.closed and seconds is None and tracker.travelled_m >= target_m:
-                break
-            if (
-                not route.closed
-                and statuses.latest is not None
-                and statuses.latest.finished
-                and truth.latest is not None
-                and abs(truth.latest.v) < 0.05
-            ):
+            if goal.reached(now):
                 break
             if now != clock_moved[0]:
                 clock_moved = (now, time.monotonic())
@@ -157,81 +243,40 @@ def drive(args, cfg, route: Route, bus: Bus, clock: Clock, stop, run_dir: Path, 
                     f"the stack clock has not moved for {CLOCK_STALL_S:g} s (the simulator or a process it "
                     "waits for is stuck)"
                 )
-            held = (
-                movement.latest is not None
-                and (movement.latest.latched or movement.latest.stopping or movement.latest.limit_mps == 0.0)
-            ) or (statuses.latest is not None and statuses.latest.controller == "stop" and seconds is not None)
-            # standing where a manager says so is not stuck (a run of given seconds waits with it)
-            if tracker.travelled_m > moved[0] + 0.5 or held:
-                moved = (tracker.travelled_m, now)
-            elif now - moved[1] > STANDSTILL_S:
-                why = statuses.latest
-                raise RunFailed(
-                    f"the shuttle has not moved for {STANDSTILL_S:g} s, at {tracker.travelled_m:.0f} of "
-                    f"{target_m:.0f} m"
-                    + (f": the control manager forwards {why.controller} ({why.reason})" if why is not None else "")
-                )
-            if now - t_start > time_limit_s:
-                raise RunFailed(
-                    f"did not finish within {time_limit_s:.0f} s of vehicle time "
-                    f"({tracker.travelled_m:.0f} of {target_m:.0f} m)"
-                )
             if now - last_progress >= 30.0:
                 last_progress = now
-                print(f"[{now - t_start:6.0f} s] {tracker.travelled_m:6.0f} / {target_m:.0f} m", file=sys.stderr)
+                print(f"[{now - t_start:6.0f} s] {m.lap.travelled_m:6.0f} / {goal.target_m:.0f} m", file=sys.stderr)
             time.sleep(0.05)
     except RunFailed as exc:  # what was driven until then, for `ares compare` and the reader
-        exc.figures = {
-            "route": route.name,
-            "vehicle": cfg["vehicle"],
-            **tracker.summary(),
-            **control.summary(),
-            **safety.summary(),
-            **scenario.summary(),
-        }
-        _save_trace(run_dir, tracker, control)
+        exc.figures = m.partial()
+        m.save_trace(run_dir)
         raise
     lap_time = clock.now() - t_start
     wall_s = time.monotonic() - wall_start
-    if seconds is not None and route.closed:
-        laps = max(int(tracker.travelled_m // route.length), 1)
+    laps = goal.laps_driven()
     result = {
         "ok": True,
-        "laps": laps if route.closed else 0,
+        "laps": laps,
         "route": route.name,
         "route_length_m": round(route.length, 2),
         "lap_time_s": round(lap_time / max(laps, 1), 2),
         "total_time_s": round(lap_time, 2),
-        **tracker.summary(),
-        **localization.summary(),
-        **control.summary(),
-        **(perception.summary() if perceiving else {}),
-        **safety.summary(),
-        **scenario.summary(),
-        "mission": _mission_summary(mission.latest),
+        **m.summary(),
         "speed_factor": round(lap_time / max(wall_s, 1e-9), 2),
         "clock": clock.mode,
         "wall_time_s": round(wall_s, 1),
         "vehicle": cfg["vehicle"],
         "run_dir": str(run_dir),
-        "t_start_s": round(t_start, 3),
+        "t_start_s": round(t_start, 3),  # the drive, stack time
         "t_end_s": round(t_start + lap_time, 3),
-    }  # the drive, stack time
-    picture = write_lap_svg(
-        run_dir / "lap.svg",
-        route,
-        np.array(tracker.xs),
-        np.array(tracker.ys),
-        np.array(tracker.progress),
-        np.array(tracker.xte),
-        f"{route.name}: {result['distance_m']:.0f} m in {lap_time:.0f} s, {cfg['vehicle']}",
-    )
-    result["plot"] = str(picture)
-    _save_trace(run_dir, tracker, control)
+    }
+    title = f"{route.name}: {result['distance_m']:.0f} m in {lap_time:.0f} s, {cfg['vehicle']}"
+    result["plot"] = str(m.picture(run_dir / "lap.svg", title))
+    m.save_trace(run_dir)
     return result
 
 
-def _mission_summary(status) -> dict | None:
+def mission_summary(status: MissionStatus | None) -> dict | None:
     if status is None:
         return None
     return {
@@ -241,13 +286,3 @@ def _mission_summary(status) -> dict | None:
         "poi": status.poi,
         "result": status.result,
     }
-
-
-def _save_trace(run_dir: Path, tracker: LapTracker, control: ControlTracker) -> None:
-    """For `ares compare`: the error along the route and who drove, at the simulator's rate."""
-    np.savez_compressed(
-        run_dir / "trace.npz",
-        progress=np.array(tracker.progress),
-        xte=np.array(tracker.xte),
-        controller=np.array([c or "none" for c in control.in_charge()]),
-    )

@@ -8,14 +8,18 @@ from __future__ import annotations
 
 import copy
 import difflib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic.config import JsonDict
+from pydantic_core import ErrorDetails
 
 CONFIG_DIR = Path(__file__).parent  # the packaged files: vehicles/, tours/, scenarios/
+
+Model = TypeVar("Model", bound=BaseModel)
 
 
 class ConfigError(ValueError):
@@ -29,16 +33,23 @@ class Params(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, validate_default=True)
 
 
-def param(default: Any = ..., doc: str = "", *, unit: str | None = None, factory=None, **constraints) -> Any:
+def param(
+    default: Any = ...,
+    doc: str = "",
+    *,
+    unit: str | None = None,
+    factory: Callable[[], Any] | None = None,
+    **constraints: Any,
+) -> Any:
     """A configuration field: its default (or `factory` for mutable ones), what it means, its
     unit and its range (ge, gt, le, lt, pattern, ...), as `ares describe` shows them."""
-    extra = {"unit": unit} if unit else None
+    extra: JsonDict | None = {"unit": unit} if unit else None
     if factory is not None:
         return Field(default_factory=factory, description=doc, json_schema_extra=extra, **constraints)
     return Field(default, description=doc, json_schema_extra=extra, **constraints)
 
 
-def load_yaml(path: str | Path) -> dict:
+def load_yaml(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     try:
         text = path.read_text()
@@ -77,7 +88,7 @@ def named_file(kind: str, name: str) -> Path:
 # ---- merging and validation -------------------------------------------------------------------
 
 
-def deep_merge(base: Mapping, override: Mapping) -> dict:
+def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
     out = copy.deepcopy(dict(base))
     for key, value in override.items():
         if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
@@ -87,7 +98,7 @@ def deep_merge(base: Mapping, override: Mapping) -> dict:
     return out
 
 
-def validated(model: type[BaseModel], data: Mapping, source: str):
+def validated(model: type[Model], data: Mapping[str, Any], source: str) -> Model:
     """`model` validated from `data`; a ConfigError naming `source`, the key and what is allowed."""
     try:
         return model.model_validate(dict(data))
@@ -103,7 +114,7 @@ def sentence(source: str, lines: list[str]) -> str:
     return f"{source}: " + ("; ".join(lines) if len(lines) == 1 else "\n  " + "\n  ".join(lines))
 
 
-def error_line(model: type[BaseModel], err: Mapping, prefix: str = "") -> str:
+def error_line(model: type[BaseModel], err: ErrorDetails, prefix: str = "") -> str:
     """One validation error as `key: what is wrong; what is allowed` (prefix: where model sits)."""
     loc = [str(p) for p in err["loc"]]
     key = prefix + ".".join(loc) or "<top level>"

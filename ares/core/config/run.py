@@ -23,7 +23,7 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
@@ -42,6 +42,8 @@ from ares.core.config.vehicle import VehicleProfile, load_vehicle
 
 RUN_CONFIG_ENV = "ARES_RUN_CONFIG"
 VEHICLE_ID_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"  # one key segment of ares/<vehicle_id>/...
+
+Section = TypeVar("Section", bound=Params)
 
 
 class BusSettings(Params):
@@ -174,15 +176,17 @@ CORE_SECTIONS = tuple(CoreConfig.model_fields)
 COMMAND_LINE = "the command line"
 
 
-def build(model: type[CoreConfig], files: tuple[str | Path, ...] = (), overrides: Mapping | None = None) -> dict:
+def build(
+    model: type[CoreConfig], files: tuple[str | Path, ...] = (), overrides: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """The run configuration as a JSON-ready dict: the model's defaults, each file, then `overrides`
     (the command line's choices), each layer validated on its own so that an error names it; the
     vehicle profile resolved into `vehicle_profile`, with any of its fields overridden there."""
     layers = [(str(path), load_yaml(path)) for path in files]
     if overrides:
         layers.append((COMMAND_LINE, dict(overrides)))
-    data: dict = {}
-    profile_overrides: dict = {}
+    data: dict[str, Any] = {}
+    profile_overrides: dict[str, Any] = {}
     set_by: dict[str, str] = {}  # profile field -> the layer that last overrode it
     for source, content in layers:
         content = _empty_sections_as_mappings(model, content)
@@ -197,7 +201,7 @@ def build(model: type[CoreConfig], files: tuple[str | Path, ...] = (), overrides
     return out
 
 
-def _profile(vehicle: str, overrides: dict, set_by: dict[str, str]) -> VehicleProfile:
+def _profile(vehicle: str, overrides: dict[str, Any], set_by: dict[str, str]) -> VehicleProfile:
     """The named profile with its overrides; an error names the layer that set the field."""
     path = named_file("vehicles", vehicle)
     try:
@@ -212,7 +216,7 @@ def _profile(vehicle: str, overrides: dict, set_by: dict[str, str]) -> VehiclePr
         raise ConfigError("\n".join(sentence(source, lines) for source, lines in by_source.items())) from None
 
 
-def _profile_overrides(content: Mapping, source: str) -> dict:
+def _profile_overrides(content: Mapping[str, Any], source: str) -> dict[str, Any]:
     overrides = content.get("vehicle_profile")
     if overrides is None:
         return {}
@@ -224,7 +228,7 @@ def _profile_overrides(content: Mapping, source: str) -> dict:
     return dict(overrides)
 
 
-def _empty_sections_as_mappings(model: type[BaseModel], content: Mapping) -> dict:
+def _empty_sections_as_mappings(model: type[BaseModel], content: Mapping[str, Any]) -> dict[str, Any]:
     """`section:` with nothing under it (YAML null) means the section's defaults."""
 
     def is_section(name: str) -> bool:
@@ -234,35 +238,36 @@ def _empty_sections_as_mappings(model: type[BaseModel], content: Mapping) -> dic
     return {k: ({} if v is None and is_section(k) else v) for k, v in content.items()}
 
 
-def _without_profile(data: Mapping) -> dict:
+def _without_profile(data: Mapping[str, Any]) -> dict[str, Any]:
     """A configuration without its vehicle_profile overrides: those are single fields, validated
     once merged into the named profile."""
     return {k: v for k, v in data.items() if k != "vehicle_profile"}
 
 
-def core_defaults() -> dict:
+def core_defaults() -> dict[str, Any]:
     """Only the core sections, for a process started without a run configuration."""
     return build(CoreConfig)
 
 
-def write_run_config(cfg: Mapping, path: Path) -> Path:
+def write_run_config(cfg: Mapping[str, Any], path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(cfg, indent=1))
     return path
 
 
-def current() -> dict:
+def current() -> dict[str, Any]:
     """The run's configuration in a child process (ARES_RUN_CONFIG), else the core defaults."""
     path = os.environ.get(RUN_CONFIG_ENV)
     if path:
         try:
-            return json.loads(Path(path).read_text())
+            cfg: dict[str, Any] = json.loads(Path(path).read_text())  # as write_run_config wrote it
+            return cfg
         except (OSError, ValueError) as exc:
             raise ConfigError(f"{RUN_CONFIG_ENV}={path}: cannot read the run configuration: {exc}") from None
     return core_defaults()
 
 
-def core(cfg: Mapping) -> CoreConfig:
+def core(cfg: Mapping[str, Any]) -> CoreConfig:
     """The core sections of a run configuration, typed (the named vehicle's profile if it has none)."""
     typed = validated(CoreConfig, {k: cfg[k] for k in CORE_SECTIONS if k in cfg}, "the run configuration")
     if typed.vehicle_profile is None:
@@ -270,6 +275,6 @@ def core(cfg: Mapping) -> CoreConfig:
     return typed
 
 
-def section(cfg: Mapping, name: str, model: type[Params]) -> Params:
+def section(cfg: Mapping[str, Any], name: str, model: type[Section]) -> Section:
     """One section of a run configuration, typed (its defaults where the section is absent)."""
     return validated(model, cfg.get(name) or {}, f"the run configuration, section {name!r}")

@@ -3,7 +3,7 @@ motion, sensor and process faults, passengers at the POIs, the operator's action
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, Self
 
 from pydantic import model_validator
 
@@ -65,7 +65,7 @@ class ScenarioPassengers(Params):
     late: int = param(0, "of those boarding, how many more step into the doorway as the doors begin to close", ge=0)
 
     @model_validator(mode="after")
-    def _ramp_users_board(self):
+    def _ramp_users_board(self) -> Self:
         if self.on_ramp > self.boarding:
             raise ValueError(f"on_ramp ({self.on_ramp}) is more than boarding ({self.boarding})")
         return self
@@ -116,7 +116,7 @@ class ScenarioFault(Params):
     bias_deg_s: float | None = param(None, "gyro_bias: added to the yaw rate", unit="deg/s")
 
     @model_validator(mode="after")
-    def _fields_of_its_kind(self):
+    def _fields_of_its_kind(self) -> Self:
         needs, may = FAULT_FIELDS[self.kind]
         given = {
             name
@@ -129,13 +129,17 @@ class ScenarioFault(Params):
             raise ValueError(f"a {self.kind} fault has no {', '.join(sorted(given - needs - may))}")
         if (self.s_start_m is None) != (self.s_end_m is None):
             raise ValueError("a stretch needs both s_start_m and s_end_m")
-        if self.s_start_m is not None and (self.at_t_s is not None or self.s_end_m <= self.s_start_m):
+        if (
+            self.s_start_m is not None
+            and self.s_end_m is not None  # given with s_start_m: checked above
+            and (self.at_t_s is not None or self.s_end_m <= self.s_start_m)
+        ):
             raise ValueError("a fault holds over a stretch (s_start_m < s_end_m) or from a time, not both")
         return self
 
     def active(self, t: float, s: float | None = None) -> bool:
         """Whether it holds at stack time t with the vehicle at s along the route."""
-        if self.s_start_m is not None:
+        if self.s_start_m is not None and self.s_end_m is not None:  # a stretch has both (validated)
             return s is not None and self.s_start_m <= s <= self.s_end_m
         begins = self.at_t_s or 0.0
         return t >= begins and (self.duration_s is None or t < begins + self.duration_s)
@@ -166,7 +170,7 @@ class Scenario(Params):
     )
 
     @model_validator(mode="after")
-    def _one_visit_per_poi(self):
+    def _one_visit_per_poi(self) -> Self:
         pois = [p.poi for p in self.passengers]
         if len(set(pois)) != len(pois):
             raise ValueError(f"passengers: one entry per POI ({pois})")

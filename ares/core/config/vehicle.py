@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Literal
+from typing import Any, Literal
 
 from ares.core.config.base import Params, deep_merge, load_yaml, named_file, param, validated
 
@@ -178,7 +178,7 @@ class VehicleProfile(Params):
         return self.wheelbase_m + (self.length_m - self.wheelbase_m) / 2.0
 
 
-def load_vehicle(name: str, overrides: Mapping | None = None) -> VehicleProfile:
+def load_vehicle(name: str, overrides: Mapping[str, Any] | None = None) -> VehicleProfile:
     path = named_file("vehicles", name)
     data = deep_merge(load_yaml(path), dict(overrides or {}))
     return validated(VehicleProfile, data, str(path))
