@@ -1,8 +1,9 @@
 """The road-detection experiment (ares/tools/harness/road_betas.py, docs/road_detection.md) on a
 handful of frames: one short sequence per verge kind, straight stretches of the tour, the
 vehicle off the centre line and turned, the LiDARs at full resolution. The defaults (the values
-`ares calibrate road` chose) meet the lap's bounds on each kind there; the search's pieces do
-what the docs say. The full experiment takes minutes: `ares calibrate road`."""
+`ares calibrate road` chose) meet the lap's bounds (road_betas.BOUNDS) on each kind there, but
+for the grass verge's edge p95 (see test_the_grass_edge_p95_meets_its_bound_on_these_frames);
+the search's pieces do what the docs say. The full experiment takes minutes: `ares calibrate road`."""
 
 from __future__ import annotations
 
@@ -52,20 +53,40 @@ def test_the_frames_cover_every_verge_kind_with_their_truth(frames):
 
 
 def test_the_defaults_meet_the_bounds_on_every_verge_kind(evaluation):
+    """Every criterion of every kind within the lap's bound (docs/road_detection.md: detect rate
+    >= 0.95, edge p50 <= 0.15 m and p95 <= 0.40 m, centre p50 <= 0.10 m, open sides given a
+    boundary <= 5 %), but the grass edge p95, asserted on its own below."""
     verges = evaluation["verges"]
     assert set(verges) == set(road_betas.VERGE_KINDS)
     b = road_betas.BOUNDS
+    assert b == {
+        "detect_rate": 0.95,
+        "edge_p50_m": 0.15,
+        "edge_p95_m": 0.40,
+        "centre_p50_m": 0.10,
+        "open_false_rate": 0.05,
+    }  # the bounds the docs state
     for kind, f in verges.items():
         if kind == "open":
             assert f["open_false_rate"] <= b["open_false_rate"], f
             continue
         assert f["detect_rate"] >= b["detect_rate"], (kind, f)
         assert f["edge_p50_m"] <= b["edge_p50_m"], (kind, f)
-        # β were searched with the corner sensors tilted 15°; at today's 25° the grass verge's
-        # worst few boundaries of these few frames lie 0.6 m out (p95 over the whole search: 0.20 m)
-        assert f["edge_p95_m"] <= (0.65 if kind == "grass" else b["edge_p95_m"]), (kind, f)
+        if kind != "grass":
+            assert f["edge_p95_m"] <= b["edge_p95_m"], (kind, f)
         assert f["centre_p50_m"] <= b["centre_p50_m"], (kind, f)
-    assert evaluation["margin"] > -0.75  # grass p95 (see above); every other criterion has slack
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="grass edge p95 0.60 m > 0.40 m on these frames: of 45 grass edge errors the four worst are "
+    "the first frame at s = 275 m (cold: no previous boundary), its boundaries 1.2-1.7 m out 2 m ahead and "
+    "0.6 m at 4 m, and p95 lies between the third and fourth worst. Over the experiment's own frames "
+    "(make_frames(4, 0), 56 grass frames) the defaults give 0.24 m. Strict: an XPASS means it is mended.",
+)
+def test_the_grass_edge_p95_meets_its_bound_on_these_frames(evaluation):
+    assert evaluation["verges"]["grass"]["edge_p95_m"] <= road_betas.BOUNDS["edge_p95_m"]
+    assert evaluation["margin"] >= 0.0  # every bound met on every kind
 
 
 def test_margin_and_objective():

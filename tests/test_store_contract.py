@@ -26,6 +26,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from ares.core.localhost import free_port
 from ares.core.messages import (
     DriveMode,
     EventLevel,
@@ -310,8 +311,39 @@ def test_retention_removes_only_what_is_older_than_seven_days(store, clock):
     assert seconds_of(store.records("v", at(-2 * week), at(1))) == [0]
 
 
-def test_ping(store):
-    store.ping()
+def test_ping_answers_while_the_store_does(store):
+    # ping returns (None) while the store answers, touches nothing, and the store goes on serving
+    store.insert_records([record("v", 0)])
+    assert store.ping() is None
+    assert store.count_records("v", at(0), at(1)) == 1 and store.vehicles() == ["v"]
+
+
+def test_ping_of_a_store_that_cannot_answer_raises_unavailable(tmp_path, clock):
+    """RecordStore.ping: "Raise StoreUnavailable unless the store answers" (the error callers
+    retry on, and /health reports): a closed SQLite store, and a MongoDB URI where nothing listens
+    (no server needed). Every MongoDB call is bounded by the configured timeouts, all 0.3 s here."""
+    from blackbox.store.mongo_store import MongoStore
+
+    closed = SqliteStore(str(tmp_path / "closed.sqlite"), now=clock, settings=SQLITE_SETTINGS)
+    closed.ping()
+    closed.close()
+    with pytest.raises(StoreUnavailable, match="closed"):
+        closed.ping()
+
+    short = StoreSettings(
+        mongo_server_selection_timeout_ms=300,
+        mongo_connect_timeout_ms=300,
+        mongo_socket_timeout_ms=300,
+        mongo_timeout_ms=300,
+    )
+    absent = MongoStore(f"mongodb://127.0.0.1:{free_port()}/?directConnection=true", now=clock, settings=short)
+    try:
+        started = time.monotonic()
+        with pytest.raises(StoreUnavailable, match="MongoDB"):
+            absent.ping()
+        assert time.monotonic() - started < 2.5  # the timeouts' 0.3 s and some slack: not hung
+    finally:
+        absent.close()
 
 
 # ---- SQLite only -----------------------------------------------------------------------------

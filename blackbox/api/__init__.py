@@ -1,21 +1,35 @@
-"""The black box's REST API (ARES §3.8-3.10): read-only queries over the record store.
+"""The black box's REST API (ARES §3.8-3.10): queries over the record store, the live state
+for the pages, and the operator's commands, forwarded to the managers' services on the bus.
 
-`create_app(store, settings)` builds the FastAPI application; `serve(settings, store_uri)` runs
-it under uvicorn, over HTTPS unless plain HTTP is asked for explicitly. Route handlers are thin:
-they check the caller's role and the parameters, then ask the `Repository` (the only owner of
-store calls and caches) and return what it gives.
+`create_app(store, settings, vehicle_id, ...)` builds the FastAPI application; `serve(settings,
+store_uri)` runs it under uvicorn, over HTTPS unless plain HTTP is asked for explicitly. Route
+handlers are thin: they check the caller's role and the parameters, then ask the `Repository`
+(the only owner of store calls and caches), the live gateway or the bus, and return what it gives.
 
-    settings.py      ApiSettings, LimitSettings, where the API keeps its state, PREFIX
-    models.py        response and request models, documented errors, the JSON encoding
-    repository.py    Repository: every store call and cache; pages, reports, export files
-    dependencies.py  the services routes work with, roles (`allow`), shared parameters
-    routes/          one router per resource: health, auth, vehicles, records, events, users
-    app.py           create_app: services, middleware, error handlers, routers
-    server.py        uvicorn_config, serve
+    settings.py        ApiSettings, LimitSettings, where the API keeps its state, PREFIX
+    models.py          response and request models, documented errors, the JSON encoding
+    repository.py      Repository: every store call and cache; pages, reports, export files
+    dependencies.py    the services routes work with, roles (ROLES_*, `allow`), shared parameters
+    credentials.py     passwords (argon2) and tokens (JWT); first_logins.py: one user per page
+    security.py        rate limits, the blacklist, security headers
+    live_hub.py        the live gateway: the bus state the pages show, kept in memory
+    routes/            one router per resource: health, auth, vehicles, records, events, users,
+                       commands, live, pages
+    app.py             create_app: services, middleware, error handlers, routers
+    uvicorn_server.py  uvicorn_config, serve; tls.py: the self-signed certificate
+    api_node.py        the `api` process of the stack (serves this on the vehicle's bus)
 
-Nothing here writes a record, changes an event or publishes on the bus: the API cannot move
-the vehicle or alter what the black box holds. The only writes are users (admin role) and the
-API's own security events (an IP blacklisted).
+What the API writes to the store: users (admin role; `ares run` makes the first ones on an empty
+store, first_logins.py) and its own security events (an IP blacklisted), added to the others.
+It never alters or deletes a record or an event. What it sends to the vehicle: an operator's
+commands (operator role only, routes/commands.py), each forwarded with the operator's name to a
+manager's service, which decides (a refusal is answered 409 with its reason) and records the
+event: a re-arm to the movement manager (`movement/rearm`); a mission goal, pause, resume,
+cancel, and the doors and ramp to the mission manager (`mission/goal`,
+`mission/pause|resume|cancel`, `mission/body`). Besides those service calls, the `api` process
+publishes only what every process does (its heartbeat, its own events): no command reaches the
+drive-by-wire bridge but through the managers. Outside a stack (`ares api`, no bus) the command
+and live routes answer 503.
 
 Endpoints, all under /api/v1 (roles: ROLES_* in dependencies.py):
 
@@ -28,7 +42,16 @@ Endpoints, all under /api/v1 (roles: ROLES_* in dependencies.py):
     GET  /vehicles/{id}/export?start&end&format=jsonl|csv          auditor (streamed)
     GET  /vehicles/{id}/events?start&end&kind&page&page_size       auditor, operator, fleet
     GET  /vehicles/{id}/reliability?start&end&t_hours              auditor, operator, fleet
+    POST /vehicles/{id}/rearm                      operator
+    POST /vehicles/{id}/mission                    operator (a goal: POIs, or a drive)
+    POST /vehicles/{id}/mission/{pause|resume|cancel}              operator
+    POST /vehicles/{id}/body                       operator (doors, ramp)
+    GET  /live/vehicles/{id}                       operator, auditor (Server-Sent Events)
+    GET  /live/fleet                               fleet, operator, auditor (Server-Sent Events)
+    GET  /route                                    fleet, operator, auditor
     GET  /users, POST /users                       admin
+
+The pages (/operator, /blackbox, /fleet) and their files are served outside /api/v1 (routes/pages.py).
 """
 
 from blackbox.api.app import create_app

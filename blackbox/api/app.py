@@ -57,8 +57,11 @@ def create_app(
     app = FastAPI(
         title="ARES black box API",
         version="1",
-        description="Read-only access to the shuttle's black box: records of the last 7 days, events, "
-        "reliability figures. Authenticate at /api/v1/auth/token (OAuth2 password form) and "
+        description="The shuttle's black box: records of the last 7 days, events, reliability figures "
+        "(never altered through the API), the vehicle's live state, and the operator's commands (operator "
+        "role: a mission goal, pause, resume, cancel, doors and ramp to the mission manager, a re-arm to the "
+        "movement manager, each forwarded to that manager's service on the vehicle's bus, which may refuse "
+        "it: 409). Authenticate at /api/v1/auth/token (OAuth2 password form) and "
         "send the token as `Authorization: Bearer <token>`; renew it before it expires. A method "
         "a path does not have is answered 405 with an `Allow` header listing those it has.",
         docs_url="/docs" if settings.docs else None,

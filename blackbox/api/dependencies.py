@@ -24,7 +24,7 @@ ROLES_RECORDS = ("auditor", "operator")  # browse records
 ROLES_EXPORT = ("auditor",)  # export records (the black box interface)
 ROLES_EVENTS = ("auditor", "operator", "fleet")  # events and reliability summaries
 ROLES_ADMIN = ("admin",)
-ROLES_COMMAND = ("operator",)  # the vehicle's services (re-arm, and the mission's to come)
+ROLES_COMMAND = ("operator",)  # the vehicle's services: re-arm, the mission's goal and actions, doors and ramp
 
 
 # ---- the application's services ------------------------------------------------------------------

@@ -17,7 +17,6 @@ vehicle is late once the time since its last POI exceeds the expected time by
 
 from __future__ import annotations
 
-import statistics
 import threading
 import time
 from collections import deque
@@ -132,7 +131,7 @@ class LegTimer:
     def expected_s(self) -> tuple[float | None, str]:
         past = self.history.get((self.from_poi or "", self.to_poi or ""))
         if past:
-            return statistics.median(past), f"median of {len(past)} past runs"
+            return float(np.median(past)), f"median of {len(past)} past runs"
         return self.profile_s, "speed profile"
 
 

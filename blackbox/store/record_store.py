@@ -55,11 +55,21 @@ class StoreSettings(Params):
     mmap_size_mb: int = param(256, "reads map the file instead of copying pages", unit="MiB", ge=0)
     mongo_db: str = param("ares", "MongoDB database (records: time series; events; users)")
     mongo_server_selection_timeout_ms: int = param(
-        2000, "no reachable server this long -> StoreUnavailable", unit="ms", gt=0
+        2000,
+        "pymongo's serverSelectionTimeoutMS; while mongo_timeout_ms bounds an operation, pymongo 4.20 waits that "
+        "instead (measured: an unreachable server is given up after mongo_timeout_ms)",
+        unit="ms",
+        gt=0,
     )
     mongo_connect_timeout_ms: int = param(2000, "connection timeout", unit="ms", gt=0)
     mongo_socket_timeout_ms: int = param(5000, "socket timeout", unit="ms", gt=0)
-    mongo_timeout_ms: int = param(5000, "client-side bound on every operation (pymongo timeoutMS)", unit="ms", gt=0)
+    mongo_timeout_ms: int = param(
+        5000,
+        "client-side bound on every operation, server selection included (pymongo timeoutMS): no reachable "
+        "server this long -> StoreUnavailable",
+        unit="ms",
+        gt=0,
+    )
 
     def location(self) -> str:
         """The configured URI, else the embedded store's file."""

@@ -33,6 +33,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 from ares.core.localhost import free_port
+from ares.tools.bench.common import percentile
 
 VEHICLE = "bench01"
 USER = "bench"
@@ -301,16 +302,12 @@ async def _loadgen(url: str, token: str, seconds: float, connections: int, cafil
     results = await asyncio.gather(*(worker() for _ in range(connections)), return_exceptions=True)
     elapsed = time.monotonic() - started
     errors += sum(1 for r in results if isinstance(r, BaseException))
-    latencies.sort()
-
-    def pct(p: float) -> float | None:
-        return round(latencies[min(len(latencies) - 1, int(p * len(latencies)))] * 1e3, 3) if latencies else None
-
+    latencies_ms = [v * 1e3 for v in latencies]
     return {
         "req_per_s": len(latencies) / elapsed,
         "requests": len(latencies),
-        "latency_p50_ms": pct(0.5),
-        "latency_p99_ms": pct(0.99),
+        "latency_p50_ms": percentile(latencies_ms, 50, 3),
+        "latency_p99_ms": percentile(latencies_ms, 99, 3),
         "errors": errors,
     }
 

@@ -20,14 +20,18 @@ import argparse
 import json
 import random
 import sqlite3
-import statistics
 import tempfile
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+from ares.app.processes import for_run
 from ares.core.messages import DriveMode, Position, ProcessHealth, ProcessState, SensorHealth, VehicleRecord
+from ares.core.topics import TOPIC_TABLE
+from ares.sim.params import SimParams
+from ares.tools.bench.common import percentile
+from blackbox.recorder import SENSOR_TOPICS
 from blackbox.store.record_store import RETENTION
 from blackbox.store.sqlite_store import SqliteStore
 
@@ -35,24 +39,12 @@ GOALS = {"ingest_records_per_s": 5000.0, "query_hour_p50_ms": 20.0}
 VEHICLE = "shuttle01"
 T0 = datetime(2026, 5, 1, tzinfo=UTC)  # first record of the bench's week
 
-# what a record lists once the whole stack runs: today's processes and the ones to come
-PROCESSES = [
-    "sim",
-    "gnss",
-    "localization",
-    "odometry_manager",
-    "path_manager",
-    "dbw_bridge",
-    "controller",
-    "obstacle_manager",
-    "speed_manager",
-    "control_manager",
-    "mission_manager",
-    "self_awareness",
-    "event_register",
-    "rest_api",
-]
-SENSORS = {"gnss": 5.0, "imu": 50.0, "can": 20.0, "lidar_top": 10.0, "lidar_left": 10.0, "lidar_right": 10.0}
+# what a record of a simulated run with the LiDARs lists, from the tables the stack runs on: every
+# process (ares.app.processes), the sensors the recorder rates (blackbox.recorder.SENSOR_TOPICS) at
+# the simulator's rates, the managers' scores (the topics with a `score`, ares.core.topics)
+PROCESSES = [p.name for p in for_run(simulate=True, lidars=True)]
+SENSORS = {name: float(getattr(SimParams(), f"{name}_hz")) for name in SENSOR_TOPICS}
+SCORES = [t.score for t in TOPIC_TABLE if t.score is not None]
 
 
 def realistic_records(vehicle_id: str, first: int, count: int, seed: int = 0) -> list[VehicleRecord]:
@@ -86,7 +78,7 @@ def realistic_records(vehicle_id: str, first: int, count: int, seed: int = 0) ->
                 speed_mps=4.0 * rng.random(),
                 steering_wheel_deg=rng.uniform(-400.0, 400.0),
                 mode=DriveMode.AUTOMATIC,
-                scores={"odometry": rng.random(), "road": rng.random(), "obstacle": 1.0},
+                scores={name: rng.random() for name in SCORES},
                 controller=rng.choice(["mpc", "rrc"]),
                 sensors=sensors,
                 processes=processes,
@@ -168,13 +160,11 @@ def run_store_bench(
             file_mb = sum(p.stat().st_size for p in Path(tmp).iterdir()) / 2**20
         finally:
             store.close()
-    times_ms.sort()
-    json_times_ms.sort()
     return {
         "ingest_records_per_s": round(ingest_rate, 1),
-        "query_hour_p50_ms": round(statistics.median(json_times_ms), 3),
-        "query_hour_p95_ms": round(json_times_ms[min(len(json_times_ms) - 1, int(0.95 * len(json_times_ms)))], 3),
-        "query_hour_dicts_p50_ms": round(statistics.median(times_ms), 3),
+        "query_hour_p50_ms": percentile(json_times_ms, 50, 3),
+        "query_hour_p95_ms": percentile(json_times_ms, 95, 3),
+        "query_hour_dicts_p50_ms": percentile(times_ms, 50, 3),
         "fill_records_per_s": round((records_present - ingest_records) / fill_elapsed, 1) if fill_elapsed else None,
         "engine": f"sqlite {sqlite3.sqlite_version}",
         "records_present": present,

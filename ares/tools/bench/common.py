@@ -2,21 +2,27 @@
 
 from __future__ import annotations
 
-import math
 import platform
+from collections.abc import Sequence
 from importlib import metadata
+
+import numpy as np
 
 
 class BenchError(RuntimeError):
     pass
 
 
-def percentile(sorted_values: list[float], q: float) -> float:
-    """Nearest-rank percentile of an already sorted list (q in 0..100)."""
-    if not sorted_values:
-        return float("nan")
-    rank = max(1, min(len(sorted_values), math.ceil(q / 100.0 * len(sorted_values))))
-    return sorted_values[rank - 1]
+def percentile(values: Sequence[float] | np.ndarray, q: float, ndigits: int | None = None) -> float | None:
+    """The q-th percentile (q in 0..100) of `values` as numpy defines it (np.percentile's default,
+    linear method: between the two nearest ranks, so p50 is the median), rounded to `ndigits` if
+    given; None when there are no values. The one definition the benches, the evaluations and the
+    harnesses report."""
+    data = np.asarray(values, dtype=float)
+    if data.size == 0:
+        return None
+    value = float(np.percentile(data, q))
+    return round(value, ndigits) if ndigits is not None else value
 
 
 def versions(*distributions: str) -> dict:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 import os
 import platform
-import statistics
 import time
 from collections.abc import Callable
 from importlib import metadata
@@ -77,7 +76,7 @@ def _ukf_step_p50_ms(n: int) -> float:
     """p50 of one UKF step (predict + update), perception.ukf.ukf_step_benchmark's n steps."""
     from perception.ukf import ukf_step_benchmark
 
-    return statistics.median(ukf_step_benchmark(n)) * 1e3
+    return percentile(ukf_step_benchmark(n), 50) * 1e3
 
 
 def run_path_bench(
@@ -137,25 +136,24 @@ def run_path_bench(
         nearest_us.append((perf() - started) / 1e3)
     say("UKF step")
     ukf_p50 = _ukf_step_p50_ms(ukf_steps)
-    match_us.sort()
     result = {
         "poses": poses,
         "route_length_m": round(route.length, 1),
         "spacing_m": round(route.length / poses, 3),
-        "kdtree_build_ms": round(statistics.median(build_ms), 3),
+        "kdtree_build_ms": percentile(build_ms, 50, 3),
         "kdtree_builds": builds,
-        "path_index_build_ms": round(statistics.median(index_ms), 3),
+        "path_index_build_ms": percentile(index_ms, 50, 3),
         "queries": len(match_us),
-        "query_p50_us": round(percentile(match_us, 50), 2),
-        "query_p90_us": round(percentile(match_us, 90), 2),
-        "query_p99_us": round(percentile(match_us, 99), 2),
+        "query_p50_us": percentile(match_us, 50, 2),
+        "query_p90_us": percentile(match_us, 90, 2),
+        "query_p99_us": percentile(match_us, 99, 2),
         "query_method": (
             "PathIndex.match: nearest pose within radius_m, heading agreeing, in the hint's window "
             "(read from the route), refined to the perpendicular foot; hint = previous match"
         ),
         "radius_m": index.radius_m,
-        "kd_ball_query_p50_us": round(statistics.median(ball_us), 2),
-        "kd_nearest_query_p50_us": round(statistics.median(nearest_us), 2),
+        "kd_ball_query_p50_us": percentile(ball_us, 50, 2),
+        "kd_nearest_query_p50_us": percentile(nearest_us, 50, 2),
         "matches_not_tracked": not_tracked,
         "max_xte_error_m": round(worst_xte_error, 4),  # |match xte - the drive's true offset|
         "ukf_step_p50_ms": round(ukf_p50, 4),

@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import statistics
 import subprocess
 import sys
 import time
@@ -40,7 +39,7 @@ from typing import TextIO
 
 import numpy as np
 
-from ares.tools.bench.common import BenchError
+from ares.tools.bench.common import BenchError, percentile
 from perception.scan_file import KITTI_SENSOR_HEIGHT_M
 
 RAYCAST_GOAL_CORE_SHARE = 0.30  # of one core at 10 Hz
@@ -201,10 +200,6 @@ def _as_input(sweeps: list):
     return [SensorSweep(name, np.column_stack([sw.x, sw.y, sw.z]), sw.ring) for name, sw in sweeps]
 
 
-def _median(values) -> float:
-    return round(statistics.median(values), 3) if values else float("nan")
-
-
 def run_perception_bench(
     frames: int = 8, repeats: int = 3, seed: int = 1, progress: Callable[[str], None] | None = None
 ) -> dict:
@@ -275,36 +270,36 @@ def run_perception_bench(
                 "verges": list(scene.route.verge_at(s)),
                 "frame_points": sum(len(sweep.points) for sweep in second),
                 "scan_points": dense.size,
-                "pipeline_ms_p50": _median(ms["pipeline"][here:]),
-                "filters_ms_p50": _median(ms["stack_filters"][here:]),
+                "pipeline_ms_p50": percentile(ms["pipeline"][here:], 50, 3),
+                "filters_ms_p50": percentile(ms["stack_filters"][here:], 50, 3),
                 "road_found": bool(frame.road.found),
                 "scan_road_found": bool(scan.road.found),
             }
         )
 
-    raycast = _median(single_threaded["wall"])
+    raycast = percentile(single_threaded["wall"], 50, 3)
     result = {
         "frames": frames,
         "repeats": repeats,
-        "ground_ms_p50": _median(ms["ground_mask"]),
-        "ground_scan_points_p50": int(statistics.median(p["scan_points"] for p in where)),
-        "grid_ms_p50": _median(ms["stack_grid"]),
-        "road_ms_p50": _median(ms["stack_road"]),
-        "filters_ms_p50": _median(ms["stack_filters"]),
-        "transform_ms_p50": _median(ms["stack_transform"]),
-        "pipeline_ground_ms_p50": _median(ms["stack_ground"]),
-        "pipeline_ms_p50": _median(ms["pipeline"]),
+        "ground_ms_p50": percentile(ms["ground_mask"], 50, 3),
+        "ground_scan_points_p50": int(percentile([p["scan_points"] for p in where], 50)),
+        "grid_ms_p50": percentile(ms["stack_grid"], 50, 3),
+        "road_ms_p50": percentile(ms["stack_road"], 50, 3),
+        "filters_ms_p50": percentile(ms["stack_filters"], 50, 3),
+        "transform_ms_p50": percentile(ms["stack_transform"], 50, 3),
+        "pipeline_ground_ms_p50": percentile(ms["stack_ground"], 50, 3),
+        "pipeline_ms_p50": percentile(ms["pipeline"], 50, 3),
         "pipeline_ms_max": round(max(ms["pipeline"]), 3),
-        "frame_points_p50": int(statistics.median(p["frame_points"] for p in where)),
+        "frame_points_p50": int(percentile([p["frame_points"] for p in where], 50)),
         "raycast_ms_p50": raycast,
         "raycast_core_share_at_10hz": round(raycast / FRAME_PERIOD_MS, 3),
-        "raycast_cpu_ms_p50": _median(single_threaded["cpu"]),
-        "raycast_cast_rays_ms_p50": _median(single_threaded["cast_rays"]),
-        "raycast_as_run_ms_p50": _median(as_run["wall"]),
-        "raycast_as_run_cpu_ms_p50": _median(as_run["cpu"]),
-        "raycast_as_run_cast_rays_ms_p50": _median(as_run["cast_rays"]),
-        "scan_pipeline_ms_p50": _median(ms["scan"]),
-        "scan_stage_ms_p50": {stage: _median(ms[f"scan_{stage}"]) for stage in STAGES},
+        "raycast_cpu_ms_p50": percentile(single_threaded["cpu"], 50, 3),
+        "raycast_cast_rays_ms_p50": percentile(single_threaded["cast_rays"], 50, 3),
+        "raycast_as_run_ms_p50": percentile(as_run["wall"], 50, 3),
+        "raycast_as_run_cpu_ms_p50": percentile(as_run["cpu"], 50, 3),
+        "raycast_as_run_cast_rays_ms_p50": percentile(as_run["cast_rays"], 50, 3),
+        "scan_pipeline_ms_p50": percentile(ms["scan"], 50, 3),
+        "scan_stage_ms_p50": {stage: percentile(ms[f"scan_{stage}"], 50, 3) for stage in STAGES},
         "places": where,
         "method": (
             "stack frame: ares_shuttle's 3 LiDARs simulated at full resolution on the built-in tour, "

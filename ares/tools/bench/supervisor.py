@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import signal
-import statistics
 import tempfile
 import time
 from collections.abc import Callable
@@ -26,7 +25,7 @@ from ares.core import config
 from ares.core.clock import WallClock
 from ares.core.localhost import free_port
 from ares.core.messages import ProcessState
-from ares.tools.bench.common import BenchError, versions
+from ares.tools.bench.common import BenchError, percentile, versions
 from ares.tools.bench.ticker import CONTROL_DIR_ENV, control_file
 
 TICKER = "ares.tools.bench.ticker:Ticker"
@@ -105,7 +104,7 @@ def run_supervisor_bench(rounds: int = 3, progress: Callable[[str], None] | None
     out: dict = {"bench": "supervisor", "rounds": rounds}
     for key in ("start_all_s", "sigkill_running_again_s", "sigstop_noticed_s", "gil_hang_noticed_s"):
         values = [r[key] for r in results]
-        out[f"{key}_median"] = round(statistics.median(values), 3)
+        out[f"{key}_median"] = percentile(values, 50, 3)
         out[f"{key}_all"] = [round(v, 3) for v in values]
     out["sigstop_reasons"] = sorted({r["sigstop_reason"] for r in results})
     out["gil_hang_reasons"] = sorted({r["gil_hang_reason"] for r in results})

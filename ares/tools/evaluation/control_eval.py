@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ares.tools.bench.common import percentile
+
 JERK_BIN_S = 0.1
 MPC_PERIOD_S = 0.1  # 10 Hz: a solve longer than this misses its deadline
 
@@ -73,8 +75,8 @@ class ControlTracker:
             "xte_max_rrc_m": round(float(np.max(rrc)), 4) if len(rrc) else None,
             **self.comfort(),
             "mpc_solves": int(len(solves)),
-            "mpc_solve_p50_ms": round(float(np.percentile(solves, 50)), 3) if len(solves) else None,
-            "mpc_solve_p99_ms": round(float(np.percentile(solves, 99)), 3) if len(solves) else None,
+            "mpc_solve_p50_ms": percentile(solves, 50, 3),
+            "mpc_solve_p99_ms": percentile(solves, 99, 3),
             "mpc_deadline_misses": int(np.sum(solves > MPC_PERIOD_S * 1e3)) + self.mpc_stale,
         }
 

@@ -29,6 +29,7 @@ from ares.core.geometry import vehicle_to_local
 from ares.core.messages import LidarStatus, OccupancyGrid, RoadDetection, WorldTruth
 from ares.core.route import Route
 from ares.sim.world import BOUNDARY_VERGES
+from ares.tools.bench.common import percentile
 
 AHEAD_M = (2.0, 4.0, 6.0, 8.0, 10.0)
 EDGE_WITHIN_M = 6.0
@@ -36,10 +37,6 @@ MIN_OBSTACLE_HEIGHT_M = 0.3
 RECALL_REACH_M = 10.0
 ROAD_INSET_M = 0.2
 OBSTACLE_MARGIN_M = 0.5
-
-
-def _pct(values, q) -> float | None:
-    return round(float(np.percentile(values, q)), 4) if len(values) else None
 
 
 CONFIDENCE_RIGHT_M = 0.3  # a detection whose centre line is this close to the truth at the vehicle is right
@@ -226,23 +223,23 @@ class PerceptionTracker:
             if self.frames_with_edges
             else None,
             "road_frames": self.frames_with_edges,
-            "road_edge_err_p50_m": _pct(self.edge_err, 50),
-            "road_edge_err_p95_m": _pct(self.edge_err, 95),
-            "road_centre_err_p50_m": _pct(self.centre_err, 50),
+            "road_edge_err_p50_m": percentile(self.edge_err, 50, 4),
+            "road_edge_err_p95_m": percentile(self.edge_err, 95, 4),
+            "road_centre_err_p50_m": percentile(self.centre_err, 50, 4),
             # what the control manager's road thresholds are chosen from (docs/control_manager.md)
-            "road_confidence_right_p05": _pct(self.confidence_right, 5),
-            "road_confidence_right_p50": _pct(self.confidence_right, 50),
-            "road_confidence_wrong_p50": _pct(self.confidence_wrong, 50),
-            "road_confidence_wrong_p95": _pct(self.confidence_wrong, 95),
+            "road_confidence_right_p05": percentile(self.confidence_right, 5, 4),
+            "road_confidence_right_p50": percentile(self.confidence_right, 50, 4),
+            "road_confidence_wrong_p50": percentile(self.confidence_wrong, 50, 4),
+            "road_confidence_wrong_p95": percentile(self.confidence_wrong, 95, 4),
             "road_confidence_frames": [len(self.confidence_right), len(self.confidence_wrong)],
             "grid_obstacle_recall": round(self.recall_seen / self.recall_total, 4) if self.recall_total else None,
             "grid_obstacle_frames": self.recall_total,
             "grid_false_occupied_road": round(self.road_cells_occupied / self.road_cells, 5)
             if self.road_cells
             else None,
-            "perception_ms_p50": _pct(self.stage_ms, 50),
-            "perception_ms_p95": _pct(self.stage_ms, 95),
-            "perception_cpu_ms_p50": _pct(self.stage_cpu_ms, 50),
+            "perception_ms_p50": percentile(self.stage_ms, 50, 4),
+            "perception_ms_p95": percentile(self.stage_ms, 95, 4),
+            "perception_cpu_ms_p50": percentile(self.stage_cpu_ms, 50, 4),
             **(
                 {"blocked_lidar_points_max": {k: int(max(v)) for k, v in self.blocked_points.items()}}
                 if self.blocked_points

@@ -1,90 +1,95 @@
-"""A headless run's picture: the route, the path driven, and the cross-track error along it.
+"""A headless run's picture (`lap.svg` in the run's folder): above, the route (grey) with its zones
+and POIs and the path driven (blue); below, the cross-track error |xte| along the distance driven.
 
-Plain SVG, written by hand so that a run needs no plotting library and the file opens in any
-browser.
+Drawn with matplotlib (Agg) as the other figures are, written as SVG so that it opens in any
+browser. Text stays text (`svg.fonttype` none) and the three curves carry ids (`route`, `driven`,
+`xte`), so that the file can be read back (tests/test_lap_figure.py).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from xml.sax.saxutils import escape
 
 import numpy as np
 
 from ares.core.route import Route
 
-WIDTH, MAP_HEIGHT, CHART_HEIGHT, MARGIN = 900, 560, 200, 40
+ROUTE_COLOUR, DRIVEN_COLOUR, ERROR_COLOUR = "#bbbbbb", "#1f6fd1", "#c0392b"
+ZONE_COLOURS = {"rtk_loss": "#e8a33d", "intersection": "#c0392b", "road_opening": "#8e44ad", "narrow": "#16a085"}
 
 
-def _polyline(xs, ys, colour: str, width: float, dash: str = "") -> str:
-    points = " ".join(f"{x:.1f},{y:.1f}" for x, y in zip(xs, ys))
-    dash_attr = f' stroke-dasharray="{dash}"' if dash else ""
-    return (
-        f'<polyline points="{points}" fill="none" stroke="{colour}" stroke-width="{width}"'
-        f'{dash_attr} stroke-linejoin="round"/>'
-    )
+def write_lap_svg(
+    path: str | Path,
+    route: Route,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    progress: np.ndarray,
+    xte: np.ndarray,
+    title: str,
+) -> Path:
+    """The map of `route` with the driven path (xs, ys in the local frame) over the chart of |xte|
+    against `progress` (distance driven, m), written to `path` as SVG."""
+    import matplotlib
 
+    matplotlib.use("Agg")  # no display: a file is all we want
+    import matplotlib.pyplot as plt
 
-def lap_svg(route: Route, xs: np.ndarray, ys: np.ndarray, progress: np.ndarray, xte: np.ndarray, title: str) -> str:
-    """Map of the route (grey) with the driven path (blue) and zones, over a chart of |xte|."""
-    all_x = np.concatenate([route.x, xs]) if len(xs) else route.x
-    all_y = np.concatenate([route.y, ys]) if len(ys) else route.y
-    span = max(np.ptp(all_x), np.ptp(all_y), 1.0)
-    scale = min((WIDTH - 2 * MARGIN) / max(np.ptp(all_x), 1.0), (MAP_HEIGHT - 2 * MARGIN) / max(np.ptp(all_y), 1.0))
-    to_px = lambda x, y: (MARGIN + (x - all_x.min()) * scale, MAP_HEIGHT - MARGIN - (y - all_y.min()) * scale)  # noqa: E731
-    parts = [
-        f'<svg xmlns="http://www.w3.org/2000/svg" width="{WIDTH}" height="{MAP_HEIGHT + CHART_HEIGHT}" '
-        f'font-family="sans-serif" font-size="12">',
-        '<rect width="100%" height="100%" fill="white"/>',
-        f'<text x="{MARGIN}" y="22" font-size="15">{escape(title)}</text>',
-    ]
-    rx, ry = to_px(route.x, route.y)
-    parts.append(_polyline(rx, ry, "#bbbbbb", 6))
-    colours = {"rtk_loss": "#e8a33d", "intersection": "#c0392b", "road_opening": "#8e44ad", "narrow": "#16a085"}
-    for zone in route.zones:
-        mask = (route.s >= zone.s_start) & (route.s <= zone.s_end)
-        if mask.any():
-            parts.append(_polyline(rx[mask], ry[mask], colours.get(zone.kind, "#555"), 6))
-    for poi in route.pois:
-        px, py = to_px(*route.point_at(poi.s)[:2])
-        parts.append(
-            f'<circle cx="{px:.1f}" cy="{py:.1f}" r="5" fill="#2c3e50"/>'
-            f'<text x="{px + 8:.1f}" y="{py - 6:.1f}">{escape(poi.name)}</text>'
-        )
-    if len(xs):
-        dx, dy = to_px(np.asarray(xs), np.asarray(ys))
-        parts.append(_polyline(dx, dy, "#1f6fd1", 1.5))
-    legend = [("route", "#bbbbbb"), ("driven", "#1f6fd1")] + [(k.replace("_", " "), c) for k, c in colours.items()]
-    for k, (label, colour) in enumerate(legend):
-        y = 44 + 16 * k
-        parts.append(
-            f'<rect x="{WIDTH - 150}" y="{y - 9}" width="14" height="8" fill="{colour}"/>'
-            f'<text x="{WIDTH - 130}" y="{y}">{escape(label)}</text>'
-        )
-    parts.append(f'<text x="{MARGIN}" y="{MAP_HEIGHT - 12}">{span:.0f} m across</text>')
+    xs, ys = np.asarray(xs, dtype=float), np.asarray(ys, dtype=float)
+    err, progress = np.abs(np.asarray(xte, dtype=float)), np.asarray(progress, dtype=float)
+    with plt.rc_context({"svg.fonttype": "none", "font.size": 9}):
+        fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 7.6), dpi=100, gridspec_kw={"height_ratios": [14, 5]})
 
-    top = MAP_HEIGHT
-    h = CHART_HEIGHT - 50
-    err = np.abs(np.asarray(xte))
-    if len(err):
-        ymax = max(float(err.max()) * 1.1, 0.05)
-        xmax = max(float(np.max(progress)), 1.0)
-        cx = MARGIN + np.asarray(progress) / xmax * (WIDTH - 2 * MARGIN)
-        cy = top + 20 + h - err / ymax * h
-        parts.append(
-            f'<line x1="{MARGIN}" y1="{top + 20 + h}" x2="{WIDTH - MARGIN}" y2="{top + 20 + h}" stroke="#999"/>'
-        )
-        parts.append(_polyline(cx, cy, "#c0392b", 1.2))
-        parts.append(
-            f'<text x="{MARGIN}" y="{top + 14}">|cross-track error| (m), max {err.max():.3f} m, '
-            f"RMSE {np.sqrt(np.mean(err**2)):.3f} m, against distance driven ({xmax:.0f} m)</text>"
-        )
-        parts.append(f'<text x="{MARGIN - 4}" y="{top + 24}" text-anchor="end">{ymax:.2f}</text>')
-    parts.append("</svg>")
-    return "\n".join(parts)
+        # the map: the route, its zones, the POIs, the path driven
+        close = (lambda a: np.append(a, a[:1])) if route.closed else (lambda a: a)  # noqa: E731
+        top.plot(close(route.x), close(route.y), color=ROUTE_COLOUR, lw=6, label="route", gid="route")
+        for kind, colour in ZONE_COLOURS.items():
+            inside = np.zeros(len(route.s), dtype=bool)
+            for zone in route.zones:
+                if zone.kind == kind:
+                    inside |= (route.s >= zone.s_start) & (route.s <= zone.s_end)
+            if inside.any():  # NaN outside: one line per kind, broken between its zones
+                top.plot(
+                    np.where(inside, route.x, np.nan),
+                    np.where(inside, route.y, np.nan),
+                    color=colour,
+                    lw=6,
+                    label=kind.replace("_", " "),
+                )
+        for poi in route.pois:
+            x, y = route.point_at(poi.s)[:2]
+            top.plot(x, y, "o", ms=6, color="#2c3e50")
+            top.annotate(poi.name, (x, y), xytext=(6, 5), textcoords="offset points")
+        if len(xs):
+            top.plot(xs, ys, color=DRIVEN_COLOUR, lw=1.5, label="driven", gid="driven")
+        all_x = np.concatenate([route.x, xs])
+        all_y = np.concatenate([route.y, ys])
+        span = max(float(np.ptp(all_x)), float(np.ptp(all_y)), 1.0)
+        top.set_aspect("equal", adjustable="datalim")
+        top.set_xlabel(f"x (m); {span:.0f} m across")
+        top.set_ylabel("y (m)")
+        top.legend(loc="upper center", ncol=3, fontsize=8, framealpha=0.9)
+        top.set_title(title, loc="left", fontsize=11)
 
-
-def write_lap_svg(path: Path, *args, **kwargs) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(lap_svg(*args, **kwargs))
-    return path
+        # the error along the distance driven
+        if len(err):
+            bottom.plot(progress, err, color=ERROR_COLOUR, lw=1.2, gid="xte")
+            rmse = float(np.sqrt(np.mean(err**2)))
+            bottom.set_title(
+                f"|cross-track error| (m), max {err.max():.3f} m, RMSE {rmse:.3f} m, "
+                f"against distance driven ({float(np.max(progress)):.0f} m)",
+                loc="left",
+                fontsize=9,
+            )
+            bottom.set_xlim(0.0, max(float(np.max(progress)), 1.0))
+            bottom.set_ylim(0.0, max(float(err.max()) * 1.1, 0.05))
+        else:
+            bottom.set_title("|cross-track error| (m): nothing driven", loc="left", fontsize=9)
+        bottom.set_xlabel("distance driven (m)")
+        bottom.set_ylabel("m")
+        bottom.grid(alpha=0.3)
+        fig.tight_layout()
+        out = Path(path)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, format="svg", metadata={"Date": None})
+        plt.close(fig)
+    return out

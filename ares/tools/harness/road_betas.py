@@ -38,6 +38,7 @@ from ares.sim.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
 from ares.sim.params import SimParams
 from ares.sim.road import grade_at, roughness_for
 from ares.sim.world import BOUNDARY_VERGES, CROSSFALL, World
+from ares.tools.bench.common import percentile
 from ares.tools.evaluation.perception_eval import AHEAD_M, EDGE_WITHIN_M
 from perception.lidar_perception import LidarPipeline, SensorSweep
 from perception.road_detection import LidarFrame, RoadDetectionParams, detect_road
@@ -301,10 +302,6 @@ def detect(frames: list[Frame], params: RoadDetectionParams) -> list[Outcome]:
     return out
 
 
-def _pct(values, q):
-    return float(np.percentile(values, q)) if len(values) else None
-
-
 def figures(frames: list[Frame], outcomes: list[Outcome]) -> dict:
     """Per verge kind: frames, detect_rate, edge_p50_m, edge_p95_m, centre_p50_m (kinds with a
     boundary); sides, open_false_rate (open). A frame counts for the kind of each of its sides."""
@@ -343,9 +340,9 @@ def figures(frames: list[Frame], outcomes: list[Outcome]) -> dict:
             out[kind] = {
                 "frames": a["frames"],
                 "detect_rate": a["found"] / a["frames"],
-                "edge_p50_m": _pct(a["edge"], 50),
-                "edge_p95_m": _pct(a["edge"], 95),
-                "centre_p50_m": _pct(a["centre"], 50),
+                "edge_p50_m": percentile(a["edge"], 50),
+                "edge_p95_m": percentile(a["edge"], 95),
+                "centre_p50_m": percentile(a["centre"], 50),
             }
     return out
 
@@ -446,8 +443,8 @@ def evaluate(frames: list[Frame], params: RoadDetectionParams) -> dict:
         "margin": margin(fig),
         "tight_bends": tight_fig,
         "tight_pooled": pooled,
-        "detect_ms_p50": float(np.median(ms)),
-        "detect_ms_p95": float(np.percentile(ms, 95)),
+        "detect_ms_p50": percentile(ms, 50),
+        "detect_ms_p95": percentile(ms, 95),
     }
 
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from ares.core.config import load_vehicle
 from ares.core.route import Route
+from ares.tools.bench.common import percentile
 from ares.tools.harness.road_betas import make_frames, tight_bends
 from control.rrc import RoadReactiveControl, RoadView, RrcParams
 from perception.lidar_perception import LidarPipeline
@@ -151,14 +152,13 @@ def run(
 def _figures(errors: list[tuple[float, float, float]]) -> dict:
     """Frames, and |error| p50/p95/max of the offset, p95 of the heading and of b (None without frames)."""
     e = np.abs(np.array(errors)).reshape(-1, 3)
-    figure = (lambda column, q: float(np.percentile(e[:, column], q))) if len(e) else (lambda column, q: None)
     return {
         "frames": len(e),
-        "offset_p50_m": figure(0, 50),
-        "offset_p95_m": figure(0, 95),
-        "offset_max_m": figure(0, 100),
-        "heading_p95_deg": figure(1, 95),
-        "curvature_p95": figure(2, 95),
+        "offset_p50_m": percentile(e[:, 0], 50),
+        "offset_p95_m": percentile(e[:, 0], 95),
+        "offset_max_m": percentile(e[:, 0], 100),
+        "heading_p95_deg": percentile(e[:, 1], 95),
+        "curvature_p95": percentile(e[:, 2], 95),
     }
 
 
