@@ -355,10 +355,53 @@ class _Scan:
     index: np.ndarray  # frame index of each scored point
     score: np.ndarray  # its Pr
 
+    @staticmethod
+    def unscored(index: np.ndarray, n_sensors: int) -> _Scan:
+        """Too few points for a window: no boundary, every point taken as road."""
+        return _Scan(
+            np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(n_sensors, dtype=np.int64), index, np.ones(len(index))
+        )
 
-def _sums(prefix: np.ndarray, lo, hi):
-    """Sums over the index ranges lo..hi (inclusive) from a prefix-sum table with a leading 0."""
-    return prefix[..., hi + 1] - prefix[..., lo]
+
+@dataclass(frozen=True)
+class _Rings:
+    """The points the walks read, ring after ring, each ring from its right end to its left end."""
+
+    idx: np.ndarray  # (n,) frame index of each point
+    ring: np.ndarray  # (n,) its ring, numbered 0, 1, ... in that order
+    x: np.ndarray  # (n,) float64, vehicle frame (m)
+    y: np.ndarray
+    z: np.ndarray
+    u: np.ndarray  # (n,) azimuth from the ring's reference, −Δθ of Algorithm 1: + to the left, 0 at it
+    across: np.ndarray  # (n,) distance across the guide line (m)
+    sensor: np.ndarray  # (n,)
+    theta_s: np.ndarray  # (rings,) each ring's reference azimuth θs, in its sensor's frame
+    lower: np.ndarray  # (rings,) the ring of the same sensor aimed next lower (−1: none, or not scanned)
+
+
+@dataclass(frozen=True)
+class _Along:
+    """Where each point lies along its ring, and the ring's gapless pieces."""
+
+    t: np.ndarray  # (n,) metres along the ring from its right end
+    piece: np.ndarray  # (n,) gapless piece of each point, numbered from 1 across all rings
+    piece_first: np.ndarray  # piece k runs from piece_first[k − 1] ...
+    piece_last: np.ndarray  # ... to piece_last[k − 1]
+    ring_start: np.ndarray  # (rings,) each ring's first point (its right end)
+    ring_end: np.ndarray  # (rings,) and its last (its left end)
+    spacing: np.ndarray  # (rings,) mean step between neighbours along the ring (m, at least 1 mm)
+    reference_piece: np.ndarray  # (rings,) the piece of the ring's reference: beyond a gap nothing is known
+
+
+@dataclass(frozen=True)
+class _Trend:
+    """The straight line fitted to the heights of each point's road-side window along t: the
+    road's trend there, z = mean_z + slope·(t − mean_t)."""
+
+    prefix: np.ndarray  # (5, n + 1) prefix sums of t, t², z, tz, z² with a leading 0 (for any window's sums)
+    mean_t: np.ndarray  # (n,)
+    mean_z: np.ndarray
+    slope: np.ndarray
 
 
 def _scan(
@@ -369,100 +412,163 @@ def _scan(
     previous: RoadModel | None,
     x_max: float,
 ) -> _Scan:
+    """The first iteration (steps 1-5 of the module's docstring) over the points `idx` of the ROI,
+    which ends at x_max: every point the walks read scored by eqs. 7-10, and at most one boundary
+    point per ring and side. The references are taken nearest the `guide` centre line (None: y = 0)."""
     n_sensors = len(frame.sensor_origins)
-    empty = np.zeros((0, 2))
+    # step 1
+    band = _search_band(p, previous)
+    idx, across = _within_band(frame, idx, guide, band)
+    # step 2, Algorithm 1
+    idx, across, ring_first, ring = _group_by_ring(frame.ring_id, idx, across)
     if len(idx) == 0:
-        return _Scan(empty, empty, np.zeros(n_sensors, dtype=np.int64), idx, np.ones(0))
-    # Only the points as far from the guide (across it: in a bend it runs steeply across the x
-    # axis) as the widest road's edge (or the previous frame's) and a margin beyond: the walks
-    # stop before them.
+        return _Scan.unscored(idx, n_sensors)
+    theta_s, z_ref, reach, aim = _ring_references(frame, idx, across, ring_first, ring, p)
+    road_ring, ring_below = _road_rings(reach, aim, frame.sensor_index[idx[ring_first]])
+    keep, u = _azimuth_order(frame.azimuth[idx], frame.points[idx, 2], ring, theta_s, z_ref, road_ring)
+    if len(keep) < 2:
+        return _Scan.unscored(idx[keep], n_sensors)
+    rings = _gather_rings(frame, idx, across, ring, keep, u, theta_s, ring_below)
+    # step 3, eqs. 7-10
+    along = _along_ring(rings, frame.sensor_origins)
+    reach_s, reach_w, run = _window_lengths(rings, along, p)
+    lo, hi, valid = _road_side_windows(rings.u, rings.ring, along.piece, reach_s, reach_w)
+    gradient, sigma, trend = _window_features(along.t, rings.z, lo, hi)
+    score = road_score(gradient, sigma, _beyond_previous(rings, previous), p.weights)
+    score[~valid] = 1.0  # too near the reference, or a gap, for a window: nothing to tell it from
+    # steps 4-5
+    stop = _stops(score, rings.u, along.piece, run)
+    left, right = (_side_boundary(sign, stop, score, reach_s, rings, along, trend, band, p, x_max) for sign in (1, -1))
+    per_sensor = np.bincount(frame.sensor_index[rings.idx[score >= 0.5]], minlength=n_sensors)
+    x, y = rings.x, rings.y
+    return _Scan(np.c_[x[left], y[left]], np.c_[x[right], y[right]], per_sensor, rings.idx, score)
+
+
+def _search_band(p: RoadDetectionParams, previous: RoadModel | None) -> float:
+    """Step 1: how far across the guide line the walks of step 4 can go: to the widest road's
+    edge (the previous frame's, when it saw both), then a margin, a span and a run beyond."""
+    band = 0.5 * p.max_width_m
+    if previous is not None and previous.left is not None and previous.right is not None:
+        band = min(band, 0.5 * previous.width_m)  # a width only one side saw may be stale
+    return band + (BAND_MARGIN_M + p.gradient_span_m + p.run_m)
+
+
+def _within_band(frame: LidarFrame, idx: np.ndarray, guide: np.ndarray | None, band: float):
+    """Step 1: the points of `idx` within `band` of the guide line (y = 0 without one), and their
+    distance from it, measured across it: in a bend it runs steeply across the x axis."""
     x, y = frame.points[idx, 0], frame.points[idx, 1]
     if guide is None:
         across = np.abs(y)
     else:
         g = guide.astype(np.float32)  # in the points' float32: mm do not matter here
         across = np.abs(y - poly.polyval(x, g)) / np.hypot(np.float32(1.0), poly.polyval(x, poly.polyder(g)))
-    band = 0.5 * p.max_width_m
-    if previous is not None and previous.left is not None and previous.right is not None:
-        band = min(band, 0.5 * previous.width_m)  # a width only one side saw may be stale
-    band += BAND_MARGIN_M + p.gradient_span_m + p.run_m
-    inside_band = across <= band
-    idx, across = idx[inside_band], across[inside_band]
-    # Rings first (a radix sort for small integers): each ring is then one slice, numbered `sl`.
-    ring = frame.ring_id[idx]
-    order = np.argsort(ring.astype(np.int16 if ring.max(initial=0) < 2**15 else np.int64), kind="stable")
-    idx, ring, across = idx[order], ring[order], across[order]
-    if len(idx) == 0:
-        return _Scan(empty, empty, np.zeros(n_sensors, dtype=np.int64), idx, np.ones(0))
-    first = np.flatnonzero(np.r_[True, ring[1:] != ring[:-1]])
-    sl = np.repeat(np.arange(len(first)), np.diff(np.r_[first, len(idx)]))
-    x, y, z = frame.points[idx].T
-    az, sensor = frame.azimuth[idx], frame.sensor_index[idx]
+    inside = across <= band
+    return idx[inside], across[inside]
 
-    # Reference of each ring: its point ahead of its sensor nearest the guide centre line.
+
+def _group_by_ring(ring_id: np.ndarray, idx: np.ndarray, across: np.ndarray):
+    """The points ring after ring, in their order within each ring (a stable radix sort of small
+    integers), then where each ring starts and the ring of each point, numbered 0, 1, ..."""
+    ids = ring_id[idx]
+    order = np.argsort(ids.astype(np.int16 if ids.max(initial=0) < 2**15 else np.int64), kind="stable")
+    idx, ids, across = idx[order], ids[order], across[order]
+    ring_first = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    return idx, across, ring_first, np.repeat(np.arange(len(ring_first)), np.diff(np.r_[ring_first, len(idx)]))
+
+
+def _ring_references(frame: LidarFrame, idx, across, ring_first, ring, p: RoadDetectionParams):
+    """Step 2: each ring's reference point, its point ahead of its sensor nearest the guide line.
+    Per ring: θs (its azimuth, Algorithm 1's), its height, its horizontal range from the sensor
+    (−inf: it lies more than reference_max_offset_m off the guide, the ring is not the road's) and
+    the elevation of the ray that hit it."""
+    x, y, z = frame.points[idx].T
+    sensor = frame.sensor_index[idx]
     offset = across.copy()
     offset[x <= frame.sensor_origins[sensor, 0]] = np.inf
-    best = np.minimum.reduceat(offset, first)
-    theta_s = np.full(len(first), np.nan)
-    z_ref = np.zeros(len(first))
-    is_ref = offset == best[sl]
-    theta_s[sl[is_ref]] = az[is_ref]
-    z_ref[sl[is_ref]] = z[is_ref]
-    # A ring is one of the road's only if its reference lies farther from its sensor than those of
-    # all the rings of its sensor aimed lower there: a ray aimed higher that lands nearer has met
-    # something standing on or beside the road (a wall ahead in a bend, an obstacle) before the
-    # ground.
+    best = np.minimum.reduceat(offset, ring_first)
+    theta_s = np.full(len(ring_first), np.nan)
+    z_ref = np.zeros(len(ring_first))
+    is_ref = offset == best[ring]
+    theta_s[ring[is_ref]] = frame.azimuth[idx][is_ref]
+    z_ref[ring[is_ref]] = z[is_ref]
     origin = frame.sensor_origins[sensor[is_ref]]
-    reach = np.full(len(first), -np.inf)
-    reach[sl[is_ref]] = np.hypot(x[is_ref] - origin[:, 0], y[is_ref] - origin[:, 1])
-    aim = np.full(len(first), np.inf)
-    aim[sl[is_ref]] = np.arctan2(z[is_ref] - origin[:, 2], reach[sl[is_ref]])
+    reach = np.full(len(ring_first), -np.inf)
+    reach[ring[is_ref]] = np.hypot(x[is_ref] - origin[:, 0], y[is_ref] - origin[:, 1])
+    aim = np.full(len(ring_first), np.inf)
+    aim[ring[is_ref]] = np.arctan2(z[is_ref] - origin[:, 2], reach[ring[is_ref]])
     reach[best > p.reference_max_offset_m] = -np.inf
-    lowest_first = np.lexsort((aim, sensor[first]))
-    ring_below = np.full(len(first), -1)  # the ring aimed next lower, of the same sensor
-    same = sensor[first][lowest_first[1:]] == sensor[first][lowest_first[:-1]]
+    return theta_s, z_ref, reach, aim
+
+
+def _road_rings(reach: np.ndarray, aim: np.ndarray, ring_sensor: np.ndarray):
+    """Step 2: the rings of the road, those whose reference lies farther from their sensor than
+    those of all the rings of their sensor aimed lower: a ray aimed higher that lands nearer has
+    met something standing on or beside the road (a wall ahead in a bend, an obstacle) before the
+    ground. Also each ring's ring of the same sensor aimed next lower (−1: none)."""
+    lowest_first = np.lexsort((aim, ring_sensor))
+    ring_below = np.full(len(reach), -1)
+    same = ring_sensor[lowest_first[1:]] == ring_sensor[lowest_first[:-1]]
     ring_below[lowest_first[1:]] = np.where(same, lowest_first[:-1], -1)
-    by_sensor = reach[lowest_first] + 1e4 * sensor[first][lowest_first]  # the running maximum restarts per sensor
-    road_ring = np.zeros(len(first), dtype=bool)
+    by_sensor = reach[lowest_first] + 1e4 * ring_sensor[lowest_first]  # the running maximum restarts per sensor
+    road_ring = np.zeros(len(reach), dtype=bool)
     road_ring[lowest_first] = np.isfinite(by_sensor) & (
         by_sensor > np.r_[-np.inf, np.maximum.accumulate(by_sensor)[:-1]]
     )
-    # Only the points within a quarter turn of the reference (|θs − θ| below π/2, or above 3π/2
-    # across ±π), where Algorithm 1 is exact: farther across ±π it folds by π, and a point
-    # behind the sensor would land among the points ahead. u: azimuth from the reference,
-    # + to the left (Algorithm 1 gives θs − θ). And only those within HEIGHT_CUT_M of the
-    # reference's height: no road lies higher or lower across one ring, and the walks stop at the
-    # foot of a wall or the lip of a drop before them.
-    ts = theta_s[sl]
+    return road_ring, ring_below
+
+
+def _azimuth_order(az, z, ring, theta_s, z_ref, road_ring):
+    """Step 2 (Algorithm 1): which points of the road rings the walks read, in what order, and
+    their azimuth u from their ring's reference (u = θ − θs = −Δθ, + to the left). Only the points
+    within a quarter turn of the reference (|θs − θ| below π/2, or above 3π/2 across ±π), where
+    Algorithm 1 is exact: farther across ±π it folds by π, and a point behind the sensor would land
+    among the points ahead. And only those within HEIGHT_CUT_M of the reference's height: no road
+    lies higher or lower across one ring, and the walks stop at the foot of a wall or the lip of a
+    drop before them. Returns (positions in the input, u), ring after ring, each by u."""
+    ts = theta_s[ring]
     turn = np.abs(ts - az)
     keep = np.flatnonzero(
-        ((turn < np.pi / 2) | (turn > 1.5 * np.pi)) & road_ring[sl] & (np.abs(z - z_ref[sl]) <= HEIGHT_CUT_M)
+        ((turn < np.pi / 2) | (turn > 1.5 * np.pi)) & road_ring[ring] & (np.abs(z - z_ref[ring]) <= HEIGHT_CUT_M)
     )
     u = -normalized_azimuth_subtraction(az[keep], ts[keep])
-    # Each ring from its right end to its left end: by u within the rings (already grouped, so
-    # the keys come in runs a stable merge sort takes as they are).
-    order = np.argsort(sl[keep] * 4.0 + u, kind="stable")
-    keep, u = keep[order], u[order]
-    ts = ts[keep]
-    idx, sl, sensor, across = idx[keep], sl[keep], sensor[keep], across[keep]
-    x, y, z = x[keep].astype(np.float64), y[keep].astype(np.float64), z[keep].astype(np.float64)
-    n = len(idx)
-    if n < 2:
-        return _Scan(empty, empty, np.zeros(n_sensors, dtype=np.int64), idx, np.ones(n))
-    at = np.arange(n)
-    left, right = u > 0, u < 0
-    outward = np.where(left, 1, -1)
+    # the rings are already grouped, so the keys come in runs a stable merge sort takes as they are
+    order = np.argsort(ring[keep] * 4.0 + u, kind="stable")
+    return keep[order], u[order]
 
-    # t: distance along the ring, its horizontal range from the sensor times the azimuth step:
-    # the firing azimuths are exact, the ranges are not (a corner sensor's points lie 1 cm apart
-    # along its ring and scatter 3 cm across it). Across a gap (the ROI cuts rings, obstacles
-    # shadow them, a drop returns nothing) two points are not neighbours: `piece` numbers the
-    # gapless pieces of the rings.
-    origin = frame.sensor_origins[sensor]
+
+def _gather_rings(frame: LidarFrame, idx, across, ring, keep, u, theta_s, ring_below) -> _Rings:
+    """The kept points of _azimuth_order as _Rings, the rings left numbered again from 0."""
+    old = ring[keep]
+    new_ring = np.r_[True, old[1:] != old[:-1]]
+    renumbered = np.full(len(ring_below) + 1, -1)  # old ring numbers to new (−1: gone, or none)
+    renumbered[old[new_ring]] = np.arange(new_ring.sum())
+    idx = idx[keep]
+    x, y, z = np.ascontiguousarray(frame.points[idx].T, dtype=np.float64)
+    return _Rings(
+        idx,
+        np.cumsum(new_ring) - 1,
+        x,
+        y,
+        z,
+        u,
+        across[keep],
+        frame.sensor_index[idx],
+        theta_s[old[new_ring]],
+        renumbered[ring_below[old[new_ring]]],
+    )
+
+
+def _along_ring(rings: _Rings, sensor_origins: np.ndarray) -> _Along:
+    """Step 3's t: the distance along the ring, its horizontal range from the sensor times the
+    azimuth step: the firing azimuths are exact, the ranges are not (a corner sensor's points lie
+    1 cm apart along its ring and scatter 3 cm across it). Across a gap (the ROI cuts rings,
+    obstacles shadow them, a drop returns nothing) two points are not neighbours: the rings' gapless
+    pieces."""
+    x, y, u, ring = rings.x, rings.y, rings.u, rings.ring
+    n = len(u)
+    origin = sensor_origins[rings.sensor]
     rho = np.hypot(x - origin[:, 0], y - origin[:, 1])
-    new_ring = np.r_[True, sl[1:] != sl[:-1]]
-    old_sl = sl
-    sl = np.cumsum(new_ring) - 1  # rings left, numbered again
+    new_ring = np.r_[True, ring[1:] != ring[:-1]]
     dt = np.abs(np.diff(u, prepend=u[0])) * rho
     dt[new_ring] = 0.0
     step = np.hypot(np.diff(x, prepend=x[0]), np.diff(y, prepend=y[0]))
@@ -471,34 +577,68 @@ def _scan(
     T = np.cumsum(dt)
     ring_start = np.flatnonzero(new_ring)
     t = T - np.repeat(T[ring_start], np.diff(np.r_[ring_start, n]))  # from the ring's right end
-    rings = len(ring_start)
-    ring_end = np.r_[ring_start[1:] - 1, n - 1]
-    spacing = np.bincount(sl, np.where(new_piece, 0.0, dt), rings) / np.maximum(np.bincount(sl, ~new_piece, rings), 1)
-    spacing = np.maximum(spacing, 1e-3)
-    # A verge is a profile across the road: where a ring crosses the edge at a slant (the corner
-    # sensors' rings near the vehicle run almost along it), a span across the road is a longer
-    # stretch of ring. `slant`: how fast the ring moves across the guide line per metre along it,
-    # over the last SLANT_M of ring (the ranges' scatter allows no shorter), at least MIN_SLANT.
-    k = np.maximum(1, np.ceil(SLANT_M / spacing)).astype(np.int64)[sl]
-    behind = np.clip(at - np.where(u > 0, k, -k), 0, n - 1)
-    same = sl[behind] == sl
+    count = len(ring_start)
+    steps = np.maximum(np.bincount(ring, ~new_piece, count), 1)
+    spacing = np.bincount(ring, np.where(new_piece, 0.0, dt), count) / steps
+    reference_piece = np.zeros(count, dtype=piece.dtype)
+    reference_piece[ring[u == 0]] = piece[u == 0]
+    piece_first = np.flatnonzero(new_piece)
+    return _Along(
+        t,
+        piece,
+        piece_first,
+        np.r_[piece_first[1:] - 1, n - 1],
+        ring_start,
+        np.r_[ring_start[1:] - 1, n - 1],
+        np.maximum(spacing, 1e-3),
+        reference_piece,
+    )
+
+
+def _window_lengths(rings: _Rings, along: _Along, p: RoadDetectionParams):
+    """Step 3's S (gradient_span_m) and W (window_m) and step 4's run (run_m), in points of each
+    point's ring: (S, W, run). A verge is a profile across the road: where a ring crosses the edge
+    at a slant (the corner sensors' rings near the vehicle run almost along it), a span across the
+    road is a longer stretch of ring. The slant: how fast the ring moves across the guide line per
+    metre along it, over the last SLANT_M of ring on the road side (the ranges' scatter allows no
+    shorter), at least MIN_SLANT; the run is taken along the ring."""
+    u, ring, t, across, spacing = rings.u, rings.ring, along.t, rings.across, along.spacing
+    n = len(u)
+    k = np.maximum(1, np.ceil(SLANT_M / spacing)).astype(np.int64)[ring]
+    behind = np.clip(np.arange(n) - np.where(u > 0, k, -k), 0, n - 1)
+    same = ring[behind] == ring
     slant = np.where(same, np.abs(across - across[behind]) / np.maximum(np.abs(t - t[behind]), 1e-6), 1.0)
     slant = np.clip(slant, MIN_SLANT, 1.0)
-    reach_s = np.ceil(p.gradient_span_m / (spacing[sl] * slant)).astype(np.int64)
-    reach_w = np.maximum(2, np.ceil(p.window_m / (spacing[sl] * slant))).astype(np.int64)
-    m = np.maximum(2, np.ceil(p.run_m / spacing)).astype(np.int64)[sl]  # points in a run
+    reach_s = np.ceil(p.gradient_span_m / (spacing[ring] * slant)).astype(np.int64)
+    reach_w = np.maximum(2, np.ceil(p.window_m / (spacing[ring] * slant))).astype(np.int64)
+    run = np.maximum(2, np.ceil(p.run_m / spacing)).astype(np.int64)[ring]
+    return reach_s, reach_w, run
 
-    # The road-side window of each point: the points from gradient_span_m to gradient_span_m +
-    # window_m behind it (towards θs), and the straight line fitted to their heights along t:
-    # the road's trend there.
-    # It stays on the point's side of the reference: near the reference it is shorter, down to
-    # half its length; closer in, the point is taken as road.
-    reference = np.flatnonzero(u == 0)[sl]  # one per ring (θs is one of its azimuths)
-    near = at - outward * reach_s
+
+def _road_side_windows(u, ring, piece, reach_s, reach_w):
+    """Step 3: each point's road-side window, the points from S to S + W behind it (towards θs),
+    as the inclusive index range lo..hi, and whether the point has one (else it is taken as
+    road). The window stays on the point's side of the reference and in its piece: near the
+    reference it is shorter, down to half its length; closer in, or across a gap, there is none."""
+    n = len(u)
+    left = u > 0
+    outward = np.where(left, 1, -1)
+    reference = np.flatnonzero(u == 0)[ring]  # one per ring (θs is one of its azimuths)
+    near = np.arange(n) - outward * reach_s
     far = near - outward * reach_w
     far = np.where(left, np.maximum(far, reference), np.minimum(far, reference))
     lo, hi = np.clip(np.minimum(near, far), 0, n - 1), np.clip(np.maximum(near, far), 0, n - 1)
     valid = (outward * (near - far) >= reach_w // 2) & (piece[lo] == piece) & (piece[hi] == piece) & (u != 0)
+    return lo, hi, valid
+
+
+def _window_features(t, z, lo, hi):
+    """Eqs. 8 and 9's ∇ij and σij of each point against its window lo..hi ("the relative height
+    based on the medium deviation of the previous data for the same ring, taking into account the
+    displacement"): ∇ = (z − the window's mean z) / the distance from its mean t, + rising away from
+    the road; σ = the height above the window's straight line (the road's trend) extended to the
+    point, >= 0. Also that line, which _hinge reads again."""
+    n = len(t)
     prefix = np.zeros((5, n + 1))
     for row, values in enumerate((t, t * t, z, t * z, z * z)):
         np.cumsum(values, out=prefix[row, 1:])
@@ -507,92 +647,120 @@ def _scan(
     mean_t, mean_z = st / count, sz / count
     slope = (stz / count - mean_t * mean_z) / np.maximum(stt / count - mean_t**2, 1e-9)
     distance = np.maximum(np.abs(t - mean_t), 1e-3)
-    gradient = (z - mean_z) / distance  # ∇: + rising away from the road
-    sigma = np.maximum(z - mean_z - slope * (t - mean_t), 0.0)  # σ: height above the road's trend
-    beyond = None
-    if previous is not None and (previous.left is not None or previous.right is not None):
-        beyond = np.full(n, np.nan)
-        if previous.left is not None:
-            beyond[left] = y[left] - poly.polyval(x[left], previous.left)
-        if previous.right is not None:
-            beyond[right] = poly.polyval(x[right], previous.right) - y[right]
-    score = road_score(gradient, sigma, beyond, p.weights)
-    score[~valid] = 1.0
+    gradient = (z - mean_z) / distance
+    sigma = np.maximum(z - mean_z - slope * (t - mean_t), 0.0)
+    return gradient, sigma, _Trend(prefix, mean_t, mean_z, slope)
 
-    # Stops: the first point of a run of non-road points run_m long (m points), outwards, within a
-    # piece.
+
+def _beyond_previous(rings: _Rings, previous: RoadModel | None) -> np.ndarray | None:
+    """Eq. 10's Δ̂ij: how far each point lies beyond the previous frame's boundary on its side
+    (m, + outwards; NaN where that side was not seen). None without a previous boundary."""
+    if previous is None or (previous.left is None and previous.right is None):
+        return None
+    x, y = rings.x, rings.y
+    left, right = rings.u > 0, rings.u < 0
+    beyond = np.full(len(x), np.nan)
+    if previous.left is not None:
+        beyond[left] = y[left] - poly.polyval(x[left], previous.left)
+    if previous.right is not None:
+        beyond[right] = poly.polyval(x[right], previous.right) - y[right]
+    return beyond
+
+
+def _stops(score, u, piece, run):
+    """Step 4: where a walk outwards from θs may stop: the first point, outwards, of `run` points
+    in a row scoring < 0.5 within one piece (one stray point is not an edge)."""
+    n = len(score)
+    at = np.arange(n)
+    nonroad = np.r_[0, np.cumsum(~(score >= 0.5))]
+    # (fewer points than a run, run > n: the window is cut at the end and cannot hold run non-road points)
+    start = np.clip(np.where(u > 0, at, at - run + 1), 0, np.maximum(n - run, 0))
+    end = np.minimum(start + run, n)
+    return (nonroad[end] - nonroad[start] == run) & (piece[start] == piece) & (piece[end - 1] == piece)
+
+
+def _side_boundary(sign, stop, score, reach_s, rings: _Rings, along: _Along, trend: _Trend, band, p, x_max):
+    """Steps 4-5 on one side (sign +1: the left, −1: the right): the frame's boundary points there
+    as positions in `rings`, at most one per ring: where its walk outwards from θs stopped, placed
+    back at the hinge, or where the ground fell away, its last road point."""
+    stops = _first_stops(stop & (rings.u * sign > 0), sign, rings.ring, along)
+    ends = _open_ends(stops, sign, rings, along)
+    last = _last_road_points(ends[_fell_away(ends, sign, rings, along, band, p, x_max)], sign, score, rings)
+    b = _hinge(stops, sign, reach_s, along.t, rings.z, trend, along)
+    b = b[rings.u[b] * sign > 0]
+    return np.r_[b, last].astype(np.int64)
+
+
+def _first_stops(stop, sign, ring, along: _Along):
+    """Step 4: per ring, the first of its `stop`s outwards (sign +1: leftwards) in the reference's
+    piece (beyond a gap nothing is known); rings without one have none."""
+    stops = np.flatnonzero(stop & (along.piece == along.reference_piece[ring]))
+    stops = stops if sign > 0 else stops[::-1]
+    _, first_stop = np.unique(ring[stops], return_index=True)
+    return stops[first_stop]
+
+
+def _open_ends(stops, sign, rings: _Rings, along: _Along):
+    """Step 4: where the walks of the rings without a stop end on this side: the last point of the
+    reference's piece outwards (rings whose reference's piece ends at the reference have none)."""
+    found = np.zeros(len(along.ring_start), dtype=bool)
+    found[rings.ring[stops]] = True
+    rp = along.reference_piece
+    ends = (along.piece_last if sign > 0 else along.piece_first)[rp[~found & (rp > 0)] - 1]
+    return ends[rings.u[ends] * sign > 0]
+
+
+def _fell_away(ends, sign, rings: _Rings, along: _Along, band, p: RoadDetectionParams, x_max):
+    """Step 4: whether the ground fell away beyond each walk's end: the ring's next return lies
+    DROP_M lower, or it has none though the ROI, the band and the quarter turn go on and the ring
+    below it (same sensor, nearer ground) still returns beyond that azimuth (a ravine too deep to
+    return anything). Where the lowest rings all stop at one azimuth, the vehicle's own body blocks
+    them (the roof sensor's, at about 60° to each side): the view ended, not the ground."""
+    x, y, z, u, ring, n = rings.x, rings.y, rings.z, rings.u, rings.ring, len(rings.u)
+    nxt = ends + sign
+    in_ring = (nxt >= 0) & (nxt < n)
+    in_ring[in_ring] = ring[nxt[in_ring]] == ring[ends[in_ring]]
+    inside = (
+        (x[ends] > p.x_min_m + ROI_MARGIN_M)
+        & (x[ends] < x_max - ROI_MARGIN_M)
+        & (np.abs(y[ends]) < p.half_width_m - ROI_MARGIN_M)
+        & (np.abs(u[ends]) < np.pi / 2 - TURN_MARGIN)
+        & (rings.across[ends] < band - ROI_MARGIN_M)
+    )
+    k = ring[ends]
+    j = rings.lower[k]
+    extent = (u[along.ring_end] if sign > 0 else u[along.ring_start])[np.maximum(j, 0)]
+    farther = (
+        sign * ieee_remainder(rings.theta_s[np.maximum(j, 0)] + extent - rings.theta_s[k] - u[ends], 2 * np.pi)
+        > LOWER_RING_MARGIN
+    )
+    inside &= (j >= 0) & farther
+    nxt = np.clip(nxt, 0, n - 1)
+    return np.where(in_ring, z[nxt] < z[ends] - DROP_M, inside)
+
+
+def _last_road_points(ends, sign, score, rings: _Rings):
+    """Step 4: the boundary of each walk that ended where the ground fell away: the last point of
+    its ring scored road up to its end, on its side (fewer than a run of its last points can score
+    lower: no stop there)."""
+    n, at = len(score), np.arange(len(score))
     road = score >= 0.5
-    nonroad = np.r_[0, np.cumsum(~road)]
-    # (fewer points than a run, m > n: the window is cut at the end and cannot hold m non-road points)
-    start = np.clip(np.where(left, at, at - m + 1), 0, np.maximum(n - m, 0))
-    end = np.minimum(start + m, n)
-    stop = (nonroad[end] - nonroad[start] == m) & (piece[start] == piece) & (piece[end - 1] == piece)
-    last_road = np.maximum.accumulate(np.where(road, at, -1))  # the nearest road point at or
-    next_road = np.minimum.accumulate(np.where(road, at, n)[::-1])[::-1]  # before / after each point
-
-    # Per ring and side, the first stop outwards in the reference's piece (beyond a gap nothing is
-    # known) ...
-    reference_piece = np.zeros(rings, dtype=piece.dtype)
-    reference_piece[sl[u == 0]] = piece[u == 0]
-    ring_theta = ts[ring_start]
-    renumbered = np.full(len(ring_below) + 1, -1)  # old ring numbers to new (−1: gone, or none)
-    renumbered[old_sl[ring_start]] = np.arange(rings)
-    lower = renumbered[ring_below[old_sl[ring_start]]]  # the ring below, of the same sensor (or −1)
-    piece_first = np.flatnonzero(new_piece)  # piece k starts at piece_first[k - 1]
-    piece_last = np.r_[piece_first[1:] - 1, n - 1]
-    boundaries = []
-    for side, sign in ((left, 1), (right, -1)):
-        stops = np.flatnonzero(stop & side & (piece == reference_piece[sl]))
-        stops = stops if sign > 0 else stops[::-1]
-        _, first_stop = np.unique(sl[stops], return_index=True)
-        stops = stops[first_stop]
-        found = np.zeros(rings, dtype=bool)
-        found[sl[stops]] = True
-        # ... or, without one, where the reference's piece ends in a drop: the ring's next return
-        # lies DROP_M lower, or it has none though the ROI and the quarter turn go on (a ravine too
-        # deep to return anything). Its boundary is its last point scored road (fewer than m of its
-        # last points can score lower: no run there).
-        ends = (piece_last if sign > 0 else piece_first)[reference_piece[~found & (reference_piece > 0)] - 1]
-        ends = ends[u[ends] * sign > 0]
-        nxt = ends + sign
-        in_ring = (nxt >= 0) & (nxt < n)
-        in_ring[in_ring] = sl[nxt[in_ring]] == sl[ends[in_ring]]
-        inside = (
-            (x[ends] > p.x_min_m + ROI_MARGIN_M)
-            & (x[ends] < x_max - ROI_MARGIN_M)
-            & (np.abs(y[ends]) < p.half_width_m - ROI_MARGIN_M)
-            & (np.abs(u[ends]) < np.pi / 2 - TURN_MARGIN)
-            & (across[ends] < band - ROI_MARGIN_M)
-        )
-        # Where a ring's returns stop, the ring below it (same sensor, nearer ground) must still
-        # return beyond that azimuth: the ground fell away, not the view. Where the lowest rings
-        # all stop at one azimuth, the vehicle's own body blocks them (the roof sensor's, at
-        # about 60° to each side).
-        k = sl[ends]
-        j = lower[k]
-        extent = np.where(sign > 0, u[ring_end], u[ring_start])[np.maximum(j, 0)]
-        farther = (
-            sign * ieee_remainder(ring_theta[np.maximum(j, 0)] + extent - ring_theta[k] - u[ends], 2 * np.pi)
-            > LOWER_RING_MARGIN
-        )
-        inside &= (j >= 0) & farther
-        nxt = np.clip(nxt, 0, n - 1)
-        drop = np.where(in_ring, z[nxt] < z[ends] - DROP_M, inside)
-        ends = ends[drop]
-        last = np.clip((last_road if sign > 0 else next_road)[ends], 0, n - 1)
-        last = last[(sl[last] == sl[ends]) & (u[last] * sign > 0) & (score[last] >= 0.5)]
-        b = _hinge(stops, sign, reach_s, t, z, prefix, mean_t, mean_z, slope, piece, piece_first, piece_last)
-        b = b[u[b] * sign > 0]
-        boundaries.append(np.r_[b, last].astype(np.int64))
-    b_left, b_right = boundaries
-
-    per_sensor = np.bincount(frame.sensor_index[idx[score >= 0.5]], minlength=n_sensors)
-    return _Scan(np.c_[x[b_left], y[b_left]], np.c_[x[b_right], y[b_right]], per_sensor, idx, score)
+    if sign > 0:
+        last_road = np.maximum.accumulate(np.where(road, at, -1))  # the nearest road point at or before
+    else:
+        last_road = np.minimum.accumulate(np.where(road, at, n)[::-1])[::-1]  # ... at or after
+    last = np.clip(last_road[ends], 0, n - 1)
+    return last[(rings.ring[last] == rings.ring[ends]) & (rings.u[last] * sign > 0) & (score[last] >= 0.5)]
 
 
-def _hinge(stops, sign, reach_s, t, z, prefix, mean_t, mean_z, slope, piece, piece_first, piece_last):
-    """The last road point of each ring whose walk stopped at `stops` (first points of runs of m
-    non-road points; sign + outwards to the left): where the road's line (the trend of the
+def _sums(prefix: np.ndarray, lo, hi):
+    """Sums over the index ranges lo..hi (inclusive) from a prefix-sum table with a leading 0."""
+    return prefix[..., hi + 1] - prefix[..., lo]
+
+
+def _hinge(stops, sign, reach_s, t, z, trend: _Trend, along: _Along):
+    """Step 5: the last road point of each ring whose walk stopped at `stops` (first points of runs
+    of m non-road points; sign + outwards to the left): where the road's line (the trend of the
     stop's road-side window) and the verge's line meet. Candidates c: the stop's predecessor and
     the points back to its window. For each, the heights relative to the road's line, ρ, are
     taken as 0 up to c (road) and as a straight line of their own beyond it, over the points up
@@ -601,6 +769,7 @@ def _hinge(stops, sign, reach_s, t, z, prefix, mean_t, mean_z, slope, piece, pie
     noticed, which comes up to a span later."""
     if len(stops) == 0:
         return stops
+    piece, piece_first, piece_last = along.piece, along.piece_first, along.piece_last
     reach = reach_s[stops]
     k = np.arange(1, reach.max() + 1)
     c = stops[:, None] - sign * k[None, :]  # candidates, (b, K)
@@ -614,11 +783,11 @@ def _hinge(stops, sign, reach_s, t, z, prefix, mean_t, mean_z, slope, piece, pie
     c = np.where(ok, c, stops[:, None] - sign)
     # ρ = z − a − b·t with the stop's line; sums of ρ, ρ², ρt, t, t² over index ranges from the
     # prefix sums of t, t², z, tz, z²
-    a = (mean_z[stops] - slope[stops] * mean_t[stops])[:, None]
-    b = slope[stops][:, None]
+    a = (trend.mean_z[stops] - trend.slope[stops] * trend.mean_t[stops])[:, None]
+    b = trend.slope[stops][:, None]
 
     def sums(lo, hi):
-        s_t, s_tt, s_z, s_tz, s_zz = _sums(prefix, lo, hi)
+        s_t, s_tt, s_z, s_tz, s_zz = _sums(trend.prefix, lo, hi)
         count = hi - lo + 1
         s_r = s_z - a * count - b * s_t
         s_rr = s_zz - 2 * a * s_z - 2 * b * s_tz + a * a * count + 2 * a * b * s_t + b * b * s_tt

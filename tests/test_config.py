@@ -12,6 +12,7 @@ import pytest
 import yaml
 from pydantic import ValidationError
 
+from ares import cli
 from ares.app import run_config
 from ares.core import config
 from ares.core.config import ConfigError
@@ -163,9 +164,10 @@ def test_ares_run_with_a_misspelt_key_exits_2_before_any_process_starts(tmp_path
     assert not run_dir.exists(), "nothing was started, nothing was written"
 
 
-def test_config_check_and_show(tmp_path):
+def test_config_check_and_show(tmp_path, capsys):
     good = write(tmp_path, "good.yaml", {"sim": {"passengers": 5}})
     bad = write(tmp_path, "bad.yaml", {"sim": {"pasengers": 5}})
+    # once as the command runs, in a process of its own; the rest through the same entry point here
     ok = subprocess.run(
         [sys.executable, "-m", "ares.cli", "config", "check", str(good)],
         cwd=REPO,
@@ -174,32 +176,14 @@ def test_config_check_and_show(tmp_path):
         timeout=60,
     )
     assert ok.returncode == 0 and "ok" in ok.stdout
-    refused = subprocess.run(
-        [sys.executable, "-m", "ares.cli", "config", "check", str(bad)],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert refused.returncode == 2 and "sim.pasengers: unknown key (did you mean 'passengers'?)" in refused.stderr
-    shown = subprocess.run(
-        [sys.executable, "-m", "ares.cli", "config", "show", str(good)],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert shown.returncode == 0
-    assert "# passengers on board" in shown.stdout  # every key with its meaning
-    assert yaml.safe_load(shown.stdout) == run_config.build((good,))  # and it is the merged configuration
-    as_json = subprocess.run(
-        [sys.executable, "-m", "ares.cli", "config", "show", "--json"],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert json.loads(as_json.stdout) == run_config.build()
+    assert cli.main(["config", "check", str(bad)]) == 2
+    assert "sim.pasengers: unknown key (did you mean 'passengers'?)" in capsys.readouterr().err
+    assert cli.main(["config", "show", str(good)]) == 0
+    shown = capsys.readouterr().out
+    assert "# passengers on board" in shown  # every key with its meaning
+    assert yaml.safe_load(shown) == run_config.build((good,))  # and it is the merged configuration
+    assert cli.main(["config", "show", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == run_config.build()
 
 
 def test_only_a_simulated_shuttle_can_be_hurried():

@@ -36,12 +36,13 @@ def drive(tmp_path, files=(NO_LIDARS,), *, seconds: float | None = None, **overr
 
 
 def test_the_tour_through_its_first_rtk_loss_zone(tmp_path):
-    """320 s of vehicle time, ~900 m: the narrow lane, the crossing, the RTK-loss zone by the lake.
-    Without LiDARs there is no road reactive control: in the RTK-loss zone the control manager would
-    (rightly) stop, so the MPC is pinned and drives it on the UKF's dead reckoning."""
-    result = drive(tmp_path, seconds=320, control_manager={"pinned": "mpc"})
-    assert result["ok"] and result["controller_time_share"]["mpc"] >= 0.99 and result["mpc_solves"] > 3000
-    assert result["distance_m"] > 800 and result["mpc_deadline_misses"] == 0
+    """150 s of vehicle time from 400 m along the tour, ~460 m: the crossing, the RTK-loss zone by
+    the lake (590-660 m) and the climb after it (the narrow lane before them is the perception
+    drive's). Without LiDARs there is no road reactive control: in the RTK-loss zone the control
+    manager would (rightly) stop, so the MPC is pinned and drives it on the UKF's dead reckoning."""
+    result = drive(tmp_path, seconds=150, control_manager={"pinned": "mpc"}, sim={"start_s_m": 400.0})
+    assert result["ok"] and result["controller_time_share"]["mpc"] >= 0.99 and result["mpc_solves"] > 1400
+    assert result["distance_m"] > 400 and result["mpc_deadline_misses"] == 0
     assert result["xte_rmse_m"] <= 0.35  # the DBW paper's real vehicle: 0.347 m
     assert result["xte_max_m"] <= 0.85  # ... and 0.863 m
     # localization: the UKF estimate drives the controller (ARES paper §3.1); README's lap: 0.0086 m,
@@ -51,23 +52,23 @@ def test_the_tour_through_its_first_rtk_loss_zone(tmp_path):
     assert result["loc_max_deadzone_m"] <= 0.5
     assert result["score_min_rtk"] >= 0.9
     assert result["score_max_deadzone"] <= 0.3
-    assert result["loc_samples_rtk"] > 1000 and result["loc_samples_deadzone"] > 100
+    assert result["loc_samples_rtk"] > 1000 and result["loc_samples_deadzone"] > 500
     assert "road_detect_rate" not in result  # the LiDARs were left out (tests/no_lidars.yaml)
     assert result["collisions"] == 0 and result["invariant_violations"] == 0
     # the black box (the recorder node, the embedded store): a record for every second of the drive
-    assert_drive_recorded(tmp_path / "blackbox.sqlite", result, 300)
+    assert_drive_recorded(tmp_path / "blackbox.sqlite", result, 150)
 
 
 def test_perception_sees_the_road_and_the_obstacles(tmp_path):
-    """The first 180 m: kerbs, the narrow lane between rock walls, the climb onto the grass; an
-    obstacle every 40 m beside the path and two pedestrians crossing; the LiDARs light
-    (tests/light_lidars.yaml). The figures of the full-resolution lap are the README's."""
-    result = drive(tmp_path, (LIGHT_LIDARS,), seconds=75, scenario="obstacles_along_tour")
+    """The first 115 m: kerbs, the narrow lane between rock walls; an obstacle every 40 m beside
+    the path and two pedestrians crossing; the LiDARs light (tests/light_lidars.yaml). The figures
+    of the full-resolution lap are the README's."""
+    result = drive(tmp_path, (LIGHT_LIDARS,), seconds=50, scenario="obstacles_along_tour")
     assert result["xte_max_m"] <= 0.85 and result["loc_rmse_rtk_m"] <= 0.05
     assert result["collisions"] == 0 and result["invariant_violations"] == 0
     # the lap's goals (README): detect 0.95, edge p50 0.15 m, centre p50 0.10 m; with obstacles on
     # the road's edge every 40 m the edge p95 is the README's 0.80 m, not the open road's 0.40 m
-    assert result["road_frames"] >= 740 and result["road_detect_rate"] >= 0.95
+    assert result["road_frames"] >= 490 and result["road_detect_rate"] >= 0.95
     assert result["road_edge_err_p50_m"] <= 0.15 and result["road_edge_err_p95_m"] <= 0.80
     assert result["road_centre_err_p50_m"] <= 0.10
     assert result["grid_obstacle_frames"] > 40 and result["grid_obstacle_recall"] >= 0.90

@@ -22,6 +22,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     describe.add_argument("--json", action="store_true", help="one JSON object")
     describe.add_argument("--markdown", action="store_true", help="the Markdown of docs/nodes.md")
     describe.add_argument(
+        "--architecture",
+        action="store_true",
+        help="the Markdown of docs/architecture.md: the layers and processes in one picture, the papers' equations",
+    )
+    describe.add_argument(
         "--config",
         action="append",
         default=[],
@@ -134,6 +139,11 @@ def cmd_describe(args: argparse.Namespace) -> int:
             raise CliError(exc.args[0]) from None
     if args.markdown:
         sys.stdout.write(contracts.nodes_markdown(cfg, chosen))
+        return 0
+    if args.architecture:
+        from ares.app.architecture import architecture_markdown
+
+        sys.stdout.write(architecture_markdown(cfg))
         return 0
     found = contracts.all_contracts(cfg, chosen)
     graph = contracts.graph(contracts.all_contracts(cfg))
