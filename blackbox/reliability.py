@@ -64,7 +64,7 @@ class ReliabilityFigures:
 
 
 def figures(operating_hours: float, failures: int, repair_hours: float, t_hours: float = 1.0) -> ReliabilityFigures:
-    """Equations 21-25 from the three counts, with the edge cases of the module docstring."""
+    """DBW eqs. 21-25 from the three counts, with the edge cases of the module docstring."""
     if operating_hours < 0 or repair_hours < 0 or failures < 0 or t_hours < 0:
         raise ValueError("hours, failures and t must not be negative")
     mtbf = rate = reliability = mttr = availability = None

@@ -188,7 +188,7 @@ class ActuatorSetpoint:
 
 
 class SetpointConversion:
-    """(v, κ) <-> (steering-wheel angle, wheel speed) for one vehicle."""
+    """(v, κ) <-> (steering-wheel angle, wheel speed) for one vehicle (DBW eqs. 9-14)."""
 
     def __init__(
         self,

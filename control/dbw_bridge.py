@@ -260,7 +260,7 @@ def setpoint_problem(v: object, kappa: object) -> str | None:
 
 
 class DbwCore:
-    """The bridge's state machine. Feed it events with `handle`, ask `command(t)`."""
+    """The bridge's state machine (DBW Fig. 17). Feed it events with `handle`, ask `command(t)`."""
 
     HISTORY_LENGTH = 100
 

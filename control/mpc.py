@@ -159,7 +159,8 @@ def predict(x, y, yaw, v, delta, accel, dt: float, wheelbase: float, steps: int 
 
 
 class Mpc:
-    """One MPC for one vehicle: the problem is built once; `solve` is called each cycle."""
+    """One MPC for one vehicle (ARES eqs. 11-13: the model, the input bounds, the cost): the problem
+    is built once; `solve` is called each cycle."""
 
     def __init__(self, vehicle: VehicleProfile, params: MpcParams | None = None):
         self.params = p = params or MpcParams()

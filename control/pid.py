@@ -30,6 +30,8 @@ from ares.core.config import PidGains
 
 
 class PID:
+    """The board's discrete PID (DBW eqs. 4-8): error, proportional, integral, derivative, their sum."""
+
     def __init__(
         self,
         kp: float,

@@ -227,6 +227,9 @@ def agree(frame: RememberedRoad, remembered: list[RememberedRoad], agree_m: floa
 
 
 class RoadReactiveControl:
+    """The PID on the offset from the road's centre (ARES eqs. 14-15), per metre travelled, reading
+    the road from the frames it remembers (see the module's docstring); `step` once per frame."""
+
     def __init__(self, params: RrcParams | None = None):
         self.p = params or RrcParams()
         self.integral = 0.0  # ∫ e ds, m²

@@ -16,7 +16,7 @@ A goal is an ordered list of POIs, each with the actions the tour gives it, amon
 | NEXT_POI      | sets off for the next POI (the POI's last action)      | at once                            |
 
 The doors and the ramp move only once the shuttle has stood `settle_s` (0.5 s): the speed read at
-the standing threshold may still be the end of a roll (tests/test_mission_stack.py once saw the doors opening at
+the standing threshold may still be the end of a roll (the whole-stack mission test once saw the doors opening at
 0.05 m/s of true speed).
 
 A goal may also be a *drive*: no POI, round the route without stopping (runs about something

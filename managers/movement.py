@@ -16,7 +16,7 @@ level, and gives the one command the bridge accepts:
    Autoware's vehicle command gate).
 
 The order of trust is fixed: emergency stop, then controlled stop, then limits, then comfort.
-Plain code without a bus, so that every state × event can be tested (tests/test_movement_gate.py).
+Plain code without a bus, so that every state × event can be tested (tests/test_movement.py).
 """
 
 from __future__ import annotations

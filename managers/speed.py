@@ -70,10 +70,10 @@ def speed_profile(
     narrow_speed: float | None = None,
     grade: bool = False,
 ) -> np.ndarray:
-    """Target speed at every route sample: the curve limit sqrt(a_lat / |kappa|), eased so that
-    braking before a curve (and before the end of an open route) and speeding up after it stay
-    within the given deceleration and acceleration (with `grade`: decel + g·grade and
-    accel − g·grade, see the module's docstring)."""
+    """Target speed at every route sample (ARES eqs. 16-17): the curve limit sqrt(a_lat / |kappa|),
+    eased so that braking before a curve (and before the end of an open route) and speeding up
+    after it stay within the given deceleration and acceleration (with `grade`: decel + g·grade
+    and accel − g·grade, see the module's docstring)."""
     v = _curve_limit(route, cruise, lateral_accel, narrow_speed)
     n = len(v)
     # per-sample achievable ramps: a sample's grade acts over the step that leaves it

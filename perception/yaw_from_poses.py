@@ -105,7 +105,8 @@ class YawFromPosesParams(Params):
 
 
 class YawFromPoses:
-    """Keeps the recent fixes and turns each new one into a yaw measurement when it can."""
+    """Keeps the recent fixes and turns each new one into a yaw measurement and its variance (ARES
+    eqs. 1-2) when it can."""
 
     def __init__(
         self,

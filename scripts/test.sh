@@ -36,8 +36,11 @@ stack_rc=0
 "$BIN/python" -m pytest -q -m stack || stack_rc=$?
 end=$(seconds)
 if [ "$rc" -eq 0 ]; then rc=$stack_rc; fi
+# the budget (8 minutes) is reported, loudly when it is overrun, not enforced: a test run's time
+# is the machine's as much as the tests', and a slow day must not fail a correct change
 awk -v a="$start" -v b="$middle" -v c="$end" 'BEGIN {
-  printf "[test] pytest: %.0f s in one process + %.0f s whole stacks = %.0f s (budget 480 s)\n", b - a, c - b, c - a }' >&2
+  printf "[test] pytest: %.0f s in one process + %.0f s whole stacks = %.0f s (budget 480 s)\n", b - a, c - b, c - a
+  if (c - a > 480) printf "[test] OVER BUDGET: the tests took more than 8 minutes; make the slowest (above) cheaper\n" }' >&2
 if [ "$rc" -eq 5 ]; then say "no tests were collected: that is a failure"; rc=1; fi
 if [ "$checks_rc" -ne 0 ]; then say "the static checks failed (above)"; [ "$rc" -ne 0 ] || rc=1; fi
 exit "$rc"

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from ares.app import run_config
-from ares.app.architecture import EQUATIONS, LAYERS, architecture_markdown, names_its_equation, resolve, source_file
+from ares.tools.architecture import EQUATIONS, LAYERS, architecture_markdown, names_its_equation, resolve, source_file
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -33,3 +33,15 @@ def test_each_equation_lives_where_the_page_says_and_names_itself_there(eq):
     assert callable(resolve(eq.target)), eq.target
     assert (REPO / source_file(eq.target)).is_file()
     assert names_its_equation(eq), f"{eq.target}: neither it nor its module names {eq.paper} {eq.label}"
+
+
+def test_every_equation_the_papers_number_is_placed():
+    from ares.tools.architecture import NOT_MODELLED, PAPER_ALGORITHMS, PAPER_EQUATIONS, numbers
+
+    for paper, expected in PAPER_EQUATIONS.items():
+        placed = set().union(*(numbers(eq.label) for eq in EQUATIONS if eq.paper == paper))
+        assert expected <= placed, f"{paper} equations nowhere in the table: {sorted(expected - placed)}"
+    for paper, algorithms in PAPER_ALGORITHMS.items():
+        assert algorithms <= {eq.label for eq in EQUATIONS if eq.paper == paper}
+    assert numbers("eqs. 1-3") == {1, 2, 3} and numbers("eq. 6") == {6} and numbers("Algorithm 1") == set()
+    assert all(paper == "DBW" for paper, _, _ in NOT_MODELLED)

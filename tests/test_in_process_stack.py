@@ -9,13 +9,16 @@ tests/test_blackbox_stack.py, tests/test_pages_stack.py, tests/test_supervisor.p
 
 from __future__ import annotations
 
+import json
 import math
+import os
 import subprocess
 import sys
 
 import pytest
 
 from ares.app.stack import prepare
+from ares.core.messages import ProcessState
 from ares.core.route import Route
 from ares.tools.harness.in_process_stack import InProcessStack
 from tests.helpers.gnss import PLACES, short_road
@@ -24,13 +27,14 @@ from tests.helpers.records import assert_drive_recorded
 from tests.helpers.stack import LIGHT_LIDARS, NO_LIDARS, REPO
 
 SCENARIOS = REPO / "tests" / "scenarios"
+IN_PROCESS = REPO / "tests" / "in_process.yaml"  # no wall-clock deadline decides anything
 pytestmark = pytest.mark.timeout(240)
 
 
 def drive(tmp_path, files=(NO_LIDARS,), *, seconds: float | None = None, **overrides) -> dict:
     tmp_path.mkdir(parents=True, exist_ok=True)
     overrides.setdefault("blackbox_store", {"uri": str(tmp_path / "blackbox.sqlite")})
-    cfg = prepare(tuple(str(f) for f in files), overrides, 1.0)
+    cfg = prepare((*(str(f) for f in files), str(IN_PROCESS)), overrides, 1.0)
     with InProcessStack(cfg, run_dir=tmp_path / "run") as stack:
         return stack.drive(seconds=seconds)
 
@@ -42,7 +46,7 @@ def test_the_tour_through_its_first_rtk_loss_zone(tmp_path):
     manager would (rightly) stop, so the MPC is pinned and drives it on the UKF's dead reckoning."""
     result = drive(tmp_path, seconds=150, control_manager={"pinned": "mpc"}, sim={"start_s_m": 400.0})
     assert result["ok"] and result["controller_time_share"]["mpc"] >= 0.99 and result["mpc_solves"] > 1400
-    assert result["distance_m"] > 400 and result["mpc_deadline_misses"] == 0
+    assert result["distance_m"] > 400
     assert result["xte_rmse_m"] <= 0.35  # the DBW paper's real vehicle: 0.347 m
     assert result["xte_max_m"] <= 0.85  # ... and 0.863 m
     # localization: the UKF estimate drives the controller (ARES paper §3.1); README's lap: 0.0086 m,
@@ -124,10 +128,52 @@ def test_a_receivers_log_from_the_south_across_a_zone_boundary_is_driven_to_its_
 
 
 def test_the_same_configuration_drives_the_same_drive(tmp_path):
-    """Nothing in a drive depends on the wall clock or an unseeded random number: two drives of
-    the same configuration give the same figures to the last digit (but the solve times, which
-    are the computer's)."""
-    first, second = (drive(tmp_path / run, seconds=30) for run in ("a", "b"))
+    """Nothing in a drive depends on the wall clock, an unseeded random number or the order of a
+    set: two drives of the same configuration, in two processes with different hash seeds, give
+    the same figures to the last digit (but the solve times, which are the computer's)."""
+    results = []
+    for seed in ("0", "1"):
+        store = tmp_path / f"blackbox_{seed}.sqlite"
+        done = subprocess.run(
+            [sys.executable, "-m", "ares.tools.harness.in_process_stack", "--seconds", "30", "--store", str(store),
+             "--config", str(NO_LIDARS), "--config", str(IN_PROCESS)],
+            cwd=REPO, capture_output=True, text=True, timeout=180, env={**os.environ, "PYTHONHASHSEED": seed},
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr[-3000:]
+        results.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    first, second = results
     assert first["distance_m"] > 20 and not math.isnan(first["xte_rmse_m"])
     timing = {"mpc_solve_p50_ms", "mpc_solve_p99_ms"}
     assert {k: v for k, v in first.items() if k not in timing} == {k: v for k, v in second.items() if k not in timing}
+
+
+def test_process_faults_play_as_the_supervisor_plays_them(tmp_path):
+    """kill and stop end a node at once; a hung one is reported running until its heartbeat would
+    be stale; each starts again after the supervisor's backoff, as a restart; an unknown process
+    is refused as the supervisor refuses it."""
+    cfg = prepare((str(NO_LIDARS), str(IN_PROCESS)), {"blackbox_store": {"uri": str(tmp_path / "bb.sqlite")}}, 1.0)
+    with InProcessStack(cfg, run_dir=tmp_path / "run") as stack:
+        state = stack.bus.subscribe("supervisor/state")
+        status = lambda name: next(p for p in state.latest.processes if p.name == name)  # noqa: E731
+        backoff = stack.backoff_s[0]
+        stack.advance(3.0)
+        assert {p.state for p in state.latest.processes} == {ProcessState.RUNNING}
+        assert stack.inject("mpc", "kill") == "kill mpc"
+        stack.advance(3.0 + backoff / 2)
+        assert status("mpc").state == ProcessState.RESTARTING and status("mpc").last_failure == "killed by SIGKILL"
+        stack.advance(3.0 + backoff + 0.1)
+        assert status("mpc").state == ProcessState.RUNNING and status("mpc").restarts == 1
+        assert stack.hosted["mpc"].node is not None
+        hung_at = stack.clock.now()
+        stack.inject("path_manager", "hang")
+        stack.advance(hung_at + stack.stale_after_s - 0.1)  # hung, but its heartbeat not yet stale
+        assert status("path_manager").state == ProcessState.RUNNING
+        stack.advance(hung_at + stack.stale_after_s + backoff / 2)
+        assert status("path_manager").state == ProcessState.RESTARTING
+        assert status("path_manager").last_failure.startswith("heartbeat stale")
+        stack.inject("speed_manager", "stop")
+        stack.advance(stack.clock.now() + 0.01)
+        assert status("speed_manager").last_failure == "exited 0 (SIGTERM)"
+        with pytest.raises(KeyError, match="no process 'nobody'"):
+            stack.inject("nobody", "kill")
+        assert stack.inject("speed_manager", "kill").endswith("is not running: nothing to kill")

@@ -56,7 +56,7 @@ def test_the_simulator_driven_clock_gives_the_wall_clock_result(tmp_path):
 def test_a_hung_movement_manager_stops_the_vehicle_and_the_supervisor_brings_it_back(tmp_path):
     """The movement manager is the bridge's only source of commands: hung, the bridge's watchdog
     stops the shuttle (a hung control manager is the movement gate's missing input: a controlled
-    stop, tests/test_movement_gate.py)."""
+    stop, tests/test_movement.py)."""
     cfg = make_run_config(
         free_port(), {"blackbox_store": {"uri": str(tmp_path / "bb.sqlite")}, "api": {"port": free_port()}}
     )

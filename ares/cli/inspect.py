@@ -141,7 +141,7 @@ def cmd_describe(args: argparse.Namespace) -> int:
         sys.stdout.write(contracts.nodes_markdown(cfg, chosen))
         return 0
     if args.architecture:
-        from ares.app.architecture import architecture_markdown
+        from ares.tools.architecture import architecture_markdown
 
         sys.stdout.write(architecture_markdown(cfg))
         return 0

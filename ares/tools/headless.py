@@ -47,7 +47,7 @@ QUEUE = 4096  # messages a measured topic may hold between two takes
 class Measurements:
     """What a headless run measures: the evaluations, fed from the topics they read."""
 
-    def __init__(self, cfg: dict, route: Route, bus: BaseBus, inject: Callable[[str, str], str] | None):
+    def __init__(self, cfg: dict, route: Route, bus: BaseBus, inject: Callable[[str, str], str]):
         vehicle = config.core(cfg).vehicle_profile
         self.cfg, self.route = cfg, route
         self.perceiving = bool(vehicle.lidars) and cfg["lidars"]
@@ -88,8 +88,9 @@ class Measurements:
         ]
 
     def begin(self) -> None:
-        """The drive starts now: what came before it (standing, engaging) is not measured."""
-        self.truth.drain()
+        """The drive starts now: what came before it (starting up, standing, engaging) is not measured."""
+        for subscription, _ in self._feeds:
+            subscription.drain()
 
     def take(self, now: float) -> None:
         """The scenario's actions due by `now`, then everything published since the last take."""

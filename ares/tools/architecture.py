@@ -1,5 +1,6 @@
 """docs/architecture.md: the layers and the processes in one picture, and where each of the
-papers' equations lives (file and function).
+papers' equations lives (file and function). A tool of the documentation, as `ares describe
+--markdown`'s docs/nodes.md is.
 
 The page is printed by `ares describe --architecture` from data that the code itself keeps: the
 layers (LAYERS, which tests/test_architecture.py holds equal to import-linter's contract in
@@ -48,7 +49,7 @@ LAYERS = (
 @dataclass(frozen=True)
 class Equation:
     paper: str  # ARES or DBW
-    label: str  # as the paper numbers it: "eq. 6", "eqs. 11-13", "Algorithm 2", "§5.4"
+    label: str  # as the paper numbers it: "eq. 6", "eqs. 11-13", "Algorithm 2", "Fig. 17"
     what: str
     target: str  # module:qualname of the function or class that computes it
 
@@ -108,7 +109,10 @@ EQUATIONS = (
     Equation(DBW, "eq. 14", "wheel speed ω_w = v / (cos θ · r)", "control.ackermann:wheel_speed"),
     Equation(DBW, "Fig. 17", "the modes Manual, Ready, Automatic and their transitions", "control.dbw_bridge:DbwCore"),
     Equation(
-        DBW, "§5.4", "MTBF, λ, R(t), MTTR and availability from the black box's records", "blackbox.reliability:figures"
+        DBW,
+        "eqs. 21-25",
+        "MTBF, λ, R(t), MTTR, availability from the black box's records",
+        "blackbox.reliability:figures",
     ),
 )
 
@@ -129,10 +133,26 @@ def _normalised(text: str) -> str:
 
 
 def names_its_equation(eq: Equation) -> bool:
-    """Whether the function's (or its class's) docstring, or its module's, names the equation."""
-    obj = resolve(eq.target)
-    texts = [inspect.getdoc(obj) or "", inspect.getdoc(inspect.getmodule(obj)) or ""]
-    return any(_normalised(eq.label) in _normalised(text) for text in texts)
+    """Whether the function's or class's own docstring names the equation."""
+    return _normalised(eq.label) in _normalised(inspect.getdoc(resolve(eq.target)) or "")
+
+
+def numbers(label: str) -> set[int]:
+    """The equation numbers a label covers: "eqs. 11-13" -> {11, 12, 13}; "Algorithm 2" -> set()."""
+    found = re.fullmatch(r"eqs?\. (\d+)(?:-(\d+))?", label)
+    if found is None:
+        return set()
+    first = int(found.group(1))
+    return set(range(first, int(found.group(2) or first) + 1))
+
+
+# what the papers number and this table must place (but NOT_MODELLED)
+PAPER_EQUATIONS = {ARES: set(range(1, 18)), DBW: set(range(4, 15)) | set(range(21, 26))}
+PAPER_ALGORITHMS = {ARES: {"Algorithm 1", "Algorithm 2"}}
+NOT_MODELLED = (
+    (DBW, "eqs. 1-3", "the steering-angle sensor's two gears and its magnets: the board's hardware, not simulated"),
+    (DBW, "eqs. 15-20", "the uncertainty of (v, κ) from the sensors' errors: the paper's analysis, not computed"),
+)
 
 
 def source_file(target: str) -> str:
@@ -235,10 +255,11 @@ def architecture_markdown(cfg: Mapping[str, Any]) -> str:
         "them (`lint-imports`, in the test command). Each process of the stack is one node class; its "
         "contract (inputs, outputs, rates, parameters) is in [nodes.md](nodes.md).",
         "",
-        "The picture: the layers from the top down, each process (rounded) in its package, and the topics "
-        "that flow between the processes (every process also publishes `events` and its heartbeat, the "
-        "simulator's clock ticks reach every process it feeds, and the black box records every topic: "
-        "those are left out).",
+        "The picture: the layers from the top down (a thick arrow: may import), each package of the nodes "
+        "with its processes, and the topics that flow between the packages' processes (dotted; every "
+        "process also publishes `events` and its heartbeat, the simulator's clock ticks reach every process "
+        "it feeds, and the black box records every topic: those are left out). The topics between single "
+        "processes are in [nodes.md](nodes.md)'s topic graph.",
         "",
         *picture(cfg),
         "",
@@ -251,7 +272,8 @@ def architecture_markdown(cfg: Mapping[str, Any]) -> str:
         "## Where the papers' equations live",
         "",
         "ARES is the shuttle paper, DBW the drive-by-wire paper (DESIGN §3 sums both up). Each function "
-        "or class below names its equation in its docstring (a test checks it).",
+        "or class below names its equation in its own docstring, and every equation the papers number is "
+        "here (tests check both).",
         "",
         "| paper | equation | what | file | function |",
         "|---|---|---|---|---|",
@@ -260,6 +282,7 @@ def architecture_markdown(cfg: Mapping[str, Any]) -> str:
             f"| `{eq.target.partition(':')[2]}` |"
             for eq in EQUATIONS
         ],
+        *[f"| {paper} | {label} | {why} | | |" for paper, label, why in NOT_MODELLED],
         "",
         "## Processes",
         "",
