@@ -11,6 +11,7 @@ from datetime import timedelta
 
 import httpx
 import jwt
+import pydantic
 import pytest
 from fastapi.testclient import TestClient
 
@@ -380,3 +381,38 @@ def test_real_uvicorn_over_https(tmp_path):
             )
     finally:
         stop_api_process(plain)
+
+
+def test_the_signing_key_from_a_secret_file(tmp_path):
+    """A deployment hands the key over as a compose secret (api.auth.secret_file): it beats the
+    environment and the state directory; a short or missing file is a clear error."""
+    from blackbox.api.credentials import AuthSettings, load_secret
+
+    key_file = tmp_path / "api_signing_key"
+    key_file.write_text("k" * 64 + "\n")
+    assert load_secret(AuthSettings(secret_file=str(key_file)), tmp_path / "state") == b"k" * 64
+    assert not (tmp_path / "state").exists()  # nothing made beside it
+    key_file.write_text("short")
+    with pytest.raises(ValueError, match="too short"):
+        load_secret(AuthSettings(secret_file=str(key_file)), tmp_path)
+    with pytest.raises(ValueError, match="no-such-key"):
+        load_secret(AuthSettings(secret_file=str(tmp_path / "no-such-key")), tmp_path)
+
+
+def test_mongo_credentials_from_a_secret_file(tmp_path):
+    from blackbox.store.mongo_store import MongoStore
+    from blackbox.store.record_store import StoreSettings
+
+    with pytest.raises(pydantic.ValidationError, match="mongo_user and mongo_password_file"):
+        StoreSettings(mongo_user="ares")
+    (tmp_path / "mongo_password").write_text("s3cret\n")
+    settings = StoreSettings(mongo_user="ares", mongo_password_file=str(tmp_path / "mongo_password"))
+    store = MongoStore("mongodb://127.0.0.1:1/", settings=settings)  # connects lazily: nothing is reached
+    try:
+        credentials = store._client.options.pool_options._credentials  # pymongo has no public accessor
+        assert (credentials.username, credentials.password, credentials.source) == ("ares", "s3cret", "admin")
+    finally:
+        store.close()
+    missing = StoreSettings(mongo_user="ares", mongo_password_file=str(tmp_path / "absent"))
+    with pytest.raises(ValueError, match="absent"):
+        MongoStore("mongodb://127.0.0.1:1/", settings=missing)

@@ -340,3 +340,46 @@ def test_a_flooded_service_refuses_at_once_and_forgets_abandoned_requests(buses)
     inbox.max_wait_s = 0.0  # every queued caller has (as far as the inbox knows) given up
     time.sleep(0.01)
     assert hung.poll_services() == 0 and inbox.expired == SERVICE_INBOX_CAPACITY
+
+
+def test_a_router_that_asks_for_credentials(run_config, tmp_path):
+    """A deployment's router (docs/deploy.md) asks every link for a user and a password: the bus
+    gives them from bus.user and the file bus.password_file; without them it is refused."""
+    from ares.core.bus import BusError
+    from ares.core.localhost import free_port
+
+    port = free_port()
+    (tmp_path / "users").write_text("vehicle:s3cret-enough\n")
+    (tmp_path / "password").write_text("s3cret-enough\n")
+    router_cfg = {
+        "mode": "router",
+        "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"auth": {"usrpwd": {"dictionary_file": str(tmp_path / "users")}}},
+    }
+    router = zenoh.open(zenoh.Config.from_json5(json.dumps(router_cfg)))
+    made: list[Bus] = []
+    try:
+        cfg = {**run_config, "bus": {**run_config["bus"], "router": f"tcp/127.0.0.1:{port}"}}
+        with pytest.raises(zenoh.ZError):
+            Bus(cfg, "anonymous", mode="client")
+        logged_in = {**cfg, "bus": {**cfg["bus"], "user": "vehicle", "password_file": str(tmp_path / "password")}}
+        made += [Bus(logged_in, "pub", mode="client"), Bus(logged_in, "sub", mode="client")]
+        sub = made[1].subscribe("heartbeat/*", queue=50)
+        connected(made[0], sub, "heartbeat/pub", lambda: hb("pub"))
+        missing = {**cfg, "bus": {**logged_in["bus"], "password_file": str(tmp_path / "no-such-file")}}
+        with pytest.raises(BusError, match="no-such-file"):
+            Bus(missing, "lost", mode="client")
+    finally:
+        for bus in made:
+            bus.close()
+        router.close()
+
+
+def test_user_and_password_file_come_together():
+    from ares.core.config.run import BusSettings
+
+    with pytest.raises(pydantic.ValidationError, match="both user and password_file"):
+        BusSettings(user="vehicle")
+    with pytest.raises(pydantic.ValidationError, match="both user and password_file"):
+        BusSettings(password_file="/run/secrets/x")

@@ -44,6 +44,12 @@
     ares perception scan FILE [--sensor-height M] [--vehicle NAME] [--out PNG]
                                    one LiDAR scan (KITTI .bin, .pcd, .ply) through the perception pipeline:
                                    one JSON line and a top view (exit 2 when the file gives no usable scan)
+    ares deploy certs --fleet-ca DIR --vehicle ID [--fleet-host NAME] [--fleet-endpoint ENDPOINT]
+                                   the fleet CA (made if absent), a vehicle's certificate, credentials and router config
+    ares deploy router-config fleet|vehicle [--vehicles ID,ID] [-o FILE]
+                                   a router's config, as deploy/ holds it
+    ares deploy router --config FILE [--secrets DIR] [--listen EP] [--connect EP]
+                                   run a router from a deployment's JSON5 file (stands in for zenohd)
 
 `topics` and `echo` connect in client mode to the running stack's router (the `bus.router`
 endpoint of the run configuration, or --router) and look under the configured vehicle id (or
@@ -57,7 +63,7 @@ import logging
 import os
 import sys
 
-from . import bench, blackbox, bus_tools, compare, inspect, mission, perception, route, run
+from . import bench, blackbox, bus_tools, compare, deploy, inspect, mission, perception, route, run
 from .args import CliError, Command
 
 COMMAND_GROUPS = (
@@ -70,6 +76,7 @@ COMMAND_GROUPS = (
     route,
     blackbox,
     perception,
+    deploy,
 )  # as `ares --help` lists them
 
 

@@ -29,6 +29,7 @@ import re
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, TypeVar, cast
 
 import orjson
@@ -55,6 +56,10 @@ SERVICE_PREFIX = "srv"
 Reply = Callable[[Payload, str], None]  # answers a query with (payload, encoding)
 Query = tuple[Payload, Reply, Reply]  # (request payload, reply, reply_err)
 Answer = tuple[bool, str, Payload]  # (ok, encoding, payload) of one reply
+
+
+class BusError(RuntimeError):
+    """The bus cannot be joined as configured (a credentials file missing or unreadable)."""
 
 
 class ServiceError(RuntimeError):
@@ -544,6 +549,13 @@ def zenoh_config(settings: BusSettings, mode: str | None = None, listen: list[st
     cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_ms)))
+    if settings.user is not None and settings.password_file is not None:
+        # a deployment's router asks every link for credentials (docs/deploy.md)
+        try:
+            password = Path(settings.password_file).expanduser().read_text().strip()
+        except OSError as exc:
+            raise BusError(f"bus.password_file {settings.password_file}: {exc.strerror}") from None
+        cfg.insert_json5("transport/auth/usrpwd", json.dumps({"user": settings.user, "password": password}))
     if mode == "router":
         cfg.insert_json5("listen/endpoints", json.dumps(listen or [settings.router]))
     else:

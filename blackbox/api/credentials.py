@@ -7,7 +7,8 @@
   accepted algorithm, so `alg: none` and algorithm-confusion tokens are refused, and requires
   exp/iat/sub/role/iss. A token lives `token_ttl_s` (15 min); a holder renews it before it
   expires (ARES §3.8: "a time-limited token they must renew").
-- The key comes from the environment variable `auth.secret_env` when set, else from a file
+- The key comes from the file `auth.secret_file` when set (a deployment's compose secret), else
+  from the environment variable `auth.secret_env` when set, else from a file
   `api_secret` in the API's state directory, created on first use (0600) and kept, so tokens
   survive a restart of the API.
 - Verified tokens are cached for a few seconds (never past their expiry): a dashboard polling
@@ -54,6 +55,9 @@ class AuthSettings(Params):
         900, "token lifetime; POST /auth/renew with a valid token gives a fresh one", unit="s", ge=30, le=86400
     )
     issuer: str = param("ares-api", "the tokens' issuer")
+    secret_file: str | None = param(
+        None, "signing key from this file (a compose secret, >= 32 characters); null: secret_env, then the state dir"
+    )
     secret_env: str = param(
         "ARES_API_SECRET", "signing key from this variable when set (>= 32 chars), else <state_dir>/api_secret"
     )
@@ -150,7 +154,15 @@ def add_user(store: RecordStore, passwords: Passwords, name: str, role: str, pas
 
 
 def load_secret(cfg: AuthSettings, state_dir: Path) -> bytes:
-    """The signing key: from the environment when set, else the state directory's file."""
+    """The signing key: the configured file, else the environment when set, else the state directory's file."""
+    if cfg.secret_file:
+        try:
+            text = Path(cfg.secret_file).expanduser().read_text().strip()
+        except OSError as exc:
+            raise ValueError(f"api.auth.secret_file {cfg.secret_file}: {exc.strerror}") from None
+        if len(text) < 32:
+            raise ValueError(f"api.auth.secret_file {cfg.secret_file} is too short: at least 32 characters")
+        return text.encode()
     env = os.environ.get(cfg.secret_env, "") if cfg.secret_env else ""
     if env:
         if len(env) < 32:

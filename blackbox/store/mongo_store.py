@@ -28,6 +28,7 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import UTC, datetime
+from pathlib import Path
 
 import orjson
 from pymongo import ASCENDING, DESCENDING, MongoClient
@@ -68,8 +69,18 @@ class MongoStore:
         self.settings = s = settings
         # MongoClient connects in the background: constructing it never blocks or fails on
         # an absent server; the first operation waits at most serverSelectionTimeoutMS
+        credentials = {}
+        if s.mongo_user is not None and s.mongo_password_file is not None:
+            try:
+                password = Path(s.mongo_password_file).expanduser().read_text().strip()
+            except OSError as exc:
+                raise ValueError(
+                    f"blackbox_store.mongo_password_file {s.mongo_password_file}: {exc.strerror}"
+                ) from None
+            credentials = {"username": s.mongo_user, "password": password}
         self._client: MongoClient = MongoClient(
             uri,
+            **credentials,
             serverSelectionTimeoutMS=s.mongo_server_selection_timeout_ms,
             connectTimeoutMS=s.mongo_connect_timeout_ms,
             socketTimeoutMS=s.mongo_socket_timeout_ms,

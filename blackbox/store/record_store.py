@@ -18,6 +18,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Literal, Protocol
 
+from pydantic import model_validator
+
 from ares.core.config import Params, param
 from ares.core.messages import StoredEvent, VehicleRecord
 
@@ -70,6 +72,16 @@ class StoreSettings(Params):
         unit="ms",
         gt=0,
     )
+    mongo_user: str | None = param(None, "MongoDB user (a deployment's: docs/deploy.md); null: the URI's, if any")
+    mongo_password_file: str | None = param(
+        None, "file holding that user's password (a compose secret), so that no config or URI carries it"
+    )
+
+    @model_validator(mode="after")
+    def _mongo_user_and_password(self) -> StoreSettings:
+        if (self.mongo_user is None) != (self.mongo_password_file is None):
+            raise ValueError("blackbox_store: give both mongo_user and mongo_password_file, or neither")
+        return self
 
     def location(self) -> str:
         """The configured URI, else the embedded store's file."""

@@ -25,7 +25,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, ValidationError, model_validator
 
 from ares.core.config.base import (
     ConfigError,
@@ -66,6 +66,18 @@ class BusSettings(Params):
         2000, "liveliness lease: a frozen process's token disappears after ~3/4 of it", unit="ms", ge=200
     )
     service_timeout_s: float = param(2.0, "longest a service call waits for its reply", unit="s", gt=0)
+    user: str | None = param(
+        None, "Zenoh user name for a router that asks for credentials (a deployment's router); null: none"
+    )
+    password_file: str | None = param(
+        None, "file holding that user's password (a compose secret); never the password itself in a config"
+    )
+
+    @model_validator(mode="after")
+    def _user_and_password(self) -> BusSettings:
+        if (self.user is None) != (self.password_file is None):
+            raise ValueError("bus: give both user and password_file, or neither")
+        return self
 
 
 class HeartbeatSettings(Params):

@@ -1,0 +1,178 @@
+"""`ares deploy`: the fleet's certificates and credentials, the routers' configurations, a router
+for the tests and the rehearsal, and the check of a deployment folder (docs/deploy.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .args import CliError, Command, endpoint
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
+    deploy = subparsers.add_parser(
+        "deploy",
+        help="deployment: certificates, router configs, checks (docs/deploy.md)",
+        description="Deploy a vehicle and the fleet with docker compose (deploy/, docs/deploy.md).",
+    )
+    sub = deploy.add_subparsers(dest="deploy", metavar="ACTION")
+    certs = sub.add_parser(
+        "certs",
+        help="the fleet CA (made if absent), a vehicle's certificate and Zenoh credentials",
+        description="Make the fleet's CA in DIR when it has none (with the fleet router's certificate), then "
+        "the vehicle's router certificate (CN = its id), its Zenoh password on the fleet router and its "
+        "processes' password on its own router, its router config with those credentials, and the fleet "
+        "router's config admitting every vehicle issued. Issuing an id again rotates its keys.",
+    )
+    certs.add_argument("--fleet-ca", required=True, metavar="DIR", help="the fleet's CA folder")
+    certs.add_argument("--vehicle", required=True, metavar="ID", help="the vehicle's id (ares/<id>/**)")
+    certs.add_argument(
+        "--fleet-host",
+        action="append",
+        metavar="NAME",
+        help="a name or address of the fleet router in its certificate (repeat; default fleet-router, "
+        "localhost); used only when the CA is made",
+    )
+    certs.add_argument(
+        "--api-host",
+        action="append",
+        metavar="NAME",
+        help="a name or address of the vehicle's REST API in its certificate (repeat; the id, localhost "
+        "and 127.0.0.1 always)",
+    )
+    certs.add_argument(
+        "--fleet-endpoint",
+        type=endpoint,
+        default="tls/fleet-router:7447",
+        metavar="ENDPOINT",
+        help="where the vehicle's router finds the fleet router (default tls/fleet-router:7447)",
+    )
+    rc = sub.add_parser(
+        "router-config",
+        help="print a router's config (the files in deploy/ are this output)",
+        description="Print the fleet router's config for the given vehicles, or a vehicle router's without "
+        "its credentials.",
+    )
+    rc.add_argument("kind", choices=["fleet", "vehicle"])
+    rc.add_argument("--vehicles", default="", metavar="ID,ID", help="fleet: the vehicles admitted")
+    rc.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    router = sub.add_parser(
+        "router",
+        help="run a router from a deployment's JSON5 file with eclipse-zenoh (stands in for zenohd)",
+        description="Run a Zenoh router from a router config file, its /run/secrets/ paths read from "
+        "--secrets; endpoints replaced when given. Prints one JSON line once listening; stops on SIGTERM.",
+    )
+    router.add_argument("--config", required=True, metavar="FILE", help="the router's JSON5 config")
+    router.add_argument("--secrets", metavar="DIR", help="the folder that stands for /run/secrets")
+    router.add_argument("--listen", action="append", type=endpoint, metavar="ENDPOINT", help="listen here instead")
+    router.add_argument("--connect", action="append", type=endpoint, metavar="ENDPOINT", help="connect here instead")
+    chk = sub.add_parser(
+        "check",
+        help="validate a deployment folder (compose file, secrets, certificates, ARES configs)",
+        description="Check a deployment folder (deploy/vehicle, deploy/fleet or a copy): Docker Compose's own "
+        "`config -q`, then the project's checks (docs/deploy.md). Secrets are read from $ARES_SECRETS or the "
+        "folder's secrets/. Exit 2 naming each problem.",
+    )
+    chk.add_argument("folder", metavar="DIR")
+    chk.add_argument("--json", action="store_true", help="one JSON object instead of lines")
+    return {"deploy": cmd_deploy}
+
+
+def cmd_deploy(args: argparse.Namespace) -> int:
+    action = getattr(args, "deploy", None)
+    if action == "certs":
+        return _certs(args)
+    if action == "router-config":
+        return _router_config(args)
+    if action == "router":
+        return _router(args)
+    if action == "check":
+        return _check(args)
+    raise CliError("ares deploy: give an action (certs, router-config, router, check)")
+
+
+def _certs(args: argparse.Namespace) -> int:
+    from ares.tools.deploy import pki, router_config
+
+    try:
+        issued = pki.issue_vehicle(Path(args.fleet_ca), args.vehicle, args.fleet_host, args.api_host)
+        vehicle_cfg, fleet_cfg = router_config.write_for_vehicle(Path(args.fleet_ca), args.vehicle, args.fleet_endpoint)
+    except pki.PkiError as exc:
+        print(f"ares deploy certs: {exc}", file=sys.stderr)
+        return 2
+    print(
+        json.dumps(
+            {
+                "ca": str(issued.ca),
+                "created_ca": issued.created_ca,
+                "vehicle": args.vehicle,
+                "vehicle_secrets": str(issued.vehicle_dir),
+                "vehicle_router_config": str(vehicle_cfg),
+                "fleet_secrets": str(issued.fleet_dir),
+                "fleet_router_config": str(fleet_cfg),
+            }
+        )
+    )
+    return 0
+
+
+def _router_config(args: argparse.Namespace) -> int:
+    from ares.tools.deploy import pki, router_config
+
+    try:
+        if args.kind == "fleet":
+            vehicles = [v for v in args.vehicles.split(",") if v]
+            text = router_config.render(router_config.fleet_router(vehicles), "fleet")
+        else:
+            text = router_config.render(router_config.vehicle_router(), "vehicle")
+    except pki.PkiError as exc:
+        print(f"ares deploy router-config: {exc}", file=sys.stderr)
+        return 2
+    if args.output:
+        Path(args.output).write_text(text)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def _router(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from ares.tools.deploy import router, router_config
+
+    try:
+        cfg = router_config.load(Path(args.config))
+    except (OSError, ValueError) as exc:
+        print(f"ares deploy router: {args.config}: {exc}", file=sys.stderr)
+        return 2
+    cfg = router.localize(cfg, Path(args.secrets) if args.secrets else None, args.listen, args.connect)
+    try:
+        router.serve(cfg)
+    except zenoh.ZError as exc:
+        print(f"ares deploy router: {str(exc).split(' at ')[0]}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from ares.tools.deploy import check
+
+    try:
+        report = check.check(Path(args.folder))
+    except check.ComposeMissing as exc:
+        print(f"ares deploy check: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(
+            json.dumps(
+                {"folder": str(report.folder), "ok": report.ok, "problems": report.problems, "checked": report.checked}
+            )
+        )
+    else:
+        for problem in report.problems:
+            print(f"ares deploy check: {problem}", file=sys.stderr)
+        if report.ok:
+            print(f"ok: {report.folder} ({'; '.join(report.checked)})")
+    return 0 if report.ok else 2

@@ -1,0 +1,179 @@
+"""The deployment's router files, run by eclipse-zenoh in router mode as zenohd would run them:
+the link between a vehicle's router and the fleet router is mutual TLS, Zenoh user/password and
+access control (ares/tools/deploy/router_config.py). Every negative case is paired with a positive
+one sent after it over the same link, so "nothing arrived" is never judged by a timeout alone."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from ares.core.localhost import free_port
+from ares.tools.deploy import pki, router_config
+from ares.tools.deploy.router import localize, open_router
+
+REPO = Path(__file__).resolve().parents[1]
+FLEET_FILE = REPO / "deploy" / "fleet" / "zenoh-router.json5"
+VEHICLE_FILE = REPO / "deploy" / "vehicle" / "zenoh-router.json5"
+LINK_WAIT_S = 10.0
+
+
+def test_files_in_deploy_are_the_generators_output():
+    fleet = router_config.load(FLEET_FILE)
+    assert router_config.vehicles_of(fleet) == ["shuttle01", "shuttle02"]
+    assert FLEET_FILE.read_text() == router_config.render(
+        router_config.fleet_router(["shuttle01", "shuttle02"]), "fleet"
+    )
+    assert VEHICLE_FILE.read_text() == router_config.render(router_config.vehicle_router(), "vehicle")
+
+
+def test_fleet_services_are_services_of_the_table():
+    from ares.core.topics import SERVICES
+
+    assert set(router_config.FLEET_SERVICES) <= set(SERVICES)
+    # a fleet operator never re-arms, opens doors or switches to automatic from afar
+    assert not {"movement/rearm", "mission/body", "set_automatic_mode"} & set(router_config.FLEET_SERVICES)
+
+
+def _client(endpoint: str, user: str, password: str) -> zenoh.Session:
+    cfg = {
+        "mode": "client",
+        "connect": {"endpoints": [endpoint]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"auth": {"usrpwd": {"user": user, "password": password}}},
+    }
+    return zenoh.open(zenoh.Config.from_json5(json.dumps(cfg)))
+
+
+def _linked(session: zenoh.Session, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if list(session.info.routers_zid()):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _wait_for(items: list, wanted, timeout_s: float = 5.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if wanted in items:
+            return True
+        time.sleep(0.02)
+    return False
+
+
+class Deployment:
+    """A fleet router and vehicle routers from deploy/'s files, the secrets from a CA made here."""
+
+    def __init__(self, tmp: Path):
+        self.tmp = tmp
+        self.ca = tmp / "ca"
+        for vehicle_id in ("shuttle01", "shuttle02"):
+            pki.issue_vehicle(self.ca, vehicle_id, ["localhost", "127.0.0.1"])
+        self.tls_port, self.local_port = free_port(), free_port()
+        self.sessions: list[zenoh.Session] = []
+        fleet_cfg = localize(
+            router_config.load(FLEET_FILE),
+            self.ca / "fleet",
+            listen=[f"tls/127.0.0.1:{self.tls_port}", f"tcp/127.0.0.1:{self.local_port}"],
+        )
+        self.fleet_router = self.keep(open_router(fleet_cfg))
+        password = (self.ca / "fleet" / "zenoh_fleet_password").read_text()
+        self.fleet = self.keep(_client(f"tcp/127.0.0.1:{self.local_port}", "fleet", password))
+
+    def keep(self, session: zenoh.Session) -> zenoh.Session:
+        self.sessions.append(session)
+        return session
+
+    def vehicle_router(self, vehicle_id: str, secrets: Path | None = None, password: str | None = None):
+        """The vehicle's router (deploy/vehicle's file with the vehicle's credentials) and one of
+        its processes logged in on it."""
+        secrets = secrets or self.ca / "vehicles" / vehicle_id
+        cfg = router_config.load(VEHICLE_FILE)
+        user = (secrets / "zenoh_user").read_text()
+        cfg = router_config.with_credentials(cfg, user, password or (secrets / "zenoh_password").read_text())
+        port = free_port()
+        cfg = localize(cfg, secrets, listen=[f"tcp/127.0.0.1:{port}"], connect=[f"tls/127.0.0.1:{self.tls_port}"])
+        router = self.keep(open_router(cfg))
+        process = self.keep(_client(f"tcp/127.0.0.1:{port}", "vehicle", (secrets / "zenoh_local_password").read_text()))
+        return router, process
+
+    def close(self) -> None:
+        for session in reversed(self.sessions):
+            session.close()
+
+
+@pytest.fixture
+def deployment(tmp_path):
+    d = Deployment(tmp_path)
+    yield d
+    d.close()
+
+
+def test_a_vehicle_reaches_the_fleet_only_under_its_own_id(deployment):
+    router, process = deployment.vehicle_router("shuttle01")
+    assert _linked(router, LINK_WAIT_S)
+    seen: list[tuple[str, bytes]] = []
+    deployment.fleet.declare_subscriber(
+        "ares/*/dbw/car_state", lambda s: seen.append((str(s.key_expr), s.payload.to_bytes()))
+    )
+    # the subscription travels to the vehicle first: wait until its own data arrives
+    deadline = time.monotonic() + LINK_WAIT_S
+    while ("ares/shuttle01/dbw/car_state", b"own") not in seen and time.monotonic() < deadline:
+        process.put("ares/shuttle01/dbw/car_state", b"own")
+        time.sleep(0.1)
+    assert ("ares/shuttle01/dbw/car_state", b"own") in seen
+    process.put("ares/shuttle02/dbw/car_state", b"spoofed")  # another vehicle's id: denied
+    process.put("ares/shuttle01/dbw/car_state", b"after")  # the same link, sent after it
+    assert _wait_for(seen, ("ares/shuttle01/dbw/car_state", b"after"))
+    assert all(payload != b"spoofed" for _, payload in seen)
+
+
+def test_the_fleet_calls_only_its_services(deployment):
+    router, process = deployment.vehicle_router("shuttle01")
+    assert _linked(router, LINK_WAIT_S)
+    process.declare_queryable("ares/shuttle01/srv/supervisor/status", lambda q: q.reply(q.key_expr, b"status"))
+    process.declare_queryable("ares/shuttle01/srv/movement/rearm", lambda q: q.reply(q.key_expr, b"rearmed"))
+    received: list[str] = []
+    process.declare_subscriber("ares/shuttle01/**", lambda s: received.append(str(s.key_expr)))
+
+    def call(service: str) -> list[bytes]:
+        replies = deployment.fleet.get(f"ares/shuttle01/srv/{service}", timeout=2.0)
+        return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
+
+    deadline = time.monotonic() + LINK_WAIT_S
+    while not call("supervisor/status") and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert call("supervisor/status") == [b"status"]
+    assert call("movement/rearm") == []  # re-arming is for someone at the vehicle
+    deployment.fleet.put("ares/shuttle01/movement/status", b"forged")  # the fleet never publishes to a vehicle
+    assert call("supervisor/status") == [b"status"]
+    assert received == []
+
+
+def test_a_wrong_password_is_refused(deployment):
+    good, _ = deployment.vehicle_router("shuttle01")
+    assert _linked(good, LINK_WAIT_S)
+    bad, _ = deployment.vehicle_router("shuttle02", password="not-its-password")
+    assert not _linked(bad, 2.0)
+
+
+def test_a_certificate_of_another_ca_is_refused(deployment, tmp_path):
+    other = tmp_path / "other-ca"
+    pki.issue_vehicle(other, "shuttle02")
+    # the right password and the fleet's CA to check the fleet router: only the certificate is foreign
+    secrets = tmp_path / "foreign"
+    shutil.copytree(other / "vehicles" / "shuttle02", secrets)
+    shutil.copy(deployment.ca / "ca.pem", secrets / "zenoh_ca")
+    for name in ("zenoh_user", "zenoh_password"):
+        shutil.copy(deployment.ca / "vehicles" / "shuttle02" / name, secrets / name)
+    foreign, _ = deployment.vehicle_router("shuttle02", secrets=secrets)
+    good, _ = deployment.vehicle_router("shuttle02")
+    assert _linked(good, LINK_WAIT_S)
+    assert not _linked(foreign, 2.0)
