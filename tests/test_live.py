@@ -271,13 +271,22 @@ def test_one_stream_too_many_is_refused_and_the_slot_comes_back(live_api):
     assert hub.streams == {}  # closed with the connection
 
 
-def test_without_a_bus_the_gateway_says_so(store):
+def test_without_a_bus_the_gateway_is_not_offered(store):
     app = create_app(store, api_settings(), VEHICLE_ID)
     add_role_users(store, app)
     client = TestClient(app, base_url="https://testserver")
     token = token_for(client, "operator")
-    assert client.get("/api/v1/live/fleet", headers=auth(token)).status_code == 503
-    assert client.get("/api/v1/route", headers=auth(token)).status_code == 503
+    paths = client.get("/openapi.json").json()["paths"]
+    assert not [p for p in paths if p.startswith(("/api/v1/live", "/api/v1/route"))]
+    assert client.get("/api/v1/live/fleet", headers=auth(token)).status_code == 404
+    assert client.get("/api/v1/route", headers=auth(token)).status_code == 404
+
+
+def test_a_stack_without_the_route_offers_the_streams_only(store):
+    hub = LiveHub(LiveSettings())
+    app = create_app(store, api_settings(), VEHICLE_ID, live=hub)
+    paths = TestClient(app).get("/openapi.json").json()["paths"]
+    assert "/api/v1/live/fleet" in paths and "/api/v1/route" not in paths
 
 
 def test_pages_are_served_with_a_strict_policy_and_the_api_keeps_its_own(live_api):

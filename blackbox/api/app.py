@@ -101,7 +101,14 @@ def create_app(
     app.add_exception_handler(RequestValidationError, invalid)
 
     methods: dict[str, set[str]] = {}  # path -> its methods
-    for routes in (health, auth, vehicles, records, events, users, commands, live_routes):
+    # what this API can serve where it runs: the commands need the vehicle's bus, the live routes
+    # its live hub; an API over a store alone offers neither (not a 503: they are not in its schema)
+    offered = [health, auth, vehicles, records, events, users]
+    if call is not None:
+        offered.append(commands)
+    if live is not None:
+        offered.append(live_routes)
+    for routes in offered:
         router = routes.build_router(services)
         app.include_router(router, prefix=PREFIX)
         for route in router.routes:

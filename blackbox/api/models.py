@@ -171,7 +171,8 @@ def new_user_model(min_password_length: int) -> type[NewUser]:
 # Every error answer of the API, documented on the operations that can give it. A method a path
 # does not have is answered 405 with an Allow header (app.answer_other_methods); an unknown path 404.
 ERROR_DESCRIPTIONS = {
-    400: "Malformed body: not parseable, too many form fields, or a form field over 4 kB",
+    400: "Malformed body: not parseable (not JSON where JSON is expected), too many form fields, or a form "
+    "field over 4 kB",
     401: "Not authenticated: no token, or an expired, malformed or forged one (send Authorization: Bearer <token>)",
     403: "Forbidden: the token's role may not do this, or the client address is blacklisted "
     "after an abnormal flow of requests (then with Retry-After)",
@@ -181,7 +182,8 @@ ERROR_DESCRIPTIONS = {
     422: "Invalid parameters or body: a value outside its documented type, format, range, pattern or "
     "enumeration (the offending ones in `errors`)",
     429: "Rate limited: retry after the Retry-After header's seconds",
-    503: "The black box store is unavailable: retry after the Retry-After header's seconds",
+    503: "The black box store is unavailable, or (a command) the vehicle's manager did not answer: retry after "
+    "the Retry-After header's seconds",
 }
 
 STORE_RETRY_AFTER_S = 5  # a store that is down: try again in this long

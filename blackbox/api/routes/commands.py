@@ -50,22 +50,28 @@ class BodyBody(BaseModel):
     ramp: Literal["deploy", "stow"] | None = None
 
 
+COMMAND_RETRY_AFTER_S = 2  # a manager that did not answer is being restarted by the supervisor
+
+
 def build_router(services: Services) -> APIRouter:
     VehicleId = vehicle_id_path(services.vehicle_id)
     Operator = Annotated[Claims, Depends(allow(services.tokens, *ROLES_COMMAND))]
     router = APIRouter(tags=["commands"])
+    if services.call is None:
+        raise ValueError("the command routes need the vehicle's bus (services.call)")
+    call = services.call
 
     async def forward(vehicle_id: str, service: str, request: Msg, who: str, manager: str) -> Response:
         if vehicle_id != services.vehicle_id:
             raise HTTPException(
                 404, f"vehicle {vehicle_id!r} is not this API's: commands go to {services.vehicle_id!r} only"
             )
-        if services.call is None:
-            raise HTTPException(503, "this API serves records only: it is not on a vehicle's bus")
         try:
-            reply = await run_in_threadpool(services.call, service, request)
+            reply = await run_in_threadpool(call, service, request)
         except ServiceError as exc:
-            raise HTTPException(503, f"the {manager} did not answer: {exc}") from None
+            raise HTTPException(
+                503, f"the {manager} did not answer: {exc}", headers={"Retry-After": str(COMMAND_RETRY_AFTER_S)}
+            ) from None
         body = {"accepted": reply.accepted, "reason": reply.reason, "operator": who}
         if hasattr(reply, "goal_id"):
             body.update(goal_id=reply.goal_id, state=reply.state)
@@ -82,7 +88,7 @@ def build_router(services: Services) -> APIRouter:
     @router.post(
         "/vehicles/{vehicle_id}/mission",
         response_model=CommandReply,
-        responses=error_responses(401, 404, 409, 422, 503),
+        responses=error_responses(400, 401, 404, 409, 422, 503),
     )
     async def mission_goal(vehicle_id: VehicleId, goal: GoalBody, claims: Operator) -> Response:
         if goal.drive and goal.pois:
@@ -103,7 +109,9 @@ def build_router(services: Services) -> APIRouter:
         )
 
     @router.post(
-        "/vehicles/{vehicle_id}/body", response_model=CommandReply, responses=error_responses(401, 404, 409, 422, 503)
+        "/vehicles/{vehicle_id}/body",
+        response_model=CommandReply,
+        responses=error_responses(400, 401, 404, 409, 422, 503),
     )
     async def body(vehicle_id: VehicleId, asked: BodyBody, claims: Operator) -> Response:
         if asked.doors is None and asked.ramp is None:

@@ -11,7 +11,7 @@ A stream sends `event: frame` (JSON) at `hz` (at most the gateway's rate_hz) and
 with the events that arrived since the last frame (the recent ones first). It ends when the
 token expires: the page renews its token and opens a new stream. Each user has a few streams
 at most (429 beyond); the frames are built from what the bus left in memory, so a slow browser
-only slows its own stream. Outside a stack (`ares api`) the gateway answers 503.
+only slows its own stream. Outside a stack (`ares api` over a store) these routes are not offered.
 """
 
 import asyncio
@@ -46,21 +46,19 @@ class SlotStream(StreamingResponse):
 
 
 def build_router(services: Services) -> APIRouter:
+    """The live routes; the app mounts them only on a bus (`services.live`), and /route only where
+    the vehicle's route is known: an API over a store alone does not offer them."""
     VehicleId = vehicle_id_path(services.vehicle_id)
     Viewer = Annotated[Claims, Depends(allow(services.tokens, *ROLES_RECORDS))]
     Watcher = Annotated[Claims, Depends(allow(services.tokens, *ROLES_LIVE))]
-    live = services.live
-    rate = live.s.rate_hz if live is not None else 5.0
+    if services.live is None:
+        raise ValueError("the live routes need the bus's live hub")
+    gateway: LiveHub = services.live
+    rate = gateway.s.rate_hz
     Hz = Annotated[float, Query(gt=0, le=rate, description=f"frames per second (at most {rate:g})")]
     router = APIRouter(tags=["live"])
 
-    def hub() -> LiveHub:
-        if live is None:
-            raise HTTPException(503, "this API serves records only: it is not on a vehicle's bus")
-        return live
-
     def stream(request: Request, claims: Claims, hz: float, build) -> StreamingResponse:
-        gateway = hub()
         refused = gateway.open_stream(claims.name)
         if refused is not None:
             raise HTTPException(429, f"too many live streams: {refused}", headers={"Retry-After": "5"})
@@ -84,11 +82,10 @@ def build_router(services: Services) -> APIRouter:
 
     @router.get(
         "/live/vehicles/{vehicle_id}",
-        responses=error_responses(401, 403, 404, 422, 429, 503),
+        responses=error_responses(401, 403, 404, 422, 429),
         response_class=StreamingResponse,
     )
     async def vehicle_stream(request: Request, vehicle_id: VehicleId, claims: Viewer, hz: Hz = rate):
-        gateway = hub()
         if not gateway.knows(vehicle_id) and vehicle_id != services.vehicle_id:
             raise HTTPException(404, f"vehicle {vehicle_id!r} is not on this router")
 
@@ -98,19 +95,18 @@ def build_router(services: Services) -> APIRouter:
 
         return stream(request, claims, hz, build)
 
-    @router.get("/live/fleet", responses=error_responses(401, 403, 422, 429, 503), response_class=StreamingResponse)
+    @router.get("/live/fleet", responses=error_responses(401, 403, 422, 429), response_class=StreamingResponse)
     async def fleet_stream(request: Request, claims: Watcher, hz: Hz = min(rate, 2.0)):
-        gateway = hub()
-
         def build(seq):
             return {"vehicles": gateway.fleet_frame(), "wall_ms": time.time() * 1e3}, gateway.events_since(seq)
 
         return stream(request, claims, hz, build)
 
-    @router.get("/route", responses=error_responses(401, 403, 503))
-    async def route(_claims: Watcher):
-        if services.route is None:
-            raise HTTPException(503, "this API does not know the vehicle's route: it is not in a stack")
-        return json_response({"vehicle_id": services.vehicle_id, **services.route})
+    if services.route is not None:
+        known_route = services.route
+
+        @router.get("/route", responses=error_responses(401, 403))
+        async def route(_claims: Watcher):
+            return json_response({"vehicle_id": services.vehicle_id, **known_route})
 
     return router
