@@ -16,6 +16,10 @@ over a store alone does not offer the commands, the live streams and the route (
 vehicle's bus): they are not in its schema, and asking for them is a 404 (tests/test_live.py,
 tests/test_api_commands.py).
 
+The API inside a vehicle's stack is run the same way (test_the_api_in_a_vehicles_stack_as_its_schema_says):
+the commands answered by the real mission and movement managers, the route, the live gateway.
+The fleet server's mode is still to come (docs/deploy.md).
+
 A failure fails the test with schemathesis' report (each failure with a curl line to reproduce
 it, and the seed of the run).
 """
@@ -27,6 +31,7 @@ import shutil
 import ssl
 import subprocess
 import sys
+import time
 from datetime import timedelta
 from pathlib import Path
 
@@ -76,16 +81,23 @@ def schemathesis(
     headers: dict[str, str],
     per_path_headers: dict[str, dict[str, str]],
     *args: str,
+    pinned: dict[str, dict[str, str]] | None = None,
+    rate: str = RATE,
 ) -> subprocess.CompletedProcess:
     """`st run` with every check in every phase at RATE, verifying the server's certificate;
-    failing on warnings too (e.g. rate_limited: a 429 seen, missing_auth: a token refused)."""
+    failing on warnings too (e.g. rate_limited: a 429 seen, missing_auth: a token refused).
+    `pinned`: per path, parameters given rather than generated (`path.vehicle_id`)."""
 
     def table(values: dict[str, str]) -> str:
         return "{ " + ", ".join(f"{json.dumps(k)} = {json.dumps(v)}" for k, v in values.items()) + " }"
 
     lines = [f"headers = {table(headers)}", "warnings = { fail-on = true }"]
-    for path, values in per_path_headers.items():
-        lines += ["[[operations]]", f"include-path = {json.dumps(path)}", f"headers = {table(values)}"]
+    for path in {**per_path_headers, **(pinned or {})}:
+        lines += ["[[operations]]", f"include-path = {json.dumps(path)}"]
+        if path in per_path_headers:
+            lines.append(f"headers = {table(per_path_headers[path])}")
+        if pinned and path in pinned:
+            lines.append(f"parameters = {table(pinned[path])}")
     cfg = tmp_path / "schemathesis.toml"
     cfg.write_text("\n".join(lines) + "\n")
     command = [
@@ -102,7 +114,7 @@ def schemathesis(
         "--phases",
         PHASES,
         "--rate-limit",
-        RATE,
+        rate,
         "--max-examples",
         str(MAX_EXAMPLES),
         "--tls-verify",
@@ -191,3 +203,90 @@ def test_login_form_as_its_schema_says(tmp_path, seeded):
     finally:
         stop_api_process(server)
     assert blacklistings(db) == []
+
+
+@pytest.mark.timeout(RUN_TIMEOUT_S + 60)
+def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_config):
+    """The API as a vehicle's stack runs it: on the vehicle's bus (the mission and movement
+    managers answer its commands: here real nodes on the in-memory bus, at a stand-still), with
+    the live gateway and the route. The operator's token goes with the commands. The live streams
+    are left out of this run only because an event stream lasts until its token expires
+    (tests/test_live.py checks them against their schema's statuses)."""
+    import threading
+
+    import uvicorn
+
+    from ares.core import config
+    from ares.core.clock import ManualClock
+    from ares.core.membus import MemoryNetwork
+    from blackbox.api import create_app, uvicorn_config
+    from blackbox.api.api_node import route_view
+    from blackbox.api.live_hub import LiveHub, LiveSettings
+    from managers.mission_node import MissionManager
+    from managers.movement_node import MovementManager
+    from tests.helpers.api import add_role_users, api_settings
+
+    cfg = config.deep_merge(run_config, {"lidars": False, "mission_manager": {"autostart": "none"}})
+    clock, network = ManualClock(), MemoryNetwork()
+    managers = [
+        MissionManager(cfg, clock=clock, bus=network.bus("mission_manager", clock)),
+        MovementManager(cfg, clock=clock, bus=network.bus("movement_manager", clock)),
+    ]
+    for node in managers:
+        node.setup()
+    db = tmp_path / "blackbox.sqlite"
+    shutil.copy(seeded, db)
+    store = open_test_store(db)
+    # the production limits are the store-only run's to prove; here the limits are out of the way
+    # and the pace faster, so that this run costs the test command less
+    settings = api_settings(state_dir=str(tmp_path / "state"))
+    app = create_app(
+        store,
+        settings,
+        VEHICLE_ID,
+        call=network.bus("api", clock).call,
+        live=LiveHub(LiveSettings()),
+        route=route_view(config.core(cfg)),
+    )
+    add_role_users(store, app)
+    port = free_port()
+    server = uvicorn.Server(uvicorn_config(app, settings, host="127.0.0.1", port=port))
+    serving = threading.Thread(target=server.run, name="api", daemon=True)
+    serving.start()
+    base = f"https://127.0.0.1:{port}"
+    cert = tmp_path / "state" / "tls" / "api_cert.pem"
+    try:
+        deadline = time.monotonic() + 20
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert server.started
+        with httpx.Client(base_url=base, verify=ssl.create_default_context(cafile=str(cert)), timeout=10) as client:
+            auditor, admin, operator = (login(client, name) for name in ("auditor", "admin", "operator"))
+            paths = client.get("/openapi.json").json()["paths"]
+            commands = [
+                p
+                for p in paths
+                if p.startswith("/api/v1/vehicles/{vehicle_id}/") and any(m == "post" for m in paths[p])
+            ]
+            assert len(commands) == 4 and "/api/v1/route" in paths
+            run = schemathesis(
+                tmp_path,
+                f"{base}/openapi.json",
+                cert,
+                {"Authorization": f"Bearer {auditor}"},
+                {"/api/v1/users": {"Authorization": f"Bearer {admin}"}}
+                | {path: {"Authorization": f"Bearer {operator}"} for path in commands},
+                "--exclude-path",
+                LOGIN,
+                "--exclude-path-regex",
+                "^/api/v1/live/",
+                # a command to another vehicle is a 404 whatever its body: the bodies are what to explore
+                pinned={path: {"path.vehicle_id": VEHICLE_ID} for path in commands},
+                rate="150/s",
+            )
+            assert run.returncode == 0, report(run)
+            assert "No issues found" in run.stdout, report(run)
+    finally:
+        server.should_exit = True
+        serving.join(10)
+        store.close()

@@ -17,7 +17,7 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi.responses import Response
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict, model_validator
 from starlette.concurrency import run_in_threadpool
 
 from ares.core.bus import ServiceError
@@ -36,18 +36,56 @@ class CommandReply(BaseModel):
 
 
 class GoalBody(BaseModel):
-    """A mission goal: the POIs in order, every POI of the route ahead (null), or a drive."""
+    """A mission goal: the POIs in order, every POI of the route ahead (null), or a drive (no POIs)."""
+
+    # the schema says what the check below says: a drive names no POIs
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "not": {"required": ["drive", "pois"], "properties": {"drive": {"const": True}, "pois": {"type": "array"}}}
+        },
+    )
 
     pois: list[str] | None = None
     drive: bool = False
     repeat: bool = False
 
+    @model_validator(mode="after")
+    def _a_drive_names_no_pois(self) -> "GoalBody":
+        if self.drive and self.pois is not None:
+            raise ValueError("a drive goal has no POIs")
+        return self
+
 
 class BodyBody(BaseModel):
-    """The doors and the ramp: open or close, deploy or stow (null: leave as it is)."""
+    """The doors and the ramp: open or close, deploy or stow (null or absent: leave as it is; one of
+    them at least)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "anyOf": [
+                {"required": ["doors"], "properties": {"doors": {"type": "string"}}},
+                {"required": ["ramp"], "properties": {"ramp": {"type": "string"}}},
+            ]
+        },
+    )
 
     doors: Literal["open", "close"] | None = None
     ramp: Literal["deploy", "stow"] | None = None
+
+    @model_validator(mode="after")
+    def _something_asked(self) -> "BodyBody":
+        if self.doors is None and self.ramp is None:
+            raise ValueError("ask something of the doors or the ramp")
+        return self
+
+
+def command_responses(*codes: int) -> dict:
+    """A command's error answers, and its refusal: 409 with the manager's reason (a CommandReply)."""
+    responses = error_responses(*codes)
+    responses[409] = {"model": CommandReply, "description": "The manager refused the command: its reason"}
+    return responses
 
 
 COMMAND_RETRY_AFTER_S = 2  # a manager that did not answer is being restarted by the supervisor
@@ -78,7 +116,9 @@ def build_router(services: Services) -> APIRouter:
         return json_response(body, 200 if reply.accepted else 409)
 
     @router.post(
-        "/vehicles/{vehicle_id}/rearm", response_model=CommandReply, responses=error_responses(401, 404, 409, 422, 503)
+        "/vehicles/{vehicle_id}/rearm",
+        response_model=CommandReply,
+        responses=command_responses(401, 404, 409, 422, 503),
     )
     async def rearm(vehicle_id: VehicleId, claims: Operator) -> Response:
         return await forward(
@@ -88,18 +128,16 @@ def build_router(services: Services) -> APIRouter:
     @router.post(
         "/vehicles/{vehicle_id}/mission",
         response_model=CommandReply,
-        responses=error_responses(400, 401, 404, 409, 422, 503),
+        responses=command_responses(400, 401, 404, 409, 422, 503),
     )
     async def mission_goal(vehicle_id: VehicleId, goal: GoalBody, claims: Operator) -> Response:
-        if goal.drive and goal.pois:
-            raise HTTPException(422, "a drive goal has no POIs")
         request = MissionGoal(operator=claims.name, pois=goal.pois, drive=goal.drive, repeat=goal.repeat)
         return await forward(vehicle_id, "mission/goal", request, claims.name, "mission manager")
 
     @router.post(
         "/vehicles/{vehicle_id}/mission/{action}",
         response_model=CommandReply,
-        responses=error_responses(401, 404, 409, 422, 503),
+        responses=command_responses(401, 404, 409, 422, 503),
     )
     async def mission_action(
         vehicle_id: VehicleId, action: Literal["pause", "resume", "cancel"], claims: Operator
@@ -111,11 +149,9 @@ def build_router(services: Services) -> APIRouter:
     @router.post(
         "/vehicles/{vehicle_id}/body",
         response_model=CommandReply,
-        responses=error_responses(400, 401, 404, 409, 422, 503),
+        responses=command_responses(400, 401, 404, 409, 422, 503),
     )
     async def body(vehicle_id: VehicleId, asked: BodyBody, claims: Operator) -> Response:
-        if asked.doors is None and asked.ramp is None:
-            raise HTTPException(422, "ask something of the doors or the ramp")
         request = BodyRequest(operator=claims.name, doors=asked.doors, ramp=asked.ramp)
         return await forward(vehicle_id, "mission/body", request, claims.name, "mission manager")
 
