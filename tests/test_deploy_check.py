@@ -184,3 +184,17 @@ def test_a_port_open_to_every_address_and_a_wait_without_health(tmp_path, fleet_
 def test_compose_binary_is_docker_compose():
     out = subprocess.run([str(check.compose_binary()), "version"], capture_output=True, text=True, check=True).stdout
     assert "Docker Compose version v2." in out
+
+
+def test_a_router_config_zenohd_cannot_read(tmp_path, fleet_ca):
+    """zenohd picks the config's format by its extension: a secret mounted without one stops it."""
+    folder = vehicle_copy(tmp_path, fleet_ca)
+    compose = folder / "compose.yaml"
+    compose.write_text(
+        compose.read_text()
+        .replace("target: zenoh_router.json5", "target: zenoh_router_config")
+        .replace('"/run/secrets/zenoh_router.json5"', '"/run/secrets/zenoh_router_config"')
+    )
+    _expect(folder, "zenohd reads only", "/run/secrets/zenoh_router_config")
+    compose.write_text(compose.read_text().replace('"/run/secrets/zenoh_router_config"', '"/etc/zenoh/router.json5"'))
+    _expect(folder, "/etc/zenoh/router.json5", "which no secret, config or volume mounts")

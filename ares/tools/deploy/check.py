@@ -11,7 +11,8 @@ its normalized model (`config --format json`):
   except the API's (the vehicle's only outside service, ARES §3.8);
 - no secret in a plain environment value (`*_FILE` variables point at secrets instead);
 - every secret's file is there and not empty;
-- the router image is the zenohd release of the eclipse-zenoh the stack runs;
+- the router image is the zenohd release of the eclipse-zenoh the stack runs, and its config is a
+  file zenohd can read (by its extension) mounted where its command says;
 - every ARES config file the services mount passes the typed configuration;
 - the certificates: signed by the CA beside them, matching their keys, valid now; a vehicle's
   router certificate names the vehicle of its ARES config, and so does its Zenoh user; the
@@ -40,6 +41,7 @@ SECRET_WORDS = re.compile(r"PASSWORD|PASSWD|SECRET|TOKEN|PRIVATE|_KEY$|^KEY$", r
 API_PORT = 8443
 ROUTER_IMAGE = "eclipse/zenoh"
 LONG_RUNNING = {"always", "unless-stopped", "on-failure"}
+ZENOHD_CONFIG_SUFFIXES = (".json5", ".json", ".yaml")
 
 
 class ComposeMissing(RuntimeError):
@@ -211,12 +213,38 @@ def _ares_configs(report: Report, model: dict[str, Any], services: dict[str, Any
 
 
 def _router_image(report: Report, compose_file: Path, services: dict[str, Any]) -> None:
+    """The zenohd of the stack's eclipse-zenoh, and a config it can read: zenohd picks the format by
+    the file's extension, and the file must be mounted where its command says."""
     wanted = f"{ROUTER_IMAGE}:{metadata.version('eclipse-zenoh')}"
     for name, service in services.items():
         image = str(service.get("image", ""))
-        if image.startswith(ROUTER_IMAGE) and image != wanted:
+        if not image.startswith(ROUTER_IMAGE):
+            continue
+        if image != wanted:
             report.problem(f"{compose_file}: {name!r} runs {image}; the stack's eclipse-zenoh wants {wanted}")
-    report.checked.append("router image")
+        command = list(service.get("command") or [])
+        path = command[command.index("-c") + 1] if "-c" in command[:-1] else None
+        if path is None:
+            report.problem(f"{compose_file}: {name!r} runs zenohd without its config (-c FILE)")
+            continue
+        if not path.endswith(ZENOHD_CONFIG_SUFFIXES):
+            report.problem(
+                f"{compose_file}: {name!r} reads {path}, but zenohd reads only {', '.join(ZENOHD_CONFIG_SUFFIXES)} "
+                "files (give the secret or config a target with that extension)"
+            )
+        mounted = (
+            {
+                str(m.get("target", ""))
+                if str(m.get("target", "")).startswith("/")
+                else f"/run/secrets/{m.get('target')}"
+                for m in (service.get("secrets") or [])
+            }
+            | {str(m.get("target", "")) for m in (service.get("configs") or [])}
+            | {str(v.get("target", "")) for v in (service.get("volumes") or [])}
+        )
+        if path not in mounted:
+            report.problem(f"{compose_file}: {name!r} reads {path}, which no secret, config or volume mounts")
+    report.checked.append("router image and config")
 
 
 def _certificates(report: Report, files: dict[str, Path], ares_configs: dict[str, dict]) -> None:
