@@ -177,3 +177,37 @@ def test_a_certificate_of_another_ca_is_refused(deployment, tmp_path):
     good, _ = deployment.vehicle_router("shuttle02")
     assert _linked(good, LINK_WAIT_S)
     assert not _linked(foreign, 2.0)
+
+
+def test_a_restarted_fleet_router_gets_its_vehicles_and_subscriptions_back(deployment):
+    """The fleet router killed and started again on its address: the vehicle's router reconnects by
+    itself (connect retries forever, exit_on_failure false) and the fleet's subscription is heard
+    again, with no vehicle process restarted (stale sessions after a router restart are a known
+    weakness of Zenoh deployments)."""
+    router, process = deployment.vehicle_router("shuttle01")
+    assert _linked(router, LINK_WAIT_S)
+    fleet_cfg = localize(
+        router_config.load(FLEET_FILE),
+        deployment.ca / "fleet",
+        listen=[f"tls/127.0.0.1:{deployment.tls_port}", f"tcp/127.0.0.1:{deployment.local_port}"],
+    )
+
+    def heard(fleet: zenoh.Session, tag: bytes) -> float:
+        seen: list[bytes] = []
+        sub = fleet.declare_subscriber("ares/*/dbw/car_state", lambda s: seen.append(s.payload.to_bytes()))
+        started = time.monotonic()
+        while tag not in seen and time.monotonic() - started < 20.0:
+            process.put("ares/shuttle01/dbw/car_state", tag)
+            time.sleep(0.05)
+        sub.undeclare()
+        assert tag in seen, f"{tag!r} not heard within 20 s"
+        return time.monotonic() - started
+
+    heard(deployment.fleet, b"before")
+    deployment.fleet_router.close()
+    time.sleep(1.0)
+    restarted = deployment.keep(open_router(fleet_cfg))
+    assert _linked(router, LINK_WAIT_S)  # the same vehicle router session, linked again
+    assert list(router.info.routers_zid()) == [restarted.info.zid()]
+    # the fleet's own client session (the API's, on the fleet host) comes back too, unopened again
+    assert heard(deployment.fleet, b"after") < 20.0
