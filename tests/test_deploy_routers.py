@@ -78,12 +78,12 @@ class Deployment:
             pki.issue_vehicle(self.ca, vehicle_id, ["localhost", "127.0.0.1"])
         self.tls_port, self.local_port = free_port(), free_port()
         self.sessions: list[zenoh.Session] = []
-        fleet_cfg = localize(
+        self.fleet_cfg = localize(
             router_config.load(FLEET_FILE),
             self.ca / "fleet",
             listen=[f"tls/127.0.0.1:{self.tls_port}", f"tcp/127.0.0.1:{self.local_port}"],
         )
-        self.fleet_router = self.keep(open_router(fleet_cfg))
+        self.fleet_router = self.keep(open_router(self.fleet_cfg))
         password = (self.ca / "fleet" / "zenoh_fleet_password").read_text()
         self.fleet = self.keep(_client(f"tcp/127.0.0.1:{self.local_port}", "fleet", password))
 
@@ -186,11 +186,6 @@ def test_a_restarted_fleet_router_gets_its_vehicles_and_subscriptions_back(deplo
     weakness of Zenoh deployments)."""
     router, process = deployment.vehicle_router("shuttle01")
     assert _linked(router, LINK_WAIT_S)
-    fleet_cfg = localize(
-        router_config.load(FLEET_FILE),
-        deployment.ca / "fleet",
-        listen=[f"tls/127.0.0.1:{deployment.tls_port}", f"tcp/127.0.0.1:{deployment.local_port}"],
-    )
 
     def heard(fleet: zenoh.Session, tag: bytes) -> float:
         seen: list[bytes] = []
@@ -206,7 +201,7 @@ def test_a_restarted_fleet_router_gets_its_vehicles_and_subscriptions_back(deplo
     heard(deployment.fleet, b"before")
     deployment.fleet_router.close()
     time.sleep(1.0)
-    restarted = deployment.keep(open_router(fleet_cfg))
+    restarted = deployment.keep(open_router(deployment.fleet_cfg))
     assert _linked(router, LINK_WAIT_S)  # the same vehicle router session, linked again
     assert list(router.info.routers_zid()) == [restarted.info.zid()]
     # the fleet's own client session (the API's, on the fleet host) comes back too, unopened again

@@ -29,7 +29,6 @@ import re
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, TypeVar, cast
 
 import orjson
@@ -37,7 +36,7 @@ import pydantic
 
 from ares.core import schema, topics
 from ares.core.clock import Clock, WallClock
-from ares.core.config import VEHICLE_ID_PATTERN, BusSettings
+from ares.core.config import VEHICLE_ID_PATTERN, BusSettings, ConfigError, read_secret
 from ares.core.messages import ServiceErrorReply
 from ares.core.schema import Msg, Payload
 
@@ -552,9 +551,9 @@ def zenoh_config(settings: BusSettings, mode: str | None = None, listen: list[st
     if settings.user is not None and settings.password_file is not None:
         # a deployment's router asks every link for credentials (docs/deploy.md)
         try:
-            password = Path(settings.password_file).expanduser().read_text().strip()
-        except OSError as exc:
-            raise BusError(f"bus.password_file {settings.password_file}: {exc.strerror}") from None
+            password = read_secret(settings.password_file, "bus.password_file")
+        except ConfigError as exc:
+            raise BusError(str(exc)) from None
         cfg.insert_json5("transport/auth/usrpwd", json.dumps({"user": settings.user, "password": password}))
     if mode == "router":
         cfg.insert_json5("listen/endpoints", json.dumps(listen or [settings.router]))

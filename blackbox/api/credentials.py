@@ -30,7 +30,7 @@ from pathlib import Path
 import argon2
 import jwt
 
-from ares.core.config import Params, param
+from ares.core.config import Params, param, read_secret
 from blackbox.store.record_store import RecordStore, User, utc_now
 
 ROLES = ("auditor", "operator", "fleet", "admin")
@@ -156,10 +156,7 @@ def add_user(store: RecordStore, passwords: Passwords, name: str, role: str, pas
 def load_secret(cfg: AuthSettings, state_dir: Path) -> bytes:
     """The signing key: the configured file, else the environment when set, else the state directory's file."""
     if cfg.secret_file:
-        try:
-            text = Path(cfg.secret_file).expanduser().read_text().strip()
-        except OSError as exc:
-            raise ValueError(f"api.auth.secret_file {cfg.secret_file}: {exc.strerror}") from None
+        text = read_secret(cfg.secret_file, "api.auth.secret_file")  # a ConfigError is a ValueError
         if len(text) < 32:
             raise ValueError(f"api.auth.secret_file {cfg.secret_file} is too short: at least 32 characters")
         return text.encode()

@@ -28,7 +28,6 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import UTC, datetime
-from pathlib import Path
 
 import orjson
 from pymongo import ASCENDING, DESCENDING, MongoClient
@@ -44,6 +43,7 @@ from pymongo.errors import (
     ServerSelectionTimeoutError,
 )
 
+from ares.core.config import read_secret
 from ares.core.messages import StoredEvent, VehicleRecord
 from blackbox.store.record_store import RETENTION, StoreSettings, StoreUnavailable, User, utc_now
 
@@ -71,12 +71,7 @@ class MongoStore:
         # an absent server; the first operation waits at most serverSelectionTimeoutMS
         credentials = {}
         if s.mongo_user is not None and s.mongo_password_file is not None:
-            try:
-                password = Path(s.mongo_password_file).expanduser().read_text().strip()
-            except OSError as exc:
-                raise ValueError(
-                    f"blackbox_store.mongo_password_file {s.mongo_password_file}: {exc.strerror}"
-                ) from None
+            password = read_secret(s.mongo_password_file, "blackbox_store.mongo_password_file")
             credentials = {"username": s.mongo_user, "password": password}
         self._client: MongoClient = MongoClient(
             uri,

@@ -33,6 +33,7 @@ from ares.core.config.base import (
     named_file,
     packaged_file,
     param,
+    read_secret,
     sentence,
     validated,
 )
@@ -108,6 +109,7 @@ __all__ = [
     "describe_errors",
     "sentence",
     "error_line",
+    "read_secret",
     "SteeringActuatorParams",
     "TractionActuatorParams",
     "ActuatorParams",

