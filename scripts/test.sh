@@ -3,7 +3,9 @@
 #   1. the static checks: ruff (lint and format), mypy (strict on the core); import-linter's layers are
 #      a test (tests/test_layers.py);
 #   2. the tests that run in one process (most of them, the in-process stack among them) on both
-#      cores (pytest-xdist, `-m "not stack"`);
+#      cores (pytest-xdist, `-m "not stack"`): three workers, so that a test waiting on a paced
+#      client or a timeout leaves its core to the others, and work stealing, so that no worker
+#      idles while another still holds a queue of tests;
 #   3. the tests that start whole stacks of processes, one at a time (`-m stack`: each wants both cores);
 # then the time pytest took, both parts added up. With arguments: `python -m pytest -q "$@"` from the
 # repository root (paths relative to it), no static checks. Exits non-zero if anything failed;
@@ -30,7 +32,7 @@ say "mypy";                  "$BIN/mypy" || checks_rc=1
 seconds() { date +%s.%N; }
 rc=0
 start=$(seconds)
-"$BIN/python" -m pytest -q -m "not stack" -n 2 || rc=$?
+"$BIN/python" -m pytest -q -m "not stack" -n 3 --dist worksteal || rc=$?
 middle=$(seconds)
 stack_rc=0
 "$BIN/python" -m pytest -q -m stack || stack_rc=$?

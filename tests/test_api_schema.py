@@ -6,15 +6,15 @@ required headers, unsupported methods and their Allow header, authentication not
 in all four phases: the schema's examples, coverage (boundary values and undeclared methods),
 fuzzing, and stateful sequences that follow the schema's links.
 
-The auditor's token goes with every request (the admin's for /users, which is the admin's
-only), paced at 30 requests/s, against the production rate limits and blacklist: the run must
-find nothing, and afterwards the client must not be blacklisted. One operation is left out of
-that run: the login form, because every generated login is a wrong password and a burst of
-those gets a client blacklisted by design (test_api_security proves it). The form is checked
-the same way in a run of its own, against a server whose failed-login limits are raised. An API
-over a store alone does not offer the commands, the live streams and the route (they need a
-vehicle's bus): they are not in its schema, and asking for them is a 404 (tests/test_live.py,
-tests/test_api_commands.py).
+The auditor's token goes with every request (the admin's for /users, which is the admin's only),
+paced at 45 requests/s (the production limit is 50/s), against the production rate limits and
+blacklist: the run must find nothing, and afterwards the client must not be blacklisted. One
+operation is left out of that run: the login form, because every generated login is a wrong
+password and a burst of those gets a client blacklisted by design (test_api_security proves it).
+The form is checked the same way in a run of its own, against a server whose failed-login limits
+are raised. An API over a store alone does not offer the commands, the live streams and the
+route (they need a vehicle's bus): they are not in its schema, and asking for them is a 404
+(tests/test_live.py, tests/test_api_commands.py).
 
 The API inside a vehicle's stack is run the same way (test_the_api_in_a_vehicles_stack_as_its_schema_says):
 the commands answered by the real mission and movement managers, the route, the live gateway.
@@ -52,8 +52,8 @@ from tests.helpers.api import (
 )
 
 PHASES = "examples,coverage,fuzzing,stateful"
-RATE = "30/s"
-MAX_EXAMPLES = 30  # per operation and phase: ~1,000 requests, ~35 s at 30/s
+RATE = "45/s"
+MAX_EXAMPLES = 30  # per operation and phase: ~1,000 requests, ~25 s at 45/s
 LOGIN = "/api/v1/auth/token"
 RUN_TIMEOUT_S = 240
 
@@ -146,7 +146,7 @@ def blacklistings(db: Path) -> list[dict]:
 
 
 @pytest.mark.timeout(RUN_TIMEOUT_S + 60)
-def test_live_api_as_its_schema_says_at_30_per_s(tmp_path, seeded):
+def test_live_api_as_its_schema_says_at_45_per_s(tmp_path, seeded):
     db = tmp_path / "blackbox.sqlite"
     shutil.copy(seeded, db)
     port = free_port()

@@ -135,7 +135,7 @@ def test_the_same_configuration_drives_the_same_drive(tmp_path):
     for seed in ("0", "1"):
         store = tmp_path / f"blackbox_{seed}.sqlite"
         done = subprocess.run(
-            [sys.executable, "-m", "ares.tools.harness.in_process_stack", "--seconds", "30", "--store", str(store),
+            [sys.executable, "-m", "ares.tools.harness.in_process_stack", "--seconds", "15", "--store", str(store),
              "--config", str(NO_LIDARS), "--config", str(IN_PROCESS)],
             cwd=REPO, capture_output=True, text=True, timeout=180, env={**os.environ, "PYTHONHASHSEED": seed},
         )  # fmt: skip

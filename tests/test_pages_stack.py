@@ -45,6 +45,22 @@ def wait_for(condition, timeout_s: float, what: str, step_s: float = 0.1):
     return wait_until(condition, timeout_s, what, interval_s=step_s)
 
 
+def wait_for_the_shuttle(stack, condition, timeout_s: float, what: str, step_s: float = 0.1):
+    """wait_for, a failure saying why the shuttle was where it was: where it stood, what the
+    movement gate and the awareness manager said last, and the end of the stack's log."""
+    try:
+        return wait_for(condition, timeout_s, what, step_s)
+    except AssertionError as timed_out:
+        raise AssertionError(f"{timed_out}\n{why_the_shuttle(stack)}") from None
+
+
+def why_the_shuttle(stack) -> str:
+    truth, movement, awareness = (stack[k].latest for k in ("truth", "movement", "awareness"))
+    where = f"s={truth.s:.1f} m, v={truth.v:.2f} m/s, t={truth.t:.1f} s" if truth else "no truth"
+    log = stack["log"].read_text(errors="replace")[-3000:]
+    return f"shuttle at {where}\nmovement: {movement}\nawareness: {awareness}\nthe stack's log ends:\n{log}"
+
+
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory, browser):
     """`ares run` as a newcomer starts it (interactive: it engages Automatic itself), on free
@@ -96,13 +112,22 @@ def stack(tmp_path_factory, browser):
     )
     try:
         truth = bus.subscribe("sim/truth")
+        movement, awareness = bus.subscribe("movement/status"), bus.subscribe("awareness/state")
         wait_for(
             lambda: truth.latest is not None and truth.latest.v > 1.5 or proc.poll() is not None,
             90,
             "the shuttle to drive",
         )
         assert proc.poll() is None, (tmp / "stdout.log").read_text()[-3000:]
-        yield {"bus": bus, "truth": truth, "url": f"https://127.0.0.1:{port}", "store": store_path}
+        yield {
+            "bus": bus,
+            "truth": truth,
+            "movement": movement,
+            "awareness": awareness,
+            "log": tmp / "stdout.log",
+            "url": f"https://127.0.0.1:{port}",
+            "store": store_path,
+        }
     finally:
         bus.close()
         stop_process(proc, timeout_s=10, group=True)
@@ -180,10 +205,10 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     assert lag and max(lag) < 2000, lag  # (measured properly: ares bench live)
 
     # Pause: standing within 2 s, confirmed by the vehicle, recorded with the operator's name
-    wait_for(lambda: truth.latest.v > 1.0, 30, "the shuttle at speed before the pause")
+    wait_for_the_shuttle(stack, lambda: truth.latest.v > 1.0, 30, "the shuttle at speed before the pause")
     clicked, speed = truth.latest.t, truth.latest.v
     pg.click("[data-command=pause]")
-    wait_for(lambda: truth.latest.v < 0.05, 10, "the shuttle to stop", step_s=0.01)
+    wait_for_the_shuttle(stack, lambda: truth.latest.v < 0.05, 10, "the shuttle to stop", step_s=0.01)
     stopped_after = truth.latest.t - clicked
     assert stopped_after <= 2.0, f"stopped {stopped_after:.2f} s (vehicle time) after the click"
     print(f"paused at {speed:.2f} m/s: standing {stopped_after:.2f} s (vehicle time) after the click")
@@ -201,12 +226,12 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     )
     assert any("paused" in e["message"] for e in events)
     pg.click("[data-command=resume]")
-    wait_for(lambda: truth.latest.v > 0.5, 20, "the shuttle to drive on after the resume")
+    wait_for_the_shuttle(stack, lambda: truth.latest.v > 0.5, 20, "the shuttle to drive on after the resume")
 
     # a covered LiDAR: the emergency stop latches; uncovered, the operator re-arms from the page
     bus.call("sim/lidar_fault", LidarFault(sensor="roof", blocked=True))
     wait_for(lambda: field(pg, "movement.latched") == "true", 10, "the latched emergency stop on the page")
-    wait_for(lambda: truth.latest.v < 0.05, 10, "the emergency stop")
+    wait_for_the_shuttle(stack, lambda: truth.latest.v < 0.05, 10, "the emergency stop")
     bus.call("sim/lidar_fault", LidarFault(sensor="roof", blocked=False))
     shot(pg, "operator_emergency_stop")
 
@@ -225,7 +250,7 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
 
     wait_for(rearmed, 30, "the re-arm confirmed", step_s=1.0)
     assert field(pg, "movement.latched") == "false"
-    wait_for(lambda: truth.latest.v > 0.5, 30, "the shuttle moving after the re-arm")
+    wait_for_the_shuttle(stack, lambda: truth.latest.v > 0.5, 30, "the shuttle moving after the re-arm")
     shot(pg, "operator")
     assert not [p for p in pg.problems if "favicon" not in p], pg.problems
 
