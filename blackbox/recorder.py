@@ -87,10 +87,9 @@ class SensorMinimums(Params):
     can: float = param(10.0, "CAN bus (sensors/can)", unit="Hz", ge=0)
 
 
-class RecorderParams(Params):
-    rate_hz: float = param(
-        5.0, "loop: a record is built as each whole second of stack time is crossed", unit="Hz", gt=0
-    )
+class StoreWriterParams(Params):
+    """How a black box writes to its store (StoreWriter): the recorder's, and the fleet's."""
+
     spool: str | None = param(
         None,
         "disk spool while the store is down; null: blackbox-spool-<vehicle_id>.sqlite "
@@ -112,12 +111,24 @@ class RecorderParams(Params):
         unit="s",
         gt=0,
     )
+
+
+class RecorderParams(StoreWriterParams):
+    rate_hz: float = param(
+        5.0, "loop: a record is built as each whole second of stack time is crossed", unit="Hz", gt=0
+    )
     max_age_s: float = param(
         2.0, "an input older than this (stack s) is recorded as missing (null), not as current", unit="s", gt=0
     )
     event_queue: int = param(4096, "events buffered between two loops", ge=1)
     sensor_window_s: float = param(2.0, "sensor message rates are measured over this window (stack s)", unit="s", gt=0)
     sensor_min_hz: SensorMinimums = param(doc="each sensor's minimum rate for `ok`", factory=SensorMinimums)
+    fleet_memory_s: int = param(
+        3600,
+        "the last seconds kept in memory for the fleet's store to fill a gap after a lost link (blackbox/records)",
+        unit="s",
+        ge=0,
+    )
 
 
 # ---- where the store and the spool are --------------------------------------------------------
@@ -130,7 +141,7 @@ def store_uri(settings: StoreSettings) -> str:
     return where if is_mongo(where) else str(Path(where).expanduser().resolve())
 
 
-def spool_path(params: RecorderParams, settings: StoreSettings, vehicle_id: str) -> Path:
+def spool_path(params: StoreWriterParams, settings: StoreSettings, vehicle_id: str) -> Path:
     if params.spool:
         return Path(params.spool).expanduser().resolve()
     uri = store_uri(settings)
@@ -246,6 +257,19 @@ class Notice:
     message: str
     level: EventLevel
     data: dict
+
+
+def store_writer(params: StoreWriterParams, settings: StoreSettings, spool_name: str) -> StoreWriter:
+    """The writer a black box's node runs (not started)."""
+    return StoreWriter(
+        lambda: open_configured_store(settings),
+        Spool(spool_path(params, settings, spool_name), params.spool_max_entries),
+        queue_size=params.queue_size,
+        batch_max=params.batch_max,
+        batch_wait_s=params.batch_wait_s,
+        retry_min_s=params.retry_min_s,
+        retry_max_s=params.retry_max_s,
+    )
 
 
 class StoreWriter:

@@ -4,6 +4,11 @@ What a record holds, when it is written and how the writer survives a store that
 `blackbox.recorder`'s (its docstring says it all); this node latches the inputs, builds a record
 whenever stack time crosses a whole second, hands records and events to the writer thread and
 turns the writer's notices into events.
+
+For the fleet: each record is also published (`blackbox/record`) as it is handed to the writer,
+and the last `fleet_memory_s` of them are kept in memory, from which `blackbox/records` answers
+the fleet's store when it asks for the seconds a lost link kept from it (blackbox/fleet_sync.py).
+The answer never waits on the vehicle's own store.
 """
 
 from __future__ import annotations
@@ -14,20 +19,18 @@ import queue
 
 from ares.core import topics
 from ares.core.geodesy import LocalFrame
-from ares.core.messages import EventLevel
-from ares.core.node import Input, InputGroup, Node
+from ares.core.messages import BlackboxRecord, EventLevel, RecordBatch, RecordRange, VehicleRecord
+from ares.core.node import Input, InputGroup, Node, Output, service
 from blackbox.recorder import (
     SENSOR_TOPICS,
     RecorderParams,
     Snapshot,
-    StoreWriter,
     build_record,
-    open_configured_store,
-    spool_path,
     store_uri,
+    store_writer,
     stored_event,
 )
-from blackbox.spool import Item, Spool
+from blackbox.spool import Item
 from blackbox.store.record_store import StoreSettings
 
 
@@ -46,6 +49,7 @@ class Recorder(Node):
     scores = InputGroup(topics.score_topics(), max_age="max_age_s", doc="every manager's score")
     sensors = InputGroup(SENSOR_TOPICS, doc="message rates -> sensor health")
     events = Input("events", queue="event_queue", doc="recorded as they arrive")
+    published = Output("blackbox/record", rate=1.0, doc="each record as it is written, for the fleet's store")
 
     def setup(self) -> None:
         p = self.params
@@ -53,15 +57,7 @@ class Recorder(Node):
         self.vehicle_id = self.core.vehicle_id
         self.frame = LocalFrame(self.core.origin_utm)
         self.sensor_min_hz = p.sensor_min_hz.model_dump()
-        self.writer = StoreWriter(
-            lambda: open_configured_store(self.store_settings),
-            Spool(spool_path(p, self.store_settings, self.vehicle_id), p.spool_max_entries),
-            queue_size=p.queue_size,
-            batch_max=p.batch_max,
-            batch_wait_s=p.batch_wait_s,
-            retry_min_s=p.retry_min_s,
-            retry_max_s=p.retry_max_s,
-        )
+        self.writer = store_writer(p, self.store_settings, self.vehicle_id)
         if self.writer.spool.pending:
             self.log.info("%d items left in %s: flushing them first", len(self.writer.spool), self.writer.spool.path)
         self.writer.start()
@@ -69,6 +65,7 @@ class Recorder(Node):
         # the first second crossed from now on; a restart in the same run picks up from here
         self.next_k = math.floor(self.clock.now()) + 1
         self.event_counts: collections.Counter[int] = collections.Counter()
+        self.memory: collections.deque[VehicleRecord] = collections.deque(maxlen=max(p.fleet_memory_s, 1))
         self.lost = 0
         self._last_lost_event = -math.inf
         self._events_overflowed = 0
@@ -105,8 +102,17 @@ class Recorder(Node):
                 self.event_counts.pop(k, 0),
             )
             self._submit(record, now)
+            if self.params.fleet_memory_s > 0:
+                self.memory.append(record)
+            self.published.put(BlackboxRecord(t=float(k), record=record))
             self.next_k = k + 1
         self._publish_notices()
+
+    @service("blackbox/records")
+    def _records(self, request: RecordRange) -> RecordBatch:
+        wanted = [r for r in self.memory if request.start_epoch_s <= int(r.time.timestamp()) < request.end_epoch_s]
+        oldest = int(self.memory[0].time.timestamp()) if self.memory else None
+        return RecordBatch(t=self.clock.now(), records=wanted, oldest_epoch_s=oldest)
 
     def snapshot(self, now: float) -> Snapshot:
         window = self.params.sensor_window_s

@@ -18,7 +18,8 @@ route (they need a vehicle's bus): they are not in its schema, and asking for th
 
 The API inside a vehicle's stack is run the same way (test_the_api_in_a_vehicles_stack_as_its_schema_says):
 the commands answered by the real mission and movement managers, the route, the live gateway.
-The fleet server's mode is still to come (docs/deploy.md).
+The fleet server's (test_the_fleet_servers_api_as_its_schema_says): every vehicle's black box
+from the fleet's store and the fleet's live view; no commands, no route.
 
 A failure fails the test with schemathesis' report (each failure with a curl line to reproduce
 it, and the seed of the run).
@@ -26,6 +27,7 @@ it, and the seed of the run).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import ssl
@@ -83,6 +85,7 @@ def schemathesis(
     *args: str,
     pinned: dict[str, dict[str, str]] | None = None,
     rate: str = RATE,
+    max_examples: int = MAX_EXAMPLES,
 ) -> subprocess.CompletedProcess:
     """`st run` with every check in every phase at RATE, verifying the server's certificate;
     failing on warnings too (e.g. rate_limited: a 429 seen, missing_auth: a token refused).
@@ -116,7 +119,7 @@ def schemathesis(
         "--rate-limit",
         rate,
         "--max-examples",
-        str(MAX_EXAMPLES),
+        str(max_examples),
         "--tls-verify",
         str(cert),
         "--workers",
@@ -212,14 +215,11 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
     the live gateway and the route. The operator's token goes with the commands. The live streams
     are left out of this run only because an event stream lasts until its token expires
     (tests/test_live.py checks them against their schema's statuses)."""
-    import threading
-
-    import uvicorn
 
     from ares.core import config
     from ares.core.clock import ManualClock
     from ares.core.membus import MemoryNetwork
-    from blackbox.api import create_app, uvicorn_config
+    from blackbox.api import create_app
     from blackbox.api.api_node import route_view
     from blackbox.api.live_hub import LiveHub, LiveSettings
     from managers.mission_node import MissionManager
@@ -249,18 +249,11 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
         route=route_view(config.core(cfg)),
     )
     add_role_users(store, app)
-    port = free_port()
-    server = uvicorn.Server(uvicorn_config(app, settings, host="127.0.0.1", port=port))
-    serving = threading.Thread(target=server.run, name="api", daemon=True)
-    serving.start()
-    base = f"https://127.0.0.1:{port}"
-    cert = tmp_path / "state" / "tls" / "api_cert.pem"
     try:
-        deadline = time.monotonic() + 20
-        while not server.started and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert server.started
-        with httpx.Client(base_url=base, verify=ssl.create_default_context(cafile=str(cert)), timeout=10) as client:
+        with (
+            serving_in_thread(app, settings, tmp_path) as (base, cert),
+            httpx.Client(base_url=base, verify=ssl.create_default_context(cafile=str(cert)), timeout=10) as client,
+        ):
             auditor, admin, operator = (login(client, name) for name in ("auditor", "admin", "operator"))
             paths = client.get("/openapi.json").json()["paths"]
             commands = [
@@ -287,6 +280,89 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
             assert run.returncode == 0, report(run)
             assert "No issues found" in run.stdout, report(run)
     finally:
+        store.close()
+
+
+@contextlib.contextmanager
+def serving_in_thread(app, settings, tmp_path: Path):
+    """The app under uvicorn over HTTPS on a free port, in a thread of this process: (base URL,
+    the certificate to verify)."""
+    import threading
+
+    import uvicorn
+
+    from blackbox.api import uvicorn_config
+
+    port = free_port()
+    server = uvicorn.Server(uvicorn_config(app, settings, host="127.0.0.1", port=port))
+    serving = threading.Thread(target=server.run, name="api", daemon=True)
+    serving.start()
+    try:
+        deadline = time.monotonic() + 20
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert server.started
+        yield f"https://127.0.0.1:{port}", tmp_path / "state" / "tls" / "api_cert.pem"
+    finally:
         server.should_exit = True
         serving.join(10)
+
+
+@pytest.mark.timeout(RUN_TIMEOUT_S + 60)
+def test_the_fleet_servers_api_as_its_schema_says(tmp_path, seeded):
+    """The API as the fleet server runs it (blackbox.api.api_node.FleetApiServer): every vehicle's
+    black box from the fleet's store, the fleet's live view (two vehicles heard on the bus), no
+    commands and no route. The event streams are left out as in the vehicle's run."""
+    from ares.core.messages import CarState, DriveMode
+    from blackbox.api import create_app
+    from blackbox.api.live_hub import LiveHub, LiveSettings
+    from tests.helpers.api import add_role_users, api_settings
+
+    db = tmp_path / "blackbox.sqlite"
+    shutil.copy(seeded, db)
+    store = open_test_store(db)
+    settings = api_settings(state_dir=str(tmp_path / "state"))
+    live = LiveHub(LiveSettings())
+    for vehicle_id in (VEHICLE_ID, "shuttle02"):
+        car = CarState(
+            t=1.0,
+            mode=DriveMode.AUTOMATIC,
+            engaged=True,
+            watchdog_tripped=False,
+            setpoint_age_s=0.02,
+            v_command=2.0,
+            kappa_command=0.0,
+            speed_mps=2.0,
+            steering_wheel_deg=0.0,
+        )
+        live.put(vehicle_id, "dbw/car_state", car)
+    app = create_app(store, settings, "fleet", live=live)
+    add_role_users(store, app)
+    try:
+        with (
+            serving_in_thread(app, settings, tmp_path) as (base, cert),
+            httpx.Client(base_url=base, verify=ssl.create_default_context(cafile=str(cert)), timeout=10) as client,
+        ):
+            auditor, admin = login(client, "auditor"), login(client, "admin")
+            paths = client.get("/openapi.json").json()["paths"]
+            assert "/api/v1/fleet" in paths and "/api/v1/route" not in paths
+            assert not [p for p in paths if any(m == "post" for m in paths[p]) and "/vehicles/" in p]
+            fleet = client.get("/api/v1/fleet", headers={"Authorization": f"Bearer {auditor}"}).json()
+            assert [v["vehicle_id"] for v in fleet["vehicles"]] == [VEHICLE_ID, "shuttle02"]
+            run = schemathesis(
+                tmp_path,
+                f"{base}/openapi.json",
+                cert,
+                {"Authorization": f"Bearer {auditor}"},
+                {"/api/v1/users": {"Authorization": f"Bearer {admin}"}},
+                "--exclude-path",
+                LOGIN,
+                "--exclude-path-regex",
+                "^/api/v1/live/",
+                rate="150/s",
+                max_examples=15,  # the same read operations as the store-only run, which explores them at 30
+            )
+            assert run.returncode == 0, report(run)
+            assert "No issues found" in run.stdout, report(run)
+    finally:
         store.close()

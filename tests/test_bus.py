@@ -363,7 +363,10 @@ def test_a_router_that_asks_for_credentials(run_config, tmp_path):
         cfg = {**run_config, "bus": {**run_config["bus"], "router": f"tcp/127.0.0.1:{port}"}}
         with pytest.raises(zenoh.ZError):
             Bus(cfg, "anonymous", mode="client")
-        logged_in = {**cfg, "bus": {**cfg["bus"], "user": "vehicle", "password_file": str(tmp_path / "password")}}
+        logged_in = {
+            **cfg,
+            "bus": {**cfg["bus"], "mode": "client", "user": "vehicle", "password_file": str(tmp_path / "password")},
+        }
         made += [Bus(logged_in, "pub", mode="client"), Bus(logged_in, "sub", mode="client")]
         sub = made[1].subscribe("heartbeat/*", queue=50)
         connected(made[0], sub, "heartbeat/pub", lambda: hb("pub"))
@@ -383,3 +386,7 @@ def test_user_and_password_file_come_together():
         BusSettings(user="vehicle")
     with pytest.raises(pydantic.ValidationError, match="both user and password_file"):
         BusSettings(password_file="/run/secrets/x")
+    # peers would link to each other past the router that checks the credentials (and be refused)
+    with pytest.raises(pydantic.ValidationError, match="set mode: client"):
+        BusSettings(user="vehicle", password_file="/run/secrets/x")
+    assert BusSettings(user="vehicle", password_file="/run/secrets/x", mode="client").mode == "client"

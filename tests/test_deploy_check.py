@@ -198,3 +198,36 @@ def test_a_router_config_zenohd_cannot_read(tmp_path, fleet_ca):
     _expect(folder, "zenohd reads only", "/run/secrets/zenoh_router_config")
     compose.write_text(compose.read_text().replace('"/run/secrets/zenoh_router_config"', '"/etc/zenoh/router.json5"'))
     _expect(folder, "/etc/zenoh/router.json5", "which no secret, config or volume mounts")
+
+
+def fleet_copy(tmp_path: Path, fleet_ca: Path) -> Path:
+    folder = tmp_path / "fleet"
+    shutil.copytree(DEPLOY / "fleet", folder)
+    shutil.copytree(fleet_ca / "fleet", folder / "secrets")
+    return folder
+
+
+def test_the_fleet_folder_passes(tmp_path, fleet_ca):
+    folder = fleet_copy(tmp_path, fleet_ca)
+    result = ares("deploy", "check", str(folder), "--json")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "process table covered" in json.loads(result.stdout)["checked"]
+
+
+def test_a_fleet_server_without_its_api(tmp_path, fleet_ca):
+    folder = fleet_copy(tmp_path, fleet_ca)
+    compose = folder / "compose.yaml"
+    compose.write_text(
+        compose.read_text().replace("ares.processes: fleet_sync,fleet_api", "ares.processes: fleet_sync")
+    )
+    _expect(folder, "no service runs process(es) fleet_api of the fleet server's table")
+
+
+def test_a_fleet_router_admitting_a_vehicle_without_a_user(tmp_path, fleet_ca):
+    from ares.tools.deploy import router_config
+
+    folder = fleet_copy(tmp_path, fleet_ca)
+    (folder / "zenoh-router.json5").write_text(
+        router_config.render(router_config.fleet_router(["shuttle01", "shuttle02", "shuttle09"]), "fleet")
+    )
+    _expect(folder, "admits shuttle09, who have no user")

@@ -41,7 +41,7 @@ from ares.core.messages import (
     SupervisorState,
     VehicleRecord,
 )
-from blackbox import recorder_node as recorder_module
+from blackbox import recorder as recorder_module
 from blackbox import spool as spool_mod
 from blackbox.recorder import RecorderParams, Snapshot, StoreWriter, build_record, position_of, spool_path, store_uri
 from blackbox.recorder_node import Recorder
@@ -292,7 +292,7 @@ class FakeStore:
 
 @pytest.fixture
 def fake_store(monkeypatch) -> FakeStore:
-    """The recorder's configured store replaced by a FakeStore (the writer opens it by this name)."""
+    """The configured store replaced by a FakeStore (store_writer opens it by this name)."""
     fake = FakeStore()
     monkeypatch.setattr(recorder_module, "open_configured_store", lambda _settings: fake)
     return fake

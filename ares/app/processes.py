@@ -62,11 +62,20 @@ PROCESSES: list[Process] = [
 ]
 
 
+# The fleet server's processes (deploy/fleet): every vehicle's black box into the fleet's store,
+# and the API over it with the fleet's live view. Nothing here is safety relevant: a vehicle never
+# waits on the fleet.
+FLEET_SERVER: list[Process] = [
+    Process("fleet_sync", "blackbox.fleet_sync_node:FleetSync", safety_relevant=False),
+    Process("fleet_api", "blackbox.api.api_node:FleetApiServer", safety_relevant=False),
+]
+
+
 def by_name(name: str) -> Process:
-    for spec in PROCESSES:
+    for spec in [*PROCESSES, *FLEET_SERVER]:
         if spec.name == name:
             return spec
-    raise KeyError(f"unknown process {name!r}; known: {', '.join(p.name for p in PROCESSES)}")
+    raise KeyError(f"unknown process {name!r}; known: {', '.join(p.name for p in [*PROCESSES, *FLEET_SERVER])}")
 
 
 def for_run(simulate: bool, lidars: bool = True) -> list[Process]:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from pydantic import create_model
 
-from ares.app.processes import PROCESSES, Process
+from ares.app.processes import FLEET_SERVER, PROCESSES, Process
 from ares.app.route_import import RouteImportSettings
 from ares.app.supervisor import SupervisorSettings
 from ares.core import config
@@ -23,8 +23,9 @@ from ares.core.config import CoreConfig, Params
 COMPOSITION_SECTIONS: dict[str, type[Params]] = {"supervisor": SupervisorSettings, "route_import": RouteImportSettings}
 
 
-def sections(processes: tuple[Process, ...] = tuple(PROCESSES)) -> dict[str, type[Params]]:
-    """Every section beyond the core ones, with its model."""
+def sections(processes: tuple[Process, ...] = (*PROCESSES, *FLEET_SERVER)) -> dict[str, type[Params]]:
+    """Every section beyond the core ones, with its model (a vehicle's and the fleet server's: one
+    configuration format for both)."""
     found: dict[str, type[Params]] = dict(COMPOSITION_SECTIONS)
     for spec in processes:
         cls = spec.node_class()

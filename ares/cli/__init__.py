@@ -50,6 +50,8 @@
                                    a router's config, as deploy/ holds it
     ares deploy router --config FILE [--secrets DIR] [--listen EP] [--connect EP]
                                    run a router from a deployment's JSON5 file (stands in for zenohd)
+    ares fleet serve [--config FILE] [--router EP] [--store URI] [--api-port P] [--run-dir DIR]
+                                   the fleet server: every vehicle's black box in the fleet's store, its API
 
 `topics` and `echo` connect in client mode to the running stack's router (the `bus.router`
 endpoint of the run configuration, or --router) and look under the configured vehicle id (or
@@ -63,7 +65,7 @@ import logging
 import os
 import sys
 
-from . import bench, blackbox, bus_tools, compare, deploy, inspect, mission, perception, route, run
+from . import bench, blackbox, bus_tools, compare, deploy, fleet, inspect, mission, perception, route, run
 from .args import CliError, Command
 
 COMMAND_GROUPS = (
@@ -77,6 +79,7 @@ COMMAND_GROUPS = (
     blackbox,
     perception,
     deploy,
+    fleet,
 )  # as `ares --help` lists them
 
 

@@ -474,8 +474,11 @@ class BaseBus:
             err = ServiceErrorReply(t=self.clock.now(), error="handler failed", detail=repr(exc))
             reply_err(schema.encode(err), encoding_name(ServiceErrorReply))
 
-    def call(self, name: str, request: Msg | None = None, timeout_s: float | None = None) -> Msg:
-        """Call a service and return its validated reply, or raise ServiceError."""
+    def call(
+        self, name: str, request: Msg | None = None, timeout_s: float | None = None, vehicle_id: str | None = None
+    ) -> Msg:
+        """Call a service and return its validated reply, or raise ServiceError. `vehicle_id`: a
+        service of another vehicle on the network (the fleet's calls), else this bus's own."""
         try:
             entry = topics.service(name)
         except KeyError:
@@ -485,8 +488,11 @@ class BaseBus:
             raise ServiceError(name, f"request must be {entry.request.__name__}")
         timeout_s = self.service_timeout_s if timeout_s is None else timeout_s
         started = time.monotonic()
+        if vehicle_id is not None and not VEHICLE_ID.fullmatch(vehicle_id):
+            raise ServiceError(name, f"not a vehicle id: {vehicle_id!r}")
+        prefix = self.prefix if vehicle_id is None else f"ares/{vehicle_id}"
         for ok, encoding, payload in self._query(
-            self.key(f"{SERVICE_PREFIX}/{name}"), schema.encode(request), encoding_name(entry.request), timeout_s
+            f"{prefix}/{SERVICE_PREFIX}/{name}", schema.encode(request), encoding_name(entry.request), timeout_s
         ):
             if ok:
                 msg = decode(payload, encoding, entry.reply, f"srv/{name}", self.rejects)

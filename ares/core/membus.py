@@ -37,8 +37,11 @@ class MemoryNetwork:
         self.alive: set[str] = set()
         self.published: collections.Counter[str] = collections.Counter()
 
-    def bus(self, process: str, clock: Clock | None = None, **settings: Any) -> MemoryBus:
-        return MemoryBus(self, process, clock or ManualClock(), BusSettings(**settings))
+    def bus(
+        self, process: str, clock: Clock | None = None, vehicle_id: str | None = None, **settings: Any
+    ) -> MemoryBus:
+        """A process's bus; `vehicle_id`: of another vehicle on the same network (a fleet's tests)."""
+        return MemoryBus(self, process, clock or ManualClock(), BusSettings(**settings), vehicle_id)
 
     def put(self, key: str, encoding: str, payload: Payload) -> None:
         self.published[key] += 1
@@ -56,10 +59,18 @@ def _matches(pattern: str, key: str) -> bool:
 
 
 class MemoryBus(BaseBus):
-    def __init__(self, network: MemoryNetwork, process: str, clock: Clock, settings: BusSettings):
-        super().__init__(network.vehicle_id, process, clock, settings)
+    def __init__(
+        self,
+        network: MemoryNetwork,
+        process: str,
+        clock: Clock,
+        settings: BusSettings,
+        vehicle_id: str | None = None,
+    ):
+        vehicle_id = vehicle_id or network.vehicle_id
+        super().__init__(vehicle_id, process, clock, settings)
         self.network = network
-        self.cfg = {"vehicle_id": network.vehicle_id, "bus": settings.model_dump()}
+        self.cfg = {"vehicle_id": vehicle_id, "bus": settings.model_dump()}
 
     def _declare_publisher(self, key: str, encoding: str, reliable: bool) -> Callable[[Payload], None]:
         return lambda payload: self.network.put(key, encoding, payload)

@@ -569,6 +569,12 @@ class StoredEvent(BaseModel):
     data: dict[str, str | float | int | bool | None] = Field(default_factory=dict)
 
 
+class BlackboxRecord(Msg):
+    """A second of the black box as the recorder built it, published for the fleet's store."""
+
+    record: VehicleRecord
+
+
 # ---- services -----------------------------------------------------------------------------
 
 
@@ -705,3 +711,18 @@ class OccupancyGrid(BulkMsg):
     origin_x: float  # position of cell (0, 0)'s corner in `frame`, m
     origin_y: float
     cells: Annotated[np.ndarray, Array("u1", shape=(None, None), doc="0 free, 100 occupied, 255 unknown")]
+
+
+class RecordRange(Msg):
+    """The black-box seconds [start, end) a fleet store lacks, as UTC epoch seconds."""
+
+    start_epoch_s: int = Field(ge=0)
+    end_epoch_s: int = Field(ge=0)
+
+
+class RecordBatch(Msg):
+    """The recorder's answer: the records of a range it still holds, oldest first, and the oldest
+    second it holds (a range from before it is gone from the vehicle's memory, not from its store)."""
+
+    records: list[VehicleRecord] = Field(default_factory=list)
+    oldest_epoch_s: int | None = None

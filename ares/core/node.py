@@ -554,14 +554,16 @@ class _DeclaredBus:
             )
         return self._bus.subscribe_fleet(topic, on_message)
 
-    def call(self, name: str, request: Msg | None = None, timeout_s: float | None = None) -> Msg:
-        """A service the contract declares in `calls`."""
+    def call(
+        self, name: str, request: Msg | None = None, timeout_s: float | None = None, vehicle_id: str | None = None
+    ) -> Msg:
+        """A service the contract declares in `calls` (of another vehicle: `vehicle_id`)."""
         if name not in self._node.calls:
             raise ContractError(
                 f"{self._node.name} calls service {name!r} outside its contract: add it to "
                 f"`calls` on {type(self._node).__name__}"
             )
-        return self._bus.call(name, request, timeout_s)
+        return self._bus.call(name, request, timeout_s, vehicle_id)
 
     def serve(self, name: str, handler: Callable[[Msg], Msg]) -> None:
         raise ContractError(

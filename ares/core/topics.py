@@ -103,6 +103,7 @@ TOPIC_TABLE: list[Topic] = [
     ),
     Topic("body/command", m.BodyCommand, "doors, ramp and media: the mission manager's demand to the body"),
     Topic("body/state", m.BodyState, "doors and ramp end-position sensors, the entrance, passengers"),
+    Topic("blackbox/record", m.BlackboxRecord, "each second of the black box as recorded, for the fleet's store"),
     Topic("awareness/state", m.AwarenessState, "self-awareness level (0, 1 critical, 2 low) and its causes"),
     Topic("control/status", m.ControllerStatus, "the controller in charge, why, and the errors along the route"),
     Topic("dbw/actuators", m.ActuatorCommand, "efforts to the steering motor and traction/brake"),
@@ -139,6 +140,12 @@ SERVICE_TABLE: list[Service] = [
     Service("mission/resume", m.MissionRequest, m.MissionReply, "go on from a pause"),
     Service(
         "mission/cancel", m.MissionRequest, m.MissionReply, "end the goal (the doors closed and the ramp stowed first)"
+    ),
+    Service(
+        "blackbox/records",
+        m.RecordRange,
+        m.RecordBatch,
+        "the black-box seconds of a range the recorder still holds in memory: the fleet's store fills a gap",
     ),
     Service(
         "mission/body",

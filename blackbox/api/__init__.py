@@ -48,6 +48,7 @@ Endpoints, all under /api/v1 (roles: ROLES_* in dependencies.py):
     POST /vehicles/{id}/body                       operator (doors, ramp)
     GET  /live/vehicles/{id}                       operator, auditor (Server-Sent Events)
     GET  /live/fleet                               fleet, operator, auditor (Server-Sent Events)
+    GET  /fleet                                    fleet, operator, auditor (the same, once)
     GET  /route                                    fleet, operator, auditor
     GET  /users, POST /users                       admin
 

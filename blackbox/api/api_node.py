@@ -110,10 +110,25 @@ class ApiServer(AsyncNode):
         settings = self.shared["blackbox_store"]
         self.store = open_configured_store(settings)
         real_time = getattr(self.clock, "speed", None) == 1.0
-        self.live = LiveHub(self.params.live, wall_of=(lambda t: self.clock.utc_epoch + t) if real_time else None)
+        self.live = LiveHub(
+            self.params.live,
+            wall_of=(lambda t: self.clock.utc_epoch + t) if real_time else None,
+            not_vehicles=self.not_vehicles(),
+        )
         for topic in self.fleet_inputs:
             self.bus.subscribe_fleet(topic, self.live.put)
-        self.app = create_app(
+        self.app = self.make_app()
+        self.server_cfg = uvicorn_config(self.app, self.params)
+        self.server_cfg.timeout_graceful_shutdown = GRACEFUL_SHUTDOWN_S
+        self.server = None
+        self.log.info("store %s", store_uri(settings))
+
+    def not_vehicles(self) -> frozenset[str]:
+        return frozenset()
+
+    def make_app(self):
+        """A vehicle's API: its commands to the managers, the live view, its route."""
+        return create_app(
             self.store,
             self.params,
             self.core.vehicle_id,
@@ -122,10 +137,6 @@ class ApiServer(AsyncNode):
             live=self.live,
             route=route_view(self.core),
         )
-        self.server_cfg = uvicorn_config(self.app, self.params)
-        self.server_cfg.timeout_graceful_shutdown = GRACEFUL_SHUTDOWN_S
-        self.server = None
-        self.log.info("store %s", store_uri(settings))
 
     async def serve(self) -> None:
         import uvicorn
@@ -180,3 +191,24 @@ class ApiServer(AsyncNode):
         store = getattr(self, "store", None)
         if store is not None:
             store.close()
+
+
+class FleetApiServer(ApiServer):
+    """The fleet server's API (fleet process table): every vehicle's black box from the fleet's
+    store, and the live view of every vehicle on the fleet router. No commands: a fleet operator's
+    calls go through the vehicles' own APIs and managers, and no single route is the fleet's."""
+
+    name = "fleet_api"
+    calls = ()
+    # and each vehicle's black-box seconds: a vehicle is heard at least once a second, whatever it runs
+    fleet_inputs = (*GATEWAY_TOPICS, "blackbox/record")
+
+    @classmethod
+    def section(cls) -> str:
+        return "api"  # the same settings as a vehicle's API
+
+    def not_vehicles(self) -> frozenset[str]:
+        return frozenset({self.core.vehicle_id})  # the fleet server's own processes: their events only
+
+    def make_app(self):
+        return create_app(self.store, self.params, self.core.vehicle_id, self.clock, live=self.live)

@@ -81,6 +81,9 @@ class LiveSettings(Params):
     vehicle_gone_s: float = param(
         30.0, "a vehicle heard from no longer than this ago is left off the fleet", unit="s", gt=0
     )
+    unreachable_after_s: float = param(
+        3.0, "a vehicle heard from no longer than this ago is shown unreachable (a cut link)", unit="s", gt=0
+    )
     events_kept: int = param(200, "recent events kept for new streams", ge=1)
     grid_cell_m: float = param(0.5, "the occupancy grid is thinned to cells of this size for display", unit="m", gt=0)
     grid_max_cells: int = param(1500, "most occupied cells sent per frame", ge=1)
@@ -151,12 +154,14 @@ class LiveHub:
         settings: LiveSettings,
         now: Callable[[], float] = time.time,
         wall_of: Callable[[float], float] | None = None,
+        not_vehicles: frozenset[str] = frozenset(),
     ):
         """`wall_of`: the wall time (epoch s) a stack time stands for, when the clock runs at real
         time: each frame then says when its vehicle state was published, and a page how far behind
         the bus it is."""
         self.s = settings
         self.now = now
+        self.not_vehicles = not_vehicles  # ids on the bus that are no vehicle (the fleet server's): events only
         self.wall_of = wall_of
         self._vehicles: dict[str, _Vehicle] = {}
         self._events: deque[dict] = deque(maxlen=settings.events_kept)
@@ -198,7 +203,9 @@ class LiveHub:
         with self._lock:
             for gone in [v for v, state in self._vehicles.items() if state.heard < now - FORGET_AFTER_S]:
                 del self._vehicles[gone]  # (a vehicle back later starts its leg history anew)
-            return sorted(v for v, state in self._vehicles.items() if state.heard >= cutoff)
+            return sorted(
+                v for v, state in self._vehicles.items() if state.heard >= cutoff and v not in self.not_vehicles
+            )
 
     def knows(self, vehicle_id: str) -> bool:
         with self._lock:
@@ -276,7 +283,8 @@ class LiveHub:
         return frame
 
     def fleet_frame(self) -> list[dict]:
-        """The light view of every vehicle heard lately: where, how fast, its mission, whether late."""
+        """The light view of every vehicle heard lately: where, how fast, its mission, whether late,
+        and whether it is reachable (heard within unreachable_after_s)."""
         now = self.now()
         out = []
         for vehicle_id in self.vehicles():
@@ -284,7 +292,11 @@ class LiveHub:
                 vehicle = self._vehicles[vehicle_id]
                 get = {topic: self._fresh(vehicle, topic, now) for topic in GATEWAY_TOPICS if topic != "events"}
                 legs = vehicle.legs.snapshot()
-            out.append(_summary(vehicle_id, get, legs, now, self.s))
+                silent_s = max(now - vehicle.heard, 0.0)
+            summary = _summary(vehicle_id, get, legs, now, self.s)
+            summary["silent_s"] = round(silent_s, 2)
+            summary["reachable"] = silent_s <= self.s.unreachable_after_s
+            out.append(summary)
         return out
 
     def _grid(self, vehicle: _Vehicle, grid: OccupancyGrid | None, pose: Pose | None) -> dict | None:

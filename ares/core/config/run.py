@@ -77,6 +77,10 @@ class BusSettings(Params):
     def _user_and_password(self) -> BusSettings:
         if (self.user is None) != (self.password_file is None):
             raise ValueError("bus: give both user and password_file, or neither")
+        if self.user is not None and self.mode == "peer":
+            # peers link to each other directly, past the router that checks the credentials, and
+            # such links are refused: every process must go through the router
+            raise ValueError("bus: with user and password_file (a router that asks for credentials) set mode: client")
         return self
 
 

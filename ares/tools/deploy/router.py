@@ -10,10 +10,13 @@ from __future__ import annotations
 import copy
 import json
 import signal
+import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
+from ares.tools.deploy.refusals import Refusal, RefusalReader
 from ares.tools.deploy.router_config import SECRETS
 
 
@@ -54,17 +57,46 @@ def open_router(cfg: dict[str, Any]) -> Any:
     return zenoh.open(zenoh_config(cfg))
 
 
-def serve(cfg: dict[str, Any], stop: threading.Event | None = None) -> None:
-    """Run a router until SIGTERM/SIGINT (or `stop`): `ares deploy router`."""
+def serve(cfg: dict[str, Any], stop: threading.Event | None = None, report_refusals_as: str | None = None) -> None:
+    """Run a router until SIGTERM/SIGINT (or `stop`): `ares deploy router`. `report_refusals_as`:
+    the fleet's id, under which access-control refusals are published as events (refusals.py)."""
     stop = stop or threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
+    say = print
+    session: Any = None
+    if report_refusals_as is not None:
+        reader = RefusalReader(lambda refusal: _publish_refusal(session, report_refusals_as, refusal))
+        reader.install()
+        say = reader.print
+    else:
+        import zenoh
+
+        zenoh.init_log_from_env_or("warn")  # as zenohd: RUST_LOG says more
     session = open_router(cfg)
     try:
-        print(
-            json.dumps({"router": str(session.info.zid()), "listen": cfg.get("listen", {}).get("endpoints")}),
-            flush=True,
-        )
+        say(json.dumps({"router": str(session.info.zid()), "listen": cfg.get("listen", {}).get("endpoints")}))
+        sys.stdout.flush()
         stop.wait()
     finally:
         session.close()
+
+
+def _publish_refusal(session: Any, fleet_id: str, refusal: Refusal) -> None:
+    import zenoh
+
+    from ares.core.bus import encoding_name
+    from ares.core.messages import Event, EventLevel
+    from ares.core.schema import encode
+
+    if session is None:
+        return
+    event = Event(
+        t=time.time(),
+        source="fleet_router",
+        kind="acl_refused",
+        level=EventLevel.WARNING,
+        message=refusal.message(),
+        data={"vehicle": refusal.who, "under": refusal.under, "action": refusal.action, "key": refusal.key},
+    )
+    session.put(f"ares/{fleet_id}/events", bytes(encode(event)), encoding=zenoh.Encoding(encoding_name(Event)))

@@ -35,9 +35,17 @@ LOCAL_PORT = 7448  # TCP: a host's own processes to its router
 LOCAL_USER = pki.LOCAL_USER
 LEASE_MS = 2000  # as the stack's bus.lease_ms: a cut link is noticed within it
 
-# the services a fleet operator may call on a vehicle; the rest (automatic mode, re-arm, doors,
-# the simulator) belong to someone standing by the vehicle
-FLEET_SERVICES = ("supervisor/status", "mission/goal", "mission/pause", "mission/resume", "mission/cancel")
+# the services the fleet may call on a vehicle: its state, the mission, and the black-box seconds a
+# lost link kept from the fleet's store; the rest (automatic mode, re-arm, doors, the simulator)
+# belong to someone standing by the vehicle
+FLEET_SERVICES = (
+    "supervisor/status",
+    "mission/goal",
+    "mission/pause",
+    "mission/resume",
+    "mission/cancel",
+    "blackbox/records",
+)
 
 PUBLISH = ["put", "delete", "liveliness_token", "declare_queryable", "reply"]
 SUBSCRIBE = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"]
@@ -65,8 +73,10 @@ def _common(name: str) -> dict[str, Any]:
     return {
         "mode": "router",
         "metadata": {"name": name},
-        # a fleet shares networks: routers meet only where configured
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True, "multihop": False}},
+        # routers meet only where configured: no multicast, and no gossip either (a vehicle router
+        # would pass on its local listener, tcp/127.0.0.1:7448, which on the fleet host is the
+        # fleet router's own port)
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "timestamping": {"enabled": {"router": True}},
     }
 

@@ -5,6 +5,7 @@ tokens and roles as the rest of the API.
 |------------------------------------|----------------------------|---------------------------------------|
 | GET /live/vehicles/{id}            | operator, auditor          | one vehicle, all the operator sees    |
 | GET /live/fleet                    | fleet, operator, auditor   | every vehicle on the router, light    |
+| GET /fleet                         | fleet, operator, auditor   | the same, once (JSON)                 |
 | GET /route                         | fleet, operator, auditor   | this API's vehicle, its route, POIs   |
 
 A stream sends `event: frame` (JSON) at `hz` (at most the gateway's rate_hz) and `event: events`
@@ -101,6 +102,11 @@ def build_router(services: Services) -> APIRouter:
             return {"vehicles": gateway.fleet_frame(), "wall_ms": time.time() * 1e3}, gateway.events_since(seq)
 
         return stream(request, claims, hz, build)
+
+    @router.get("/fleet", responses=error_responses(401, 403))
+    async def fleet(_claims: Watcher):
+        """Every vehicle heard lately, once: as a frame of /live/fleet, for scripts and monitors."""
+        return json_response({"vehicles": gateway.fleet_frame(), "wall_ms": time.time() * 1e3})
 
     if services.route is not None:
         known_route = services.route

@@ -1,0 +1,212 @@
+"""The fleet's black box (blackbox/fleet_sync.py, blackbox/fleet_sync_node.py): two vehicles'
+real recorders and the fleet's sync node on one in-memory network and a manual clock, each with
+a store of its own; a link cut for 60 s; every second each vehicle stored reaches the fleet's
+store, none twice. The ledger alone: every state of a gap, and a hypothesis property."""
+
+from __future__ import annotations
+
+import time
+from datetime import UTC, datetime
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ares.app import run_config
+from ares.core.clock import ManualClock
+from ares.core.membus import MemoryNetwork
+from blackbox.fleet_sync import FleetLedger, FleetSyncParams, epoch_of
+from blackbox.fleet_sync_node import FleetSync
+from blackbox.recorder_node import Recorder
+from blackbox.store.sqlite_store import SqliteStore
+from tests.helpers.stack import NO_LIDARS, wait_until
+
+UTC_EPOCH = float(int(time.time()) // 3600 * 3600)  # within the stores' 7-day retention
+VEHICLES = ("shuttle01", "shuttle02")
+PAST, FUTURE = datetime(2000, 1, 1, tzinfo=UTC), datetime(2100, 1, 1, tzinfo=UTC)
+
+
+class FleetNetwork(MemoryNetwork):
+    """One network for the vehicles and the fleet; a vehicle's link to the fleet can be cut: the
+    fleet's subscriptions (`ares/*/...`) hear nothing of it and its services are out of reach."""
+
+    def __init__(self):
+        super().__init__("fleet")
+        self.cut: set[str] = set()
+        self._hidden: dict[str, dict] = {}
+
+    def put(self, key, encoding, payload):
+        vehicle = key.split("/")[1]
+        if vehicle not in self.cut:
+            return super().put(key, encoding, payload)
+        self.published[key] += 1
+        for pattern, callback in list(self._subscribers):
+            if not pattern.startswith("ares/*/") and self._matches(pattern, key):
+                callback(key, encoding, bytes(payload))
+
+    @staticmethod
+    def _matches(pattern, key):
+        from ares.core.membus import _matches
+
+        return _matches(pattern, key)
+
+    def cut_link(self, vehicle: str) -> None:
+        self.cut.add(vehicle)
+        self._hidden[vehicle] = {k: v for k, v in self._services.items() if k.startswith(f"ares/{vehicle}/")}
+        for key in self._hidden[vehicle]:
+            del self._services[key]
+
+    def heal(self, vehicle: str) -> None:
+        self.cut.discard(vehicle)
+        self._services.update(self._hidden.pop(vehicle))
+
+
+def _cfg(vehicle_id: str, store) -> dict:
+    from ares.core import config
+
+    return run_config.build(
+        (str(NO_LIDARS),), config.deep_merge({"vehicle_id": vehicle_id}, {"blackbox_store": {"uri": str(store)}})
+    )
+
+
+def _seconds(path, vehicle_id: str) -> list[int]:
+    store = SqliteStore(str(path))
+    try:
+        rows = store.records(vehicle_id, PAST, FUTURE, limit=100_000)
+    finally:
+        store.close()
+    return [int(epoch_of(r["time"])) for r in rows]
+
+
+def _events(path, vehicle_id: str) -> list[dict]:
+    store = SqliteStore(str(path))
+    try:
+        return store.events(vehicle_id, PAST, FUTURE, limit=100_000)
+    finally:
+        store.close()
+
+
+def test_a_link_cut_for_60_s_loses_no_second_and_the_fleet_marks_the_vehicle_unreachable(tmp_path):
+    clock = ManualClock(utc_epoch=UTC_EPOCH)
+    network = FleetNetwork()
+    recorders = {
+        v: Recorder(_cfg(v, tmp_path / f"{v}.sqlite"), clock=clock, bus=network.bus("blackbox", clock, vehicle_id=v))
+        for v in VEHICLES
+    }
+    fleet_store = tmp_path / "fleet.sqlite"
+    sync = FleetSync(_cfg("fleet", fleet_store), clock=clock, bus=network.bus("fleet_sync", clock, vehicle_id="fleet"))
+    for node in (*recorders.values(), sync):
+        node.setup()
+    sync.wall = lambda: UTC_EPOCH + clock.now()  # the wall as the vehicles' clock: one time line here
+    ledger = sync.ledger
+
+    def drive(until: float) -> None:
+        while clock.now() < until - 1e-9:
+            clock.advance(0.2)
+            for node in (*recorders.values(), sync):
+                node.step_once(clock.now())
+
+    drive(20.0)
+    assert all(ledger.vehicle(v).reachable for v in VEHICLES)
+    network.cut_link("shuttle01")
+    cut_at = clock.now()
+    unreachable_at = None
+    while clock.now() < cut_at + 60.0:
+        drive(clock.now() + 0.2)
+        if unreachable_at is None and not ledger.vehicle("shuttle01").reachable:
+            unreachable_at = clock.now()
+    assert unreachable_at is not None and unreachable_at - cut_at <= 5.0
+    assert ledger.vehicle("shuttle02").reachable  # the other vehicle's link is not this one's
+    network.heal("shuttle01")
+    drive(clock.now() + 3.0)
+    assert ledger.vehicle("shuttle01").reachable
+
+    def filled() -> bool:
+        drive(clock.now() + 0.2)
+        return ledger.open_seconds("shuttle01") == 0 and ledger.vehicle("shuttle01").in_flight is None
+
+    wait_until(filled, 30, "the gap filled from the recorder's memory", interval_s=0.01)
+    for node in (*recorders.values(), sync):
+        node.teardown()
+        node.bus.close()
+
+    for v in VEHICLES:
+        on_vehicle, at_fleet = _seconds(tmp_path / f"{v}.sqlite", v), _seconds(fleet_store, v)
+        assert len(on_vehicle) >= 80 and len(set(at_fleet)) == len(at_fleet)  # none twice
+        assert set(on_vehicle) <= set(at_fleet), f"{v}: {sorted(set(on_vehicle) - set(at_fleet))[:10]} lost"
+    assert ledger.vehicle("shuttle01").filled >= 55 and ledger.vehicle("shuttle01").left_on_vehicle == 0
+    kinds = [e["kind"] for e in _events(fleet_store, "shuttle01")]
+    assert kinds.count("vehicle_unreachable") == 1 and kinds.count("vehicle_reachable") == 2  # first heard, back
+
+
+def test_the_answer_of_a_recorder_that_no_longer_holds_a_second_leaves_it_on_the_vehicle():
+    ledger = FleetLedger(FleetSyncParams())
+    ledger.heard("v", 0.0)
+    ledger.record("v", 100, 0.0)
+    ledger.record("v", 110, 10.0)  # 101..109 missing
+    assert ledger.vehicle("v").gaps == [[101, 110]]
+    assert ledger.requests(1.0) == [("v", 101, 110)]
+    assert ledger.requests(1.5) == []  # one in flight
+    ledger.answered("v", {104, 105, 106, 108, 109}, oldest_held=104)
+    v = ledger.vehicle("v")
+    assert (v.filled, v.left_on_vehicle, v.never_recorded, v.gaps) == (5, 3, 1, [])
+
+
+def test_an_unanswered_request_is_asked_again_after_the_retry_and_not_while_unreachable():
+    p = FleetSyncParams(unreachable_after_s=3.0, backfill_retry_s=2.0)
+    ledger = FleetLedger(p)
+    ledger.heard("v", 0.0)
+    ledger.record("v", 1, 0.0)
+    ledger.record("v", 5, 4.0)
+    assert ledger.requests(0.0) == [("v", 2, 5)]
+    ledger.failed("v")
+    assert ledger.requests(1.0) == []  # before the retry
+    assert ledger.requests(2.5) == [("v", 2, 5)]
+    ledger.failed("v")
+    assert [r.reachable for r in ledger.silent(10.0)] == [False]
+    assert ledger.requests(20.0) == []  # unreachable: nobody to ask
+    assert ledger.heard("v", 21.0).reachable
+    assert ledger.requests(21.0) == [("v", 2, 5)]
+
+
+def test_a_long_gap_is_asked_for_in_pieces():
+    ledger = FleetLedger(FleetSyncParams(backfill_max_s=10))
+    ledger.heard("v", 0.0)
+    ledger.record("v", 0, 0.0)
+    ledger.record("v", 26, 26.0)
+    asked = []
+    for wall in range(10):
+        for _, start, end in ledger.requests(float(wall)):
+            asked.append((start, end))
+            ledger.answered("v", set(range(start, end)), oldest_held=0)
+    assert asked == [(1, 11), (11, 21), (21, 26)] and ledger.open_seconds("v") == 0
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    arrivals=st.lists(st.integers(0, 60), min_size=1, max_size=60),
+    held_from=st.integers(0, 60),
+    missing=st.sets(st.integers(0, 60)),
+)
+def test_every_second_up_to_the_newest_is_stored_left_on_the_vehicle_or_never_recorded(arrivals, held_from, missing):
+    """Whatever arrives live, in whatever order, and whatever the recorder still holds: once the
+    gaps are answered, each second from the first to the newest is counted exactly once."""
+    ledger = FleetLedger(FleetSyncParams(backfill_max_s=7))
+    ledger.heard("v", 0.0)
+    live: set[int] = set()
+    for k in arrivals:
+        before = set(live)
+        ledger.record("v", k, float(k))
+        live.add(k)
+        assert live >= before
+    first, newest = arrivals[0], max(arrivals)
+    stored = {k for k in live if k >= first}
+    wall = 0.0
+    while ledger.open_seconds("v"):
+        wall += 10.0
+        for _, start, end in ledger.requests(wall):
+            sent = {k for k in range(start, end) if k >= held_from and k not in missing}
+            stored |= sent
+            ledger.answered("v", sent, oldest_held=held_from)
+    v = ledger.vehicle("v")
+    assert v.newest == newest
+    assert len({k for k in stored if first <= k <= newest}) + v.left_on_vehicle + v.never_recorded == newest - first + 1
