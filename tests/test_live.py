@@ -136,6 +136,24 @@ def test_events_are_kept_in_order_per_vehicle_and_the_fleet_lists_vehicles_heard
     assert [v["vehicle_id"] for v in hub.fleet_frame()] == [VEHICLE_ID]
 
 
+def test_a_vehicle_silent_past_unreachable_after_s_is_listed_unreachable_until_heard_again():
+    wall = Wall()
+    hub = LiveHub(LiveSettings(unreachable_after_s=3.0, vehicle_gone_s=600.0), now=wall)
+    hub.put(VEHICLE_ID, "dbw/car_state", car())
+    assert [(v["reachable"], v["silent_s"]) for v in hub.fleet_frame()] == [(True, 0.0)]
+    wall.t += 3.5  # a cut link: nothing arrives
+    assert [(v["reachable"], v["silent_s"]) for v in hub.fleet_frame()] == [(False, 3.5)]
+    wall.t += 60.0
+    assert [v["reachable"] for v in hub.fleet_frame()] == [False]  # still listed, with its last state
+    hub.put(VEHICLE_ID, "dbw/car_state", car())
+    assert [v["reachable"] for v in hub.fleet_frame()] == [True]
+    hub_of_the_fleet = LiveHub(LiveSettings(), now=wall, not_vehicles=frozenset({"fleet"}))
+    hub_of_the_fleet.put("fleet", "events", Event(t=1.0, source="fleet_router", kind="acl_refused", message="x"))
+    assert hub_of_the_fleet.vehicles() == [] and [e["kind"] for e in hub_of_the_fleet.events_since(0)] == [
+        "acl_refused"
+    ]
+
+
 def test_the_grid_is_thinned_and_placed_in_the_local_frame():
     hub = LiveHub(LiveSettings(grid_cell_m=0.5, grid_max_cells=1000), now=Wall())
     cells = np.zeros((40, 40), dtype=np.uint8)

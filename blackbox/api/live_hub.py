@@ -79,7 +79,10 @@ class LiveSettings(Params):
         2.0, "a value older than this (wall seconds since it arrived) is shown as missing", unit="s", gt=0
     )
     vehicle_gone_s: float = param(
-        30.0, "a vehicle heard from no longer than this ago is left off the fleet", unit="s", gt=0
+        600.0,
+        "a vehicle heard from no longer than this ago is left off the fleet (before: shown unreachable)",
+        unit="s",
+        gt=0,
     )
     unreachable_after_s: float = param(
         3.0, "a vehicle heard from no longer than this ago is shown unreachable (a cut link)", unit="s", gt=0

@@ -28,7 +28,7 @@ ARES.page(["fleet"], "fleet", async () => {
         markers.set(v.vehicle_id, m);
       }
       m.setLatLng(ARES.ll(v.pose.x, v.pose.y));
-      m.setStyle({color: v.leg && v.leg.late ? "#b42318" : v.awareness && v.awareness.level ? "#b54708" : "#1e7b34"});
+      m.setStyle({color: v.reachable === false ? "#667085" : v.leg && v.leg.late ? "#b42318" : v.awareness && v.awareness.level ? "#b54708" : "#1e7b34"});
     }
     for (const [id, m] of markers) if (!seen.has(id)) { m.remove(); markers.delete(id); }
   }
@@ -42,7 +42,10 @@ ARES.page(["fleet"], "fleet", async () => {
       const tr = document.createElement("tr");
       tr.dataset.vehicle = v.vehicle_id;
       const leg = v.leg || {};
-      tr.append(ARES.text("td", v.vehicle_id), ARES.text("td", fmt(v.speed_mps, 2)), ARES.text("td", fmt(v.mode)),
+      // a cut link: the fleet has heard nothing from the vehicle for silent_s (the rest is its last state)
+      const name = v.reachable === false ? v.vehicle_id + " (unreachable " + fmt(v.silent_s, 0) + " s)" : v.vehicle_id;
+      tr.dataset.reachable = String(v.reachable !== false);
+      tr.append(ARES.text("td", name, v.reachable === false ? "late" : ""), ARES.text("td", fmt(v.speed_mps, 2)), ARES.text("td", fmt(v.mode)),
                 ARES.text("td", v.mission ? v.mission.state : "–"), ARES.text("td", v.mission ? fmt(v.mission.poi) : "–"),
                 ARES.text("td", v.awareness ? String(v.awareness.level) : "–", v.awareness ? "level-" + v.awareness.level : ""),
                 ARES.text("td", fmt(v.controller)),
