@@ -19,7 +19,7 @@ from pydantic import BaseModel
 from pydantic.config import JsonValue
 
 from ares.app import supervisor
-from ares.app.processes import PROCESSES, Process
+from ares.app.processes import FLEET_SERVER, PROCESSES, Process
 from ares.core import config, topics
 from ares.core.node import IMPLICIT_OUTPUTS
 
@@ -75,6 +75,7 @@ class Contract(TypedDict):
     outputs: list[OutputRow]
     services: list[ServiceRow]
     calls: list[str]
+    fleet_inputs: list[str]  # topics read from every vehicle on the network (the fleet's views)
     sections: list[str]
     parameters: list[ParameterRow]
 
@@ -126,6 +127,7 @@ def contract(spec: Process, cfg: Mapping[str, Any]) -> Contract:
             for name in sorted(cls.services())
         ],
         "calls": sorted(cls.calls),
+        "fleet_inputs": list(cls.fleet_inputs),
         "sections": [cls.section(), *cls.sections],
         "parameters": parameters(cls.Params, cls.section(), params)
         + [
@@ -289,6 +291,11 @@ def markdown(c: Contract) -> list[str]:
     )
     if c["calls"]:
         lines += ["Calls: " + ", ".join(f"`{name}`" for name in c["calls"]), ""]
+    if c["fleet_inputs"]:
+        lines += [
+            "Fleet inputs (every vehicle's, `ares/*/<topic>`): " + ", ".join(f"`{t}`" for t in c["fleet_inputs"]),
+            "",
+        ]
     lines += ["**Parameters**", ""]
     lines += _table(
         ["name", "value", "unit", "range", ""],
@@ -389,4 +396,15 @@ def nodes_markdown(cfg: Mapping[str, Any], processes: Iterable[Process] = PROCES
     for c in contracts:
         lines += markdown(c)
     lines += graph_markdown(graph(contracts))
+    if list(processes) == PROCESSES:
+        lines += [
+            "",
+            "## The fleet server's processes",
+            "",
+            "`ares fleet serve` (`processes.FLEET_SERVER`, deploy/fleet): they read every vehicle's topics "
+            "on the fleet router (fleet inputs) and are no part of a vehicle's stack.",
+            "",
+        ]
+        for c in all_contracts(cfg, FLEET_SERVER):
+            lines += markdown(c)
     return "\n".join(lines).rstrip() + "\n"
