@@ -45,7 +45,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from ares.core import config
 from ares.core.config import Params, UtmOrigin, param
@@ -382,6 +381,8 @@ def smooth(values: np.ndarray, spacing_m: float, window_m: float, polyorder: int
     if n <= polyorder or n < 3:
         return values.copy()
     # mode="interp": the ends are fitted by the same polynomial, not padded with mirror images
+    from scipy.signal import savgol_filter  # ~1 s to import: only when a route is smoothed
+
     return savgol_filter(values, n, polyorder, mode="interp")
 
 

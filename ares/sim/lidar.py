@@ -25,10 +25,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 from ares.core.config import LidarMount, Params, VehicleProfile, param
-from ares.sim.world import MATERIAL_IDS, REFLECTIVITY, Mesh, box_mesh, cylinder_mesh
+from ares.sim.world import MATERIAL_IDS, REFLECTIVITY, Mesh, box_mesh, cylinder_mesh, open3d
 
 FULL_REACH_REFLECTIVITY = 0.8
 COVER_RANGE_M = 0.03
@@ -161,14 +160,14 @@ class SimulatedLidar:
         self.blocked = False
         others = [housing(m) for n, m in vehicle.lidars.items() if n != name]
         body = Mesh.join(body_parts(vehicle) + others)
-        body_scene = o3d.t.geometry.RaycastingScene()
-        body_scene.add_triangles(o3d.core.Tensor(body.vertices), o3d.core.Tensor(body.triangles))
+        body_scene = open3d().t.geometry.RaycastingScene()
+        body_scene.add_triangles(open3d().core.Tensor(body.vertices), open3d().core.Tensor(body.triangles))
         # The body does not move relative to the sensor: which rays it stops, and where, is worked
         # out once (the few hundredths of a degree a turn's firing varies are far below its detail).
         rays = np.empty((len(self.dirs0), 6), dtype=np.float32)
         rays[:, :3] = self.position
         rays[:, 3:] = self.dirs0 @ self.rotation.T.astype(np.float32)
-        own = body_scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+        own = body_scene.cast_rays(open3d().core.Tensor.from_numpy(rays))
         t_body = own["t_hit"].numpy()
         stopped = np.isfinite(t_body)
         self.leaving = np.flatnonzero(~stopped)  # the rays that reach the world
@@ -208,14 +207,16 @@ class SimulatedLidar:
         rays = np.empty((len(dirs), 6), dtype=np.float32)
         rays[:, :3] = vehicle_rotation @ self.position + vehicle_position
         rotate_into(rays[:, 3:], dirs, to_world)
-        hit = world_scene.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=self.params.raycast_threads)
+        hit = world_scene.cast_rays(open3d().core.Tensor.from_numpy(rays), nthreads=self.params.raycast_threads)
         t = hit["t_hit"].numpy()
         normal = hit["primitive_normals"].numpy()
         material = np.full(len(t), MATERIAL_IDS["asphalt"], dtype=np.uint8)
         found = np.isfinite(t)
         material[found] = material_of(hit["geometry_ids"].numpy()[found], hit["primitive_ids"].numpy()[found])
         if obstacles_scene is not None:
-            near = obstacles_scene.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=self.params.raycast_threads)
+            near = obstacles_scene.cast_rays(
+                open3d().core.Tensor.from_numpy(rays), nthreads=self.params.raycast_threads
+            )
             t_obs = near["t_hit"].numpy()
             closer = t_obs < t
             t = np.where(closer, t_obs, t)

@@ -10,7 +10,6 @@ really are goes out on sim/world, for the evaluation only.
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 
 from ares.core.config import Scenario, load_scenario
 from ares.core.messages import Ack, EventLevel, LidarFault, PointCloud, VehicleTruth, WorldTruth
@@ -20,7 +19,7 @@ from ares.sim.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
 from ares.sim.obstacles import ObstacleField
 from ares.sim.params import SimParams
 from ares.sim.road import roughness_for
-from ares.sim.world import World
+from ares.sim.world import World, open3d
 
 OBSTACLE_REACH_M = 130.0  # beyond the longest LiDAR range
 
@@ -108,8 +107,8 @@ class LidarSimulator(Node):
         obstacle_scene = None
         mesh = self.obstacles.mesh_near(stamp, truth.x, truth.y, OBSTACLE_REACH_M)
         if mesh is not None:
-            obstacle_scene = o3d.t.geometry.RaycastingScene()
-            obstacle_scene.add_triangles(o3d.core.Tensor(mesh.vertices), o3d.core.Tensor(mesh.triangles))
+            obstacle_scene = open3d().t.geometry.RaycastingScene()
+            obstacle_scene.add_triangles(open3d().core.Tensor(mesh.vertices), open3d().core.Tensor(mesh.triangles))
         for name, sensor in self.sensors.items():
             sweep = sensor.sweep(self.world.scene, rotation, position, obstacle_scene, self.world.material_of)
             self.outputs_by_sensor[name].put(

@@ -24,11 +24,19 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 from scipy.spatial import cKDTree
 
 from ares.core.route import Route
 from ares.sim.road import RoadRoughness
+
+
+def open3d():  # noqa: ANN201 (the module)
+    """open3d, imported when first used: it costs ~1 s, and whatever imports this module only for
+    its parameters (the run configuration, `ares run` before any process starts) never needs it."""
+    import open3d as o3d
+
+    return o3d
+
 
 CROSSFALL = 0.025  # the road falls 2.5 % from its crown to each edge
 VERGE_REACH_M = 10.0  # how far beyond the edge the verge mesh goes
@@ -126,19 +134,19 @@ class Mesh:
 
 def box_mesh(centre, size, yaw: float, material: str) -> Mesh:
     """A box standing on its base: centre (x, y, z of the base's centre), size (l, w, h)."""
-    legacy = o3d.geometry.TriangleMesh.create_box(*size)
+    legacy = open3d().geometry.TriangleMesh.create_box(*size)
     v = np.asarray(legacy.vertices) - [size[0] / 2, size[1] / 2, 0.0]
     return _placed(v, np.asarray(legacy.triangles), centre, yaw, material)
 
 
 def cylinder_mesh(centre, radius: float, height: float, material: str, resolution: int = 12) -> Mesh:
-    legacy = o3d.geometry.TriangleMesh.create_cylinder(radius, height, resolution=resolution, split=1)
+    legacy = open3d().geometry.TriangleMesh.create_cylinder(radius, height, resolution=resolution, split=1)
     v = np.asarray(legacy.vertices) + [0.0, 0.0, height / 2]
     return _placed(v, np.asarray(legacy.triangles), centre, 0.0, material)
 
 
 def sphere_mesh(centre, radius: float, material: str, resolution: int = 6) -> Mesh:
-    legacy = o3d.geometry.TriangleMesh.create_sphere(radius, resolution=resolution)
+    legacy = open3d().geometry.TriangleMesh.create_sphere(radius, resolution=resolution)
     return _placed(np.asarray(legacy.vertices), np.asarray(legacy.triangles), centre, 0.0, material)
 
 
@@ -162,8 +170,8 @@ class World:
         self.terrain = self._terrain()
         self.objects = self._roadside_objects() if roadside_objects else []
         self.mesh = Mesh.join([self.terrain, *self.objects])
-        self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor(self.mesh.vertices), o3d.core.Tensor(self.mesh.triangles))
+        self.scene = open3d().t.geometry.RaycastingScene()
+        self.scene.add_triangles(open3d().core.Tensor(self.mesh.vertices), open3d().core.Tensor(self.mesh.triangles))
 
     # ---- the road's surface ------------------------------------------------------------------
     def centre_height(self, s: np.ndarray) -> np.ndarray:
