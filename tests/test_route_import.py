@@ -493,3 +493,53 @@ def test_route_record_without_a_stack_is_a_clear_error(tmp_path):
         "route", "record", str(tmp_path / "x.nmea"), "--seconds", "1", "--router", f"tcp/127.0.0.1:{free_port()}"
     )
     assert done.returncode == 1 and "no Zenoh router reachable" in done.stderr
+
+
+def _ubx(cls: int, ident: int, payload: bytes) -> bytes:
+    body = bytes([cls, ident, len(payload) & 0xFF, len(payload) >> 8]) + payload
+    a = b = 0
+    for byte in body:
+        a, b = (a + byte) & 0xFF, (b + ((a + byte) & 0xFF)) & 0xFF
+    return b"\xb5\x62" + body + bytes([a, b])
+
+
+def test_ubx_frames_between_the_sentences_are_skipped_and_counted(tmp_path):
+    """A u-blox receiver sends its binary frames (NAV-PVT, with NULs in them) and its NMEA on one
+    port: the frames are taken out, the NMEA used as if alone."""
+    lines = good_lines(40)
+    plain, mixed = tmp_path / "plain.nmea", tmp_path / "ublox.nmea"
+    plain.write_text("\r\n".join(lines) + "\r\n")
+    frames = [_ubx(0x01, 0x07, bytes(range(92))), _ubx(0x01, 0x35, b"\x00" * 20), _ubx(0x0A, 0x09, b"")]
+    data = b"".join(line.encode() + b"\r\n" + frames[i % 3] for i, line in enumerate(lines))
+    mixed.write_bytes(data)
+    alone, together = import_route(plain, cfg=CFG), import_route(mixed, cfg=CFG)
+    assert together.log.ubx_frames == len(lines) and together.points_in == alone.points_in
+    assert np.allclose(together.xyz, alone.xyz)
+    assert f"UBX) frames between the sentences: {len(lines)}" in "\n".join(together.log.report())
+    # a broken frame (its checksum wrong) is not taken out: the file is then not text, as said before
+    broken = bytearray(frames[0])
+    broken[-1] ^= 0xFF
+    mixed.write_bytes(data + bytes(broken))
+    with pytest.raises(RouteImportError, match="not a text file"):
+        import_route(mixed, cfg=CFG)
+
+
+def test_a_receiver_that_stood_still_is_not_a_route(tmp_path):
+    """150 GGA fixes of a receiver that never moved, wandering a metre or two (no RTK): refused,
+    not imported as a route of a few decimetres."""
+    rng = np.random.default_rng(7)
+    lat0, lon0 = 40.4, -3.7
+    lines = []
+    for i in range(150):
+        north, east = rng.normal(0.0, 1.0, 2)  # metres
+        lat = lat0 + north / 111_320.0
+        lon = lon0 + east / (111_320.0 * math.cos(math.radians(lat0)))
+        lat_text = f"{int(lat):02d}{(lat - int(lat)) * 60:011.8f}"
+        lon_text = f"{int(-lon):03d}{(-lon - int(-lon)) * 60:011.8f}"
+        hhmmss = f"10{i // 60:02d}{i % 60:02d}.00"
+        lines.append(nmea_sentence(f"GPGGA,{hhmmss},{lat_text},N,{lon_text},W,1,08,1.2,650.0,M,50.0,M,,"))
+    src = tmp_path / "static.nmea"
+    src.write_text("\r\n".join(lines) + "\r\n")
+    with pytest.raises(RouteImportError, match=r"not a drive: its 150 points stay within [0-9.]+ m") as refused:
+        import_route(src, cfg=CFG)
+    assert "stood still" in str(refused.value)

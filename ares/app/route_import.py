@@ -77,6 +77,13 @@ class RouteImportSettings(Params):
     smooth_polyorder: int = param(2, "order of the smoothing polynomial", ge=1, le=5)
     z_window_m: float = param(10.0, "longer on z: the grade dz/ds amplifies altitude noise", unit="m", gt=0)
     loop_close_m: float = param(5.0, "end this close to the start: reported as a closed loop", unit="m", gt=0)
+    stood_still_m: float = param(
+        10.0,
+        "points all within this of their centre, along a path many times longer than that: a receiver "
+        "that stood still and wandered (refused), not a drive",
+        unit="m",
+        gt=0,
+    )
 
 
 @dataclass
@@ -212,6 +219,7 @@ class NmeaLog:
     far: int = 0  # fixes beyond the frame's reach (set by the projection)
     non_rtk: int = 0  # GGA fixes without RTK fixed: metre-level errors
     no_altitude: int = 0  # fixes without altitude (interpolated between neighbours)
+    ubx_frames: int = 0  # u-blox binary frames on the same stream (skipped)
 
     def report(self) -> list[str]:
         unused = {a: n for a, n in self.sentences.items() if a[-3:] not in (self.used, "GST")}
@@ -232,6 +240,8 @@ class NmeaLog:
             lines.append(f"skipped, same epoch as the fix before (another talker): {self.same_epoch}")
         if self.text_lines:
             lines.append(f"skipped, comment or header lines: {self.text_lines}")
+        if self.ubx_frames:
+            lines.append(f"skipped, u-blox binary (UBX) frames between the sentences: {self.ubx_frames}")
         if self.bad:
             lines.append(
                 "skipped, bad lines: "
@@ -254,6 +264,40 @@ class NmeaLog:
 
 def _counts(counter: Mapping[str, int]) -> str:
     return ", ".join(f"{k} {n}" for k, n in sorted(counter.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
+UBX_SYNC = b"\xb5\x62"
+
+
+def strip_ubx(data: bytes) -> tuple[bytes, int]:
+    """The stream without its u-blox binary frames (u-blox receivers interleave them with the
+    NMEA on one port by default), and how many there were. A frame: sync B5 62, class, id,
+    little-endian length, payload, and the two Fletcher-8 bytes over class..payload; only frames
+    whose checksum holds are taken out, so text that happens to hold the sync bytes stays."""
+    if UBX_SYNC not in data:
+        return data, 0
+    out = bytearray()
+    frames = 0
+    i = 0
+    while True:
+        j = data.find(UBX_SYNC, i)
+        if j < 0 or j + 8 > len(data):
+            out += data[i:]
+            return bytes(out), frames
+        length = data[j + 4] | (data[j + 5] << 8)
+        end = j + 6 + length + 2
+        body = data[j + 2 : j + 6 + length]
+        a = b = 0
+        for byte in body:
+            a = (a + byte) & 0xFF
+            b = (b + a) & 0xFF
+        if end <= len(data) and data[end - 2] == a and data[end - 1] == b:
+            out += data[i:j]
+            frames += 1
+            i = end
+        else:
+            out += data[i : j + 2]
+            i = j + 2
 
 
 def log_lines(data: bytes) -> Iterator[tuple[int, bytes | None]]:
@@ -357,6 +401,21 @@ def project_fixes(log: NmeaLog, frame: LocalFrame, source: str, strict: bool = F
 
 
 # ---- geometry -------------------------------------------------------------------------------
+
+
+def stood_still(points: np.ndarray, kept: np.ndarray, name: str, within_m: float) -> None:
+    """Refuse a log whose fixes wander around one place: all within `within_m` of their centre, and
+    their path (the kept points in order) over five times as long as the place is wide. A short
+    drive goes straight, its path about as long as it is wide."""
+    centre = points[:, :2].mean(axis=0)
+    spread = float(np.max(np.hypot(points[:, 0] - centre[0], points[:, 1] - centre[1])))
+    path = float(np.sum(np.hypot(np.diff(kept[:, 0]), np.diff(kept[:, 1]))))
+    if spread < within_m and path > 5 * max(2 * spread, 1e-3):
+        raise RouteImportError(
+            f"{name}: not a drive: its {len(points)} points stay within {spread:.1f} m of their centre while "
+            f"their path wanders {path:.0f} m: a receiver that stood still (route_import.stood_still_m "
+            f"{within_m:g} m)"
+        )
 
 
 def drop_standstill(points: np.ndarray, min_step_m: float) -> np.ndarray:
@@ -463,6 +522,7 @@ def import_route(
     except OSError as exc:
         raise RouteImportError(f"{source}: cannot read: {exc.strerror}") from None
     name = source.name
+    data, ubx_frames = strip_ubx(data)
     if b"\x00" in data[:65536]:
         raise RouteImportError(f"{name}: not a text file (byte {data.index(bytes(1))} is NUL)")
     if fmt == "auto":
@@ -476,6 +536,7 @@ def import_route(
     origin_source = ""
     if fmt == "nmea":
         log = read_nmea_log(data, name, strict)
+        log.ubx_frames = ubx_frames
         if not log.fixes:
             detail = f" ({_counts(log.no_fix)} without a fix)" if log.no_fix else ""
             raise RouteImportError(f"{name}: no usable position (GGA, RMC or GLL) in the log{detail}")
@@ -494,6 +555,7 @@ def import_route(
             f"{settings.min_step_m:g} m of the first"
         )
     xyz, yaw = build_route(kept, settings)
+    stood_still(points, kept, name, settings.stood_still_m)
     gap = float(math.hypot(xyz[-1, 0] - xyz[0, 0], xyz[-1, 1] - xyz[0, 1]))
     length = float(np.sum(np.hypot(np.diff(xyz[:, 0]), np.diff(xyz[:, 1]))))
     # a loop must be long compared with the gap, or a short back-and-forth would count
