@@ -184,11 +184,7 @@ class FleetSync(Node):
                 )
 
     def _publish_notices(self) -> None:
-        while True:
-            try:
-                n = self.writer.notices.get_nowait()
-            except queue.Empty:
-                return
+        for n in self.writer.take_notices():
             self.event(n.kind, n.message, n.level, **n.data)
 
     def teardown(self) -> None:
@@ -198,10 +194,4 @@ class FleetSync(Node):
         writer = getattr(self, "writer", None)
         if writer is not None:
             writer.close(self.params.shutdown_flush_s)
-            self.log.info(
-                "stopped: %d records and %d events written, %d spooled, %d lost",
-                writer.records_written,
-                writer.events_written,
-                len(writer.spool),
-                self.lost,
-            )
+            self.log.info("%s", writer.stopped_summary(self.lost))

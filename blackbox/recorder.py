@@ -311,6 +311,22 @@ class StoreWriter:
         self._thread = threading.Thread(target=self._run, name="blackbox-writer", daemon=True)
 
     # ---- the node's side --------------------------------------------------------------------
+    def take_notices(self) -> list[Notice]:
+        """What the writer's thread has to say (store down, back, spool overflow), for the node to
+        publish as events from its loop."""
+        out = []
+        while True:
+            try:
+                out.append(self.notices.get_nowait())
+            except queue.Empty:
+                return out
+
+    def stopped_summary(self, lost: int) -> str:
+        return (
+            f"stopped: {self.records_written} records and {self.events_written} events written, "
+            f"{len(self.spool)} spooled, {lost} lost"
+        )
+
     def start(self) -> None:
         self._thread.start()
 

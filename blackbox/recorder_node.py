@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import collections
 import math
-import queue
 
 from ares.core import topics
 from ares.core.geodesy import LocalFrame
@@ -142,11 +141,7 @@ class Recorder(Node):
             )
 
     def _publish_notices(self) -> None:
-        while True:
-            try:
-                n = self.writer.notices.get_nowait()
-            except queue.Empty:
-                return
+        for n in self.writer.take_notices():
             self.event(n.kind, n.message, n.level, **n.data)
 
     def teardown(self) -> None:
@@ -155,10 +150,4 @@ class Recorder(Node):
             return
         writer.close(self.params.shutdown_flush_s)
         self._publish_notices()
-        self.log.info(
-            "stopped: %d records and %d events written, %d spooled, %d lost",
-            writer.records_written,
-            writer.events_written,
-            len(writer.spool),
-            self.lost,
-        )
+        self.log.info("%s", writer.stopped_summary(self.lost))

@@ -298,34 +298,37 @@ def _certificates(report: Report, files: dict[str, Path], ares_configs: dict[str
     report.checked.append("certificates")
 
 
-def _fleet_router_config(report: Report, path: Path, secrets: dict[str, Path]) -> None:
-    """A router config mounted as a config (the fleet's, without credentials): access control on,
-    and every vehicle it admits has a user in the dictionary."""
+def _router_config(report: Report, path: Path) -> dict | None:
+    """A router's JSON5 file, parsed, with access control on; None (a problem said) if unreadable."""
     try:
         cfg = router_config.load(path)
     except (ValueError, OSError) as exc:
         report.problem(f"{path}: not a router config ({exc})")
-        return
+        return None
     if not cfg.get("access_control", {}).get("enabled"):
         report.problem(f"{path}: access control is not enabled")
-    if "zenoh_users" in secrets:
-        users = pki.read_users(secrets["zenoh_users"])
-        missing = [v for v in router_config.vehicles_of(cfg) if v not in users]
-        if missing:
-            report.problem(
-                f"{path}: admits {', '.join(missing)}, who have no user in {secrets['zenoh_users']} "
-                "(ares deploy certs --vehicle ID)"
-            )
+    return cfg
+
+
+def _fleet_router_config(report: Report, path: Path, secrets: dict[str, Path]) -> None:
+    """A router config mounted as a config (the fleet's, without credentials): every vehicle it
+    admits has a user in the dictionary."""
+    cfg = _router_config(report, path)
+    if cfg is None or "zenoh_users" not in secrets:
+        return
+    users = pki.read_users(secrets["zenoh_users"])
+    missing = [v for v in router_config.vehicles_of(cfg) if v not in users]
+    if missing:
+        report.problem(
+            f"{path}: admits {', '.join(missing)}, who have no user in {secrets['zenoh_users']} "
+            "(ares deploy certs --vehicle ID)"
+        )
 
 
 def _vehicle_router_config(report: Report, path: Path, vehicle_ids: set) -> None:
-    try:
-        cfg = router_config.load(path)
-    except (ValueError, OSError) as exc:
-        report.problem(f"{path}: not a router config ({exc})")
+    cfg = _router_config(report, path)
+    if cfg is None:
         return
-    if not cfg.get("access_control", {}).get("enabled"):
-        report.problem(f"{path}: access control is not enabled")
     user = cfg.get("transport", {}).get("auth", {}).get("usrpwd", {}).get("user")
     if vehicle_ids and user not in vehicle_ids:
         report.problem(f"{path}: Zenoh user {user!r} is not the vehicle_id {', '.join(sorted(map(str, vehicle_ids)))}")
