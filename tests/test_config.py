@@ -192,4 +192,8 @@ def test_only_a_simulated_shuttle_can_be_hurried():
     for speed in (5.0, "max"):
         with pytest.raises(ConfigError, match=f"--speed {speed} needs the simulator"):
             prepare((), {"simulate": False}, speed)
-    assert prepare((), {"simulate": False}, 1.0)["simulate"] is False
+    devices = {
+        "gnss": {"source": "serial", "device": "/dev/ttyACM0"},
+        "can": {"interface": "socketcan", "channel": "can0"},
+    }
+    assert prepare((), {"simulate": False, "lidars": False, "vehicle_io": devices}, 1.0)["simulate"] is False

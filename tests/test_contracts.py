@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from ares.app import contracts, run_config
-from ares.app.processes import PROCESSES, Process
+from ares.app.processes import PROCESSES, Process, for_run
 from ares.core.clock import ManualClock
 from ares.core.config import Params, param
 from ares.core.membus import MemoryNetwork
@@ -46,7 +46,8 @@ def test_docs_nodes_md_is_what_ares_describe_prints(cfg):
 
 
 def test_the_topic_graph_is_whole(cfg):
-    graph = contracts.graph(contracts.all_contracts(cfg))
+    # plain simulation; the wire and vehicle runs' graphs: tests/test_vehicle_io.py
+    graph = contracts.graph(contracts.all_contracts(cfg, for_run(True, True, False)))
     assert contracts.problems(graph) == []
     # the command the bridge obeys has exactly one source, and the bridge reads no other
     assert graph["movement/command"]["publishers"] == ["movement_manager"]
@@ -70,7 +71,7 @@ def test_problems_in_a_graph_are_named():
 
 
 def test_the_simulator_waits_for_every_process_it_feeds(cfg):
-    fed = contracts.fed_by(contracts.all_contracts(cfg), "sim")
+    fed = contracts.fed_by(contracts.all_contracts(cfg, for_run(True, True, False)), "sim")
     assert fed == [
         "lidar_sim",
         "gnss",

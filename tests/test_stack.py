@@ -29,7 +29,11 @@ from tests.helpers.stack import headless, make_run_config
 pytestmark = pytest.mark.stack
 
 
-def test_the_simulator_driven_clock_gives_the_wall_clock_result(tmp_path):
+def test_the_simulator_driven_clock_behind_the_wires_gives_the_wall_clock_result(tmp_path):
+    """The same drive twice: on the wall clock (hurried) with the sensors on the bus, then on the
+    clock the simulator drives with the simulator behind its wires (--wire: NMEA on a pty, CAN
+    frames on udp_multicast, read by the drivers). Same lap: neither the lockstep nor the wires
+    change the drive, and the drivers lose and refuse nothing."""
     route = tmp_path / "s_bend.csv"
     # 12 m straight, a 90 degree bend of ~15 m radius, 10 m straight
     points = [(x, 0.0) for x in range(0, 12, 2)]
@@ -39,8 +43,16 @@ def test_the_simulator_driven_clock_gives_the_wall_clock_result(tmp_path):
     stores = {speed: tmp_path / f"blackbox_{speed}.sqlite" for speed in ("2", "max")}
     # the wall clock, hurried: timers as at real time; then the clock the simulator drives
     scaled = headless("--route", str(route), "--speed", "2", "--store", str(stores["2"]))
-    fast = headless("--route", str(route), "--speed", "max", "--store", str(stores["max"]))
+    fast = headless("--route", str(route), "--speed", "max", "--wire", "--store", str(stores["max"]))
     assert (scaled["clock"], fast["clock"]) == ("scaled", "driven")
+    assert "drivers" not in scaled
+    drivers = fast["drivers"]
+    assert set(drivers) == {"gnss", "can"}  # no LiDARs in this run
+    for device, figures in drivers.items():
+        assert figures["published"] > 0 and figures["connected"], (device, figures)
+        assert figures["lost"] == 0 and figures["malformed"] == {}, (device, figures)
+    assert drivers["gnss"]["published"] >= 5 * fast["total_time_s"] * 0.9  # every 5 Hz epoch
+    assert drivers["can"]["published"] >= (20 + 50) * fast["total_time_s"] * 0.9  # speed frames and the IMU
     # the margins are for a shared, noisy machine, where real time is what varies (the clock
     # starts when the stack is ready to drive, so process start-up is not in the lap)
     assert fast["lap_time_s"] == pytest.approx(scaled["lap_time_s"], rel=0.05)

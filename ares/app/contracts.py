@@ -69,6 +69,8 @@ class Contract(TypedDict):
     loop_param: str | None
     safety_relevant: bool
     sim_only: bool
+    wire: bool | None  # the simulator's variants: True with --wire only, False without
+    driver: bool  # reads a device (on the vehicle, and with --wire)
     steps: bool
     drives_clock: bool
     inputs: list[InputRow]
@@ -76,6 +78,8 @@ class Contract(TypedDict):
     services: list[ServiceRow]
     calls: list[str]
     fleet_inputs: list[str]  # topics read from every vehicle on the network (the fleet's views)
+    wire_inputs: list[str]  # device wires read (drivers; the simulator with --wire)
+    wire_outputs: list[str]  # device wires written
     sections: list[str]
     parameters: list[ParameterRow]
 
@@ -94,6 +98,8 @@ def contract(spec: Process, cfg: Mapping[str, Any]) -> Contract:
         "loop_param": f"{cls.section()}.{rate_param}" if rate_param else None,
         "safety_relevant": spec.safety_relevant,
         "sim_only": spec.sim_only,
+        "wire": spec.wire,
+        "driver": spec.driver,
         "steps": cls.steps,
         "drives_clock": cls.drives_clock(),
         "inputs": [
@@ -128,6 +134,8 @@ def contract(spec: Process, cfg: Mapping[str, Any]) -> Contract:
         ],
         "calls": sorted(cls.calls),
         "fleet_inputs": list(cls.fleet_inputs),
+        "wire_inputs": list(cls.wire_inputs),
+        "wire_outputs": list(cls.wire_outputs),
         "sections": [cls.section(), *cls.sections],
         "parameters": parameters(cls.Params, cls.section(), params)
         + [
@@ -187,6 +195,8 @@ def graph(contracts: list[Contract]) -> dict[str, dict[str, list[str]]]:
     def entry(topic: str) -> dict[str, list[str]]:
         return out.setdefault(topic, {"publishers": [], "subscribers": []})
 
+    driven = any(c["drives_clock"] for c in contracts)  # a simulator: on the vehicle the clock is the wall's
+
     for c in contracts:
         for o in c["outputs"]:
             entry(o["topic"])["publishers"].append(c["process"])
@@ -194,12 +204,13 @@ def graph(contracts: list[Contract]) -> dict[str, dict[str, list[str]]]:
             entry(i["topic"])["subscribers"].append(c["process"])
         for implicit in IMPLICIT_OUTPUTS:
             entry(implicit)["publishers"].append(c["process"])
-        if not c["drives_clock"]:  # --speed max: steppers hear the time when due, the others now and then
+        if driven and not c["drives_clock"]:  # --speed max: steppers hear the time when due, the others now and then
             entry(CLOCK_FOR_STEPPERS if c["steps"] else CLOCK_FOR_OTHERS)["subscribers"].append(c["process"])
     for topic in supervisor.OUTPUTS:
         entry("heartbeat/*" if topic.startswith("heartbeat/") else topic)["publishers"].append(SUPERVISOR)
     for topic in supervisor.INPUTS:
-        entry(topic)["subscribers"].append(SUPERVISOR)
+        if driven or topic != CLOCK_FOR_OTHERS:
+            entry(topic)["subscribers"].append(SUPERVISOR)
     return dict(sorted(out.items()))
 
 
@@ -218,7 +229,8 @@ def problems(topic_graph: dict[str, dict[str, list[str]]]) -> list[str]:
 def fed_by(contracts: list[Contract], source: str) -> list[str]:
     """Every process that steps and that `source`'s outputs feed, directly or through others, in
     table order: the processes the simulator waits for at --speed max."""
-    outputs = {c["process"]: {o["topic"] for o in c["outputs"]} for c in contracts}
+    # a device wire counts as a topic: the simulator with --wire feeds the drivers through it
+    outputs = {c["process"]: {o["topic"] for o in c["outputs"]} | set(c["wire_outputs"]) for c in contracts}
     reached: set[str] = set()
     flowing = set(outputs.get(source, ()))
     changed = True
@@ -228,7 +240,7 @@ def fed_by(contracts: list[Contract], source: str) -> list[str]:
             name = c["process"]
             if name == source or name in reached:
                 continue
-            if any(i["topic"] in flowing for i in c["inputs"]):
+            if any(i["topic"] in flowing for i in c["inputs"]) or flowing & set(c["wire_inputs"]):
                 reached.add(name)
                 flowing |= outputs[name]
                 changed = True
@@ -263,10 +275,18 @@ def markdown(c: Contract) -> list[str]:
         else f"an asyncio event loop (heartbeat at {c['loop_hz']:g} Hz)"
     )
     flags = ", ".join(
-        f for f, on in (("safety relevant", c["safety_relevant"]), ("simulation only", c["sim_only"])) if on
+        f
+        for f, on in (
+            ("safety relevant", c["safety_relevant"]),
+            ("simulation only", c["sim_only"]),
+            ("with `--wire` only", c["wire"] is True),
+            ("without `--wire`", c["wire"] is False),
+            ("a device driver: on the vehicle and with `--wire`", c["driver"]),
+        )
+        if on
     )
     lines = [
-        f"## {c['process']}",
+        f"## {c['process']}" + (" (`--wire`)" if c["wire"] else ""),
         "",
         f"`{c['node']}` — {c['doc']}",
         "",
@@ -296,6 +316,10 @@ def markdown(c: Contract) -> list[str]:
             "Fleet inputs (every vehicle's, `ares/*/<topic>`): " + ", ".join(f"`{t}`" for t in c["fleet_inputs"]),
             "",
         ]
+    if c["wire_inputs"] or c["wire_outputs"]:
+        reads = ", ".join(f"`{w}`" for w in c["wire_inputs"]) or "-"
+        writes = ", ".join(f"`{w}`" for w in c["wire_outputs"]) or "-"
+        lines += [f"Device wires (docs/vehicle_io.md): reads {reads}; writes {writes}", ""]
     lines += ["**Parameters**", ""]
     lines += _table(
         ["name", "value", "unit", "range", ""],

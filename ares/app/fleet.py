@@ -70,7 +70,7 @@ def start_fleet(
     `started` is filled as they start, so that a failure midway leaves the caller what to stop."""
     supervisors = started if started is not None else []
     for cfg in cfgs:
-        sup = Supervisor(cfg, processes.for_run(cfg["simulate"], cfg["lidars"]), run_dir / cfg["vehicle_id"], clock)
+        sup = Supervisor(cfg, processes.for_config(cfg), run_dir / cfg["vehicle_id"], clock)
         sup.start()
         threading.Thread(target=sup.run, args=(stop,), name=f"supervisor-{cfg['vehicle_id']}", daemon=True).start()
         supervisors.append(sup)

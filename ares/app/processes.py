@@ -7,6 +7,9 @@ contract: its inputs, outputs with their rates, services and parameters (`ares d
 `safety_relevant` processes are the ones whose loss must bring the vehicle to a safe state;
 `sim_only` ones run only in simulation; `lidars` ones only with the LiDARs (the core setting
 `lidars`); `nice` lowers the CPU priority of those that must yield to the driving ones.
+`wire` picks the simulator's variant: the plain one publishes its sensors on the bus, the wire one
+(`ares run --wire`) writes them in the devices' formats (NMEA, Velodyne packets, CAN frames) for the
+`driver` processes, which run on a vehicle (`simulate: false`) and in wire simulation.
 The embedded Zenoh router is not listed: the supervisor hosts it in its own session.
 
 Adding a manager is one file (its node class) and one line here.
@@ -28,17 +31,39 @@ class Process:
     sim_only: bool = False
     lidars: bool = False  # runs only with the LiDARs (core `lidars`)
     nice: int = 0
+    wire: bool | None = None  # the simulator's variants: True only with --wire, False only without
+    driver: bool = False  # reads a device: on a vehicle and with --wire, never in plain simulation
 
     def node_class(self) -> type[Node]:
         return load(self.node)
 
 
 PROCESSES: list[Process] = [
-    Process("sim", "ares.sim.simulator_node:Simulator", safety_relevant=True, sim_only=True),
+    Process("sim", "ares.sim.simulator_node:Simulator", safety_relevant=True, sim_only=True, wire=False),
+    Process("sim", "ares.sim.wire_simulator_node:WireSimulator", safety_relevant=True, sim_only=True, wire=True),
     # the simulated LiDARs stand for hardware, whose work is not the vehicle computer's: they yield
     Process(
-        "lidar_sim", "ares.sim.lidar_node:LidarSimulator", safety_relevant=True, sim_only=True, lidars=True, nice=5
+        "lidar_sim",
+        "ares.sim.lidar_node:LidarSimulator",
+        safety_relevant=True,
+        sim_only=True,
+        lidars=True,
+        nice=5,
+        wire=False,
     ),
+    Process(
+        "lidar_sim",
+        "ares.sim.wire_lidar_node:WireLidarSimulator",
+        safety_relevant=True,
+        sim_only=True,
+        lidars=True,
+        nice=5,
+        wire=True,
+    ),
+    # the devices' drivers publish what the simulator publishes in plain simulation
+    Process("gnss_driver", "drivers.gnss_node:GnssDriver", safety_relevant=True, driver=True),
+    Process("can_driver", "drivers.can_node:CanDriver", safety_relevant=True, driver=True),
+    Process("lidar_driver", "drivers.velodyne_node:VelodyneDriver", safety_relevant=True, driver=True, lidars=True),
     Process("gnss", "perception.gnss_node:GnssNode", safety_relevant=True),
     Process("localization", "perception.localization_node:LocalizationNode", safety_relevant=True),
     Process("odometry_manager", "managers.odometry_node:OdometryManager", safety_relevant=True),
@@ -71,12 +96,26 @@ FLEET_SERVER: list[Process] = [
 ]
 
 
-def by_name(name: str) -> Process:
+def by_name(name: str, wire: bool = False) -> Process:
     for spec in [*PROCESSES, *FLEET_SERVER]:
-        if spec.name == name:
+        if spec.name == name and spec.wire in (None, wire):
             return spec
     raise KeyError(f"unknown process {name!r}; known: {', '.join(p.name for p in [*PROCESSES, *FLEET_SERVER])}")
 
 
-def for_run(simulate: bool, lidars: bool = True) -> list[Process]:
-    return [p for p in PROCESSES if (simulate or not p.sim_only) and (lidars or not p.lidars)]
+def for_run(simulate: bool, lidars: bool = True, wire: bool = False) -> list[Process]:
+    """The processes of a run: the simulator's plain or wire variant, and the drivers wherever
+    devices are read (on a vehicle, or behind the simulator's wires)."""
+    wire = wire and simulate
+    return [
+        p
+        for p in PROCESSES
+        if (simulate or not p.sim_only)
+        and (lidars or not p.lidars)
+        and p.wire in (None, wire)
+        and (not p.driver or wire or not simulate)
+    ]
+
+
+def for_config(cfg) -> list[Process]:  # type: ignore[no-untyped-def]
+    return for_run(cfg["simulate"], cfg["lidars"], cfg["wire"])

@@ -25,12 +25,13 @@ import logging
 import os
 import signal
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ares.app import contracts, processes, run_config
+from ares.app import contracts, processes, run_config, vehicle_io
 from ares.app.fleet import fleet_configs, start_fleet
 from ares.app.supervisor import Supervisor
 from ares.core import config
@@ -77,6 +78,10 @@ def overrides_from_args(args) -> dict:
             over["route_file"] = str(Path(args.route).resolve())
     if getattr(args, "scenario", None):
         over["scenario"] = args.scenario
+    if getattr(args, "wire", False):
+        over["wire"] = True
+    if getattr(args, "vehicle_io", None):
+        over["vehicle_io"] = vehicle_io.load(args.vehicle_io)
     if getattr(args, "mission", None):
         over["mission_manager"] = {"autostart": args.mission}
     if getattr(args, "controller", None):
@@ -108,19 +113,20 @@ def run(args, headless_drive: HeadlessDrive | None = None) -> int:
         stream=sys.stderr,
     )
     speed = getattr(args, "speed", None) or 1.0
+    run_dir = Path(args.run_dir) if getattr(args, "run_dir", None) else default_run_dir()
     try:
-        cfg = prepare(tuple(getattr(args, "config", None) or ()), overrides_from_args(args), speed)
+        overrides = overrides_from_args(args)
+        cfg = prepare(tuple(getattr(args, "config", None) or ()), overrides, speed, wire_dir=run_dir / "wire")
         route = load_route(config.core(cfg))
     except (config.ConfigError, RouteError) as exc:
         print(f"ares run: {exc}", file=sys.stderr)
         return 2
     clock = stack_clock(cfg, speed)
-    run_dir = Path(args.run_dir) if getattr(args, "run_dir", None) else default_run_dir()
     if (getattr(args, "fleet", None) or 1) > 1:
         return _fleet(args, cfg, route, clock, run_dir)
     if cfg["replay"]["record"] and not cfg["replay"]["dir"]:
         cfg["replay"]["dir"] = str((run_dir / "replay").resolve())
-    supervisor = Supervisor(cfg, processes.for_run(cfg["simulate"], cfg["lidars"]), run_dir, clock)
+    supervisor = Supervisor(cfg, processes.for_config(cfg), run_dir, clock)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     supervisor.start()
@@ -147,10 +153,26 @@ def run(args, headless_drive: HeadlessDrive | None = None) -> int:
     return 0
 
 
-def prepare(files: tuple[str, ...], overrides: dict, speed: float | str) -> dict:
+def prepare(files: tuple[str, ...], overrides: dict, speed: float | str, wire_dir: Path | None = None) -> dict:
     """The run configuration, validated; the route file's origin, if it has one; the store made
-    absolute; the lockstep's participants."""
+    absolute; the simulator's wires (--wire) or the vehicle's devices checked (simulate: false);
+    the lockstep's participants."""
     cfg = run_config.build(files, overrides)
+    if speed != 1 and not cfg["simulate"]:
+        # on the vehicle the wall clock runs as it is: only a simulated shuttle can be hurried
+        raise config.ConfigError(f"--speed {speed} needs the simulator (simulate: true)")
+    if cfg["wire"]:
+        if not cfg["simulate"]:
+            raise config.ConfigError("--wire puts the simulator behind the devices' wires: it needs simulate: true")
+        cfg["vehicle_io"] = vehicle_io.simulator_wires(cfg, wire_dir or Path(tempfile.mkdtemp(prefix="ares-wire-")))
+    elif not cfg["simulate"]:
+        missing = vehicle_io.missing_inputs(cfg)
+        if missing:
+            raise config.ConfigError(
+                "simulate: false, but no driver reads a device for these inputs: "
+                + "; ".join(missing)
+                + ". Describe the vehicle's devices with --vehicle-io FILE (see docs/vehicle_io.md)"
+            )
     if not config.core(cfg).vehicle_profile.lidars:
         cfg["lidars"] = False  # a vehicle without LiDARs runs no LiDAR process (and no RRC)
     if cfg["route_file"]:
@@ -162,7 +184,7 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str) -> dict
         loaded = config.load_scenario(str(scenario))  # a bad scenario stops the run here, with its error
         cfg["scenario"] = str(scenario.resolve()) if scenario.suffix else cfg["scenario"]
         # the simulator and its LiDARs stand for the vehicle and its sensors: not theirs to kill
-        running = {p.name for p in processes.for_run(cfg["simulate"], cfg["lidars"]) if not p.sim_only}
+        running = {p.name for p in processes.for_config(cfg) if not p.sim_only}
         unknown = sorted({f.process for f in loaded.faults if f.kind in config.PROCESS_FAULTS} - running)
         if unknown:
             raise config.ConfigError(
@@ -173,11 +195,8 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str) -> dict
             cfg.setdefault("mission_manager", {})["autostart"] = loaded.mission  # --mission still wins
     store = config.section(cfg, "blackbox_store", StoreSettings)
     cfg["blackbox_store"]["uri"] = store_uri(store)
-    if speed != 1 and not cfg["simulate"]:
-        # on the vehicle the wall clock runs as it is: only a simulated shuttle can be hurried
-        raise config.ConfigError(f"--speed {speed} needs the simulator (simulate: true)")
     if speed in ("max", "paced"):
-        running = processes.for_run(True, cfg["lidars"])
+        running = processes.for_config(cfg)
         cfg["lockstep"]["participants"] = contracts.fed_by(contracts.all_contracts(cfg, running), "sim")
         cfg["lockstep"]["pace"] = 1.0 if speed == "paced" else None
     return cfg

@@ -43,7 +43,7 @@ from typing import Annotated, NamedTuple
 from pydantic import Field
 
 import ares
-from ares.app.processes import Process, for_run
+from ares.app.processes import Process, for_config
 from ares.core import config
 from ares.core.bus import Bus
 from ares.core.clock import Clock, DrivenClock
@@ -623,7 +623,7 @@ def main() -> None:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    supervisor = Supervisor(cfg, for_run(cfg["simulate"], cfg["lidars"]), default_run_dir(), Clock.from_env())
+    supervisor = Supervisor(cfg, for_config(cfg), default_run_dir(), Clock.from_env())
     try:
         supervisor.start()
         supervisor.run(stop)

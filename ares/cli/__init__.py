@@ -3,6 +3,7 @@
     ares run [--headless] [--manual] [--laps N] [--speed X|max] [--config FILE] [--route FILE]
              [--vehicle NAME] [--passengers N] [--vehicle-id ID] [--router ENDPOINT] [--run-dir DIR]
              [--store URI] [--seconds S] [--controller auto|mpc|rrc|pure_pursuit] [--scenario NAME|FILE]
+             [--wire] [--vehicle-io FILE]
     ares compare [--controllers mpc,pure_pursuit] [--route R] [--vehicle V] [--scenario S] [--laps N|--seconds S]
                                    the same headless run with each controller, figures side by side, and a picture
     ares node NAME                 run one process of the stack in the foreground
@@ -36,6 +37,8 @@
     ares bench perception [--json] [--frames N] [--repeats N]
                                    LiDAR pipeline stage times, the simulated LiDARs' ray casting (in-process)
     ares bench blackbox [--json]   store ingest and hour query, latest-state API req/s over HTTPS
+    ares bench drivers [--json] [--repeats N] [--seconds S]
+                                   Velodyne decode per rotation (VLP-16, HDL-64E), CAN frames per second
     ares api [--host H] [--port P] [--store URI] [--insecure-http]
                                    serve the black box's REST API (HTTPS; self-signed certificate if none configured)
     ares users add NAME --role ROLE [--store URI]

@@ -1,4 +1,4 @@
-"""`ares bench bus|path|blackbox|supervisor|perception|mpc|obstacle-zone|live`: the benchmarks."""
+"""`ares bench bus|path|blackbox|supervisor|perception|mpc|obstacle-zone|live|drivers`: the benchmarks."""
 
 from __future__ import annotations
 
@@ -111,12 +111,32 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     live.add_argument("--browsers", type=positive_int, default=3, metavar="N", help="pages connected (default 3)")
     live.add_argument("--seconds", type=positive_float, default=30.0, metavar="S", help="measured (default 30)")
     live.add_argument("--config", action="append", metavar="FILE", help="configuration overrides, as for ares run")
+    drivers = bench_sub.add_parser(
+        "drivers",
+        help="the device drivers: Velodyne decode per rotation (VLP-16, HDL-64E), CAN frames per second",
+        description="Decodes and assembles full-resolution Velodyne rotations (VLP-16 and HDL-64E) as the LiDAR "
+        "driver does, and pushes CAN frames through the DBC codec and through python-can's udp_multicast "
+        "into the CAN driver; medians of repeated rounds, in this process.",
+    )
+    drivers.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    drivers.add_argument("--repeats", type=positive_int, default=20, metavar="N", help="rotations per model (20)")
+    drivers.add_argument(
+        "--seconds", type=positive_float, default=3.0, metavar="S", help="CAN measurement time (default 3)"
+    )
     return {"bench": cmd_bench}
 
 
 def _key_per_line(result: dict, out) -> None:
     for key, value in result.items():
         out.write(f"{key:32} {value}\n")
+
+
+def _nested_per_line(result: dict, out, prefix: str = "") -> None:
+    for key, value in result.items():
+        if isinstance(value, dict):
+            _nested_per_line(value, out, f"{prefix}{key}.")
+        else:
+            out.write(f"{prefix + key:40} {value}\n")
 
 
 def _run(args: argparse.Namespace, progress):
@@ -155,6 +175,14 @@ def _run(args: argparse.Namespace, progress):
             ), _key_per_line
         except BenchError as exc:
             raise CliError(f"live bench failed: {exc}") from None
+    if args.bench == "drivers":
+        from ares.tools.bench.drivers_can import can_bench
+        from ares.tools.bench.drivers_lidar import lidar_decode_bench
+
+        progress("Velodyne rotations: decode and assembly")
+        lidar = lidar_decode_bench(args.repeats)
+        progress("CAN frames: codec and udp_multicast into the driver")
+        return {"lidar": lidar, "can": can_bench(args.seconds)}, _nested_per_line
     if args.bench == "path":
         from ares.tools.bench.path import format_path_result, run_path_bench
 
@@ -168,11 +196,12 @@ def _run(args: argparse.Namespace, progress):
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    if args.bench not in ("bus", "path", "blackbox", "supervisor", "perception", "mpc", "obstacle-zone", "live"):
+    known = ("bus", "path", "blackbox", "supervisor", "perception", "mpc", "obstacle-zone", "live", "drivers")
+    if args.bench not in known:
         raise CliError(
             "which benchmark? try `ares bench bus`, `ares bench path`, `ares bench supervisor`, "
-            "`ares bench perception`, `ares bench mpc`, `ares bench obstacle-zone`, `ares bench blackbox` or "
-            "`ares bench live`"
+            "`ares bench perception`, `ares bench mpc`, `ares bench obstacle-zone`, `ares bench blackbox`, "
+            "`ares bench live` or `ares bench drivers`"
         )
     progress = lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     result, for_people = _run(args, progress)

@@ -73,6 +73,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         choices=["auto", "mpc", "rrc", "pure_pursuit"],
         help="pin one controller for comparisons (default auto: the control manager chooses)",
     )
+    run.add_argument(
+        "--wire",
+        action="store_true",
+        help="put the simulator behind the devices' wire formats: it writes NMEA to a pseudo-terminal, "
+        "Velodyne packets over UDP and CAN frames (python-can udp_multicast), and the stack reads "
+        "them through its drivers, which print their figures at the end of a headless run",
+    )
+    run.add_argument(
+        "--vehicle-io",
+        metavar="FILE",
+        help="the vehicle's devices (a YAML file of the vehicle_io section: gnss, lidars, can); "
+        "a run with simulate: false needs one (docs/vehicle_io.md)",
+    )
     run.add_argument("--vehicle", metavar="NAME", help="vehicle profile (config/vehicles/NAME.yaml)")
     run.add_argument("--passengers", type=non_negative_int, metavar="N", help="passengers on board")
     run.add_argument("--vehicle-id", type=vehicle_id, metavar="ID", help="vehicle id in the bus keys")

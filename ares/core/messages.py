@@ -155,6 +155,23 @@ class CanFrame(Msg):
     steering_torque: bool  # the driver is holding/turning the steering wheel
 
 
+class DriverStatus(Msg):
+    """A device driver's counts since it started, once a second (drivers/status): what came in on
+    the wire, what went out on the bus, and what was refused and why."""
+
+    driver: str  # its process
+    device: str  # gnss, lidar/roof, can, ...
+    connected: bool  # the device is open and has spoken within its silence timeout
+    received: int = Field(ge=0)  # packets, frames or lines read from the wire
+    published: int = Field(ge=0)  # messages put on the bus
+    lost: int = Field(0, ge=0)  # packets or frames known to be missing (sequence, azimuth or counter gaps)
+    malformed: dict[str, int] = Field(default_factory=dict)  # refused, by cause
+    skipped: dict[str, int] = Field(default_factory=dict)  # read and set aside on purpose (UBX frames, ...)
+    latency_p50_ms: float | None = None  # wire to bus (wall): from the kernel's or the read's time to the put
+    latency_p99_ms: float | None = None
+    detail: str = ""
+
+
 class PanelInput(str, Enum):
     BUTTON = "BUTTON"  # Auto/Manual button on the control panel
     THROTTLE_PEDAL = "THROTTLE_PEDAL"

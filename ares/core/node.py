@@ -185,6 +185,10 @@ class Node:
     steps: ClassVar[bool] = True  # works in periodic steps (latched inputs; a --speed max participant)
     calls: ClassVar[tuple[str, ...]] = ()  # the services it calls (any other call is refused)
     fleet_inputs: ClassVar[tuple[str, ...]] = ()  # topics it reads from every vehicle (bus.subscribe_fleet)
+    # device wires (wire/gnss, wire/can, wire/lidar) it reads or writes instead of the bus: a driver
+    # reads what the simulator writes with --wire, so the lockstep waits for it as for a subscriber
+    wire_inputs: ClassVar[tuple[str, ...]] = ()
+    wire_outputs: ClassVar[tuple[str, ...]] = ()
 
     # ---- the contract, as data --------------------------------------------------------------
     @classmethod

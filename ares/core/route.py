@@ -28,6 +28,7 @@ from ares.core.geodesy import FrameError, origin_at
 from ares.core.geometry import project_on_segments, signed_distance
 
 SAMPLE_SPACING_M = 0.25
+CSV_WIDTH_M = 4.0  # a route file's road width when its comments record none
 CURVATURE_SPAN_M = 1.0  # curvature is measured over +-1 m of path
 
 
@@ -192,7 +193,8 @@ class Route:
     def from_csv(cls, path: str | Path, name: str | None = None) -> Route:
         """An open route from a CSV of x,y[,z] points in metres. A header line and '#' comment
         lines are allowed; a header `x,y,z,yaw` (as `ares route import` writes) allows a 4th
-        column, yaw, which is checked but not used: the route's yaw comes from its geometry."""
+        column, yaw, which is checked but not used: the route's yaw comes from its geometry. The
+        road's width is the comment `# road: width_m=5.5` when there is one, else 4 m."""
         path = Path(path)
         points: list[tuple[float, float, float]] = []
         try:
@@ -227,7 +229,7 @@ class Route:
             y=xyz[:, 1],
             z=xyz[:, 2],
             closed=False,
-            width=np.full(len(xyz), 4.0),
+            width=np.full(len(xyz), width_in(text, path) or CSV_WIDTH_M),
             origin=origin_in(text, path),
         )
 
@@ -235,6 +237,7 @@ class Route:
 # ---- a route file's origin ------------------------------------------------------------
 
 _ORIGIN_LINE = re.compile(r"#\s*origin:(.*)")
+_WIDTH_LINE = re.compile(r"#\s*road:\s*width_m\s*=\s*(\S+)")
 _ORIGIN_KEYS = {
     "lat": float,
     "lon": float,
@@ -269,6 +272,29 @@ def origin_in(text: str, path: Path | str = "route") -> UtmOrigin | None:
         m = _ORIGIN_LINE.match(stripped)
         if m:
             return _parse_origin(m[1], f"{path}:{lineno}")
+    return None
+
+
+def width_comment(width_m: float) -> str:
+    """The comment line (without '# ') that records a route file's road width."""
+    return f"road: width_m={width_m:g}"
+
+
+def width_in(text: str, path: Path | str = "route") -> float | None:
+    """The road width a route file's leading comments record; None when they record none."""
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            return None
+        m = _WIDTH_LINE.match(stripped)
+        if m:
+            try:
+                width = float(m[1])
+            except ValueError:
+                width = math.nan
+            if not (math.isfinite(width) and width > 0):
+                raise RouteError(f"{path}:{lineno}: road width must be a positive number of metres, got {m[1]!r}")
+            return width
     return None
 
 

@@ -65,6 +65,7 @@ TOPIC_TABLE: list[Topic] = [
     # the simulated vehicle
     Topic("sim/truth", m.VehicleTruth, "ground truth, for evaluation only"),
     Topic("sim/world", m.WorldTruth, "the simulated world's obstacles, for evaluation only"),
+    Topic("drivers/status", m.DriverStatus, "each driver's counts: in, out, lost, malformed, latency", shared=True),
     Topic("sensors/gnss", m.GnssSentences, "raw NMEA sentences from the receiver"),
     Topic("sensors/imu", m.Imu, "IMU: attitude, rates, specific force, magnetometer yaw"),
     Topic("sensors/can", m.CanFrame, "CAN: wheel speed, steering-wheel angle, pedals"),

@@ -128,6 +128,7 @@ class Sweep:
     z: np.ndarray
     intensity: np.ndarray
     ring: np.ndarray
+    slot: np.ndarray | None = None  # with given rays: each point's ray index (-1: a ghost)
 
     @property
     def size(self) -> int:
@@ -135,10 +136,20 @@ class Sweep:
 
 
 class SimulatedLidar:
-    """One sensor on the vehicle."""
+    """One sensor on the vehicle. By default it fires the datasheet's lasers at every azimuth
+    step, turned by a random fraction of a step each sweep; given `directions` (unit vectors in
+    the sensor frame) and their `rings`, it casts exactly those rays every sweep (the firing
+    pattern of a packet format, ares/sim/velodyne_wire.py) and tells each point's ray (Sweep.slot)."""
 
     def __init__(
-        self, name: str, mount: LidarMount, vehicle: VehicleProfile, params: LidarSimParams, rng: np.random.Generator
+        self,
+        name: str,
+        mount: LidarMount,
+        vehicle: VehicleProfile,
+        params: LidarSimParams,
+        rng: np.random.Generator,
+        directions: np.ndarray | None = None,
+        rings: np.ndarray | None = None,
     ):
         self.name = name
         self.mount = mount
@@ -157,6 +168,14 @@ class SimulatedLidar:
         self.dirs0 = np.stack(
             [ce * np.cos(self.azimuth), ce * np.sin(self.azimuth), np.sin(self.elevation)], axis=1
         ).astype(np.float32)
+        self.fixed_rays = directions is not None
+        if directions is not None:
+            if rings is None or len(rings) != len(directions):
+                raise ValueError("given directions need a ring each")
+            self.dirs0 = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
+            self.ring = np.asarray(rings, dtype=np.uint8)
+            self.elevation = np.arcsin(np.clip(self.dirs0[:, 2], -1.0, 1.0)).astype(np.float64)
+            self.azimuth = np.arctan2(self.dirs0[:, 1], self.dirs0[:, 0]).astype(np.float64) % (2 * math.pi)
         self.blocked = False
         others = [housing(m) for n, m in vehicle.lidars.items() if n != name]
         body = Mesh.join(body_parts(vehicle) + others)
@@ -173,6 +192,7 @@ class SimulatedLidar:
         self.leaving = np.flatnonzero(~stopped)  # the rays that reach the world
         self.leaving_dirs = np.ascontiguousarray(self.dirs0[self.leaving])
         self.leaving_ring = self.ring[self.leaving]
+        self.body_index = np.flatnonzero(stopped)
         self.body_t = t_body[stopped]
         self.body_dirs = self.dirs0[stopped]
         self.body_ring = self.ring[stopped]
@@ -202,6 +222,8 @@ class SimulatedLidar:
             return self._empty()
         rng = self.rng
         spin = rotation(0.0, 0.0, rng.uniform(0.0, self.step))  # firing azimuths vary a little per turn
+        if self.fixed_rays:  # the rays are a packet format's: exactly those (the draw keeps the stream)
+            spin = np.eye(3)
         to_world = (vehicle_rotation @ self.rotation @ spin).astype(np.float32)
         dirs = self.leaving_dirs
         rays = np.empty((len(dirs), 6), dtype=np.float32)
@@ -245,12 +267,17 @@ class SimulatedLidar:
         rotate_into(points, dirs[keep], spin.astype(np.float32))
         points *= r[keep, None]
         ghosts = self._ghosts()
+        slot = None
+        if self.fixed_rays:
+            rays_hit = np.concatenate([self.leaving[world], self.body_index])[keep]
+            slot = np.concatenate([rays_hit, np.full(len(ghosts[0]), -1)])
         return Sweep(
             x=np.concatenate([points[:, 0], ghosts[0]]).astype(np.float32),
             y=np.concatenate([points[:, 1], ghosts[1]]).astype(np.float32),
             z=np.concatenate([points[:, 2], ghosts[2]]).astype(np.float32),
             intensity=np.concatenate([np.clip(intensity[keep], 0.0, 1.0), ghosts[3]]).astype(np.float32),
             ring=np.concatenate([ring[keep], ghosts[4]]).astype(np.uint8),
+            slot=slot,
         )
 
     def _ghosts(self):

@@ -47,14 +47,17 @@ class LidarSimulator(Node):
         )
         self.scenario: Scenario | None = load_scenario(self.core.scenario) if self.core.scenario else None
         self.obstacles = ObstacleField(self.scenario, self.route, self.world.centre_height)
-        self.sensors = {
-            name: SimulatedLidar(name, mount, self.vehicle, self.params, np.random.default_rng([self.params.seed, i]))
-            for i, (name, mount) in enumerate(self.vehicle.lidars.items())
-        }
+        self.sensors = self.make_sensors()
         self.outputs_by_sensor = {"roof": self.roof, "front_left": self.front_left, "front_right": self.front_right}
         self.faults_done: set[int] = set()
         if not self.sensors:
             self.log.warning("vehicle profile %s has no lidars: nothing to simulate", self.vehicle.name)
+
+    def make_sensors(self) -> dict[str, SimulatedLidar]:
+        return {
+            name: SimulatedLidar(name, mount, self.vehicle, self.params, np.random.default_rng([self.params.seed, i]))
+            for i, (name, mount) in enumerate(self.vehicle.lidars.items())
+        }
 
     @service("sim/lidar_fault")
     def _fault(self, request: LidarFault) -> Ack:

@@ -19,6 +19,7 @@ from ares.core.lockstep import LockstepMaster, Pacer
 from ares.core.messages import (
     Ack,
     ActuatorCommand,
+    BodyCommand,
     BodyState,
     CanFrame,
     DriverCommand,
@@ -150,7 +151,25 @@ class Simulator(Node):
         return Ack(t=now, ok=True, detail=f"{cmd.action.lower()} {cmd.value:g} for {cmd.duration_s:g} s")
 
     def _panel(self, what: PanelInput, value: float = 1.0) -> None:
-        self.panel.put(PanelEvent(t=self.clock.now(), input=what, value=value))
+        self._send("panel", PanelEvent(t=self.clock.now(), input=what, value=value))
+
+    # ---- the vehicle's side of its wires: the bus here, the devices' formats with --wire --------------
+    def _send(self, what: str, msg) -> None:
+        """A sensor reading or a driver action, as the vehicle's hardware gives it."""
+        {
+            "gnss": self.gnss,
+            "imu": self.imu,
+            "can": self.can,
+            "body": self.body_state,
+            "panel": self.panel,
+        }[what].put(msg)
+
+    def _actuator_command(self, t: float) -> ActuatorCommand | None:
+        """The bridge's latest efforts, if fresh at t (else the board's fail-safe acts)."""
+        return self.actuators.fresh(t)
+
+    def _body_commands(self) -> list[BodyCommand]:
+        return [cmd for _, cmd in self.body_command.drain()]
 
     # ---- physics --------------------------------------------------------------------------
     def _physics_time(self, k: int) -> float:
@@ -159,7 +178,7 @@ class Simulator(Node):
     def _physics_step(self) -> None:
         st = self.plant.state
         t = self._physics_time(self._k + 1)
-        command: ActuatorCommand | None = self.actuators.fresh(t)
+        command = self._actuator_command(t)
         fresh = command is not None
         if self.driver.active(t):
             d = self.driver
@@ -178,7 +197,7 @@ class Simulator(Node):
         st.t = t
         self.progress_m += self.route.step_between(self._last_s, st.s)
         self._last_s = st.s
-        for _, cmd in self.body_command.drain():
+        for cmd in self._body_commands():
             self.body.command(cmd.doors, cmd.ramp, cmd.media)
         self.body.step(self.dt, self._poi_here())
         if self.body.passengers != self.plant.passengers:
@@ -219,11 +238,11 @@ class Simulator(Node):
         st = self.plant.state
         t = st.t
         if self._due("can"):
-            self.can.put(CanFrame(t=t, **self.sensors.can.measure(st)))
+            self._send("can", CanFrame(t=t, **self.sensors.can.measure(st)))
         if self._due("imu"):
-            self.imu.put(Imu(t=t, **self.sensors.imu.measure(st)))
+            self._send("imu", Imu(t=t, **self.sensors.imu.measure(st)))
         if self._due("gnss") and self.sensors.gnss.fix_available(st.s, t):  # an outage: the receiver is silent
-            self.gnss.put(GnssSentences(t=t, **self.sensors.gnss.measure(st)))
+            self._send("gnss", GnssSentences(t=t, **self.sensors.gnss.measure(st)))
         if self._due("truth"):
             self.truth.put(
                 VehicleTruth(
@@ -248,7 +267,8 @@ class Simulator(Node):
             )
         if self._due("body"):
             b = self.body
-            self.body_state.put(
+            self._send(
+                "body",
                 BodyState(
                     t=t,
                     doors=b.door_state,
@@ -256,7 +276,7 @@ class Simulator(Node):
                     entrance_clear=b.entrance_clear,
                     media=b.media,
                     passengers=b.passengers,
-                )
+                ),
             )
 
     # ---- --speed max: this process drives the clock ------------------------------------------

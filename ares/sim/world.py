@@ -15,6 +15,17 @@ from the road's edge:
 Trees and poles stand beside the road on the grass, kerb and open verges. Everything is one
 triangle mesh with a material per triangle (its reflectivity gives the LiDAR intensity).
 
+The road a route drives stays clear, whatever the route's shape. A cross-section is laid along
+its own station's normal, and on a route imported from a recorded drive (sharp town corners, the
+metre-level wiggle of fixes without RTK) those normals cross: inside a corner the verge of one
+leg reaches over the road of the next, and where the smoothed centre line wiggles its curvature
+spikes and the clamp that keeps an inner verge short of the centre of curvature pulls it onto
+the road. So each verge vertex is judged against the whole centre line (a KD-tree of it, not its
+own normal): one that lies nearer to the route than its cross-section meant is lowered to what
+the nearest stretch has at that distance — the road's surface within the road, the verge's
+profile beyond its edge. Trees and poles, crowns included, keep off every stretch alike
+(`clearance`).
+
 The truth of the world (`road_edges`) is for the evaluation only: no stack process sees it.
 """
 
@@ -114,6 +125,14 @@ VERGES: dict[str, list[tuple[float, float, str, float]]] = {
 }
 ROAD_FRACTIONS = (-1.0, -0.5, 0.0, 0.5, 1.0)  # lateral vertices of the road, in half-widths
 BOUNDARY_VERGES = ("grass", "rock_wall", "ravine", "kerb")  # "open" has no boundary
+# A verge vertex this much nearer to the route than its cross-section put it has met another
+# stretch (or a fold): above the route's sampling error (0.5 m samples, densified to CENTRE_STEP_M)
+NEARER_TOL_M = 0.05
+CENTRE_STEP_M = 0.1  # the centre line is densified to this for the distance queries
+FAN_TURN_RAD = 0.035  # a heading step of 2 degrees between stations (R < 14 m at 0.5 m): a fan
+NEAR_REACH_M = 4.0  # beyond the widest road's edge: far enough that a verge there cannot reach over it
+OBJECT_ROAD_GAP_M = 2.0  # a trunk or pole stands at least this far beyond every stretch's edge
+CROWN_ROAD_GAP_M = 0.3  # a crown hangs no nearer than this to any stretch's edge
 
 
 @dataclass
@@ -167,6 +186,8 @@ class World:
         self.route = route
         self.roughness = roughness
         self.rng = np.random.default_rng([seed, 2])
+        self._centre: tuple[cKDTree, np.ndarray] | None = None  # see _centre_line
+        self._kinds = [route.verge_at(si) for si in route.s]  # (left, right) verge kinds per station
         self.terrain = self._terrain()
         self.objects = self._roadside_objects() if roadside_objects else []
         self.mesh = Mesh.join([self.terrain, *self.objects])
@@ -204,7 +225,7 @@ class World:
         room_left = np.where(r.curvature > 0, room, np.inf)
         room_right = np.where(r.curvature < 0, room, np.inf)
 
-        kinds = [r.verge_at(si) for si in s]
+        kinds = self._kinds
         cols_lat, cols_h, strip_mat = [], [], []  # per lateral vertex column: offset, height; per strip: material
         # left verge, outermost first
         left = [VERGES[k[0]] for k in kinds]
@@ -232,6 +253,13 @@ class World:
         hgt = np.stack(cols_h, axis=1) + zc[:, None]
         m = lat.shape[1]
         xy = np.stack([r.x, r.y], axis=1)[:, None, :] + lat[..., None] * normal[:, None, :]
+        verge_cols = np.ones(m, dtype=bool)
+        verge_cols[8 : 8 + len(ROAD_FRACTIONS)] = False  # the road's own columns
+        dist, st = self._nearest_on_centre_line(xy.reshape(-1, 2))
+        dist, st = dist.reshape(n, m), st.reshape(n, m)
+        hgt[:, verge_cols] = self._kept_off_the_road(
+            xy[:, verge_cols], lat[:, verge_cols], hgt[:, verge_cols], zc, dist[:, verge_cols], st[:, verge_cols]
+        )
         vertices = np.concatenate([xy, hgt[..., None]], axis=2).reshape(-1, 3)
         idx = np.arange(n * m).reshape(n, m)
         nxt = np.roll(idx, -1, axis=0) if r.closed else idx[1:]
@@ -240,12 +268,106 @@ class World:
         c, d = nxt[:, 1:], nxt[:, :-1]
         tris = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
         mats = np.stack(strip_mat, axis=1)[: len(cur)].reshape(-1)
-        return Mesh(vertices.astype(np.float32), tris.astype(np.uint32), np.concatenate([mats, mats]).astype(np.uint8))
+        mats = np.concatenate([mats, mats])
+        on_verge = np.concatenate([np.tile(verge_cols[:-1] | verge_cols[1:], len(cur))] * 2)
+        keep = np.ones(len(tris), dtype=bool)
+        gap = (dist - r.width[np.minimum(st, n - 1)] / 2.0).reshape(-1)  # inf where far from the road
+        # a straight chord along a smooth edge stays off the road (by its sagitta, millimetres): only
+        # where the route folds back near itself or turns sharply between two stations (a fan of
+        # long triangles) can one cut across it
+        nearer = (dist < np.abs(lat) - NEARER_TOL_M).reshape(-1)
+        turning = np.abs(np.diff(np.append(heading, heading[0]) if r.closed else heading)) > FAN_TURN_RAD
+        fan = np.concatenate([np.repeat(turning[: len(cur)], m - 1)] * 2)
+        suspect = on_verge & (fan | nearer[tris].any(axis=1))
+        keep[suspect] = ~self._over_the_road(vertices, tris[suspect], gap)
+        return Mesh(vertices.astype(np.float32), tris[keep].astype(np.uint32), mats[keep].astype(np.uint8))
+
+    def _over_the_road(self, vertices: np.ndarray, tris: np.ndarray, gap: np.ndarray) -> np.ndarray:
+        """Which verge triangles reach over a stretch's road above its surface: a triangle whose
+        corners all lie beyond the road can still cut across the inner corner of a sharp turn.
+        Only a triangle larger than its corners' clearance (`gap`, per vertex) can; those are
+        sampled."""
+        r = self.route
+        corners = vertices[tris]  # (k, 3, 3)
+        size = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+        out = np.zeros(len(tris), dtype=bool)
+        maybe = np.nonzero(gap[tris].min(axis=1) < size)[0]
+        if len(maybe) == 0:
+            return out
+        w = np.array([(a, b, 4 - a - b) for a in range(5) for b in range(5 - a)], dtype=float) / 4.0
+        samples = np.einsum("sw,kwc->ksc", w, corners[maybe])  # (k, 15, 3)
+        dist, st = self._nearest_on_centre_line(samples[..., :2].reshape(-1, 2))
+        st = np.minimum(st, len(r.s) - 1)
+        surface = self.centre_height(r.s[st]) - CROSSFALL * dist
+        inside = dist < r.width[st] / 2.0 - NEARER_TOL_M
+        above = samples[..., 2].reshape(-1) > surface + NEARER_TOL_M
+        out[maybe] = (inside & above).reshape(len(maybe), -1).any(axis=1)
+        return out
+
+    def _centre_line(self) -> tuple[cKDTree, np.ndarray]:
+        """The whole centre line, densified, as a KD-tree, and each dense point's station."""
+        if self._centre is None:
+            r = self.route
+            xy = np.stack([r.x, r.y], axis=1)
+            nxt = np.roll(xy, -1, axis=0) if r.closed else xy[1:]
+            cur = xy if r.closed else xy[:-1]
+            steps = np.maximum(np.ceil(np.hypot(*(nxt - cur).T) / CENTRE_STEP_M).astype(int), 1)
+            seg = np.repeat(np.arange(len(cur)), steps)
+            frac = np.arange(len(seg)) - np.repeat(np.cumsum(steps) - steps, steps)
+            f = (frac / steps[seg])[:, None]
+            dense = cur[seg] + f * (nxt[seg] - cur[seg])
+            station = np.where(f[:, 0] < 0.5, seg, (seg + 1) % len(xy))
+            if not r.closed:
+                dense, station = np.vstack([dense, xy[-1:]]), np.append(station, len(xy) - 1)
+            self._centre = (cKDTree(dense), station)
+        return self._centre
+
+    def _nearest_on_centre_line(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance of points (k, 2) to the whole centre line and the nearest station; inf (and
+        station len(route)) beyond NEAR_REACH_M of every stretch's edge, which nothing here asks about."""
+        tree, station = self._centre_line()
+        reach = float(self.route.width.max()) / 2.0 + NEAR_REACH_M
+        dist, j = tree.query(points, distance_upper_bound=reach)
+        return dist, np.append(station, len(self.route.s))[j]
+
+    def _kept_off_the_road(
+        self, xy: np.ndarray, lat: np.ndarray, hgt: np.ndarray, zc: np.ndarray, dist: np.ndarray, st: np.ndarray
+    ) -> np.ndarray:
+        """Verge heights (n, k) at points xy (n, k, 2), `dist` from the centre line, nearest to
+        stations `st`: lowered where a point lies nearer to the route than its own lateral offset,
+        to the road's surface within the nearest stretch's half-width, to that stretch's verge
+        profile beyond its edge (never raised)."""
+        r = self.route
+        dist, st = dist.reshape(-1), st.reshape(-1)
+        own = np.abs(lat).reshape(-1)
+        nearer = dist < own - NEARER_TOL_M
+        if not nearer.any():
+            return hgt
+        pts, dist, st = xy.reshape(-1, 2)[nearer], dist[nearer], st[nearer]
+        half = r.width[st] / 2.0
+        heading = r.yaw[st]
+        left = np.cos(heading) * (pts[:, 1] - r.y[st]) - np.sin(heading) * (pts[:, 0] - r.x[st]) > 0
+        beyond = dist - half
+        edge = zc[st] - CROSSFALL * half
+        there = zc[st] - CROSSFALL * np.minimum(dist, half)  # on that stretch's road
+        kind_there = np.array([self._kinds[i][0 if lf else 1] for i, lf in zip(st, left)])
+        for kind in VERGES:
+            out = (kind_there == kind) & (beyond > 0)
+            there[out] = edge[out] + _profile_heights(kind, beyond[out])
+        out = hgt.reshape(-1).copy()
+        out[nearer] = np.minimum(out[nearer], there)
+        return out.reshape(hgt.shape)
 
     # ---- trees and poles ---------------------------------------------------------------------
+    def clearance(self, points: np.ndarray) -> np.ndarray:
+        """How far points (k, 2) are from the route's road: their distance to the nearest point
+        of the whole centre line less that stretch's half-width (negative: on the road)."""
+        tree, station = self._centre_line()
+        dist, j = tree.query(np.asarray(points, dtype=float).reshape(-1, 2))
+        return dist - self.route.width[station[j]] / 2.0
+
     def _roadside_objects(self, spacing_m: float = 12.0) -> list[Mesh]:
         r = self.route
-        tree = cKDTree(np.stack([r.x, r.y], axis=1))
         out: list[Mesh] = []
         for s0 in np.arange(spacing_m / 2, r.length, spacing_m):
             for side, sign in ((0, 1.0), (1, -1.0)):
@@ -256,15 +378,18 @@ class World:
                 half = float(r.width[r.index_at(s0)]) / 2
                 d = self.rng.uniform(2.5, 7.0)
                 px, py = x - sign * math.sin(yaw) * (half + d), y + sign * math.cos(yaw) * (half + d)
-                near, _ = tree.query([px, py])
-                if near < half + 2.0:  # on or by another stretch of road (the crossing, a hairpin)
+                gap = float(self.clearance(np.array([px, py]))[0])
+                if gap < OBJECT_ROAD_GAP_M:  # on or by another stretch of road (a crossing, a sharp corner)
                     continue
                 base = float(self.centre_height(s0)) - CROSSFALL * half + _profile_height(kind, d) - 0.05
                 if self.rng.random() < 0.7:
                     trunk = self.rng.uniform(0.12, 0.3)
                     top = self.rng.uniform(2.5, 4.0)
+                    crown = self.rng.uniform(1.2, 2.2)
+                    if gap - crown < CROWN_ROAD_GAP_M:  # its crown would hang over a stretch's road
+                        continue
                     out.append(cylinder_mesh((px, py, base), trunk, top + 0.05, "bark"))
-                    out.append(sphere_mesh((px, py, base + top + 1.0), self.rng.uniform(1.2, 2.2), "foliage"))
+                    out.append(sphere_mesh((px, py, base + top + 1.0), crown, "foliage"))
                 else:
                     out.append(cylinder_mesh((px, py, base), 0.08, self.rng.uniform(4.0, 6.0), "metal", resolution=8))
         return out
@@ -283,7 +408,12 @@ class World:
 
 
 def _profile_height(kind: str, d: float) -> float:
+    return float(_profile_heights(kind, np.array([d]))[0])
+
+
+def _profile_heights(kind: str, d: np.ndarray) -> np.ndarray:
+    """The verge's height above the road's edge at distances d beyond it (its mean profile)."""
     points = VERGES[kind]
     ds = [0.0] + [p[0] for p in points]
     hs = [0.0] + [p[1] for p in points]
-    return float(np.interp(d, ds, hs))
+    return np.interp(d, ds, hs)

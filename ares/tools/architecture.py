@@ -38,8 +38,8 @@ LAYERS = (
     Layer(("ares.tools",), "tools: benches, harnesses, evaluations, figures", "import the application and below"),
     Layer(("ares.app",), "the application: process table, supervisor, stack runner", "imports nodes and core"),
     Layer(
-        ("perception", "control", "managers", "blackbox", "ares.sim"),
-        "nodes: one process each, talking over the bus",
+        ("perception", "control", "managers", "blackbox", "drivers", "ares.sim"),
+        "nodes: one process each, talking over the bus (drivers: the devices' wire formats)",
         "import core only, never each other",
     ),
     Layer(("ares.core",), "core: bus, messages, topics, node base, clock, configuration", "imports nothing above"),

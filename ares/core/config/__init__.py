@@ -11,6 +11,7 @@ defaults: no YAML file of defaults, no `dict.get(key, default)` in code.
                   frame's origin) and the run's whole configuration: build, current, core, section
     vehicle.py    vehicle profiles (vehicles/*.yaml), their actuators, gains and LiDARs
     tour.py       tours (tours/*.yaml): corners, widths, verges, POIs, zones
+    vehicle_io.py the vehicle's devices that the drivers read (GNSS, Velodyne LiDARs, CAN)
     scenario.py   scenarios (scenarios/*.yaml): obstacles, faults, passengers, operator actions
 
 A user's run configuration is a YAML file of overrides (`ares run --config FILE`). Each file is
@@ -94,8 +95,13 @@ from ares.core.config.vehicle import (
     VehicleProfile,
     load_vehicle,
 )
+from ares.core.config.vehicle_io import CanDevice, GnssDevice, VehicleIo, VelodyneDevice
 
 __all__ = [
+    "CanDevice",
+    "GnssDevice",
+    "VehicleIo",
+    "VelodyneDevice",
     "model_in",
     "CONFIG_DIR",
     "ConfigError",

@@ -39,6 +39,7 @@ from ares.core.config.base import (
     validated,
 )
 from ares.core.config.vehicle import VehicleProfile, load_vehicle
+from ares.core.config.vehicle_io import VehicleIo
 
 RUN_CONFIG_ENV = "ARES_RUN_CONFIG"
 VEHICLE_ID_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"  # one key segment of ares/<vehicle_id>/...
@@ -171,6 +172,12 @@ class CoreConfig(Params):
         None, "simulated obstacles and faults: a name in ares/core/config/scenarios/ or a YAML file"
     )
     simulate: bool = param(True, "run the simulated shuttle (the `sim` process) with the stack")
+    wire: bool = param(
+        False,
+        "simulation behind the wire formats (`ares run --wire`): the simulator writes NMEA, Velodyne "
+        "packets and CAN frames to `vehicle_io`'s devices and the drivers read them",
+    )
+    vehicle_io: VehicleIo = param(doc="the vehicle's devices, read by the drivers", factory=VehicleIo)
     lidars: bool = param(
         True,
         "run the LiDARs and LiDAR perception (off: the stack drives on GNSS and odometry "

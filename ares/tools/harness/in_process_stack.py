@@ -47,7 +47,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from ares.app.processes import Process, for_run
+from ares.app.processes import Process, for_config
 from ares.app.stack import RunFailed, prepare
 from ares.app.supervisor import STATE_PERIOD_S, SupervisorSettings
 from ares.core import config
@@ -99,7 +99,7 @@ class InProcessStack:
         self._environ = {key: os.environ.get(key) for key in (config.RUN_CONFIG_ENV, INCARNATION_ENV)}
         os.environ[config.RUN_CONFIG_ENV] = str(config.write_run_config(cfg, self.run_dir / "config.json"))
         try:
-            for spec in for_run(cfg["simulate"], cfg["lidars"]):
+            for spec in for_config(cfg):
                 if spec.name in exclude or not spec.node_class().steps:
                     continue
                 self.hosted[spec.name] = hosted = Hosted(spec)

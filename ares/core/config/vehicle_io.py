@@ -1,0 +1,74 @@
+"""The vehicle's devices (`vehicle_io`): where each driver reads its device and how.
+
+On a shuttle this section describes the real devices (`ares run --vehicle-io FILE`, a YAML file of
+this section: serial ports, UDP ports, the CAN channel and its DBC); with `ares run --wire` it is
+filled in by `ares run` with the simulator's own wires (a pseudo-terminal, loopback UDP ports, a
+python-can `udp_multicast` group), so the simulator writes exactly where the drivers read. A
+device left out has no driver: `simulate: false` then refuses to start while a running node
+needs what that device would publish.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import model_validator
+
+from ares.core.config.base import Params, param
+
+
+class GnssDevice(Params):
+    """The GNSS receiver: NMEA 0183 (UBX frames on the same stream are skipped and counted)."""
+
+    source: Literal["serial", "tcp", "gpsd"] = param(
+        doc="serial: a serial port or pseudo-terminal; tcp: a receiver's NMEA server; gpsd: a gpsd "
+        "daemon's JSON protocol (WATCH with raw NMEA)"
+    )
+    device: str | None = param(None, "serial: the port (/dev/ttyACM0, a pty); gpsd: the receiver it serves (all: null)")
+    baud: int = param(115200, "serial: line speed", unit="bit/s", gt=0)
+    host: str = param("127.0.0.1", "tcp and gpsd: the server's address")
+    port: int | None = param(None, "tcp: the receiver's NMEA port; gpsd: its port (null: 2947)", gt=0, lt=65536)
+    silent_after_s: float = param(
+        1.0, "no byte for this long (wall): the device counts as silent, and is reopened", unit="s", gt=0
+    )
+
+    @model_validator(mode="after")
+    def _where(self) -> GnssDevice:
+        if self.source == "serial" and not self.device:
+            raise ValueError("a serial GNSS receiver needs its `device` (a serial port such as /dev/ttyACM0)")
+        if self.source == "tcp" and self.port is None:
+            raise ValueError("a TCP GNSS receiver needs its `port`")
+        return self
+
+
+class VelodyneDevice(Params):
+    """One Velodyne LiDAR sending its UDP data packets to this computer."""
+
+    model: Literal["VLP-16", "HDL-64E"] = param(doc="the sensor's model (its packet layout and default calibration)")
+    address: str = param("0.0.0.0", "the address the data packets are received on")
+    port: int = param(2368, "the data packets' UDP port (Velodyne's default: 2368)", gt=0, lt=65536)
+    calibration: str | None = param(
+        None,
+        "the unit's calibration (a ROS velodyne_pointcloud YAML file); null: the model's default "
+        "calibration shipped with ARES (ares/core/wire/calibrations)",
+    )
+    rate_hz: float = param(10.0, "rotations per second the sensor is set to", unit="Hz", gt=0)
+
+
+class CanDevice(Params):
+    """The drive-by-wire board's and the body's CAN bus, through python-can."""
+
+    interface: str = param("socketcan", "python-can interface: socketcan on a vehicle; udp_multicast in simulation")
+    channel: str = param("can0", "python-can channel: can0 (socketcan), a multicast group (udp_multicast)")
+    port: int | None = param(None, "udp_multicast: the group's UDP port (null: python-can's default)", gt=0, lt=65536)
+    dbc: str | None = param(None, "the frames' DBC file; null: the project's (ares/core/wire/ares.dbc)")
+
+
+class VehicleIo(Params):
+    """The vehicle's devices, read by the drivers (`ares run --vehicle-io FILE`)."""
+
+    gnss: GnssDevice | None = param(None, "the GNSS receiver (null: none)")
+    lidars: dict[str, VelodyneDevice] = param(
+        doc="each LiDAR by its name on the vehicle (roof, front_left, front_right)", factory=dict
+    )
+    can: CanDevice | None = param(None, "the CAN bus of the drive-by-wire board and the body (null: none)")

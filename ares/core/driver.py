@@ -1,0 +1,127 @@
+"""What every device driver shares: its counts, its status on the bus, and one log line per cause.
+
+A driver (the `drivers` package) reads a device's wire format and publishes the topics the
+simulator publishes in simulation. Bad input on a wire (a corrupt packet, a wrong checksum, a frame
+with an unknown id, a truncated rotation) is counted by cause and logged the first time each cause
+occurs, then every `LOG_EVERY`-th time: a noisy device neither floods the log nor stops the driver.
+Once a second (stack time) each device's counts go out on `drivers/status`, with the latency from
+the wire to the bus (wall seconds: from the kernel's receive time, or the read's, to the put).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter, deque
+from typing import ClassVar, cast
+
+import numpy as np
+
+from ares.core.bus import Publisher
+from ares.core.messages import DriverStatus
+from ares.core.node import Node, Output
+from ares.core.schema import Msg
+
+LOG_EVERY = 1000
+LATENCY_WINDOW = 4096  # the latest latencies the percentiles are taken over
+
+
+class WireCounters:
+    """One device's counts: received, published, lost, malformed and skipped by cause, latencies."""
+
+    def __init__(self, device: str, log: logging.Logger):
+        self.device = device
+        self.log = log
+        self.received = 0
+        self.published = 0
+        self.lost = 0
+        self.malformed: Counter[str] = Counter()
+        self.skipped: Counter[str] = Counter()
+        self.latencies_s: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self.all_latencies_s: list[float] = []  # every one, for a run's final figures
+        self.connected = False
+        self.detail = ""
+        self._problems: Counter[str] = Counter()
+
+    def got(self, n: int = 1) -> None:
+        self.received += n
+
+    def put(self, read_wall: float | None = None, n: int = 1) -> None:
+        """`n` messages published; `read_wall` the wall time (time.time()) their bytes arrived."""
+        self.published += n
+        if read_wall is not None:
+            latency = max(time.time() - read_wall, 0.0)
+            self.latencies_s.append(latency)
+            self.all_latencies_s.append(latency)
+
+    def missing(self, n: int, why: str) -> None:
+        if n <= 0:
+            return
+        self.lost += n
+        self.problem(f"lost: {why}", f"{n} missing")
+
+    def refuse(self, cause: str, detail: str = "") -> None:
+        """A malformed packet, frame or line: counted under `cause`, logged once per cause."""
+        self.malformed[cause] += 1
+        n = self.malformed[cause]
+        if n == 1 or n % LOG_EVERY == 0:
+            self.log.warning("%s: refused (%s, %d so far)%s", self.device, cause, n, f": {detail}" if detail else "")
+
+    def skip(self, cause: str, n: int = 1) -> None:
+        self.skipped[cause] += n
+
+    def problem(self, cause: str, detail: str = "") -> None:
+        """A device-level problem (gone, silent, reopened): logged once per cause, then every LOG_EVERY-th."""
+        self._problems[cause] += 1
+        n = self._problems[cause]
+        if n == 1 or n % LOG_EVERY == 0:
+            self.log.warning("%s: %s (%d so far)%s", self.device, cause, n, f": {detail}" if detail else "")
+
+    def percentile_ms(self, q: float, every: bool = False) -> float | None:
+        values = self.all_latencies_s if every else self.latencies_s
+        if not values:
+            return None
+        return round(float(np.percentile(np.fromiter(values, dtype=float), q)) * 1e3, 3)
+
+    def status(self, t: float, driver: str) -> DriverStatus:
+        return DriverStatus(
+            t=t,
+            driver=driver,
+            device=self.device,
+            connected=self.connected,
+            received=self.received,
+            published=self.published,
+            lost=self.lost,
+            malformed=dict(self.malformed),
+            skipped=dict(self.skipped),
+            latency_p50_ms=self.percentile_ms(50),
+            latency_p99_ms=self.percentile_ms(99),
+            detail=self.detail,
+        )
+
+
+class DriverNode(Node):
+    """Base of the device drivers: `self.wires` holds each device's counters, published on
+    drivers/status every `status_period_s` of stack time."""
+
+    status_period_s: ClassVar[float] = 1.0
+    driver_status = Output("drivers/status", rate=1.0, doc="each device's counts: in, out, lost, malformed, latency")
+
+    def __init__(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+        super().__init__(*args, **kwargs)
+        self.wires: dict[str, WireCounters] = {}
+        self._status_due = -float("inf")
+
+    def wire(self, device: str) -> WireCounters:
+        if device not in self.wires:
+            self.wires[device] = WireCounters(device, self.log)
+        return self.wires[device]
+
+    def report(self, now: float, force: bool = False) -> None:
+        """Each device's status, once per status period (call at the end of step)."""
+        if not force and now < self._status_due:
+            return
+        self._status_due = now + self.status_period_s
+        out = cast(Publisher[Msg], self.driver_status)
+        for counters in self.wires.values():
+            out.put(counters.status(now, self.name))

@@ -1,0 +1,186 @@
+"""GNSS driver: the receiver's NMEA from a serial port, a TCP stream or gpsd, onto sensors/gnss.
+
+The receiver (core section `vehicle_io.gnss`) is read without blocking at `rate_hz`: a serial
+port or pseudo-terminal through pyserial, a receiver's NMEA server over TCP, or gpsd's NMEA
+pass-through (ares.core.wire.gpsd). The bytes are framed into sentences (ares.core.wire.nmea_stream:
+UBX frames skipped, binary garbage, over-long lines and non-ASCII bytes refused by cause) and
+grouped by receiver epoch: one GnssSentences message per epoch (a GGA and its GST together), as
+the simulator publishes them, so the gnss node (perception.gnss_node) reads either the same way.
+The fields are not parsed here beyond the time of day: a bad checksum or a nonsensical field is
+the gnss node's to refuse.
+
+Each message is stamped with the epoch's time of day mapped to stack time (the drivers' stamp
+rule, nmea_stream.stamp). A receiver absent, gone (a read error, the connection closed) or silent
+for `silent_after_s` is closed and reopened every `reopen_s`, each cause logged once.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Protocol
+
+import serial
+
+from ares.core.config import GnssDevice, Params, param
+from ares.core.driver import DriverNode
+from ares.core.messages import GnssSentences
+from ares.core.node import Output
+from ares.core.wire.gpsd import GPSD_PORT, GpsdClient, TcpStream
+from ares.core.wire.nmea_stream import MAX_LINE, Epoch, EpochGroups, NmeaStream, stamp
+
+DEVICE = "gnss"
+
+
+class GnssDriverParams(Params):
+    rate_hz: float = param(50.0, "loop rate: each loop reads what the receiver has sent", unit="Hz", gt=0)
+    reopen_s: float = param(0.5, "an absent, gone or silent receiver is reopened this often (wall)", unit="s", gt=0)
+    epoch_hold_s: float = param(
+        0.05,
+        "an epoch's sentences are published this long (wall) after its last one, unless the next "
+        "epoch's first sentence, or a drained port with its GGA and GST, says so sooner",
+        unit="s",
+        ge=0,
+    )
+    max_line: int = param(MAX_LINE, "longer lines are refused (NMEA's limit is 82 characters)", unit="B", gt=10)
+
+
+class _Port(Protocol):
+    def read(self) -> bytes: ...
+    def close(self) -> None: ...
+
+
+class _SerialPort:
+    """A serial port or pseudo-terminal, read without waiting."""
+
+    def __init__(self, device: str, baud: int):
+        self.port = serial.Serial(device, baud, timeout=0)
+        self.port.reset_input_buffer()  # what waited in the port before we opened it is stale
+        self.device = device
+        self.path = os.path.realpath(device)
+
+    def read(self) -> bytes:
+        chunks: list[bytes] = []
+        while True:
+            data = self.port.read(65536)  # timeout=0: what is there, at once
+            if not data:
+                break
+            chunks.append(data)
+        if not chunks and os.path.realpath(self.device) != self.path:
+            raise serial.SerialException(f"{self.device} now leads to another device")
+        return b"".join(chunks)
+
+    def close(self) -> None:
+        self.port.close()
+
+
+class GnssDriver(DriverNode):
+    """The GNSS receiver's NMEA (serial, TCP or gpsd) -> sensors/gnss, one message per epoch."""
+
+    name = "gnss_driver"
+    Params = GnssDriverParams
+    wire_inputs = ("wire/gnss",)
+    sentences = Output("sensors/gnss", doc="the NMEA sentences of each receiver epoch, stamped with its time")
+
+    def setup(self) -> None:
+        gnss = self.core.vehicle_io.gnss
+        if gnss is None:
+            raise RuntimeError("gnss_driver: vehicle_io.gnss is not set: there is no receiver to read")
+        self.device: GnssDevice = gnss
+        self.wire_counts = self.wire(DEVICE)
+        self.stream = NmeaStream(max_line=self.params.max_line, on_refuse=self.wire_counts.refuse)
+        self.epochs = EpochGroups(self.params.epoch_hold_s)
+        self.port: _Port | None = None
+        self._gpsd: GpsdClient | None = None
+        self._next_open = 0.0  # monotonic
+        self._last_byte = 0.0  # monotonic
+        self._ubx_seen = 0
+        self.wire_counts.detail = self._where()
+
+    def _where(self) -> str:
+        d = self.device
+        if d.source == "serial":
+            return f"serial {d.device} at {d.baud} bit/s"
+        port = d.port or GPSD_PORT
+        return f"{d.source} {d.host}:{port}" + (f" ({d.device})" if d.source == "gpsd" and d.device else "")
+
+    def teardown(self) -> None:
+        self._close()
+
+    # ---- the device ------------------------------------------------------------------------------
+    def _open(self) -> None:
+        d = self.device
+        self._next_open = time.monotonic() + self.params.reopen_s
+        try:
+            if d.source == "serial":
+                assert d.device is not None  # GnssDevice requires it for a serial source
+                self.port = _SerialPort(d.device, d.baud)
+            elif d.source == "tcp":
+                assert d.port is not None  # GnssDevice requires it for a TCP source
+                self.port = TcpStream(d.host, d.port)
+            else:
+                self._gpsd = GpsdClient(d.host, d.port or GPSD_PORT, d.device, on_refuse=self.wire_counts.refuse)
+                self.port = self._gpsd
+        except (OSError, serial.SerialException) as exc:
+            absent = isinstance(exc, FileNotFoundError) or "No such file" in str(exc)
+            self.wire_counts.problem("absent" if absent else "cannot open", f"{self._where()}: {exc}")
+            return
+        self.stream = NmeaStream(max_line=self.params.max_line, on_refuse=self.wire_counts.refuse)
+        self._ubx_seen = 0
+        self._last_byte = time.monotonic()
+        self.log.info("reading the GNSS receiver: %s", self._where())
+
+    def _close(self, cause: str | None = None, detail: str = "") -> None:
+        if cause is not None:
+            self.wire_counts.problem(cause, f"{self._where()}: {detail}" if detail else self._where())
+        if self.port is not None:
+            try:
+                self.port.close()
+            except (OSError, serial.SerialException):
+                pass
+        self.port = None
+        self._gpsd = None
+        self.wire_counts.connected = False
+        self._next_open = time.monotonic() + self.params.reopen_s
+
+    # ---- the loop ----------------------------------------------------------------------------------
+    def step(self, now: float) -> None:
+        if self.port is None and time.monotonic() >= self._next_open:
+            self._open()
+        if self.port is not None:
+            self._read(now)
+        epoch = self.epochs.due(time.time(), drained=True)
+        if epoch is not None:
+            self._publish(epoch, now)
+        self.report(now)
+
+    def _read(self, now: float) -> None:
+        assert self.port is not None
+        try:
+            data = self.port.read()
+        except (OSError, serial.SerialException) as exc:
+            self._close("gone", str(exc))
+            return
+        read_wall = time.time()
+        if not data:
+            if time.monotonic() - self._last_byte > self.device.silent_after_s:
+                self._close("silent", f"no byte for {self.device.silent_after_s:g} s")
+            return
+        self._last_byte = time.monotonic()
+        self.wire_counts.connected = True
+        if self._gpsd is not None:
+            self.wire_counts.detail = self._gpsd.detail
+        lines = self.stream.feed(data, read_wall)
+        self.wire_counts.got(len(lines))
+        if self.stream.ubx_frames > self._ubx_seen:
+            self.wire_counts.skip("ubx", self.stream.ubx_frames - self._ubx_seen)
+            self._ubx_seen = self.stream.ubx_frames
+        for line, wall in lines:
+            done = self.epochs.add(line, wall)
+            if done is not None:
+                self._publish(done, now)
+
+    def _publish(self, epoch: Epoch, now: float) -> None:
+        t = stamp(now, self.clock.utc_epoch, epoch.tod)
+        self.sentences.put(GnssSentences(t=t, sentences=epoch.lines))
+        self.wire_counts.put(epoch.read_wall)

@@ -1,0 +1,231 @@
+"""The Velodyne LiDAR driver: UDP data packets in, one PointCloud per rotation out.
+
+Each LiDAR of `vehicle_io.lidars` sends its data packets to a UDP port of this computer; the
+driver binds one socket per sensor (an 8 MiB receive buffer: an HDL-64E sends 3.5 MB/s, and a
+step of the stack must not lose a burst), drains it without blocking every step, cuts the
+packets into rotations and decodes them (ares/core/wire/velodyne.py), and publishes each
+finished rotation on `lidar/<name>/points` as the simulator does. A rotation is stamped with its
+first packet's timestamp (µs past the UTC hour) by the stamp rule, so it carries the time the
+sensor fired, not the time it arrived. Truncated rotations (start-up, a stalled stream) are
+counted and not published. The latency is from the kernel's receive time of a rotation's last
+packet (SO_TIMESTAMPNS) to the put.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+import time
+
+from ares.core.config import Params, param
+from ares.core.config.vehicle_io import VelodyneDevice
+from ares.core.driver import DriverNode
+from ares.core.messages import PointCloud
+from ares.core.node import Output
+from ares.core.wire.velodyne import HOUR_US, Rotation, RotationAssembler, load_calibration
+
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux; Python names it only on some builds
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
+RECEIVE_BUFFER = 8 * 1024 * 1024
+_TIMESPEC = struct.Struct("@qq")
+HOUR_S = HOUR_US / 1e6
+NAMES = ("roof", "front_left", "front_right")
+
+
+class VelodyneDriverParams(Params):
+    """The Velodyne driver (drivers/velodyne_node.py)."""
+
+    rate_hz: float = param(50.0, "steps per second: each drains the sockets", unit="Hz", gt=0)
+    reopen_s: float = param(
+        0.5, "a socket that cannot be bound, or a silent sensor, is reopened this often", unit="s", gt=0
+    )
+    silent_after_s: float = param(1.0, "no packet for this long (wall): the sensor counts as silent", unit="s", gt=0)
+    truncated_below_deg: float = param(
+        300.0,
+        "a rotation covering less azimuth than this is truncated: counted, not published",
+        unit="deg",
+        gt=0,
+        le=360,
+    )
+    rate_tolerance: float = param(
+        0.1, "a measured rotation rate further than this share from the configured one is reported", gt=0
+    )
+    max_packets_per_step: int = param(20000, "at most this many packets read per sensor and step", ge=1)
+
+
+def stack_time(now: float, utc_epoch: float, device_s: float, period_s: float = HOUR_S) -> float:
+    """The stamp rule: the stack time of a device's time of day (mod `period_s`), the latest
+    such time not after `now`; `now` when that is over 2 s back (the device's clock is off)."""
+    tod_now = (utc_epoch + now) % period_s
+    t = now - ((tod_now - device_s) % period_s)
+    return t if now - t <= 2.0 else now
+
+
+class _Sensor:
+    def __init__(self, name: str, device: VelodyneDevice, params: VelodyneDriverParams):
+        self.name = name
+        self.device = device
+        self.assembler = RotationAssembler(
+            load_calibration(device.model, device.calibration), device.rate_hz, params.truncated_below_deg
+        )
+        self.sock: socket.socket | None = None
+        self.retry_at = 0.0  # wall
+        self.last_packet_wall = 0.0
+        self.opened_wall = 0.0
+        self.silent = False
+
+
+class VelodyneDriver(DriverNode):
+    """Reads the Velodyne LiDARs' UDP data packets and publishes a point cloud per rotation."""
+
+    name = "lidar_driver"
+    Params = VelodyneDriverParams
+    wire_inputs = ("wire/lidar",)
+    # a rotation goes out when it is complete: at the sensor's rate, not the loop's
+    roof = Output("lidar/roof/points", doc="the roof LiDAR's rotations")
+    front_left = Output("lidar/front_left/points", doc="the front-left LiDAR's rotations")
+    front_right = Output("lidar/front_right/points", doc="the front-right LiDAR's rotations")
+
+    def setup(self) -> None:
+        self.sensors: dict[str, _Sensor] = {}
+        self.outputs_by_sensor = {"roof": self.roof, "front_left": self.front_left, "front_right": self.front_right}
+        for name, device in self.core.vehicle_io.lidars.items():
+            if name not in NAMES:
+                self.log.warning("vehicle_io lidar %r: not one of %s, not read", name, ", ".join(NAMES))
+                continue
+            self.sensors[name] = _Sensor(name, device, self.params)
+            self.wire(f"lidar/{name}")
+        if not self.sensors:
+            self.log.warning("vehicle_io has no lidars: nothing to read")
+
+    def teardown(self) -> None:
+        for sensor in self.sensors.values():
+            self._close(sensor)
+
+    # ---- sockets -------------------------------------------------------------------------------
+    def _open(self, sensor: _Sensor, wall: float) -> None:
+        counters = self.wire(f"lidar/{sensor.name}")
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:  # beyond net.core.rmem_max when privileged
+                sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RECEIVE_BUFFER)
+            except OSError:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
+            sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+            sock.bind((sensor.device.address, sensor.device.port))
+            sock.setblocking(False)
+        except OSError as exc:
+            sock.close()
+            counters.connected = False
+            counters.problem("cannot open", f"{sensor.device.address}:{sensor.device.port}: {exc.strerror or exc}")
+            sensor.retry_at = wall + self.params.reopen_s
+            return
+        sensor.sock = sock
+        sensor.opened_wall = wall
+        sensor.silent = False
+        self.log.info(
+            "%s: %s on udp %s:%d (calibration %s)",
+            sensor.name,
+            sensor.device.model,
+            sensor.device.address,
+            sensor.device.port,
+            sensor.assembler.calibration.path,
+        )
+
+    def _close(self, sensor: _Sensor) -> None:
+        if sensor.sock is not None:
+            sensor.sock.close()
+            sensor.sock = None
+
+    def _drain(self, sensor: _Sensor) -> list[Rotation]:
+        """Everything queued on the socket, without blocking: the rotations it finishes."""
+        assert sensor.sock is not None
+        done: list[Rotation] = []
+        cmsg_space = socket.CMSG_SPACE(_TIMESPEC.size)
+        for _ in range(self.params.max_packets_per_step):
+            try:
+                data, ancillary, _flags, _addr = sensor.sock.recvmsg(2048, cmsg_space)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as exc:  # the interface went away: reopen
+                self.wire(f"lidar/{sensor.name}").problem("read failed", str(exc))
+                self._close(sensor)
+                sensor.retry_at = time.time() + self.params.reopen_s
+                break
+            wall = time.time()
+            for level, kind, value in ancillary:
+                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= _TIMESPEC.size:
+                    seconds, nanos = _TIMESPEC.unpack_from(value)
+                    wall = seconds + nanos * 1e-9
+            sensor.last_packet_wall = wall
+            done += sensor.assembler.add(data, wall)
+        return done
+
+    # ---- the step ------------------------------------------------------------------------------
+    def step(self, now: float) -> None:
+        wall = time.time()
+        for sensor in self.sensors.values():
+            counters = self.wire(f"lidar/{sensor.name}")
+            if sensor.sock is None:
+                if wall >= sensor.retry_at:
+                    self._open(sensor, wall)
+                if sensor.sock is None:
+                    continue
+            asm = sensor.assembler
+            before = asm.packets, asm.lost
+            rotations = self._drain(sensor)
+            counters.got(asm.packets - before[0])
+            counters.missing(asm.lost - before[1], "gaps in the packets' timestamps or azimuths")
+            for cause, detail in asm.refused:
+                counters.refuse(cause, detail)
+            asm.refused.clear()
+            for rotation in rotations:
+                self._publish(sensor, rotation, now)
+            self._watch(sensor, counters, wall)
+        self.report(now)
+
+    def _publish(self, sensor: _Sensor, rotation: Rotation, now: float) -> None:
+        counters = self.wire(f"lidar/{sensor.name}")
+        if rotation.truncated:
+            counters.skip("truncated rotation")
+            return
+        points = rotation.points
+        self.outputs_by_sensor[sensor.name].put(
+            PointCloud(
+                t=stack_time(now, self.clock.utc_epoch, rotation.timestamp_us / 1e6),
+                sensor=sensor.name,
+                frame=f"lidar/{sensor.name}",
+                x=points.x,
+                y=points.y,
+                z=points.z,
+                intensity=points.intensity,
+                ring=points.ring,
+            )
+        )
+        counters.put(rotation.last_wall)
+        configured = sensor.device.rate_hz
+        if (
+            rotation.rate_hz is not None
+            and abs(rotation.rate_hz - configured) > self.params.rate_tolerance * configured
+        ):
+            counters.problem("rotation rate", f"{rotation.rate_hz:.2f} Hz measured, {configured:g} Hz configured")
+
+    def _watch(self, sensor: _Sensor, counters, wall: float) -> None:
+        asm = sensor.assembler
+        heard = max(sensor.last_packet_wall, sensor.opened_wall)
+        silent = wall - heard > self.params.silent_after_s
+        if silent and not sensor.silent:
+            counters.problem("silent", f"no packet for {self.params.silent_after_s:g} s")
+            for rotation in asm.flush():  # what was under way will not be completed
+                self._publish(sensor, rotation, self.clock.now())
+        sensor.silent = silent
+        counters.connected = sensor.sock is not None and sensor.last_packet_wall >= sensor.opened_wall and not silent
+        if silent and wall - heard > self.params.reopen_s + self.params.silent_after_s:
+            self._close(sensor)  # a fresh socket: an interface that came back, a rebound address
+            sensor.retry_at = wall
+        rate = f"{asm.measured_rate_hz:.2f} Hz" if asm.measured_rate_hz is not None else "no rate yet"
+        counters.detail = (
+            f"{sensor.device.model} port {sensor.device.port}: {asm.rotations} rotations, {asm.truncated} truncated, "
+            f"{rate} (set {sensor.device.rate_hz:g} Hz)"
+        )

@@ -1,0 +1,239 @@
+"""The Velodyne driver node with real UDP on loopback: packets sent by a socket, the node stepped
+with a manual clock on the in-memory bus; the clouds it publishes are the encoded points, stamped
+by the packets' own time; bad packets are counted and do not stop it."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from ares.core.clock import ManualClock
+from ares.core.localhost import free_port
+from ares.core.membus import MemoryNetwork
+from ares.core.wire import velodyne as v
+from drivers.velodyne_node import VelodyneDriver, stack_time
+
+UTC_EPOCH = 1_790_000_000.25  # stack time 0 as calendar time: 0.25 s past a second, mid-hour
+
+
+def sweep_packets(model: str, t: float, mode: str = "strongest") -> tuple[list[bytes], v.Points]:
+    """One rotation of a room-sized scene (a box of walls 4-9 m away, a floor) fired at stack
+    time t, timestamped as the simulator does."""
+    cal = v.load_calibration(model)
+    pattern = v.firing_pattern(cal, 10.0, mode)
+    d = pattern.directions.astype(np.float64)
+    with np.errstate(divide="ignore"):
+        walls = np.minimum(np.abs(np.where(d[..., 0] > 0, 9.0, 4.0) / d[..., 0]), np.abs(5.0 / d[..., 1]))
+        floor = np.where(d[..., 2] < 0, 1.5 / -d[..., 2], np.inf)
+    distance = np.minimum(walls, floor)
+    intensity = np.full(distance.shape, 0.3)
+    first_us = round(((UTC_EPOCH + t) % 3600) * 1e6)
+    packets = v.encode_rotation(cal, pattern, distance, intensity, pattern.timestamps_us(first_us))
+    return packets, v.decode(cal, packets)
+
+
+class DriverOnTheBus:
+    def __init__(self, lidars: dict):
+        self.ports = {name: free_port() for name in lidars}
+        # the sections the driver reads; every other core setting at its default
+        cfg = {
+            "vehicle_io": {
+                "lidars": {
+                    name: {"model": model, "address": "127.0.0.1", "port": self.ports[name]}
+                    for name, model in lidars.items()
+                }
+            },
+            "lidar_driver": {"silent_after_s": 30.0},
+        }
+        self.clock = ManualClock(100.0, utc_epoch=UTC_EPOCH)
+        network = MemoryNetwork()
+        self.node = VelodyneDriver(cfg, clock=self.clock, bus=network.bus("lidar_driver", self.clock))
+        self.node.setup()
+        self.bus = network.bus("test", self.clock)
+        self.clouds = {name: self.bus.subscribe(f"lidar/{name}/points", queue=100) for name in lidars}
+        self.status = self.bus.subscribe("drivers/status", queue=100)
+        self.out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.step()  # binds the sockets
+
+    def send(self, name: str, packets: list[bytes]) -> None:
+        for p in packets:
+            self.out.sendto(p, ("127.0.0.1", self.ports[name]))
+
+    def at(self, t: float) -> None:
+        """The clock to stack time t (a sweep's packets leave after its time)."""
+        self.clock.set(max(t, self.clock.now()))
+
+    def step(self, dt: float = 0.02) -> None:
+        t = round(self.clock.now() + dt, 6)
+        self.clock.set(t)
+        self.node.step_once(t)
+
+    def step_until(self, done, wall_s: float = 3.0) -> None:
+        """Steps until done() (loopback delivery is quick but not instant): never timing-asserted."""
+        deadline = time.monotonic() + wall_s
+        while not done() and time.monotonic() < deadline:
+            self.step()
+            time.sleep(0.001)
+
+    def close(self) -> None:
+        self.out.close()
+        self.node.teardown()
+
+
+@pytest.fixture
+def driver():
+    made = []
+
+    def make(lidars):
+        made.append(DriverOnTheBus(lidars))
+        return made[-1]
+
+    yield make
+    for d in made:
+        d.close()
+
+
+def test_clouds_are_the_encoded_points_stamped_by_the_sensor(driver):
+    d = driver({"roof": "HDL-64E", "front_left": "VLP-16"})
+    got: dict[str, list] = {"roof": [], "front_left": []}
+
+    def collected(n: int):
+        def done() -> bool:
+            for name, sub in d.clouds.items():
+                got[name] += take(sub)
+            return all(len(g) >= n for g in got.values())
+
+        return done
+
+    sent: dict[str, list] = {}
+    for n, t in enumerate((100.1, 100.2), start=1):
+        d.at(t)
+        for name, model in (("roof", "HDL-64E"), ("front_left", "VLP-16")):
+            packets, points = sweep_packets(model, t)
+            sent.setdefault(name, []).append((t, points))
+            d.send(name, packets)
+        d.step_until(collected(n))
+    for name in got:
+        assert len(got[name]) == 2
+        for cloud, (t, points) in zip(got[name], sent[name], strict=True):
+            assert cloud.t == pytest.approx(t, abs=1e-6)  # the first packet's time, not the arrival's
+            assert cloud.sensor == name and cloud.frame == f"lidar/{name}"
+            assert cloud.size == points.size > 10_000
+            assert np.array_equal(cloud.x, points.x) and np.array_equal(cloud.z, points.z)
+            assert np.array_equal(cloud.ring, points.ring)
+            assert np.array_equal(cloud.intensity, points.intensity)
+    counters = d.node.wires["lidar/roof"]
+    assert counters.published == 2 and counters.lost == 0 and not counters.malformed
+    assert counters.received == 2 * v.firing_pattern(v.load_calibration("HDL-64E"), 10.0).packets
+    assert counters.connected
+    assert "10.00 Hz" in counters.detail
+    assert counters.percentile_ms(50) is not None  # from the kernel's receive time
+
+
+def take(sub) -> list:
+    """Every message the subscription queued since the last call."""
+    sub.latch()
+    return [msg for _, msg in sub.drain()]
+
+
+def test_bad_packets_counted_and_the_stream_goes_on(driver):
+    d = driver({"front_right": "VLP-16"})
+    packets, points = sweep_packets("VLP-16", 100.0)
+    good = packets[0]
+    d.send("front_right", [good[:600], b"\x00" * 1206, good[:1204] + b"\x37\x99"])
+    d.send("front_right", packets[:40] + packets[45:])  # 5 lost
+    clouds = []
+    d.step_until(lambda: bool(clouds.extend(take(d.clouds["front_right"])) or clouds))
+    counters = d.node.wires["lidar/front_right"]
+    assert counters.malformed == {"wrong size": 1, "bad block flag": 1, "unknown product": 1}
+    assert counters.lost == 5
+    assert len(clouds) == 1 and clouds[0].size < points.size
+    d.step(1.0)  # the status goes out once a second
+    status = [s for s in take(d.status) if s.device == "lidar/front_right"]
+    assert status and status[-1].malformed["wrong size"] == 1 and status[-1].lost == 5
+
+
+def test_truncated_rotation_not_published(driver):
+    d = driver({"roof": "VLP-16"})
+    first, _ = sweep_packets("VLP-16", 100.0)
+    second, points = sweep_packets("VLP-16", 100.1)
+    d.at(100.1)
+    d.send("roof", first[50:] + second)  # the driver started while the sensor was past 180°
+    clouds = []
+    d.step_until(lambda: bool(clouds.extend(take(d.clouds["roof"])) or clouds))
+    assert len(clouds) == 1 and clouds[0].t == pytest.approx(100.1, abs=1e-6) and clouds[0].size == points.size
+    assert d.node.wires["lidar/roof"].skipped == {"truncated rotation": 1}
+
+
+def test_stamp_rule():
+    epoch = 1_790_000_000.0
+    now = 50.0
+    tod = (epoch + now) % 3600
+    assert stack_time(now, epoch, (tod - 0.3) % 3600) == pytest.approx(49.7)
+    assert stack_time(now, epoch, (tod - 5.0) % 3600) == now  # a clock off by seconds: now
+    # just past the top of the hour, a time of day from just before it
+    epoch_at_hour = 1_789_999_200.0 - 50.0 + 0.1  # (epoch + now) % 3600 == 0.1
+    assert stack_time(now, epoch_at_hour, 3599.9) == pytest.approx(49.8)
+
+
+def test_simulated_sweep_through_the_wire(driver):
+    """A simulated sensor (ares/sim/velodyne_wire.py) in a small scene sends its sweep as packets
+    by UDP; the driver's cloud is the sweep (the ghosts moved to a free slot of their ring)."""
+    from ares.core.config import load_vehicle
+    from ares.core.config.vehicle_io import VelodyneDevice
+    from ares.sim.lidar import LidarSimParams, vehicle_pose
+    from ares.sim.velodyne_wire import WireLidar
+    from ares.sim.wire_lidar_node import WireLidarSimulator
+    from ares.sim.world import Mesh, box_mesh, cylinder_mesh, open3d
+
+    # the simulator's contract: no clouds on the bus, packets on the wire instead
+    assert not {o.topic for o in WireLidarSimulator.outputs()} & {"lidar/roof/points", "lidar/front_left/points"}
+    assert WireLidarSimulator.wire_outputs == ("wire/lidar",)
+
+    d = driver({"front_left": "VLP-16"})
+    shuttle = load_vehicle("ares_shuttle")
+    mesh = Mesh.join(
+        [
+            box_mesh((0.0, 0.0, -1.0), (120.0, 120.0, 1.0), 0.0, "asphalt"),
+            box_mesh((12.0, 3.0, 0.0), (2.0, 2.0, 2.0), 0.3, "metal"),
+            cylinder_mesh((5.0, -4.0, 0.0), 0.4, 3.0, "concrete"),
+        ]
+    )
+    scene = open3d().t.geometry.RaycastingScene()
+    scene.add_triangles(open3d().core.Tensor(mesh.vertices), open3d().core.Tensor(mesh.triangles))
+    device = VelodyneDevice(model="VLP-16", address="127.0.0.1", port=d.ports["front_left"])
+    params = LidarSimParams(azimuth_decimation=2, ghosts_per_sweep=20.0)
+    wired = WireLidar("front_left", shuttle.lidars["front_left"], shuttle, params, np.random.default_rng(3), device)
+    rotation, position = vehicle_pose(0.0, 0.0, 0.0, 0.0, 0.0)
+    sweep = wired.sim.sweep(scene, rotation, position, None, lambda _g, p: mesh.material[p])
+    distance, intensity = wired.slots(sweep)
+    t = 100.3
+    first_us = round(((UTC_EPOCH + t) % 3600) * 1e6)
+    packets = v.encode_rotation(
+        wired.calibration, wired.pattern, distance, intensity, wired.pattern.timestamps_us(first_us)
+    )
+    d.at(t)
+    d.send("front_left", packets)
+    clouds: list = []
+    d.step_until(lambda: bool(clouds.extend(take(d.clouds["front_left"])) or clouds))
+    assert len(clouds) == 1
+    cloud = clouds[0]
+    assert cloud.t == pytest.approx(t, abs=1e-6)
+    assert cloud.size == sweep.size > 1000  # every point, each ghost in a slot of its own
+    # the real points: their slot's ray, their range to 1 mm
+    real = sweep.slot >= 0
+    lasers = wired.pattern.lasers
+    firing = wired.fired[sweep.slot[real] // lasers]
+    laser = sweep.slot[real] % lasers
+    key_sim = firing * lasers + laser
+    points = v.decode(wired.calibration, packets)
+    key_wire = points.firing * lasers + points.laser
+    index = {k: i for i, k in enumerate(key_wire)}
+    at = np.array([index[k] for k in key_sim])
+    assert np.abs(cloud.x[at] - sweep.x[real]).max() < 2e-3
+    assert np.abs(cloud.z[at] - sweep.z[real]).max() < 2e-3
+    assert np.array_equal(cloud.ring[at], sweep.ring[real])
+    assert np.abs(cloud.intensity[at] - sweep.intensity[real]).max() <= 0.5 / 255 + 1e-6
