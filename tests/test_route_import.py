@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -22,9 +23,11 @@ from ares.app import run_config
 from ares.app.route_import import (
     RouteImportError,
     RouteImportSettings,
+    collapse_standstill,
     detect_format,
     drop_standstill,
     import_route,
+    limit_grade,
     project_fixes,
     read_nmea_log,
     resample_even,
@@ -32,6 +35,7 @@ from ares.app.route_import import (
 from ares.core import config
 from ares.core.bus import Bus
 from ares.core.clock import WallClock
+from ares.core.config import load_vehicle
 from ares.core.geodesy import LocalFrame
 from ares.core.localhost import free_port
 from ares.core.messages import GnssSentences
@@ -543,3 +547,105 @@ def test_a_receiver_that_stood_still_is_not_a_route(tmp_path):
     with pytest.raises(RouteImportError, match=r"not a drive: its 150 points stay within [0-9.]+ m") as refused:
         import_route(src, cfg=CFG)
     assert "stood still" in str(refused.value)
+
+
+# ---- logs without RTK: metres of noise, a drifting altitude ----------------------------------------
+
+
+def gga_log(xy: np.ndarray, altitude: np.ndarray, quality: int, hdop: float) -> str:
+    """GGA sentences at 1 Hz of points in the configured frame (FRAME)."""
+    lines = []
+    for i, ((east, north), alt) in enumerate(zip(xy, altitude)):
+        lat, lon = FRAME.to_latlon(float(east), float(north))
+        lat_text = f"{int(lat):02d}{(lat - int(lat)) * 60:011.8f}"
+        lon_text = f"{int(abs(lon)):03d}{(abs(lon) - int(abs(lon))) * 60:011.8f}"
+        hhmmss = f"12{i // 60:02d}{i % 60:02d}.00"
+        east_west = "E" if lon >= 0 else "W"
+        fields = f"{quality},05,{hdop:.1f},{alt:.1f},M,46.3,M,,"
+        lines.append(nmea_sentence(f"GPGGA,{hhmmss},{lat_text},N,{lon_text},{east_west},{fields}"))
+    return "\r\n".join(lines) + "\r\n"
+
+
+def town_drive_without_rtk(rng) -> tuple[np.ndarray, Route]:
+    """A drive of a town corner at 1 Hz, as an autonomous receiver logs it: 8 m/s, slowing to 2 m/s
+    round a 10 m corner, a 30 s wait after it; fixes wander ~1 m (correlated, as such errors are)."""
+    truth_xy = road([("L", 120), ("A", 10.0, 90), ("L", 120)], step=0.05)
+    truth = Route("truth", truth_xy[:, 0], truth_xy[:, 1], np.zeros(len(truth_xy)), False, np.full(len(truth_xy), 5.0))
+    s, t = [0.0], 0.0
+    while s[-1] < truth.length:
+        corner = 110.0 < s[-1] < 150.0
+        s.append(min(s[-1] + (2.0 if corner else 8.0), truth.length))
+        if abs(s[-1] - 160.0) < 4.0 and t == 0.0:
+            s += [s[-1]] * 30  # the wait
+            t = 1.0
+    xy = np.array([truth.point_at(v)[:2] for v in s])
+    walk = np.cumsum(rng.normal(0.0, 0.4, (len(xy), 2)), axis=0)  # a random walk, scaled to +-1 m
+    return xy + walk / np.abs(walk).max(), truth
+
+
+def test_a_log_without_rtk_gets_a_route_the_vehicle_can_steer_flat_and_near_the_road(tmp_path):
+    rng = np.random.default_rng(11)
+    xy, truth = town_drive_without_rtk(rng)
+    altitude = 500.0 + 4.0 * np.arange(len(xy)) + rng.normal(0.0, 20.0, len(xy))  # converging: +4 m/s
+    src = tmp_path / "town.nmea"
+    src.write_text(gga_log(xy, altitude, quality=1, hdop=2.5))
+    result = import_route(src, tmp_path / "town.csv", cfg=CFG)
+    route = Route.from_csv(tmp_path / "town.csv")
+    vehicle = load_vehicle(config.core(CFG).vehicle)
+    assert np.abs(route.curvature).max() <= vehicle.max_curvature
+    assert np.all(route.z == 0.0)  # the altitude is not used: no 400 % grades
+    assert result.kept < len(xy) - 25  # the 30 s wait: one point
+    # rounded and smoothed, within the receiver's metre of the road (nearest points: no projection hints)
+    dist = np.min(np.hypot(result.xyz[:, None, 0] - truth.x, result.xyz[:, None, 1] - truth.y), axis=1)
+    assert dist.max() < 2.0
+    summary = result.summary()
+    assert "fixes without RTK wander ~2.5 m" in summary and "smoothed over" in summary
+    assert f"altitude of the {len(xy)} fixes without RTK not used" in summary and "the route is flat" in summary
+    assert "road width 5.5 m" in summary and route.width[0] == pytest.approx(5.5)
+
+
+def test_an_rtk_corner_sharper_than_the_vehicle_turns_is_kept_and_reported(tmp_path):
+    """RTK fixes are the road: a 6 m corner stays 6 m (the shuttle turns no tighter than ~8.7 m), and
+    the summary says so."""
+    xy = road([("L", 30), ("A", 6.0, 90), ("L", 30)], step=0.1)
+    src = tmp_path / "tight.csv"
+    src.write_text("\n".join(f"{x:.4f},{y:.4f}" for x, y in xy))
+    result = import_route(src, cfg=CFG)
+    radius = 1.0 / np.abs(Route("r", *result.xyz.T, False, np.full(len(result.xyz), 4.0)).curvature).max()
+    assert radius == pytest.approx(6.0, rel=0.1)
+    assert re.search(
+        r"warning: a turn of radius [56]\.\d m at s = 3\d m is sharper than the vehicle can steer", result.summary()
+    )
+
+
+def test_collapse_standstill_makes_a_wait_one_point_and_leaves_a_drive():
+    wait = np.array([[10.0, 0.0, 0.0], [11.0, 0.5, 0.0], [10.2, -0.8, 0.0], [9.6, 0.3, 0.0]])
+    drive = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
+    after = np.array([[15.0, 0.0, 0.0], [20.0, 0.0, 0.0]])
+    points = np.vstack([drive, wait, after])
+    kept = collapse_standstill(points, np.full(len(points), 2.0))
+    assert kept.tolist() == drive.tolist() + [wait.mean(axis=0).tolist()] + after.tolist()
+    assert len(collapse_standstill(points, np.full(len(points), 0.1))) == len(points)  # RTK: nothing to merge
+
+
+def test_limit_grade_bounds_a_climb_and_leaves_a_plausible_road():
+    s = np.arange(0.0, 100.0, 0.5)
+    ramp = 0.5 * s  # 50 %
+    limited, clipped_m = limit_grade(s, ramp, 0.15)
+    assert np.abs(np.diff(limited) / np.diff(s)).max() <= 0.15 + 1e-9 and clipped_m == pytest.approx(99.5)
+    hill = 3.0 * np.sin(s / 30.0)  # at most 10 %
+    assert limit_grade(s, hill, 0.15) == (hill, 0.0)
+
+
+def test_the_road_width_comment_is_written_and_read_back(tmp_path):
+    src = tmp_path / "line.csv"
+    src.write_text("0,0\n50,0\n")
+    import_route(src, tmp_path / "out.csv", cfg=CFG)
+    assert "# road: width_m=5.5" in (tmp_path / "out.csv").read_text()
+    assert Route.from_csv(tmp_path / "out.csv").width[0] == pytest.approx(5.5)
+    assert Route.from_csv(src).width[0] == pytest.approx(4.0)  # a plain CSV: 4 m, as before
+    import_route(src, tmp_path / "wide.csv", cfg=run_config.build(overrides={"route_import": {"road_width_m": 7.0}}))
+    assert Route.from_csv(tmp_path / "wide.csv").width[0] == pytest.approx(7.0)
+    (tmp_path / "bad.csv").write_text("# road: width_m=-1\n0,0\n1,0\n")
+    with pytest.raises(RouteError, match="road width must be a positive number"):
+        Route.from_csv(tmp_path / "bad.csv")

@@ -15,7 +15,9 @@ with `strict`, fails the import naming the line). Steps:
    route file records the origin, and a run that drives the route uses it;
 2. de-duplication of standstill fixes: a vehicle waiting at a stop yields hundreds of nearly
    identical fixes, which would make a tangle of tiny zig-zags; a point closer than
-   `min_step_m` to the last kept one is dropped (order is kept);
+   `min_step_m` to the last kept one is dropped (order is kept). Fixes without RTK wander by
+   metres (HDOP x `uere_m`) while the car stands or creeps: each run of fixes within that of
+   their mean becomes that mean, one point;
 3. resampling to even spacing along the path (a whole number of equal steps), first at a fine
    step for the filter, at the end at the route's spacing (default 0.5 m);
 4. smoothing: a quadratic Savitzky-Golay filter over a window of a few metres on x and y.
@@ -25,8 +27,16 @@ with `strict`, fails the import naming the line). Steps:
    not shorter because consumers differentiate the path twice: curvature sets the speed
    profile, and with a 3 m window RTK noise alone reads as curves of 15-30 m radius on
    straights. z gets a longer window: the grade the simulator feels is dz/ds, which amplifies
-   altitude noise;
-5. yaw from the neighbouring poses (central differences).
+   altitude noise. Fixes without RTK get a window in proportion to their wander
+   (`noisy_window_per_m`), grown while any turn is sharper than the vehicle can steer (its
+   wheelbase and largest wheel angle: a kink of such fixes is noise); with RTK a corner that
+   sharp is the road's, kept and reported;
+5. altitude: only RTK fixes' altitude is used (without RTK the height errs by metres and drifts
+   while the receiver converges: one real log climbs 350 m in 88 s); others are interpolated
+   between RTK ones, or the route is flat. The grade is then limited to `max_grade`;
+6. yaw from the neighbouring poses (central differences).
+
+The route file records the road's width (`road_width_m`, a comment Route.from_csv reads).
 
 The output is a CSV with '# ares route: ...' and '# origin: ...' comments and the header
 x,y,z,yaw, which Route.from_csv reads back. A recording whose end comes back to its start is reported as a
@@ -41,7 +51,7 @@ import os
 import re
 import tempfile
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +59,8 @@ import numpy as np
 from ares.core import config
 from ares.core.config import Params, UtmOrigin, param
 from ares.core.geodesy import FrameError, LocalFrame, origin_at
-from ares.core.route import RouteError, origin_comment
+from ares.core.route import Route, RouteError, origin_comment, width_comment
+from ares.core.wire.nmea_stream import UBX_SYNC, ubx_frame_length
 from perception.gnss import RTK_FIXED
 from perception.nmea_parser import Gga, NmeaError, Other, Position, address, parse_sentence
 
@@ -77,6 +88,30 @@ class RouteImportSettings(Params):
     smooth_polyorder: int = param(2, "order of the smoothing polynomial", ge=1, le=5)
     z_window_m: float = param(10.0, "longer on z: the grade dz/ds amplifies altitude noise", unit="m", gt=0)
     loop_close_m: float = param(5.0, "end this close to the start: reported as a closed loop", unit="m", gt=0)
+    uere_m: float = param(
+        1.0,
+        "how far a fix without RTK wanders per unit of its HDOP (user equivalent range error, short-term): "
+        "fixes of a standing receiver within HDOP x this of each other are one point",
+        unit="m",
+        gt=0,
+    )
+    noisy_window_per_m: float = param(
+        7.0,
+        "fixes without RTK: the x, y smoothing window per metre of their wander (HDOP x uere_m), "
+        "at least smooth_window_m",
+        gt=0,
+    )
+    max_window_m: float = param(
+        60.0, "fixes without RTK: the window grows up to this while the path is sharper than the vehicle turns", gt=0
+    )
+    max_grade: float = param(0.15, "steepest road grade kept (town streets stay under 15 %)", gt=0)
+    road_width_m: float = param(
+        5.5,
+        "the road's width, written into the route file: a town street of 5-6 m, which leaves the 2 m "
+        "shuttle the obstacle manager's margins and room for its cross-track error (4 m leaves ~0.2 m)",
+        unit="m",
+        gt=0,
+    )
     stood_still_m: float = param(
         10.0,
         "points all within this of their centre, along a path many times longer than that: a receiver "
@@ -101,6 +136,9 @@ class ImportResult:
     origin: UtmOrigin | None = None  # the route's frame (NMEA); a CSV is in the configured one
     origin_source: str = ""  # "configured" or "first fix"
     output: str = ""
+    window_m: float = 0.0  # the x, y smoothing window used
+    noise_m: float = 0.0  # median wander radius of the fixes (0: RTK or no quality given)
+    notes: list[str] = field(default_factory=list)  # what the geometry steps changed, for the summary
 
     @property
     def length_m(self) -> float:
@@ -128,6 +166,7 @@ class ImportResult:
                 f"UTM {o.zone}{o.hemisphere} {o.easting:.2f} E {o.northing:.2f} N, altitude "
                 f"{o.altitude_m:.1f} m; a run that drives this route uses it"
             )
+        lines += self.notes
         if self.log is not None:
             lines += self.log.report()
         return "\n  ".join(lines)
@@ -219,6 +258,9 @@ class NmeaLog:
     far: int = 0  # fixes beyond the frame's reach (set by the projection)
     non_rtk: int = 0  # GGA fixes without RTK fixed: metre-level errors
     no_altitude: int = 0  # fixes without altitude (interpolated between neighbours)
+    altitude_dropped: int = 0  # altitudes of fixes without RTK, not used
+    hdop: np.ndarray | None = None  # per projected fix; NaN where the sentence gives none
+    rtk: np.ndarray | None = None  # per projected fix: RTK fixed (GGA quality 4)
     ubx_frames: int = 0  # u-blox binary frames on the same stream (skipped)
 
     def report(self) -> list[str]:
@@ -249,10 +291,20 @@ class NmeaLog:
             )
         if self.far:
             lines.append(f"skipped, fixes beyond the frame's reach: {self.far}")
-        if self.no_altitude:
+        if self.no_altitude or self.altitude_dropped:
+            unused = self.no_altitude + self.altitude_dropped
+            what = (
+                f"{self.no_altitude} fixes without altitude"
+                if not self.altitude_dropped
+                else f"altitude of the {self.altitude_dropped} fixes without RTK not used (it errs and drifts "
+                f"by metres to hundreds of metres: no grade can be read from it)"
+                + (f", {self.no_altitude} fixes without altitude" if self.no_altitude else "")
+            )
             lines.append(
-                f"{self.no_altitude} fixes without altitude: z interpolated"
-                if self.no_altitude < len(self.fixes)
+                f"{what}: z interpolated between the others"
+                if unused < len(self.fixes) - self.far
+                else f"{what}: the route is flat (z = 0, the origin's altitude)"
+                if self.altitude_dropped
                 else "no altitude in the log: the route is flat (z = 0)"
             )
         if self.non_rtk:
@@ -266,14 +318,12 @@ def _counts(counter: Mapping[str, int]) -> str:
     return ", ".join(f"{k} {n}" for k, n in sorted(counter.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
-UBX_SYNC = b"\xb5\x62"
-
-
 def strip_ubx(data: bytes) -> tuple[bytes, int]:
     """The stream without its u-blox binary frames (u-blox receivers interleave them with the
     NMEA on one port by default), and how many there were. A frame: sync B5 62, class, id,
     little-endian length, payload, and the two Fletcher-8 bytes over class..payload; only frames
-    whose checksum holds are taken out, so text that happens to hold the sync bytes stays."""
+    whose checksum holds are taken out, so text that happens to hold the sync bytes stays
+    (ares.core.wire.nmea_stream.ubx_frame_length, which the GNSS driver's framer uses too)."""
     if UBX_SYNC not in data:
         return data, 0
     out = bytearray()
@@ -281,21 +331,15 @@ def strip_ubx(data: bytes) -> tuple[bytes, int]:
     i = 0
     while True:
         j = data.find(UBX_SYNC, i)
-        if j < 0 or j + 8 > len(data):
+        if j < 0:
             out += data[i:]
             return bytes(out), frames
-        length = data[j + 4] | (data[j + 5] << 8)
-        end = j + 6 + length + 2
-        body = data[j + 2 : j + 6 + length]
-        a = b = 0
-        for byte in body:
-            a = (a + byte) & 0xFF
-            b = (b + a) & 0xFF
-        if end <= len(data) and data[end - 2] == a and data[end - 1] == b:
+        length = ubx_frame_length(data, j)
+        if length > 0:
             out += data[i:j]
             frames += 1
-            i = end
-        else:
+            i = j + length
+        else:  # not a frame, or cut short by the end of the file: the bytes stay
             out += data[i : j + 2]
             i = j + 2
 
@@ -378,6 +422,9 @@ def project_fixes(log: NmeaLog, frame: LocalFrame, source: str, strict: bool = F
     """x, y, z of the log's fixes in the frame; fixes beyond its reach counted (or, with
     `strict`, an error); missing altitudes interpolated between their neighbours."""
     points = []
+    hdop: list[float] = []
+    rtk: list[bool] = []
+    log.altitude_dropped = 0
     for lineno, fix in log.fixes:
         try:
             p = frame.project(fix.lat, fix.lon, fix.altitude_m)
@@ -386,12 +433,20 @@ def project_fixes(log: NmeaLog, frame: LocalFrame, source: str, strict: bool = F
                 raise RouteImportError(f"{source}:{lineno}: {exc.reason}: {exc}") from None
             log.far += 1
             continue
-        if isinstance(fix, Gga) and fix.quality != RTK_FIXED:
+        z = math.nan if p.z is None else p.z
+        fixed = isinstance(fix, Gga) and fix.quality == RTK_FIXED
+        if isinstance(fix, Gga) and not fixed:
             log.non_rtk += 1
-        points.append((p.x, p.y, math.nan if p.z is None else p.z))
+            if p.z is not None:  # metres of noise, and drift while the receiver converges
+                log.altitude_dropped += 1
+                z = math.nan
+        points.append((p.x, p.y, z))
+        hdop.append(fix.hdop if isinstance(fix, Gga) and fix.hdop is not None else math.nan)
+        rtk.append(fixed)
+    log.hdop, log.rtk = np.array(hdop, dtype=float), np.array(rtk, dtype=bool)
     xyz = np.array(points, dtype=float).reshape(-1, 3)
     missing = np.isnan(xyz[:, 2])
-    log.no_altitude = int(missing.sum())
+    log.no_altitude = int(missing.sum()) - log.altitude_dropped
     if missing.all():
         xyz[:, 2] = 0.0
     elif missing.any():
@@ -431,6 +486,49 @@ def drop_standstill(points: np.ndarray, min_step_m: float) -> np.ndarray:
     return points[keep]
 
 
+def wander_radii(log: NmeaLog | None, count: int, settings: RouteImportSettings) -> np.ndarray:
+    """How far each fix may wander while the receiver stands still: min_step_m for RTK fixes, a CSV
+    and sentences without a fix quality (RMC, GLL); HDOP x uere_m (HDOP 1 when not given) for
+    GGA fixes without RTK."""
+    radii = np.full(count, settings.min_step_m)
+    if log is not None and log.rtk is not None and log.hdop is not None and log.used == "GGA":
+        hdop = np.where(np.isfinite(log.hdop), log.hdop, 1.0)
+        radii = np.where(log.rtk, radii, np.maximum(radii, hdop * settings.uere_m))
+    return radii
+
+
+def collapse_standstill(points: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Runs of consecutive fixes that stay within the receiver's wander of their running mean (the
+    first fix's radius) become that mean: a car that waits, creeps or stands while the fixes jitter
+    by metres leaves one point, not a knot of zig-zags whose curvature no vehicle could follow."""
+    out = []
+    i = 0
+    while i < len(points):
+        total = points[i].copy()
+        j = i + 1
+        while j < len(points):
+            mean = total[:2] / (j - i)
+            if math.hypot(points[j, 0] - mean[0], points[j, 1] - mean[1]) > radii[i]:
+                break
+            total += points[j]
+            j += 1
+        out.append(total / (j - i))
+        i = j
+    return np.array(out, dtype=float).reshape(-1, 3)
+
+
+def limit_grade(s: np.ndarray, z: np.ndarray, max_grade: float) -> tuple[np.ndarray, float]:
+    """z with its grade clipped to +-max_grade (the climb re-integrated along s, its mean kept),
+    and the length of road whose grade was clipped."""
+    ds = np.diff(s)
+    dz = np.diff(z)
+    clipped = np.abs(dz) > max_grade * ds + 1e-12
+    if not clipped.any():
+        return z, 0.0
+    out = np.concatenate([[0.0], np.cumsum(np.clip(dz, -max_grade * ds, max_grade * ds))])
+    return out + (float(np.mean(z)) - float(np.mean(out))), float(ds[clipped].sum())
+
+
 def smooth(values: np.ndarray, spacing_m: float, window_m: float, polyorder: int) -> np.ndarray:
     """Savitzky-Golay over about window_m of evenly spaced samples (odd length, shrunk to fit
     a short route; left alone when too short to fit the polynomial)."""
@@ -459,23 +557,65 @@ def resample_even(points: np.ndarray, spacing_m: float) -> np.ndarray:
     return np.column_stack([np.interp(s_new, s, points[:, k]) for k in range(points.shape[1])])
 
 
-def build_route(points: np.ndarray, settings: RouteImportSettings) -> tuple[np.ndarray, np.ndarray]:
-    """De-duplicated points -> (evenly spaced smoothed xyz, yaw).
+def build_route(
+    points: np.ndarray, settings: RouteImportSettings, window_m: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """De-duplicated points -> (evenly spaced smoothed xyz, yaw); x, y smoothed over window_m
+    (default smooth_window_m), z over the longer of z_window_m and that.
 
     The filter runs on a fine resampling (SMOOTHING_STEP_M), so that its window means the same
     length of road whatever the output spacing, and every fix inside the window counts."""
+    window = settings.smooth_window_m if window_m is None else window_m
     fine = min(settings.spacing_m, SMOOTHING_STEP_M)
     even = resample_even(points, fine)
     smoothed = np.column_stack(
         [
-            smooth(even[:, 0], fine, settings.smooth_window_m, settings.smooth_polyorder),
-            smooth(even[:, 1], fine, settings.smooth_window_m, settings.smooth_polyorder),
-            smooth(even[:, 2], fine, settings.z_window_m, settings.smooth_polyorder),
+            smooth(even[:, 0], fine, window, settings.smooth_polyorder),
+            smooth(even[:, 1], fine, window, settings.smooth_polyorder),
+            smooth(even[:, 2], fine, max(settings.z_window_m, window), settings.smooth_polyorder),
         ]
     )
     xyz = resample_even(smoothed, settings.spacing_m)
     yaw = np.arctan2(np.gradient(xyz[:, 1]), np.gradient(xyz[:, 0]))
     return xyz, yaw
+
+
+def sharpest(xyz: np.ndarray) -> tuple[float, float]:
+    """(largest |curvature|, its arc length) as a run will read the route (Route's curvature)."""
+    route = Route("import", xyz[:, 0], xyz[:, 1], xyz[:, 2], False, np.full(len(xyz), 1.0))
+    i = int(np.argmax(np.abs(route.curvature)))
+    return float(abs(route.curvature[i])), float(route.s[i])
+
+
+def fit_route(
+    kept: np.ndarray, noise_m: float, settings: RouteImportSettings, max_curvature: float
+) -> tuple[np.ndarray, np.ndarray, float, list[str]]:
+    """The route through the kept fixes: (xyz, yaw, window used, notes for the summary).
+
+    Fixes that wander by metres (no RTK) are smoothed over a window in proportion, and the
+    window grows (x1.25 steps, up to max_window_m) while the path is sharper than the vehicle
+    can turn: such a kink is the fixes' noise. RTK fixes are the road itself: a corner sharper
+    than the vehicle turns is kept and reported."""
+    noisy = noise_m > settings.min_step_m
+    window = max(settings.smooth_window_m, settings.noisy_window_per_m * noise_m) if noisy else settings.smooth_window_m
+    xyz, yaw = build_route(kept, settings, window)
+    kappa, at = sharpest(xyz)
+    while noisy and kappa > max_curvature and window < settings.max_window_m:
+        window = min(window * 1.25, settings.max_window_m)
+        xyz, yaw = build_route(kept, settings, window)
+        kappa, at = sharpest(xyz)
+    notes = []
+    if noisy:
+        notes.append(
+            f"fixes without RTK wander ~{noise_m:.1f} m (HDOP x {settings.uere_m:g} m): standstills collapsed to "
+            f"one point each, x, y smoothed over {window:.0f} m"
+        )
+    if kappa > max_curvature:
+        notes.append(
+            f"warning: a turn of radius {1 / kappa:.1f} m at s = {at:.0f} m is sharper than the vehicle "
+            f"can steer (radius {1 / max_curvature:.1f} m)"
+        )
+    return xyz, yaw, window, notes
 
 
 def write_route_csv(path: Path, xyz: np.ndarray, yaw: np.ndarray, comments: list[str]) -> None:
@@ -548,14 +688,23 @@ def import_route(
         points = read_csv_points(data, name)
         if len(points) == 0:
             raise RouteImportError(f"{name}: no points (expected lines of x,y[,z] metres)")
-    kept = drop_standstill(points, settings.min_step_m)
+    radii = wander_radii(log, len(points), settings)
+    noise = float(np.median(radii))
+    noisy = noise > settings.min_step_m
+    kept = collapse_standstill(points, radii) if noisy else drop_standstill(points, settings.min_step_m)
     if len(kept) < 2:
         raise RouteImportError(
             f"{name}: the recording never moves: all {len(points)} points lie within "
             f"{settings.min_step_m:g} m of the first"
         )
-    xyz, yaw = build_route(kept, settings)
-    stood_still(points, kept, name, settings.stood_still_m)
+    stood_still(points, drop_standstill(points, settings.min_step_m), name, settings.stood_still_m)
+    vehicle = config.load_vehicle(config.core(cfg).vehicle)
+    xyz, yaw, window, notes = fit_route(kept, noise if noisy else 0.0, settings, vehicle.max_curvature)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(xyz[:, 0]), np.diff(xyz[:, 1])))])
+    xyz[:, 2], clipped_m = limit_grade(s, xyz[:, 2], settings.max_grade)
+    if clipped_m > 0:
+        notes.append(f"grade limited to {settings.max_grade:.0%} over {clipped_m:.0f} m of the route")
+    notes.append(f"road width {settings.road_width_m:g} m (route_import.road_width_m)")
     gap = float(math.hypot(xyz[-1, 0] - xyz[0, 0], xyz[-1, 1] - xyz[0, 1]))
     length = float(np.sum(np.hypot(np.diff(xyz[:, 0]), np.diff(xyz[:, 1]))))
     # a loop must be long compared with the gap, or a short back-and-forth would count
@@ -573,6 +722,9 @@ def import_route(
         log=log,
         origin=origin,
         origin_source=origin_source,
+        window_m=window,
+        noise_m=noise if noisy else 0.0,
+        notes=notes,
     )
     if output is not None:
         output = Path(output)
@@ -581,6 +733,7 @@ def import_route(
             f"format={fmt}, points_in={len(points)}, kept={len(kept)}, spacing_m={settings.spacing_m:g}, "
             f"closed_loop={'yes (written as an open route)' if closed else 'no'}",
         ]
+        comments.append(width_comment(settings.road_width_m))
         if origin is not None:
             comments.append(origin_comment(origin))
         try:

@@ -67,7 +67,7 @@ class Measurements:
         # gate before the truth (its motion is judged against them), the truth before what is matched to it
         self._feeds: list[tuple[Any, Callable[[Any], None]]] = [
             (bus.subscribe("body/state", queue=1024), self.safety.add_body),
-            (self.movement, self.safety.add_status),
+            (self.movement, self._on_movement),
             (self.cars, self.safety.add_car),
             (bus.subscribe("awareness/state", queue=1024), self.safety.add_awareness),
             (self.truth, self._on_truth),
@@ -85,7 +85,12 @@ class Measurements:
             (self.statuses, lambda st: self.control.add_status(st.t, st.controller)),
             (bus.subscribe("control/candidate/mpc", queue=QUEUE), lambda c: self.control.add_mpc(c.solve_ms, c.fresh)),
             (bus.subscribe("events", queue=QUEUE), self._on_event),
+            (bus.subscribe("drivers/status", queue=1024), self._on_driver),
+            (bus.subscribe("obstacle/state", queue=1024), self._on_obstacle),
         ]
+        self.drivers: dict[str, Any] = {}  # device -> its driver's latest counts (--wire, a vehicle)
+        self.obstacle: Any = None  # the obstacle manager's latest verdict
+        self.hold: dict | None = None  # while the movement gate holds the shuttle: by what, why and where
 
     def begin(self) -> None:
         """The drive starts now: what came before it (starting up, standing, engaging) is not measured."""
@@ -123,6 +128,57 @@ class Measurements:
         if event.kind == "controller_switch":
             self.control.add_switch(event.data)
 
+    def _on_driver(self, status: Any) -> None:
+        self.drivers[status.device] = status
+
+    def _on_obstacle(self, state: Any) -> None:
+        self.obstacle = state
+
+    def _on_movement(self, status: Any) -> None:
+        """Since when, by what, why and where the movement gate holds the shuttle (None while it
+        lets it go): a drive that ends held says what held it. The gate names the manager whose limit
+        is 0 (obstacle, mission, ...), or a stop or emergency; for the obstacle manager its own reason
+        (obstacle 1.5 m ahead, 3 cells). The place is where the shuttle stands (the simulator's truth)."""
+        self.safety.add_status(status)
+        held = status.latched or status.stopping or status.limit_mps == 0.0
+        if not held:
+            self.hold = None
+            return
+        by = status.latch_cause or status.limited_by or "stop"
+        if by == "obstacle":
+            by = "obstacle_manager"
+        obstacle = self.obstacle
+        reason = status.reason
+        if by == "obstacle_manager" and obstacle is not None and obstacle.band in ("stop", "unknown"):
+            reason = obstacle.reason or f"obstacle manager: {obstacle.band}"
+        if self.hold is None or self.hold["by"] != by:
+            self.hold = {"by": by, "since_t_s": round(status.t, 2)}
+        truth = self.truth.latest
+        self.hold.update(
+            at_s_m=None if truth is None else round(truth.s, 1),
+            x=None if truth is None else round(truth.x, 2),
+            y=None if truth is None else round(truth.y, 2),
+            reason=reason,
+        )
+
+    def driver_figures(self) -> dict:
+        """Per device: in, out, lost, malformed and skipped by cause, wire-to-bus latency (ms)."""
+        return {
+            device: {
+                "driver": st.driver,
+                "received": st.received,
+                "published": st.published,
+                "lost": st.lost,
+                "malformed": st.malformed,
+                "skipped": st.skipped,
+                "latency_p50_ms": st.latency_p50_ms,
+                "latency_p99_ms": st.latency_p99_ms,
+                "connected": st.connected,
+                **({"detail": st.detail} if st.detail else {}),
+            }
+            for device, st in sorted(self.drivers.items())
+        }
+
     def partial(self) -> dict:
         """The figures of a drive that failed, up to the failure."""
         return {
@@ -132,6 +188,7 @@ class Measurements:
             **self.control.summary(),
             **self.safety.summary(),
             **self.scenario.summary(),
+            **({"stopped": self.hold} if self.hold else {}),
         }
 
     def summary(self) -> dict:
@@ -144,6 +201,7 @@ class Measurements:
             **self.safety.summary(),
             **self.scenario.summary(),
             "mission": mission_summary(self.mission.latest),
+            **({"drivers": self.driver_figures()} if self.drivers else {}),
         }
 
     def save_trace(self, run_dir: Path) -> None:
@@ -271,6 +329,13 @@ def drive(args, cfg, route: Route, bus: BaseBus, clock: Clock, stop, run_dir: Pa
         "t_start_s": round(t_start, 3),  # the drive, stack time
         "t_end_s": round(t_start + lap_time, 3),
     }
+    for device, fig in result.get("drivers", {}).items():
+        print(
+            f"driver {fig['driver']:<12} {device:<18} in {fig['received']:>8}  out {fig['published']:>7}  "
+            f"lost {fig['lost']:>4}  malformed {sum(fig['malformed'].values()):>4}  "
+            f"wire->bus p50 {fig['latency_p50_ms']} ms  p99 {fig['latency_p99_ms']} ms",
+            file=sys.stderr,
+        )
     title = f"{route.name}: {result['distance_m']:.0f} m in {lap_time:.0f} s, {cfg['vehicle']}"
     result["plot"] = str(m.picture(run_dir / "lap.svg", title))
     m.save_trace(run_dir)
