@@ -138,7 +138,7 @@ def test_nothing_stands_above_the_road_in_the_corridor(world, flat_route):
     dist, j = tree.query(points)
     inside = dist <= half_corridor
     points, dist, st = points[inside], dist[inside], station[j[inside]]
-    surface = world.centre_height(route.s[st]) - world_mod.CROSSFALL * dist
+    surface = world.centre_height(world.route.s[st]) - world_mod.CROSSFALL * dist  # (its road runs on past the end)
     top = float(route.z.max()) + 50.0
     o3d = world_mod.open3d()
     rays = np.zeros((len(points), 6), dtype=np.float32)
@@ -148,8 +148,27 @@ def test_nothing_stands_above_the_road_in_the_corridor(world, flat_route):
     worst = int(np.argmax(above))
     assert above[worst] < ABOVE_ROAD_TOL_M, (
         f"{above[worst]:.2f} m above the road at ({points[worst][0]:.1f}, {points[worst][1]:.1f}), "
-        f"s {route.s[st[worst]]:.1f} m, {dist[worst]:.2f} m from the centre line"
+        f"s {world.route.s[st[worst]]:.1f} m, {dist[worst]:.2f} m from the centre line"
     )
+
+
+def test_the_road_goes_on_past_the_routes_end(world, flat_route):
+    """Where an open route ends, the road does not: a shuttle stopping at the end still has road
+    ahead for its LiDARs' road detection (else the awareness manager stops it short, road hidden)."""
+    assert world.route.length >= flat_route.length + world_mod.RUNOUT_M - 1e-6
+    assert np.allclose(world.route.s[: len(flat_route.s)], flat_route.s)  # the route's own arc lengths unchanged
+    yaw = float(flat_route.yaw[-1])
+    top = float(flat_route.z.max()) + 50.0
+    rays = np.array(
+        [
+            [flat_route.x[-1] + d * np.cos(yaw), flat_route.y[-1] + d * np.sin(yaw), top, 0.0, 0.0, -1.0]
+            for d in (5.0, 15.0, 25.0)
+        ],
+        dtype=np.float32,
+    )
+    hit = world.scene.cast_rays(world_mod.open3d().core.Tensor(rays))
+    materials = world.material_of(hit["geometry_ids"].numpy(), hit["primitive_ids"].numpy())
+    assert set(materials.tolist()) == {world_mod.MATERIAL_IDS["asphalt"]}
 
 
 def test_trees_and_poles_keep_off_every_stretch(world):
@@ -195,8 +214,9 @@ def test_the_obstacle_manager_sees_the_sharpest_corners_clear(flat_route, world)
     assert not blocked, f"obstacles in the way at s (band, nearest m, cells): {blocked}"
 
 
-def test_a_headless_run_held_by_the_obstacle_manager_says_what_and_where(route):
-    """`ares run --headless` ending held: its JSON's `stopped` names the manager, its reason and the place."""
+def test_a_headless_run_that_ends_held_says_by_what_why_and_where(route):
+    """`ares run --headless` ending held: its JSON's `stopped` names what holds it (a manager, an emergency
+    stop), why and where."""
     from ares.app import run_config
     from ares.core.clock import ManualClock
     from ares.core.membus import MemoryNetwork
@@ -273,3 +293,24 @@ def test_a_headless_run_held_by_the_obstacle_manager_says_what_and_where(route):
     }
     tick(4.0, 2.0, "clear")  # the way clears: not held any more
     assert "stopped" not in m.partial()
+    # an emergency stop latched by the awareness manager: the gate's reason carries the cause
+    cause = "lidar roof: 7.0 Hz < 8"
+    sim.publish(
+        "movement/status",
+        MovementStatus(
+            t=5.0,
+            level=1,
+            latched=True,
+            latch_cause=cause,
+            stopping=False,
+            limit_mps=0.0,
+            limited_by="emergency",
+            limits={"obstacle": 2.0},
+            v=0.0,
+            kappa=0.0,
+            reason=f"emergency stop latched ({cause}): waiting for a re-arm",
+        ),
+    )
+    m.take(5.0)
+    stopped = m.partial()["stopped"]
+    assert stopped["by"] == "emergency" and cause in stopped["reason"] and stopped["since_t_s"] == 5.0

@@ -162,7 +162,8 @@ def test_the_predicted_trajectory_is_in_the_callers_frame():
 def test_the_bench_reports_solve_times_and_the_loops_tracking():
     from ares.tools.bench.mpc import run_mpc_bench
 
-    result = run_mpc_bench(solves=60)
+    # a solve is never "late" here: how fast the machine is is the bench's figure, not this test's
+    result = run_mpc_bench(solves=60, params=MpcParams(max_solve_ms=60_000.0))
     assert result["solves"] == 60 and result["horizon"] == MpcParams().horizon_steps
     assert 0 < result["solve_p50_ms"] <= result["solve_p99_ms"] <= result["solve_max_ms"]
     assert result["failed_solves"] == 0 and result["xte_max_m"] < 0.2  # it drove the tour's start

@@ -31,6 +31,7 @@ The truth of the world (`road_edges`) is for the evaluation only: no stack proce
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -39,6 +40,8 @@ from scipy.spatial import cKDTree
 
 from ares.core.route import Route
 from ares.sim.road import RoadRoughness
+
+RUNOUT_M = 30.0  # road built past an open route's end (the LiDARs' road detection needs to see it there)
 
 
 def open3d():  # noqa: ANN201 (the module)
@@ -179,15 +182,31 @@ def _placed(v: np.ndarray, tri: np.ndarray, centre, yaw: float, material: str) -
     )
 
 
+def with_runout(route: Route, length_m: float, step_m: float = 2.0) -> Route:
+    """The open route with `length_m` of straight road added past its end, at its last heading,
+    width and height."""
+    k = np.arange(1, int(math.ceil(length_m / step_m)) + 1) * step_m
+    yaw = float(route.yaw[-1])
+    return dataclasses.replace(
+        route,
+        x=np.concatenate([route.x, route.x[-1] + k * math.cos(yaw)]),
+        y=np.concatenate([route.y, route.y[-1] + k * math.sin(yaw)]),
+        z=np.concatenate([route.z, np.full(len(k), route.z[-1])]),
+        width=np.concatenate([route.width, np.full(len(k), route.width[-1])]),
+    )
+
+
 class World:
     """The static world of one route: terrain and roadside objects, and a raycasting scene."""
 
     def __init__(self, route: Route, roughness: RoadRoughness | None, seed: int = 7, roadside_objects: bool = True):
-        self.route = route
+        # an open route's road goes on past its last point, as a real road does: the LiDARs still see road
+        # when the shuttle stops at the end (arc lengths along the route are unchanged)
+        self.route = route if route.closed else with_runout(route, RUNOUT_M)
         self.roughness = roughness
         self.rng = np.random.default_rng([seed, 2])
         self._centre: tuple[cKDTree, np.ndarray] | None = None  # see _centre_line
-        self._kinds = [route.verge_at(si) for si in route.s]  # (left, right) verge kinds per station
+        self._kinds = [self.route.verge_at(si) for si in self.route.s]  # (left, right) verge kinds per station
         self.terrain = self._terrain()
         self.objects = self._roadside_objects() if roadside_objects else []
         self.mesh = Mesh.join([self.terrain, *self.objects])

@@ -137,14 +137,15 @@ class Measurements:
     def _on_movement(self, status: Any) -> None:
         """Since when, by what, why and where the movement gate holds the shuttle (None while it
         lets it go): a drive that ends held says what held it. The gate names the manager whose limit
-        is 0 (obstacle, mission, ...), or a stop or emergency; for the obstacle manager its own reason
+        is 0 (obstacle, mission, ...), or a stop or an emergency; for the obstacle manager its own reason
         (obstacle 1.5 m ahead, 3 cells). The place is where the shuttle stands (the simulator's truth)."""
         self.safety.add_status(status)
         held = status.latched or status.stopping or status.limit_mps == 0.0
         if not held:
             self.hold = None
             return
-        by = status.latch_cause or status.limited_by or "stop"
+        # the gate's own words: "emergency" (latched: its reason says why), "stop", or a manager's name
+        by = status.limited_by or ("emergency" if status.latched else "stop")
         if by == "obstacle":
             by = "obstacle_manager"
         obstacle = self.obstacle
