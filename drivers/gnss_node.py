@@ -23,11 +23,11 @@ from typing import Protocol
 import serial
 
 from ares.core.config import GnssDevice, Params, param
-from ares.core.driver import DriverNode
+from ares.core.driver import DriverNode, device_stamp
 from ares.core.messages import GnssSentences
 from ares.core.node import Output
 from ares.core.wire.gpsd import GPSD_PORT, GpsdClient, TcpStream
-from ares.core.wire.nmea_stream import MAX_LINE, Epoch, EpochGroups, NmeaStream, stamp
+from ares.core.wire.nmea_stream import DAY_S, MAX_LINE, Epoch, EpochGroups, NmeaStream
 
 DEVICE = "gnss"
 
@@ -181,6 +181,6 @@ class GnssDriver(DriverNode):
                 self._publish(done, now)
 
     def _publish(self, epoch: Epoch, now: float) -> None:
-        t = stamp(now, self.clock.utc_epoch, epoch.tod)
+        t = device_stamp(now, self.clock.utc_epoch, epoch.tod, DAY_S)
         self.sentences.put(GnssSentences(t=t, sentences=epoch.lines))
         self.wire_counts.put(epoch.read_wall)

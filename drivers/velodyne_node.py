@@ -19,7 +19,7 @@ import time
 
 from ares.core.config import Params, param
 from ares.core.config.vehicle_io import VelodyneDevice
-from ares.core.driver import DriverNode
+from ares.core.driver import DriverNode, device_stamp
 from ares.core.messages import PointCloud
 from ares.core.node import Output
 from ares.core.wire.velodyne import HOUR_US, Rotation, RotationAssembler, load_calibration
@@ -51,14 +51,6 @@ class VelodyneDriverParams(Params):
         0.1, "a measured rotation rate further than this share from the configured one is reported", gt=0
     )
     max_packets_per_step: int = param(20000, "at most this many packets read per sensor and step", ge=1)
-
-
-def stack_time(now: float, utc_epoch: float, device_s: float, period_s: float = HOUR_S) -> float:
-    """The stamp rule: the stack time of a device's time of day (mod `period_s`), the latest
-    such time not after `now`; `now` when that is over 2 s back (the device's clock is off)."""
-    tod_now = (utc_epoch + now) % period_s
-    t = now - ((tod_now - device_s) % period_s)
-    return t if now - t <= 2.0 else now
 
 
 class _Sensor:
@@ -193,7 +185,7 @@ class VelodyneDriver(DriverNode):
         points = rotation.points
         self.outputs_by_sensor[sensor.name].put(
             PointCloud(
-                t=stack_time(now, self.clock.utc_epoch, rotation.timestamp_us / 1e6),
+                t=device_stamp(now, self.clock.utc_epoch, rotation.timestamp_us / 1e6, HOUR_S),
                 sensor=sensor.name,
                 frame=f"lidar/{sensor.name}",
                 x=points.x,

@@ -9,13 +9,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ares.app.route_import import strip_ubx
+from ares.core.driver import device_stamp
 from ares.core.nmea_framing import sentence
 from ares.core.wire.nmea_stream import (
     INCOMPLETE,
     NOT_A_FRAME,
     EpochGroups,
     NmeaStream,
-    stamp,
     time_of_day,
     ubx_frame_length,
 )
@@ -201,10 +201,10 @@ def test_an_epochs_sentences_go_together():
 
 def test_stamp_maps_the_time_of_day_onto_stack_time():
     utc_epoch = 1_795_392_000.0 + 9 * 3600 + 47 * 60  # stack time 0 is 09:47:00 UTC
-    assert stamp(30.5, utc_epoch, 9 * 3600 + 47 * 60 + 30.2) == pytest.approx(30.2, abs=1e-6)
-    assert stamp(30.5, utc_epoch, None) == 30.5  # no time: now
-    assert stamp(30.5, utc_epoch, 9 * 3600 + 47 * 60 + 27.0) == 30.5  # more than 2 s old: now
-    assert stamp(30.5, utc_epoch, 9 * 3600 + 47 * 60 + 30.6) == 30.5  # ahead of the clock: now
+    assert device_stamp(30.5, utc_epoch, 9 * 3600 + 47 * 60 + 30.2, 86400.0) == pytest.approx(30.2, abs=1e-6)
+    assert device_stamp(30.5, utc_epoch, None, 86400.0) == 30.5  # no time: now
+    assert device_stamp(30.5, utc_epoch, 9 * 3600 + 47 * 60 + 27.0, 86400.0) == 30.5  # more than 2 s old: now
+    assert device_stamp(30.5, utc_epoch, 9 * 3600 + 47 * 60 + 30.6, 86400.0) == 30.5  # ahead of the clock: now
     # across midnight: 23:59:59.8 read at 00:00:00.1 the next day
     midnight = 1_795_392_000.0 + 86400 - 100.0  # stack time 100 is midnight
-    assert stamp(100.1, midnight, 86399.8) == pytest.approx(99.8, abs=1e-6)
+    assert device_stamp(100.1, midnight, 86399.8, 86400.0) == pytest.approx(99.8, abs=1e-6)

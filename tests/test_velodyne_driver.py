@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from ares.core.clock import ManualClock
+from ares.core.driver import device_stamp
 from ares.core.localhost import free_port
 from ares.core.membus import MemoryNetwork
 from ares.core.wire import velodyne as v
-from drivers.velodyne_node import VelodyneDriver, stack_time
+from drivers.velodyne_node import VelodyneDriver
 
 UTC_EPOCH = 1_790_000_000.25  # stack time 0 as calendar time: 0.25 s past a second, mid-hour
 
@@ -172,11 +173,11 @@ def test_stamp_rule():
     epoch = 1_790_000_000.0
     now = 50.0
     tod = (epoch + now) % 3600
-    assert stack_time(now, epoch, (tod - 0.3) % 3600) == pytest.approx(49.7)
-    assert stack_time(now, epoch, (tod - 5.0) % 3600) == now  # a clock off by seconds: now
+    assert device_stamp(now, epoch, (tod - 0.3) % 3600, 3600.0) == pytest.approx(49.7)
+    assert device_stamp(now, epoch, (tod - 5.0) % 3600, 3600.0) == now  # a clock off by seconds: now
     # just past the top of the hour, a time of day from just before it
     epoch_at_hour = 1_789_999_200.0 - 50.0 + 0.1  # (epoch + now) % 3600 == 0.1
-    assert stack_time(now, epoch_at_hour, 3599.9) == pytest.approx(49.8)
+    assert device_stamp(now, epoch_at_hour, 3599.9, 3600.0) == pytest.approx(49.8)
 
 
 def test_simulated_sweep_through_the_wire(driver):

@@ -23,7 +23,19 @@ from ares.core.node import Node, Output
 from ares.core.schema import Msg
 
 LOG_EVERY = 1000
+MAX_STAMP_AGE_S = 2.0  # a device time further back than this: the device's clock is off, stamp on receipt
 LATENCY_WINDOW = 4096  # the latest latencies the percentiles are taken over
+
+
+def device_stamp(now: float, utc_epoch: float, device_time: float | None, period_s: float) -> float:
+    """The drivers' stamp rule: the stack time of data whose device time is `device_time` (the NMEA
+    time of day, mod 86400 s; a Velodyne packet's µs past the hour, mod 3600 s): the latest stack
+    time not after `now` with that calendar time (the clock's utc_epoch is the calendar time of
+    stack time 0). `now` when the data carries no time or the result is over MAX_STAMP_AGE_S old."""
+    if device_time is None:
+        return now
+    age = ((utc_epoch + now) % period_s - device_time) % period_s
+    return now if age > MAX_STAMP_AGE_S else now - age
 
 
 class WireCounters:

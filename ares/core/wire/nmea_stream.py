@@ -31,7 +31,6 @@ UBX_OVERHEAD = 8  # sync (2), class, id, length (2), checksum (2)
 MAX_UBX_PAYLOAD = 8192  # u-blox's largest messages (RXM-RAWX, MGA) stay well below this
 MAX_LINE = 256  # NMEA allows 82 characters; proprietary sentences and tag blocks run longer
 DAY_S = 86400.0
-MAX_STAMP_AGE_S = 2.0  # a device time further back than this is not trusted: stamped with `now`
 
 # In a sentence: printable ASCII except '$' and '!', which start the next one. Anything else ends it.
 _LINE_END = re.compile(rb"[^\x20\x22\x23\x25-\x7e]")
@@ -80,16 +79,6 @@ def time_of_day(line: str) -> float | None:
     if h > 23 or m > 59 or s >= 61.0:
         return None
     return h * 3600.0 + m * 60.0 + s
-
-
-def stamp(now: float, utc_epoch: float, device_tod: float | None, period: float = DAY_S) -> float:
-    """Stack time of data whose device time of day (mod `period`) is `device_tod`: the latest
-    stack time not after `now` with that time of day (the clock's utc_epoch is the calendar time
-    of stack time 0). `now` when the data carries no time or the result is over 2 s old."""
-    if device_tod is None:
-        return now
-    age = ((utc_epoch + now) % period - device_tod) % period
-    return now if age > MAX_STAMP_AGE_S else now - age
 
 
 Refuse = Callable[[str, str], None]
