@@ -112,6 +112,17 @@ class LidarSimulator(Node):
         if mesh is not None:
             obstacle_scene = open3d().t.geometry.RaycastingScene()
             obstacle_scene.add_triangles(open3d().core.Tensor(mesh.vertices), open3d().core.Tensor(mesh.triangles))
+        self.send_sweeps(stamp, rotation, position, obstacle_scene)
+        self.world_truth.put(
+            WorldTruth(
+                t=stamp,
+                obstacles=self.obstacles.boxes(stamp),
+                blocked_lidars=[n for n, s in self.sensors.items() if s.blocked],
+            )
+        )
+
+    def send_sweeps(self, stamp: float, rotation: np.ndarray, position: np.ndarray, obstacle_scene) -> None:
+        """Each sensor's sweep from the vehicle's pose, as a cloud on the bus."""
         for name, sensor in self.sensors.items():
             sweep = sensor.sweep(self.world.scene, rotation, position, obstacle_scene, self.world.material_of)
             self.outputs_by_sensor[name].put(
@@ -126,10 +137,3 @@ class LidarSimulator(Node):
                     ring=sweep.ring,
                 )
             )
-        self.world_truth.put(
-            WorldTruth(
-                t=stamp,
-                obstacles=self.obstacles.boxes(stamp),
-                blocked_lidars=[n for n, s in self.sensors.items() if s.blocked],
-            )
-        )

@@ -15,11 +15,9 @@ import socket
 
 import numpy as np
 
-from ares.core.messages import VehicleTruth, WorldTruth
-from ares.sim.lidar import SimulatedLidar, vehicle_pose
-from ares.sim.lidar_node import OBSTACLE_REACH_M, LidarSimulator
+from ares.sim.lidar import SimulatedLidar
+from ares.sim.lidar_node import LidarSimulator
 from ares.sim.velodyne_wire import WireLidar
-from ares.sim.world import open3d
 
 SEND_BUFFER = 4 * 1024 * 1024
 
@@ -53,34 +51,14 @@ class WireLidarSimulator(LidarSimulator):
     def teardown(self) -> None:
         self.sock.close()
 
-    def step(self, now: float) -> None:
-        self._faults(now)
-        truth: VehicleTruth | None = self.truth.fresh(now)
-        if truth is None:
-            return
-        stamp = truth.t
-        progress = truth.lap * self.route.length + truth.s if self.route.closed else truth.s
-        for name in self.obstacles.update(stamp, progress):
-            self.event("obstacle_moving", f"scenario obstacle {name} starts moving", obstacle=name)
-        rotation, position = vehicle_pose(truth.x, truth.y, truth.z, truth.yaw, truth.pitch)
-        obstacle_scene = None
-        mesh = self.obstacles.mesh_near(stamp, truth.x, truth.y, OBSTACLE_REACH_M)
-        if mesh is not None:
-            obstacle_scene = open3d().t.geometry.RaycastingScene()
-            obstacle_scene.add_triangles(open3d().core.Tensor(mesh.vertices), open3d().core.Tensor(mesh.triangles))
+    def send_sweeps(self, stamp: float, rotation: np.ndarray, position: np.ndarray, obstacle_scene) -> None:
+        """Each sensor's sweep as the packets of one rotation, to its UDP port."""
         first_us = round(((self.clock.utc_epoch + stamp) % 3600.0) * 1e6)
         for wired in self.wire_sensors.values():
             packets = wired.packets(
                 self.world.scene, rotation, position, obstacle_scene, self.world.material_of, first_us
             )
             self._send(packets, wired.device.port)
-        self.world_truth.put(
-            WorldTruth(
-                t=stamp,
-                obstacles=self.obstacles.boxes(stamp),
-                blocked_lidars=[n for n, s in self.sensors.items() if s.blocked],
-            )
-        )
 
     def _send(self, packets: list[bytes], port: int) -> None:
         for packet in packets:
