@@ -6,6 +6,7 @@ its devices is refused with one error naming every input nobody would publish.""
 from __future__ import annotations
 
 import pytest
+import yaml
 
 from ares import cli
 from ares.app import contracts, processes, vehicle_io
@@ -127,3 +128,29 @@ def test_a_vehicle_io_file_is_validated_naming_the_file_and_the_key(tmp_path):
 def test_wire_needs_the_simulator():
     with pytest.raises(ConfigError, match="--wire"):
         prepare((), {"wire": True, "simulate": False, "vehicle_io": DEVICES}, 1.0)
+
+
+def test_the_simulator_served_alone_writes_where_a_vehicle_run_reads(tmp_path):
+    from ares.app import wire_sim
+
+    cfg = wire_sim.sim_config((), {}, tmp_path / "wires")
+    assert cfg["simulate"] and cfg["wire"]
+    assert cfg["vehicle_io"]["gnss"]["device"] == str(tmp_path / "wires" / "gnss.tty")
+    # what `ares sim serve` writes for the vehicle's run is a valid --vehicle-io file, and with it a
+    # vehicle run has every input it needs
+    io_file = tmp_path / "vehicle_io.yaml"
+    io_file.write_text(yaml.safe_dump(cfg["vehicle_io"]))
+    vehicle = prepare((), {"simulate": False, "vehicle_io": vehicle_io.load(io_file)}, 1.0)
+    assert vehicle_io.missing_inputs(vehicle) == []
+
+
+def test_a_vehicle_run_shares_a_wall_clock_given_in_its_environment(monkeypatch):
+    from ares.app.stack import stack_clock
+    from ares.core.clock import WallClock
+
+    theirs = WallClock()
+    for key, value in theirs.env().items():
+        monkeypatch.setenv(key, value)
+    ours = stack_clock(prepare((), {"simulate": False, "vehicle_io": DEVICES}, 1.0), 1.0)
+    assert ours.mode == "wall" and abs(ours.now() - theirs.now()) < 0.05
+    assert ours.utc_epoch == theirs.utc_epoch

@@ -238,3 +238,26 @@ def test_simulated_sweep_through_the_wire(driver):
     assert np.abs(cloud.z[at] - sweep.z[real]).max() < 2e-3
     assert np.array_equal(cloud.ring[at], sweep.ring[real])
     assert np.abs(cloud.intensity[at] - sweep.intensity[real]).max() <= 0.5 / 255 + 1e-6
+
+
+def test_the_simulated_sensor_spins_on_its_own_steady_clock():
+    """Rotations a period apart, whatever the step's jitter and however old the latest truth:
+    the pose is moved on to the rotation's time (the driver would count a gap as lost packets)."""
+    import math
+    from types import SimpleNamespace
+
+    from ares.core.messages import VehicleTruth
+    from ares.sim.wire_lidar_node import WireLidarSimulator
+
+    sensor = SimpleNamespace(_spin_start=None, params=SimpleNamespace(rate_hz=10.0))
+    fields = dict(z=0.0, pitch=0.0, v=4.0, yaw_rate=0.2, accel=0.0, steering_wheel_deg=0.0, wheel_angle_rad=0.0)
+    fields |= dict(s=0.0, odometer_m=0.0, lap=0, rtk_available=True, passengers=0, board_failsafe=False)
+    stamps = []
+    for now, truth_t in [(10.0, 10.0), (10.103, 10.05), (10.198, 10.15), (10.3, 10.3)]:
+        truth = VehicleTruth(t=truth_t, x=0.0, y=0.0, yaw=0.0, **fields)
+        pose = WireLidarSimulator.sweep_pose(sensor, now, truth)
+        stamps.append(pose.t)
+        dt = pose.t - truth_t
+        assert pose.yaw == pytest.approx(0.2 * dt)
+        assert math.hypot(pose.x, pose.y) == pytest.approx(4.0 * abs(dt), rel=1e-3)
+    assert stamps == pytest.approx([10.0, 10.1, 10.2, 10.3])

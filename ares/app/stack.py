@@ -36,7 +36,7 @@ from ares.app.fleet import fleet_configs, start_fleet
 from ares.app.supervisor import Supervisor
 from ares.core import config
 from ares.core.bus import Bus, ServiceError
-from ares.core.clock import Clock, DrivenClock, ScaledClock, WallClock
+from ares.core.clock import MODE_ENV, Clock, DrivenClock, ScaledClock, WallClock
 from ares.core.messages import DriveMode, DriverCommand
 from ares.core.route import Route, RouteError, load_route, read_origin
 from blackbox.api import ApiSettings
@@ -204,7 +204,9 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str, wire_di
 
 def stack_clock(cfg: dict, speed: float | str) -> Clock:
     if not cfg["simulate"]:
-        return WallClock()
+        # the vehicle's wall clock; given in the environment (ARES_CLOCK_MODE=wall and its epoch), one
+        # shared with another process of this machine: `ares sim serve`'s clock.env
+        return Clock.from_env() if os.environ.get(MODE_ENV) == "wall" else WallClock()
     if speed in ("max", "paced"):
         return DrivenClock()
     return ScaledClock(float(speed))

@@ -162,7 +162,10 @@ def _signal_group(pgid: int, sig: int) -> None:
 
 
 class Supervisor:
-    def __init__(self, cfg: dict, processes: list[Process], run_dir: Path, clock: Clock):
+    def __init__(self, cfg: dict, processes: list[Process], run_dir: Path, clock: Clock, publishes_state: bool = True):
+        """`publishes_state` False: a supervisor beside the vehicle's own on its bus (the simulator
+        serving its wires, `ares sim serve`), which must not speak for the vehicle's processes."""
+        self.publishes_state = publishes_state
         names = [p.name for p in processes]
         if len(set(names)) != len(names):
             raise ValueError(f"duplicate process names in the table: {names}")
@@ -337,7 +340,7 @@ class Supervisor:
         return SupervisorState(t=self.clock.now(), processes=[c.status(now) for c in self.children.values()])
 
     def _publish_state(self) -> None:
-        if self._closed:
+        if self._closed or not self.publishes_state:
             return
         self._changed = False
         self._last_state_pub = time.monotonic()

@@ -55,6 +55,8 @@
                                    run a router from a deployment's JSON5 file (stands in for zenohd)
     ares fleet serve [--config FILE] [--router EP] [--store URI] [--api-port P] [--run-dir DIR]
                                    the fleet server: every vehicle's black box in the fleet's store, its API
+    ares sim serve --wire-dir DIR [--config FILE] [--route R] [--listen EP] [--run-dir DIR]
+                                   the simulated shuttle alone behind its wires, for a run with simulate: false
 
 `topics` and `echo` connect in client mode to the running stack's router (the `bus.router`
 endpoint of the run configuration, or --router) and look under the configured vehicle id (or
@@ -68,7 +70,7 @@ import logging
 import os
 import sys
 
-from . import bench, blackbox, bus_tools, compare, deploy, fleet, inspect, mission, perception, route, run
+from . import bench, blackbox, bus_tools, compare, deploy, fleet, inspect, mission, perception, route, run, sim
 from .args import CliError, Command
 
 COMMAND_GROUPS = (
@@ -83,6 +85,7 @@ COMMAND_GROUPS = (
     perception,
     deploy,
     fleet,
+    sim,
 )  # as `ares --help` lists them
 
 

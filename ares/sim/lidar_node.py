@@ -102,6 +102,7 @@ class LidarSimulator(Node):
         truth: VehicleTruth | None = self.truth.fresh(now)
         if truth is None:
             return
+        truth = self.sweep_pose(now, truth)
         stamp = truth.t  # the sweep is taken from this pose: it carries the pose's time
         progress = truth.lap * self.route.length + truth.s if self.route.closed else truth.s
         for name in self.obstacles.update(stamp, progress):
@@ -120,6 +121,10 @@ class LidarSimulator(Node):
                 blocked_lidars=[n for n, s in self.sensors.items() if s.blocked],
             )
         )
+
+    def sweep_pose(self, now: float, truth: VehicleTruth) -> VehicleTruth:
+        """The pose a sweep is cast from: the latest true pose as it is."""
+        return truth
 
     def send_sweeps(self, stamp: float, rotation: np.ndarray, position: np.ndarray, obstacle_scene) -> None:
         """Each sensor's sweep from the vehicle's pose, as a cloud on the bus."""

@@ -11,10 +11,12 @@ the stamp back exactly. sim/world (the obstacles as they are, for evaluation) st
 
 from __future__ import annotations
 
+import math
 import socket
 
 import numpy as np
 
+from ares.core.messages import VehicleTruth
 from ares.sim.lidar import SimulatedLidar
 from ares.sim.lidar_node import LidarSimulator
 from ares.sim.velodyne_wire import WireLidar
@@ -44,12 +46,33 @@ class WireLidarSimulator(LidarSimulator):
 
     def setup(self) -> None:
         super().setup()
+        self._spin_start: float | None = None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER)
         self.send_errors = 0
 
     def teardown(self) -> None:
         self.sock.close()
+
+    def sweep_pose(self, now: float, truth: VehicleTruth) -> VehicleTruth:
+        """The pose at the rotation's own time, moved from the latest truth by its speed and yaw
+        rate: a sensor on the wire spins without pause, so its rotations follow one another exactly
+        a period apart (on the grid of its first), whatever the loop's jitter and whichever truth
+        message (at most one truth period old) was the latest."""
+        if self._spin_start is None:
+            self._spin_start = now
+        period = 1.0 / self.params.rate_hz
+        t = self._spin_start + round((now - self._spin_start) / period) * period
+        dt = t - truth.t
+        yaw = truth.yaw + 0.5 * truth.yaw_rate * dt  # along the arc's mean heading
+        return truth.model_copy(
+            update={
+                "t": t,
+                "x": truth.x + truth.v * math.cos(yaw) * dt,
+                "y": truth.y + truth.v * math.sin(yaw) * dt,
+                "yaw": truth.yaw + truth.yaw_rate * dt,
+            }
+        )
 
     def send_sweeps(self, stamp: float, rotation: np.ndarray, position: np.ndarray, obstacle_scene) -> None:
         """Each sensor's sweep as the packets of one rotation, to its UDP port."""
