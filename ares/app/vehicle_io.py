@@ -54,6 +54,7 @@ def simulator_wires(cfg: dict[str, Any], wire_dir: Path) -> dict[str, Any]:
         "lidars": {
             name: {"model": MODEL_OF_MOUNT[mount.model], "address": "127.0.0.1", "port": _free_udp_port()}
             for name, mount in profile.lidars.items()
+            if cfg["lidars"]
         },
     }
 

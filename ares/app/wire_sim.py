@@ -27,18 +27,16 @@ from pathlib import Path
 
 import yaml
 
-from ares.app import processes, run_config, vehicle_io
+from ares.app import processes
+from ares.app.stack import prepare
 from ares.app.supervisor import Supervisor
 from ares.core import config
 from ares.core.clock import SPEED_ENV, WallClock
 
 
 def sim_config(files: tuple[str, ...], overrides: dict, wire_dir: Path) -> dict:
-    cfg = run_config.build(files, config.deep_merge(overrides, {"simulate": True, "wire": True}))
-    if not config.core(cfg).vehicle_profile.lidars:
-        cfg["lidars"] = False
-    cfg["vehicle_io"] = vehicle_io.simulator_wires(cfg, wire_dir)
-    return cfg
+    """As `ares run --wire` prepares its run (the route file's origin, the scenario, the wires)."""
+    return prepare(files, config.deep_merge(overrides, {"simulate": True, "wire": True}), 1.0, wire_dir=wire_dir)
 
 
 def serve(cfg: dict, wire_dir: Path, run_dir: Path, stop: threading.Event | None = None) -> int:
