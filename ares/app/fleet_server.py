@@ -9,15 +9,11 @@ with the live view of every vehicle on the router). On the wall clock, until SIG
 
 from __future__ import annotations
 
-import logging
-import os
-import signal
-import sys
 import threading
 from pathlib import Path
 
 from ares.app import processes, run_config
-from ares.app.supervisor import Supervisor
+from ares.app.supervisor import Supervisor, serve_until_stopped
 from ares.core import config
 from ares.core.clock import WallClock
 from blackbox.recorder import store_uri
@@ -35,25 +31,9 @@ def fleet_config(files: tuple[str, ...], overrides: dict) -> dict:
 
 def serve(cfg: dict, run_dir: Path, stop: threading.Event | None = None) -> int:
     """Run the fleet server's processes until `stop` (or a signal); 0 on a clean stop."""
-    logging.basicConfig(
-        level=os.environ.get("ARES_LOG_LEVEL", "INFO"),
-        format="%(asctime)s %(name)s %(levelname)s: %(message)s",
-        stream=sys.stderr,
+    return serve_until_stopped(
+        Supervisor(cfg, processes.FLEET_SERVER, run_dir, WallClock()),
+        f"fleet server {cfg['vehicle_id']} on {cfg['bus']['router']}: "
+        f"{', '.join(p.name for p in processes.FLEET_SERVER)} (logs in {run_dir / 'logs'})",
+        stop,
     )
-    stop = stop or threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    supervisor = Supervisor(cfg, processes.FLEET_SERVER, run_dir, WallClock())
-    try:
-        supervisor.start()
-        print(
-            f"fleet server {cfg['vehicle_id']} on {cfg['bus']['router']}: "
-            f"{', '.join(p.name for p in processes.FLEET_SERVER)} (logs in {run_dir / 'logs'})",
-            file=sys.stderr,
-            flush=True,
-        )
-        supervisor.run(stop)
-    finally:
-        supervisor.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    return 0

@@ -614,6 +614,27 @@ class Supervisor:
         log.info("stopped")
 
 
+def serve_until_stopped(supervisor: Supervisor, banner: str, stop: threading.Event | None = None) -> int:
+    """Run `supervisor` in the foreground until `stop` or SIGINT/SIGTERM (the fleet server, the
+    simulator serving its wires): its processes started, `banner` printed, then stopped; 0."""
+    logging.basicConfig(
+        level=os.environ.get("ARES_LOG_LEVEL", "INFO"),
+        format="%(asctime)s %(name)s %(levelname)s: %(message)s",
+        stream=sys.stderr,
+    )
+    stop = stop or threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        supervisor.start()
+        print(banner, file=sys.stderr, flush=True)
+        supervisor.run(stop)
+    finally:
+        supervisor.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0
+
+
 def default_run_dir() -> Path:
     return Path(os.environ.get(RUN_DIR_ENV) or Path("runs") / time.strftime("%Y%m%d-%H%M%S"))
 

@@ -59,47 +59,33 @@ def simulator_wires(cfg: dict[str, Any], wire_dir: Path) -> dict[str, Any]:
     }
 
 
-def published_by_drivers(cfg: dict[str, Any]) -> dict[str, str]:
-    """topic -> the device that gives it, for the devices configured in `vehicle_io`."""
+def driver_topics(cfg: dict[str, Any]) -> dict[str, tuple[str, bool]]:
+    """topic -> (the vehicle_io key of the device that gives it, whether that device is configured),
+    for every topic the run's drivers can publish."""
     io = config.core(cfg).vehicle_io
-    found: dict[str, str] = {}
+    found: dict[str, tuple[str, bool]] = {}
     for spec in processes.for_config(cfg):
         key = DRIVER_DEVICES.get(spec.name)
-        if key is None:
-            continue
-        for out in spec.node_class().outputs():
+        for out in spec.node_class().outputs() if key else ():
             if out.topic == "drivers/status":
                 continue
             if key == "lidars":
                 name = out.topic.split("/")[1]
-                if name in io.lidars:
-                    found[out.topic] = f"vehicle_io.lidars.{name}"
-            elif getattr(io, key) is not None:
-                found[out.topic] = f"vehicle_io.{key}"
+                found[out.topic] = (f"vehicle_io.lidars.{name}", name in io.lidars)
+            else:
+                found[out.topic] = (f"vehicle_io.{key}", getattr(io, key) is not None)
     return found
 
 
 def missing_inputs(cfg: dict[str, Any]) -> list[str]:
     """Inputs of the vehicle's running nodes that nobody would publish, each with the device that
     would give it: "sensors/gnss (read by gnss; needs vehicle_io.gnss)"."""
-    running = processes.for_config(cfg)
-    device_of = {}
-    for spec in running:
-        key = DRIVER_DEVICES.get(spec.name)
-        if key is None:
-            continue
-        for out in spec.node_class().outputs():
-            if out.topic != "drivers/status":
-                device_of[out.topic] = (
-                    f"vehicle_io.lidars.{out.topic.split('/')[1]}" if key == "lidars" else f"vehicle_io.{key}"
-                )
-    available = set(published_by_drivers(cfg))
-    graph = contracts.graph(contracts.all_contracts(cfg, running))
+    devices = driver_topics(cfg)
+    graph = contracts.graph(contracts.all_contracts(cfg, processes.for_config(cfg)))
     missing = []
     for topic, ends in graph.items():
-        if topic not in device_of or topic in available:
-            continue
+        device, configured = devices.get(topic, ("", True))
         readers = sorted(set(ends["subscribers"]))
-        if readers:
-            missing.append(f"{topic} (read by {', '.join(readers)}; needs {device_of[topic]})")
+        if not configured and readers:
+            missing.append(f"{topic} (read by {', '.join(readers)}; needs {device})")
     return missing

@@ -18,10 +18,6 @@ service reach the vehicle's run) only the vehicle's supervisor speaks for the ve
 
 from __future__ import annotations
 
-import logging
-import os
-import signal
-import sys
 import threading
 from pathlib import Path
 
@@ -29,7 +25,7 @@ import yaml
 
 from ares.app import processes
 from ares.app.stack import prepare
-from ares.app.supervisor import Supervisor
+from ares.app.supervisor import Supervisor, serve_until_stopped
 from ares.core import config
 from ares.core.clock import SPEED_ENV, WallClock
 
@@ -40,12 +36,6 @@ def sim_config(files: tuple[str, ...], overrides: dict, wire_dir: Path) -> dict:
 
 
 def serve(cfg: dict, wire_dir: Path, run_dir: Path, stop: threading.Event | None = None) -> int:
-    logging.basicConfig(
-        level=os.environ.get("ARES_LOG_LEVEL", "INFO"),
-        format="%(asctime)s %(name)s %(levelname)s: %(message)s",
-        stream=sys.stderr,
-    )
-    stop = stop or threading.Event()
     wire_dir.mkdir(parents=True, exist_ok=True)
     clock = WallClock()
     devices = {k: v for k, v in cfg["vehicle_io"].items() if v}
@@ -54,20 +44,10 @@ def serve(cfg: dict, wire_dir: Path, run_dir: Path, stop: threading.Event | None
     )
     (wire_dir / "clock.env").write_text("".join(f"{k}={v}\n" for k, v in clock.env().items() if k != SPEED_ENV))
     simulators = [p for p in processes.for_run(True, cfg["lidars"], wire=True) if p.sim_only]
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    supervisor = Supervisor(cfg, simulators, run_dir, clock, publishes_state=False)
-    try:
-        supervisor.start()
-        print(
-            f"simulated shuttle {cfg['vehicle_id']} behind its wires on {cfg['bus']['router']}: "
-            f"{', '.join(p.name for p in simulators)}; devices in {wire_dir / 'vehicle_io.yaml'}, "
-            f"its clock in {wire_dir / 'clock.env'} (logs in {run_dir / 'logs'})",
-            file=sys.stderr,
-            flush=True,
-        )
-        supervisor.run(stop)
-    finally:
-        supervisor.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    return 0
+    return serve_until_stopped(
+        Supervisor(cfg, simulators, run_dir, clock, publishes_state=False),
+        f"simulated shuttle {cfg['vehicle_id']} behind its wires on {cfg['bus']['router']}: "
+        f"{', '.join(p.name for p in simulators)}; devices in {wire_dir / 'vehicle_io.yaml'}, "
+        f"its clock in {wire_dir / 'clock.env'} (logs in {run_dir / 'logs'})",
+        stop,
+    )
