@@ -93,8 +93,8 @@ class FreeSpaceTracer:
         (a point high above the band of obstacles only skimmed over the cells); occupied: the
         grid's occupied cells, flat."""
         keys = len(self.origin_x) * self.bins
-        dx = np.asarray(x, dtype=np.float32) - self.origin_x[sensor_index]
-        dy = np.asarray(y, dtype=np.float32) - self.origin_y[sensor_index]
+        dx = np.asarray(x, dtype=np.float32) - np.take(self.origin_x, sensor_index)
+        dy = np.asarray(y, dtype=np.float32) - np.take(self.origin_y, sensor_index)
         reach = np.sqrt(dx * dx + dy * dy)
         reach[~returns] = 0.0
         azimuth = np.arctan2(dy, dx)

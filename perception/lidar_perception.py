@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -32,7 +33,7 @@ from ares.core.config import LidarMount, Params, VehicleProfile, param
 from ares.core.geometry import arc_step
 from perception.cloud_filters import BodyBox, CloudFilterParams, ghost_mask, self_hit_mask
 from perception.extrinsics import apply, pose_matrix
-from perception.heightmap import ground_mask
+from perception.heightmap import floor_ground_mask, ground_mask
 from perception.occupancy import OccupancyMapper, OccupancyParams
 from perception.road_detection import LidarFrame, RoadDetectionParams, RoadModel, RoadResult, detect_road
 
@@ -42,9 +43,93 @@ GUIDE_FROM_M = 4.0  # a lost road is moved from where its fit had points (from ~
 
 
 class GroundParams(Params):
-    threshold_m: float = param(
-        0.15, "a heightmap cell spanning less than this in height is ground (Algorithm 2: Th)", unit="m", gt=0
+    """Heightmap ground removal (Algorithm 2 and where it departs from it: perception/heightmap.py)."""
+
+    method: Literal["floor", "cell_span"] = param(
+        "floor",
+        "floor: a point near its cell's lowest, which is near the floor around it, is ground; "
+        "cell_span: Algorithm 2 as published, a cell spanning less than threshold_m is ground, "
+        "within the occupancy grid only",
     )
+    threshold_m: float = param(
+        0.15,
+        "Algorithm 2's Th: a point less than this above its cell's lowest return is ground "
+        "(cell_span: a cell spanning less than this)",
+        unit="m",
+        gt=0,
+    )
+    extent_m: float = param(
+        100.0,
+        "floor: the heightmap is this wide, square around the occupancy grid's centre (it labels the "
+        "scan, not only the grid; a point beyond it is not ground)",
+        unit="m",
+        gt=0,
+    )
+    floor_window_m: float = param(
+        0.4, "floor: the near floor is the lowest return of the cells this close (square window)", unit="m", ge=0
+    )
+    near_extent_m: float = param(
+        30.0,
+        "floor: the near floor is kept on a square this wide around the grid's centre, where the "
+        "occupancy grid reads the labels (beyond it the far floor and the plane judge alone)",
+        unit="m",
+        gt=0,
+    )
+    step_m: float = param(
+        0.2,
+        "floor: a point standing this much above the near floor is not ground (a 0.3 m box's top; "
+        "a kerb's, a slope's stand lower); the occupancy grid's min_height_m",
+        unit="m",
+        gt=0,
+    )
+    block_m: float = param(1.0, "floor: cells are grouped in blocks this wide for the far floor", unit="m", gt=0)
+    floor_rank: int = param(
+        3,
+        "floor: a block's floor is the lowest return of its n-th lowest cell, so a few stray returns "
+        "below the road sink no floor (fewer cells with returns: no floor)",
+        ge=1,
+    )
+    far_blocks: int = param(3, "floor: the far floor is the lowest block floor this many blocks around", ge=0)
+    rise_m: float = param(
+        0.5,
+        "floor: a cell whose lowest return stands this much above the far floor is not ground "
+        "(a car's roof, a wall whose foot was hidden; a road's grade rises less)",
+        unit="m",
+        gt=0,
+    )
+    plane_m: float = param(
+        0.3,
+        "floor: a cell whose lowest return lies this plus max_grade × its distance from the grid's "
+        "centre above or below the plane the wheels stand on (z = 0) is not ground (a ledge, a "
+        "canopy over road that the body hides from the sensors)",
+        unit="m",
+        gt=0,
+    )
+    max_grade: float = param(
+        0.12, "floor: how steeply the ground may climb or fall away from the vehicle (plane_m)", ge=0
+    )
+
+    def mask(self, points: np.ndarray, grid: OccupancyParams) -> np.ndarray:
+        """The ground points of an (N, ≥3) cloud in the vehicle frame; the heightmap is laid on the
+        occupancy grid's cells, around its centre."""
+        shifted = points - np.array([grid.centre_x_m, grid.centre_y_m, 0.0], dtype=np.float32)
+        if self.method == "cell_span":
+            return ground_mask(shifted, grid.width_m, grid.height_m, grid.cell_m, self.threshold_m)
+        return floor_ground_mask(
+            shifted,
+            self.extent_m,
+            grid.cell_m,
+            self.threshold_m,
+            self.floor_window_m,
+            self.step_m,
+            self.block_m,
+            self.floor_rank,
+            self.far_blocks,
+            self.rise_m,
+            self.max_grade,
+            self.plane_m,
+            self.near_extent_m,
+        )
 
 
 class LidarPipelineParams(Params):
@@ -138,7 +223,7 @@ class LidarPipeline:
         index = np.flatnonzero(keep)
         ghost = p.filters.ghost
         ghosts = ghost_mask(
-            points[index],
+            np.take(points, index, axis=0),  # take: 4x faster than points[index] on (N, 3)
             sensor_index[index],
             self.origins,
             self.body,
@@ -149,8 +234,13 @@ class LidarPipeline:
         )
         keep[index[ghosts]] = False  # ghosts are judged once the self hits are gone (keep_mask)
         removed["ghosts"] = int(ghosts.sum())
+        index = np.flatnonzero(keep)
         frame = LidarFrame(
-            points[keep], ring_id[keep], azimuth[keep], sensor_index[keep].astype(np.int64), self.origins
+            np.take(points, index, axis=0),
+            ring_id[index],
+            azimuth[index],
+            sensor_index[index].astype(np.int64),
+            self.origins,
         )
         if lap:
             lap("filters")
@@ -174,8 +264,7 @@ class LidarPipeline:
         points, sensor_index = frame.points, frame.sensor_index
 
         g = p.grid
-        shifted = points - np.array([g.centre_x_m, g.centre_y_m, 0.0], dtype=np.float32)
-        ground = ground_mask(shifted, g.width_m, g.height_m, g.cell_m, p.ground.threshold_m)
+        ground = p.ground.mask(points, g)
         lap("ground")
 
         cells = self.mapper.cells(points, ground, sensor_index)

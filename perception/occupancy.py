@@ -120,14 +120,15 @@ class OccupancyMapper:
         p = self.params
         x, y, z = points[:, 0], points[:, 1], points[:, 2]
         flat, inside = self.grid.cell_index(x, y)
-        on_road = ground & inside
-        ground_z = local_ground(self.grid, flat[on_road], z[on_road], self.radius_cells)
+        on_road = np.flatnonzero(ground & inside)
+        road_cells, road_z = flat[on_road], z[on_road]
+        ground_z = local_ground(self.grid, road_cells, road_z, self.radius_cells)
         others = np.flatnonzero(~ground)
         held = inside[others]
         above = z[others] - np.where(held, ground_z[np.where(held, flat[others], 0)], 0.0)
         occupied = np.zeros(self.grid.size, dtype=bool)
         occupied[flat[others[held & (above >= p.min_height_m) & (above <= p.max_height_m)]]] = True
-        occupied[flat[on_road][self._raised(flat[on_road], z[on_road], flat[inside], z[inside])]] = True
+        occupied[road_cells[self._raised(road_cells, road_z, flat[inside], z[inside])]] = True
         returns = np.ones(len(points), dtype=bool)
         returns[others[above > p.max_height_m]] = False
         free = self.tracer.free(x, y, sensor_index, returns, occupied)

@@ -72,6 +72,7 @@ figures, and why each β has its value.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -466,14 +467,23 @@ def _within_band(frame: LidarFrame, idx: np.ndarray, guide: np.ndarray | None, b
     return idx[inside], across[inside]
 
 
+def _starts(ids: np.ndarray) -> np.ndarray:
+    """True where a run of equal ids starts (np.r_[True, ids[1:] != ids[:-1]], without r_'s overhead)."""
+    out = np.empty(len(ids), dtype=bool)
+    out[:1] = True
+    np.not_equal(ids[1:], ids[:-1], out=out[1:])
+    return out
+
+
 def _group_by_ring(ring_id: np.ndarray, idx: np.ndarray, across: np.ndarray):
     """The points ring after ring, in their order within each ring (a stable radix sort of small
     integers), then where each ring starts and the ring of each point, numbered 0, 1, ..."""
     ids = ring_id[idx]
-    order = np.argsort(ids.astype(np.int16 if ids.max(initial=0) < 2**15 else np.int64), kind="stable")
-    idx, ids, across = idx[order], ids[order], across[order]
-    ring_first = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
-    return idx, across, ring_first, np.repeat(np.arange(len(ring_first)), np.diff(np.r_[ring_first, len(idx)]))
+    if np.any(ids[1:] < ids[:-1]):  # (from _roi_frame they come sorted)
+        order = np.argsort(ids.astype(np.int16 if ids.max(initial=0) < 2**15 else np.int64), kind="stable")
+        idx, ids, across = idx[order], ids[order], across[order]
+    ring_first = np.flatnonzero(_starts(ids))
+    return idx, across, ring_first, np.repeat(np.arange(len(ring_first)), np.diff(ring_first, append=len(idx)))
 
 
 def _ring_references(frame: LidarFrame, idx, across, ring_first, ring, p: RoadDetectionParams):
@@ -481,10 +491,10 @@ def _ring_references(frame: LidarFrame, idx, across, ring_first, ring, p: RoadDe
     Per ring: θs (its azimuth, Algorithm 1's), its height, its horizontal range from the sensor
     (−inf: it lies more than reference_max_offset_m off the guide, the ring is not the road's) and
     the elevation of the ray that hit it."""
-    x, y, z = frame.points[idx].T
+    x, y, z = np.take(frame.points, idx, axis=0).T
     sensor = frame.sensor_index[idx]
     offset = across.copy()
-    offset[x <= frame.sensor_origins[sensor, 0]] = np.inf
+    offset[x <= np.take(frame.sensor_origins[:, 0], sensor)] = np.inf
     best = np.minimum.reduceat(offset, ring_first)
     theta_s = np.full(len(ring_first), np.nan)
     z_ref = np.zeros(len(ring_first))
@@ -512,7 +522,7 @@ def _road_rings(reach: np.ndarray, aim: np.ndarray, ring_sensor: np.ndarray):
     by_sensor = reach[lowest_first] + 1e4 * ring_sensor[lowest_first]  # the running maximum restarts per sensor
     road_ring = np.zeros(len(reach), dtype=bool)
     road_ring[lowest_first] = np.isfinite(by_sensor) & (
-        by_sensor > np.r_[-np.inf, np.maximum.accumulate(by_sensor)[:-1]]
+        by_sensor > np.concatenate(([-np.inf], np.maximum.accumulate(by_sensor)[:-1]))
     )
     return road_ring, ring_below
 
@@ -539,11 +549,11 @@ def _azimuth_order(az, z, ring, theta_s, z_ref, road_ring):
 def _gather_rings(frame: LidarFrame, idx, across, ring, keep, u, theta_s, ring_below) -> _Rings:
     """The kept points of _azimuth_order as _Rings, the rings left numbered again from 0."""
     old = ring[keep]
-    new_ring = np.r_[True, old[1:] != old[:-1]]
+    new_ring = _starts(old)
     renumbered = np.full(len(ring_below) + 1, -1)  # old ring numbers to new (−1: gone, or none)
     renumbered[old[new_ring]] = np.arange(new_ring.sum())
     idx = idx[keep]
-    x, y, z = np.ascontiguousarray(frame.points[idx].T, dtype=np.float64)
+    x, y, z = np.ascontiguousarray(np.take(frame.points, idx, axis=0).T, dtype=np.float64)
     return _Rings(
         idx,
         np.cumsum(new_ring) - 1,
@@ -566,9 +576,8 @@ def _along_ring(rings: _Rings, sensor_origins: np.ndarray) -> _Along:
     pieces."""
     x, y, u, ring = rings.x, rings.y, rings.u, rings.ring
     n = len(u)
-    origin = sensor_origins[rings.sensor]
-    rho = np.hypot(x - origin[:, 0], y - origin[:, 1])
-    new_ring = np.r_[True, ring[1:] != ring[:-1]]
+    rho = np.hypot(x - np.take(sensor_origins[:, 0], rings.sensor), y - np.take(sensor_origins[:, 1], rings.sensor))
+    new_ring = _starts(ring)
     dt = np.abs(np.diff(u, prepend=u[0])) * rho
     dt[new_ring] = 0.0
     step = np.hypot(np.diff(x, prepend=x[0]), np.diff(y, prepend=y[0]))
@@ -576,7 +585,7 @@ def _along_ring(rings: _Rings, sensor_origins: np.ndarray) -> _Along:
     piece = np.cumsum(new_piece)
     T = np.cumsum(dt)
     ring_start = np.flatnonzero(new_ring)
-    t = T - np.repeat(T[ring_start], np.diff(np.r_[ring_start, n]))  # from the ring's right end
+    t = T - np.repeat(T[ring_start], np.diff(ring_start, append=n))  # from the ring's right end
     count = len(ring_start)
     steps = np.maximum(np.bincount(ring, ~new_piece, count), 1)
     spacing = np.bincount(ring, np.where(new_piece, 0.0, dt), count) / steps
@@ -587,9 +596,9 @@ def _along_ring(rings: _Rings, sensor_origins: np.ndarray) -> _Along:
         t,
         piece,
         piece_first,
-        np.r_[piece_first[1:] - 1, n - 1],
+        np.append(piece_first[1:] - 1, n - 1),
         ring_start,
-        np.r_[ring_start[1:] - 1, n - 1],
+        np.append(ring_start[1:] - 1, n - 1),
         np.maximum(spacing, 1e-3),
         reference_piece,
     )
@@ -672,7 +681,7 @@ def _stops(score, u, piece, run):
     in a row scoring < 0.5 within one piece (one stray point is not an edge)."""
     n = len(score)
     at = np.arange(n)
-    nonroad = np.r_[0, np.cumsum(~(score >= 0.5))]
+    nonroad = np.concatenate(([0], np.cumsum(~(score >= 0.5))))
     # (fewer points than a run, run > n: the window is cut at the end and cannot hold run non-road points)
     start = np.clip(np.where(u > 0, at, at - run + 1), 0, np.maximum(n - run, 0))
     end = np.minimum(start + run, n)
@@ -688,7 +697,7 @@ def _side_boundary(sign, stop, score, reach_s, rings: _Rings, along: _Along, tre
     last = _last_road_points(ends[_fell_away(ends, sign, rings, along, band, p, x_max)], sign, score, rings)
     b = _hinge(stops, sign, reach_s, along.t, rings.z, trend, along)
     b = b[rings.u[b] * sign > 0]
-    return np.r_[b, last].astype(np.int64)
+    return np.concatenate([b, last]).astype(np.int64)
 
 
 def _first_stops(stop, sign, ring, along: _Along):
@@ -941,14 +950,35 @@ def detect_road(
     p = params or RoadDetectionParams()
     x, y = frame.points[:, 0], frame.points[:, 1]
     roi = np.flatnonzero((x >= p.x_min_m) & (x <= p.x_max_m) & (np.abs(y) <= p.half_width_m))
+    local, roi = _roi_frame(frame, roi)
+    inside = np.arange(len(roi))
     result = None
     if previous is not None and previous.centre() is not None:
-        result = _detect(frame, roi, p, previous.centre(), previous)
+        result = _detect(local, inside, p, previous.centre(), previous)
     if result is None or not result.found:
-        again = _detect(frame, roi, p, _bootstrap_guide(frame, roi, p, previous), previous)
+        again = _detect(local, inside, p, _bootstrap_guide(local, inside, p, previous), previous)
         if result is None or again.confidence > result.confidence:
             result = again
-    return result
+    scores = np.full(len(frame.points), np.nan, dtype=np.float32)
+    scores[roi] = result.scores
+    return dataclasses.replace(result, scores=scores)
+
+
+def _roi_frame(frame: LidarFrame, roi: np.ndarray) -> tuple[LidarFrame, np.ndarray]:
+    """The points of the region of interest as a frame of their own, ring after ring, each ring in
+    the frame's order (a stable sort), and their indices in the frame. Every scan of the frame
+    (up to three: the bootstrap's two and the detection) reads its points from it: no scan sorts
+    by ring again (_group_by_ring finds them sorted)."""
+    ids = frame.ring_id[roi]
+    roi = roi[np.argsort(ids.astype(np.int16 if ids.max(initial=0) < 2**15 else np.int64), kind="stable")]
+    local = LidarFrame(
+        np.take(frame.points, roi, axis=0),
+        frame.ring_id[roi],
+        frame.azimuth[roi],
+        frame.sensor_index[roi],
+        frame.sensor_origins,
+    )
+    return local, roi
 
 
 def _bootstrap_guide(

@@ -32,6 +32,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ares.app import contracts, processes, run_config, vehicle_io
+from ares.app.bus_record import in_run as bus_record
 from ares.app.fleet import fleet_configs, start_fleet
 from ares.app.supervisor import Supervisor
 from ares.core import config
@@ -127,6 +128,13 @@ def run(args, headless_drive: HeadlessDrive | None = None) -> int:
     if cfg["replay"]["record"] and not cfg["replay"]["dir"]:
         cfg["replay"]["dir"] = str((run_dir / "replay").resolve())
     supervisor = Supervisor(cfg, processes.for_config(cfg), run_dir, clock)
+    # --record, --foxglove: on the supervisor's session, before any process speaks
+    try:
+        taps = bus_record.start(args, cfg, supervisor.bus, clock, run_dir, route)
+    except (RuntimeError, OSError) as exc:
+        supervisor.stop()
+        print(f"ares run: {exc}", file=sys.stderr)
+        return 2
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     supervisor.start()
@@ -145,10 +153,13 @@ def run(args, headless_drive: HeadlessDrive | None = None) -> int:
         stop.set()
         loop.join(timeout=5)
         supervisor.stop()
+        recording = taps.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     # the stack has stopped and the recorder flushed what it held: count what the store has
     result["blackbox_records"] = count_blackbox_records(cfg, clock)
+    if recording:
+        result["recording"] = recording
     print(json.dumps(result))
     return 0
 

@@ -317,7 +317,9 @@ class Supervisor:
         """A scenario's process fault: kill (SIGKILL), stop (SIGTERM: it exits) or hang (SIGSTOP:
         alive, its loop stands still). The supervisor then finds it dead or hung as it would any
         other time. Returns what was done."""
-        signals = {"kill": signal.SIGKILL, "stop": signal.SIGTERM, "hang": signal.SIGSTOP}
+        # busy: SIGUSR1, which a process spawned for a soak (ARES_FAULT_INJECTION=1) answers by
+        # busy-looping with the GIL held (ares.core.launch); any other process it would end
+        signals = {"kill": signal.SIGKILL, "stop": signal.SIGTERM, "hang": signal.SIGSTOP, "busy": signal.SIGUSR1}
         if process not in self.children:
             raise KeyError(f"no process {process!r} in this run ({', '.join(self.children)})")
         pid = self.children[process].pid

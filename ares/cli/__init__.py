@@ -3,7 +3,7 @@
     ares run [--headless] [--manual] [--laps N] [--speed X|max] [--config FILE] [--route FILE]
              [--vehicle NAME] [--passengers N] [--vehicle-id ID] [--router ENDPOINT] [--run-dir DIR]
              [--store URI] [--seconds S] [--controller auto|mpc|rrc|pure_pursuit] [--scenario NAME|FILE]
-             [--wire] [--vehicle-io FILE]
+             [--wire] [--vehicle-io FILE] [--record [FILE.mcap]] [--foxglove [[HOST:]PORT]]
     ares compare [--controllers mpc,pure_pursuit] [--route R] [--vehicle V] [--scenario S] [--laps N|--seconds S]
                                    the same headless run with each controller, figures side by side, and a picture
     ares node NAME                 run one process of the stack in the foreground
@@ -13,6 +13,11 @@
     ares config show [FILE...]     the merged, validated configuration, every key commented
     ares replay check|update FILE...
                                    process replay of recorded node inputs against their outputs
+    ares replay FILE.mcap [--node NAME] [--speed X|max] [--info] [--listen EP | --router EP]
+                                   an MCAP recording of the bus: played into a bus, one process replayed
+                                   against its recorded outputs, or its channels listed
+    ares record [KEY ...] [--out FILE.mcap] [--seconds S]
+                                   the running stack's bus to MCAP (opens in Foxglove; docs/recording.md)
     ares calibrate odometry        re-run the experiment that chose the odometry score's a, b, c
     ares calibrate lidars [--vehicle NAME] [--seed S] [--offset-m M] [--offset-deg D] [--write PATH] [--json]
                                    find the LiDARs' extrinsics against each other in a simulated warehouse
@@ -55,6 +60,8 @@
                                    run a router from a deployment's JSON5 file (stands in for zenohd)
     ares fleet serve [--config FILE] [--router EP] [--store URI] [--api-port P] [--run-dir DIR]
                                    the fleet server: every vehicle's black box in the fleet's store, its API
+    ares soak [--hours H] [--faults N] [--seed S] [--json] [--config FILE] [--out DIR] | --summarise DIR
+                                   the tour at --speed max with faults injected from a seeded plan (docs/reliability.md)
     ares sim serve --wire-dir DIR [--config FILE] [--route R] [--listen EP] [--run-dir DIR]
                                    the simulated shuttle alone behind its wires, for a run with simulate: false
 
@@ -70,7 +77,22 @@ import logging
 import os
 import sys
 
-from . import bench, blackbox, bus_tools, compare, deploy, fleet, inspect, mission, perception, route, run, sim
+from . import (
+    bench,
+    blackbox,
+    bus_tools,
+    compare,
+    deploy,
+    fleet,
+    inspect,
+    mission,
+    perception,
+    record,
+    route,
+    run,
+    sim,
+    soak,
+)
 from .args import CliError, Command
 
 COMMAND_GROUPS = (
@@ -78,6 +100,7 @@ COMMAND_GROUPS = (
     compare,
     inspect,
     bus_tools,
+    record,
     mission,
     bench,
     route,
@@ -86,6 +109,7 @@ COMMAND_GROUPS = (
     deploy,
     fleet,
     sim,
+    soak,
 )  # as `ares --help` lists them
 
 

@@ -1,10 +1,11 @@
-"""`ares bench bus|path|blackbox|supervisor|perception|mpc|obstacle-zone|live|drivers`: the benchmarks."""
+"""`ares bench bus|path|blackbox|supervisor|perception|mpc|obstacle-zone|live|drivers|stack`: the benchmarks."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from .args import CliError, Command, positive_float, positive_int
 
@@ -63,6 +64,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         default=3,
         metavar="N",
         help="timed runs of the pipeline and the ground removal per place (default 3)",
+    )
+    perception.add_argument(
+        "--reference",
+        action="store_true",
+        help="instead: our ground stage beside Patchwork++ (pypatchworkpp) on simulated HDL-64E scans of the "
+        "tour and the --scan files: ground share, IoU, occupied cells and time of each",
+    )
+    perception.add_argument(
+        "--scan",
+        action="append",
+        metavar="FILE",
+        help="with --reference: a real scan (KITTI .bin, .pcd, .ply) to compare on too; repeatable",
     )
     mpc = bench_sub.add_parser(
         "mpc",
@@ -123,6 +136,25 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     drivers.add_argument(
         "--seconds", type=positive_float, default=3.0, metavar="S", help="CAN measurement time (default 3)"
     )
+    stack = bench_sub.add_parser(
+        "stack",
+        help="the whole stack at --speed max: speed-up, CPU per process, perception and MPC times, bus load, "
+        "LiDAR-to-command lag",
+        description="ares run --headless --speed max (a lap of the tour, the configuration's LiDARs) with probes: "
+        "CPU per process (mean, p95), perception's frame time, the MPC's solve time, the bus's load and the lag "
+        "from a roof rotation to the movement command; the lap's figures beside them.",
+    )
+    stack.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    stack.add_argument("--laps", type=positive_int, default=1, metavar="N", help="laps of the tour (default 1)")
+    stack.add_argument("--seconds", type=positive_float, metavar="S", help="vehicle seconds instead of laps")
+    stack.add_argument("--config", action="append", metavar="FILE", help="configuration overrides, as for ares run")
+    stack.add_argument("--wire", action="store_true", help="through the devices' wire formats, as ares run --wire")
+    stack.add_argument(
+        "--profile",
+        type=Path,
+        metavar="DIR",
+        help="also sample every process with py-spy: a flame graph per process in DIR (slows the run)",
+    )
     return {"bench": cmd_bench}
 
 
@@ -154,6 +186,17 @@ def _run(args: argparse.Namespace, progress):
         from ares.tools.bench.supervisor import run_supervisor_bench
 
         return run_supervisor_bench(args.rounds, progress=progress), _key_per_line
+    if args.bench == "perception" and args.reference:
+        from ares.tools.bench.perception_reference import format_reference_result, run_reference_bench
+
+        try:
+            return run_reference_bench(
+                args.frames, args.repeats, scans=args.scan or (), progress=progress
+            ), format_reference_result
+        except BenchError as exc:
+            raise CliError(f"perception reference bench failed: {exc}") from None
+    if args.bench == "perception" and args.scan:
+        raise CliError("--scan goes with --reference")
     if args.bench == "perception":
         from ares.tools.bench.perception import format_perception_result, run_perception_bench
 
@@ -183,6 +226,25 @@ def _run(args: argparse.Namespace, progress):
         lidar = lidar_decode_bench(args.repeats)
         progress("CAN frames: codec and udp_multicast into the driver")
         return {"lidar": lidar, "can": can_bench(args.seconds)}, _nested_per_line
+    if args.bench == "stack":
+        from ares.tools.bench.stack import format_stack_result, run_stack_bench
+
+        try:
+            from ares.cli import build_parser
+            from ares.tools.headless import drive
+
+            return run_stack_bench(
+                build_parser().parse_args,
+                drive,
+                args.laps,
+                args.seconds,
+                tuple(args.config or ()),
+                args.wire,
+                profile_dir=args.profile,
+                progress=progress,
+            ), format_stack_result
+        except BenchError as exc:
+            raise CliError(f"stack bench failed: {exc}") from None
     if args.bench == "path":
         from ares.tools.bench.path import format_path_result, run_path_bench
 
@@ -196,12 +258,12 @@ def _run(args: argparse.Namespace, progress):
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    known = ("bus", "path", "blackbox", "supervisor", "perception", "mpc", "obstacle-zone", "live", "drivers")
+    known = ("bus", "path", "blackbox", "supervisor", "perception", "mpc", "obstacle-zone", "live", "drivers", "stack")
     if args.bench not in known:
         raise CliError(
             "which benchmark? try `ares bench bus`, `ares bench path`, `ares bench supervisor`, "
             "`ares bench perception`, `ares bench mpc`, `ares bench obstacle-zone`, `ares bench blackbox`, "
-            "`ares bench live` or `ares bench drivers`"
+            "`ares bench live`, `ares bench drivers` or `ares bench stack`"
         )
     progress = lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True)  # noqa: E731
     result, for_people = _run(args, progress)

@@ -7,6 +7,7 @@ import argparse
 import json
 import sys
 
+from . import record
 from .args import CliError, Command, non_negative_int, positive_float, positive_int
 
 
@@ -54,8 +55,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         "outputs with the recorded ones (`check`), or make the current outputs the expected ones "
         "(`update`, after an intended change of behaviour).",
     )
-    replay.add_argument("action", choices=["check", "update"])
-    replay.add_argument("files", nargs="+", metavar="FILE", help="recordings (*.jsonl.gz)")
+    replay.add_argument(
+        "action",
+        metavar="check|update|FILE.mcap",
+        help="check or update process replay recordings, or play an MCAP recording of the bus (`ares record`, "
+        "`ares run --record`) into a bus, or with --node replay one process of it against its recorded outputs",
+    )
+    replay.add_argument("files", nargs="*", metavar="FILE", help="check|update: recordings (*.jsonl.gz)")
+    record.add_replay_arguments(replay)
 
     calibrate = subparsers.add_parser(
         "calibrate",
@@ -217,6 +224,12 @@ def commented_yaml(cfg: dict, model) -> str:
 def cmd_replay(args: argparse.Namespace) -> int:
     from ares.core import replay
 
+    if args.action not in ("check", "update"):
+        if not record.is_mcap(args.action):
+            raise CliError(f"{args.action}: neither check, update nor an MCAP file")
+        return record.cmd_replay_mcap(args, args.action)
+    if not args.files:
+        raise CliError(f"replay {args.action}: name the recordings (*.jsonl.gz)")
     failed = 0
     for path in args.files:
         try:

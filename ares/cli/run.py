@@ -123,6 +123,22 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         help="headless: drive for S seconds of vehicle time (the tour repeats as needed) instead of --laps",
     )
 
+    run.add_argument(
+        "--record",
+        nargs="?",
+        const="",
+        metavar="FILE.mcap",
+        help="record the whole bus of the run to an MCAP file (default: bus.mcap in the run folder); "
+        "it opens in Foxglove, and `ares replay FILE.mcap` plays it back (docs/recording.md)",
+    )
+    run.add_argument(
+        "--foxglove",
+        nargs="?",
+        const="",
+        metavar="[HOST:]PORT",
+        help="serve the live bus to Foxglove over its WebSocket protocol (default 127.0.0.1:8765)",
+    )
+
     node = subparsers.add_parser(
         "node",
         help="run one process of the stack in the foreground",

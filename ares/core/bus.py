@@ -396,6 +396,16 @@ class BaseBus:
         self._subscriptions.append(sub)
         return sub
 
+    def subscribe_raw(self, pattern: str, on_payload: Callable[[str, str, bytes], None]) -> object:
+        """Every key of this vehicle matching `pattern` (`**`: all of them), undecoded:
+        on_payload(topic, encoding, payload) on a transport thread, which must return at once.
+        For what reads the bus as bytes (recorders, load counters), not for nodes."""
+
+        def on_key(key: str, encoding: str, payload: bytes) -> None:
+            on_payload(self.topic_of(key), encoding, payload)
+
+        return self._declare_subscriber(self.key(pattern), on_key)
+
     def subscribe_fleet(self, topic: str, on_message: Callable[[str, str, Msg], None]) -> object:
         """One topic of the table from every vehicle on the network (`ares/*/<topic>`): on_message(
         vehicle_id, topic, msg) runs on a transport thread and must return at once. For the fleet's

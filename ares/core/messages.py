@@ -128,6 +128,14 @@ class LidarFault(Msg):
     blocked: bool = True
 
 
+class SensorFault(Msg):
+    """Begin a fault of the simulated GNSS or IMU now, for `duration_s` of stack time: fault
+    injection at run time (a scenario's faults of the same kinds are timed in its file)."""
+
+    kind: Literal["gnss_outage", "gnss_no_corrections", "freeze_imu"]
+    duration_s: float = Field(gt=0)
+
+
 class GnssSentences(Msg):
     """Raw NMEA sentences from the receiver, as the serial port gives them."""
 

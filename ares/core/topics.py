@@ -124,6 +124,9 @@ SERVICE_TABLE: list[Service] = [
     Service("set_automatic_mode", m.Empty, m.ModeReply, "Ready -> Automatic (the software half of the switch)"),
     Service("sim/driver", m.DriverCommand, m.Ack, "a driver action on the simulated vehicle"),
     Service("sim/lidar_fault", m.LidarFault, m.Ack, "cover or uncover a simulated LiDAR (fault injection)"),
+    Service(
+        "sim/sensor_fault", m.SensorFault, m.Ack, "a GNSS outage, RTK loss or frozen IMU from now on (fault injection)"
+    ),
     Service("supervisor/status", m.Empty, m.SupervisorState, "every process's state"),
     Service(
         "movement/rearm",

@@ -2,9 +2,11 @@
 
 A static obstacle stands at one place beside the route (arc length, lateral offset); a moving one
 follows its path at its speed once started, by the clock or when the vehicle reaches a point of
-the route, and stays at the path's end. `along_tour` places obstacles of several kinds in turn
-along the tour, alternately left and right of the path the shuttle drives, skipping
-intersections, road openings and narrow stretches.
+the route, and stays at the path's end. One with `appear_ahead_m` is absent until its start time,
+then appears that far ahead of the vehicle (its path counted from there) and leaves again after
+`gone_after_s` (a soak's pedestrian or parked object in the path, ares.tools.soak). `along_tour`
+places obstacles of several kinds in turn along the tour, alternately left and right of the path
+the shuttle drives, skipping intersections, road openings and narrow stretches.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ class PlacedObstacle:
     yaw_along: np.ndarray  # heading of each leg (a standing obstacle faces along the road)
     base_z: np.ndarray  # ground height at each path point
     started_at: float | None = None
+    gone_at: float | None = None  # it leaves the world then (an obstacle that appeared, for a while)
 
     @property
     def moving(self) -> bool:
@@ -67,16 +70,19 @@ class ObstacleField:
         specs = list(scenario.obstacles) if scenario else []
         if scenario is not None and scenario.along_tour is not None:
             specs += along_tour(route, scenario.along_tour)
-        self.obstacles = [self._place(spec) for spec in specs]
+        self.obstacles = [self._place(spec) for spec in specs if spec.appear_ahead_m is None]
+        # those that appear ahead of the vehicle at a time (and may leave again): placed when they appear
+        self.to_appear = sorted((s for s in specs if s.appear_ahead_m is not None), key=lambda s: s.start_t_s or 0.0)
 
-    def _place(self, spec: ScenarioObstacle) -> PlacedObstacle:
+    def _place(self, spec: ScenarioObstacle, from_s: float = 0.0) -> PlacedObstacle:
         xy, yaws, zs = [], [], []
         for place in spec.path:
-            x, y, _, yaw = self.route.point_at(place.s)
+            x, y, _, yaw = self.route.point_at(from_s + place.s)
             xy.append((x - math.sin(yaw) * place.offset_m, y + math.cos(yaw) * place.offset_m))
             yaws.append(yaw)
-            half = float(self.route.width[self.route.index_at(place.s)]) / 2
-            zs.append(float(self.ground(place.s)) - CROSSFALL * min(abs(place.offset_m), half))
+            at = self.route.wrap_s(from_s + place.s)
+            half = float(self.route.width[self.route.index_at(at)]) / 2
+            zs.append(float(self.ground(at)) - CROSSFALL * min(abs(place.offset_m), half))
         xy = np.array(xy)
         heading = [yaws[0]] + [
             math.atan2(b[1] - a[1], b[0] - a[0]) if np.any(b != a) else yaws[0] for a, b in zip(xy[:-1], xy[1:])
@@ -84,8 +90,21 @@ class ObstacleField:
         return PlacedObstacle(spec, xy, np.array(heading), np.array(zs))
 
     def update(self, t: float, vehicle_progress_m: float) -> list[str]:
-        """Start whatever is due; the names of those that started."""
+        """Start whatever is due (and place those that appear now, take away those that leave); the
+        names of those that started or appeared."""
         started = []
+        self.obstacles = [ob for ob in self.obstacles if ob.gone_at is None or ob.gone_at > t]
+        while self.to_appear and (self.to_appear[0].start_t_s or 0.0) <= t:
+            spec = self.to_appear.pop(0)
+            begins = spec.start_t_s or 0.0
+            if spec.gone_after_s is not None and begins + spec.gone_after_s <= t:
+                continue  # came and went before this process started (a restart)
+            ob = self._place(spec, vehicle_progress_m + (spec.appear_ahead_m or 0.0))
+            ob.started_at = t
+            if spec.gone_after_s is not None:
+                ob.gone_at = t + spec.gone_after_s
+            self.obstacles.append(ob)
+            started.append(spec.name)
         for ob in self.obstacles:
             if ob.started_at is not None or not ob.moving:
                 continue

@@ -13,7 +13,7 @@ import math
 import time
 from dataclasses import dataclass
 
-from ares.core.config import load_scenario
+from ares.core.config import ScenarioFault, load_scenario
 from ares.core.geodesy import LocalFrame
 from ares.core.lockstep import LockstepMaster, Pacer
 from ares.core.messages import (
@@ -29,6 +29,7 @@ from ares.core.messages import (
     PanelEvent,
     PanelInput,
     ProcessState,
+    SensorFault,
     VehicleTruth,
 )
 from ares.core.node import Input, Node, Output, service
@@ -124,6 +125,7 @@ class Simulator(Node):
         self.plant.state.t = now
         self.next_due = {name: now for name in self.periods}
         self.driver = DriverInputs()
+        self._injected: list[ScenarioFault] = []  # faults injected at run time (sim/sensor_fault)
         self._failsafe = False
         self.progress_m = 0.0  # along the route, unwrapped: laps = progress // length
         self._last_s = self.plant.state.s
@@ -149,6 +151,19 @@ class Simulator(Node):
             self.driver.steer_deg, self.driver.steer_until = cmd.value, until
         self._panel(ACTION_PANEL[cmd.action], cmd.value)
         return Ack(t=now, ok=True, detail=f"{cmd.action.lower()} {cmd.value:g} for {cmd.duration_s:g} s")
+
+    # ---- fault injection at run time (a soak: ares.tools.soak) ------------------------------------
+    @service("sim/sensor_fault")
+    def _sensor_fault(self, request: SensorFault) -> Ack:
+        now = self.clock.now()
+        fault = ScenarioFault(kind=request.kind, at_t_s=now, duration_s=request.duration_s)
+        # the scenario's own faults stay; those injected earlier and over are dropped (a long soak adds many)
+        over = {id(f) for f in self._injected if not f.active(now)}
+        self._injected = [f for f in self._injected if id(f) not in over] + [fault]
+        for sensor in (self.sensors.gnss, self.sensors.imu):
+            sensor.faults = [f for f in sensor.faults if id(f) not in over]
+        (self.sensors.imu if request.kind == "freeze_imu" else self.sensors.gnss).faults.append(fault)
+        return Ack(t=now, ok=True, detail=f"{request.kind} for {request.duration_s:g} s from t={now:.2f}")
 
     def _panel(self, what: PanelInput, value: float = 1.0) -> None:
         self._send("panel", PanelEvent(t=self.clock.now(), input=what, value=value))

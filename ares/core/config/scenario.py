@@ -39,6 +39,22 @@ class ScenarioObstacle(Params):
     start_when_vehicle_at_s: float | None = param(
         None, "... or when the vehicle reaches this distance along the route (its first lap)", unit="m", ge=0
     )
+    appear_ahead_m: float | None = param(
+        None,
+        "absent until start_t_s, then it appears this far ahead of the vehicle: the path's places (s) are "
+        "counted from there (a soak's pedestrian or parked object in the path)",
+        unit="m",
+        ge=0,
+    )
+    gone_after_s: float | None = param(None, "it leaves the world this long after it appeared", unit="s", gt=0)
+
+    @model_validator(mode="after")
+    def _appears_at_a_time(self) -> Self:
+        if self.appear_ahead_m is not None and self.start_t_s is None:
+            raise ValueError(f"obstacle {self.name}: appear_ahead_m needs start_t_s (when it appears)")
+        if self.gone_after_s is not None and self.appear_ahead_m is None:
+            raise ValueError(f"obstacle {self.name}: gone_after_s is for an obstacle that appears (appear_ahead_m)")
+        return self
 
     def size(self) -> tuple[float, float, float]:
         return self.size_m or OBSTACLE_SIZES[self.kind]

@@ -1,0 +1,294 @@
+"""The bus to an MCAP file: every key of the vehicle (or the keys asked for), binary point clouds
+included, with a schema per topic, and Foxglove's views of what it can draw.
+
+Each bus key is one *raw* channel, named by its key (`ares/<vehicle_id>/<topic>`), holding the
+payloads exactly as they travelled: JSON messages with message encoding `json` and their JSON
+schema (`jsonschema`), bulk messages (point clouds, grids) with message encoding `ares.bulk` and a
+schema describing the header and arrays (ares/core/schema.py). Replay reads these. Beside them,
+the `foxglove/...` channels carry the views of ares.app.bus_record.foxglove_views (protobuf, with
+Foxglove's own schemas). A message's log time is when the recorder received it (wall clock, ns),
+its publish time its own stamp `t` (stack seconds, in ns); the file keeps the order of receipt.
+
+Zenoh's callbacks only queue the payload (bounded in bytes: beyond `max_queued_bytes` a message
+is dropped and counted, never waited for); one writer thread decodes what Foxglove needs, writes
+and compresses. The file is chunked (zstd) and flushed every `flush_every_s`: closed normally it
+ends with MCAP's summary and indexes; cut short by a crash, it is still read up to its last
+complete chunk (ares.app.bus_record.mcap_replay reads such a file linearly). The run's
+configuration is in the file's metadata (`ares.run`), so a node can be replayed from it alone.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import orjson
+import pydantic
+from mcap.writer import CompressionType, Writer
+
+from ares.app.bus_record.foxglove_views import FoxgloveViews, View
+from ares.core import schema, topics
+from ares.core.route import Route
+from ares.core.schema import MAGIC, BulkMsg, Msg
+
+log = logging.getLogger("ares.app.bus_record.recorder")
+
+RAW_ENCODING_JSON = "json"
+RAW_ENCODING_BULK = "ares.bulk"
+RUN_METADATA = "ares.run"  # the metadata record holding the run's configuration
+TOPIC_META = "ares.topic"  # a raw channel's metadata: its topic and its encoding on the bus
+ENCODING_META = "ares.encoding"
+
+COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+
+
+@dataclass
+class RecorderStats:
+    messages: int = 0  # raw messages written
+    views: int = 0  # Foxglove messages written
+    bytes_in: int = 0  # raw payload bytes received
+    dropped: int = 0  # messages dropped because the writer was too far behind
+    undecodable: int = 0  # payloads with no view (malformed for their topic)
+    writer_cpu_s: float = 0.0  # CPU time of the writer thread
+    started_wall: float = 0.0
+    closed_wall: float = 0.0
+    by_topic: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "messages": self.messages,
+            "views": self.views,
+            "bytes_in": self.bytes_in,
+            "dropped": self.dropped,
+            "writer_cpu_s": round(self.writer_cpu_s, 3),
+            "wall_s": round(self.closed_wall - self.started_wall, 3),
+        }
+
+
+def stamp_of(payload: bytes) -> float | None:
+    """A payload's own stamp `t` without validating the whole message (None if it has none)."""
+    try:
+        if payload[: len(MAGIC)] == MAGIC:
+            head_len = int.from_bytes(payload[4:8], "little")
+            value = orjson.loads(payload[8 : 8 + head_len])["fields"].get("t")
+        else:
+            value = orjson.loads(payload).get("t")
+    except (orjson.JSONDecodeError, KeyError, TypeError, AttributeError, ValueError):
+        return None
+    return float(value) if isinstance(value, (int, float)) else None
+
+
+def schema_record(msg_schema: type[Msg]) -> tuple[str, bytes, str]:
+    """(schema encoding, schema data, message encoding) of a raw channel of this message type."""
+    if schema.is_bulk(msg_schema):
+        assert issubclass(msg_schema, BulkMsg)
+        header = {
+            name: pydantic.TypeAdapter(info.annotation).json_schema()
+            for name, info in msg_schema.model_fields.items()
+            if name not in msg_schema.ARRAYS
+        }
+        arrays = {
+            name: {"dtype": spec.dtype.str, "shape": spec.describe_shape(), "doc": spec.doc}
+            for name, spec in msg_schema.ARRAYS.items()
+        }
+        layout = {
+            "layout": 'b"ARB1" | u32 header length | header JSON {"fields", "arrays"} | arrays, each 8-byte aligned',
+            "defined_in": "ares/core/schema.py",
+            "fields": header,
+            "arrays": arrays,
+        }
+        return RAW_ENCODING_BULK, json.dumps(layout).encode(), RAW_ENCODING_BULK
+    return "jsonschema", json.dumps(msg_schema.model_json_schema()).encode(), RAW_ENCODING_JSON
+
+
+class McapRecorder:
+    """Records a bus to `path`: attach() to one or more buses, start(), ..., close()."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        cfg: dict[str, Any],
+        *,
+        utc_epoch: float,
+        keys: tuple[str, ...] = ("**",),
+        views: FoxgloveViews | None = None,
+        route: Route | None = None,
+        compression: str = "zstd",
+        chunk_size: int = 4 << 20,
+        flush_every_s: float = 1.0,
+        max_queued_bytes: int = 512 << 20,
+    ):
+        self.path = Path(path)
+        self.cfg = cfg
+        self.keys = keys
+        self.views = views
+        self.route = route
+        self.utc_epoch = utc_epoch
+        self.flush_every_s = flush_every_s
+        self.max_queued_bytes = max_queued_bytes
+        self.stats = RecorderStats()
+        self._compression = COMPRESSIONS[compression]
+        self._chunk_size = chunk_size
+        self._queue: queue.SimpleQueue[tuple[int, str, str, bytes] | None] = queue.SimpleQueue()
+        self._queued_bytes = 0
+        self._lock = threading.Lock()
+        self._handles: list[object] = []
+        self._thread: threading.Thread | None = None
+        self._file: IO[bytes] | None = None
+        self._writer: Writer | None = None
+        self._schemas: dict[str, int] = {}  # schema name -> id
+        self._channels: dict[str, int] = {}  # channel topic -> id
+        self._error: BaseException | None = None
+
+    # ---- the transport's side: queue and return -------------------------------------------------
+    def attach(self, bus: Any) -> None:
+        """Subscribe to this recorder's keys on a bus (ares.core.bus.BaseBus.subscribe_raw)."""
+        for key in self.keys:
+            self._handles.append(bus.subscribe_raw(key, self.offer))
+
+    def offer(self, topic: str, encoding: str, payload: bytes) -> None:
+        size = len(payload)
+        with self._lock:
+            if self._queued_bytes + size > self.max_queued_bytes:
+                self.stats.dropped += 1
+                return
+            self._queued_bytes += size
+        self._queue.put((time.time_ns(), topic, encoding, payload))
+
+    # ---- the writer thread ------------------------------------------------------------------------
+    def start(self) -> McapRecorder:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "wb")  # closed by close()
+        self._writer = Writer(self._file, chunk_size=self._chunk_size, compression=self._compression)
+        self._writer.start(profile="ares", library="ares (mcap python)")
+        self._writer.add_metadata(
+            RUN_METADATA,
+            {
+                "vehicle_id": str(self.cfg.get("vehicle_id", "")),
+                "utc_epoch": repr(self.utc_epoch),
+                "keys": json.dumps(list(self.keys)),
+                "config": json.dumps(self.cfg),
+            },
+        )
+        self._file.flush()
+        self.stats.started_wall = time.monotonic()
+        if self.views is not None and self.route is not None:
+            self._write_view(self.views.route_view(self.route), time.time_ns())
+        self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        started_cpu = time.thread_time()
+        next_flush = time.monotonic() + self.flush_every_s
+        try:
+            while True:
+                try:
+                    item = self._queue.get(timeout=self.flush_every_s)
+                except queue.Empty:
+                    item = False  # type: ignore[assignment]
+                if item is None:
+                    break
+                if item:
+                    self._write(*item)
+                if time.monotonic() >= next_flush:
+                    assert self._file is not None
+                    self._file.flush()
+                    next_flush = time.monotonic() + self.flush_every_s
+        except BaseException as exc:  # the file stays readable up to here; the run goes on
+            self._error = exc
+            log.exception("MCAP recording to %s stopped", self.path)
+        finally:
+            self.stats.writer_cpu_s = time.thread_time() - started_cpu
+
+    def _write(self, log_time: int, topic: str, encoding: str, payload: bytes) -> None:
+        with self._lock:
+            self._queued_bytes -= len(payload)
+        assert self._writer is not None
+        key = f"ares/{self.cfg.get('vehicle_id', '')}/{topic}"
+        channel = self._channels.get(key)
+        if channel is None:
+            channel = self._raw_channel(key, topic, encoding)
+        stamp = stamp_of(payload)
+        publish_ns = int(round(stamp * 1e9)) if stamp is not None and stamp >= 0 else log_time
+        self._writer.add_message(channel, log_time=log_time, data=payload, publish_time=publish_ns)
+        self.stats.messages += 1
+        self.stats.bytes_in += len(payload)
+        self.stats.by_topic[topic] = self.stats.by_topic.get(topic, 0) + 1
+        if self.views is not None:
+            entry = topics.find(topic)
+            if entry is not None and self.views.handles(entry.schema):
+                try:
+                    msg = schema.decode(payload, entry.schema)
+                except ValueError:  # pydantic's ValidationError and BulkDecodeError are ValueErrors
+                    self.stats.undecodable += 1
+                    return
+                for view in self.views.views(topic, msg):
+                    self._write_view(view, log_time)
+
+    def _raw_channel(self, key: str, topic: str, encoding: str) -> int:
+        assert self._writer is not None
+        entry = topics.find(topic)
+        _, _, schema_name = encoding.partition(";")
+        if entry is not None:
+            schema_name = entry.schema.schema_name()
+            schema_id = self._schemas.get(schema_name)
+            if schema_id is None:
+                schema_encoding, data, message_encoding = schema_record(entry.schema)
+                schema_id = self._schemas[schema_name] = self._writer.register_schema(
+                    schema_name, schema_encoding, data
+                )
+            else:
+                message_encoding = RAW_ENCODING_BULK if schema.is_bulk(entry.schema) else RAW_ENCODING_JSON
+        else:  # a key the topic table does not know: kept, without a schema
+            schema_id, message_encoding = 0, encoding.partition(";")[0] or "application/octet-stream"
+        channel = self._channels[key] = self._writer.register_channel(
+            key, message_encoding, schema_id, metadata={TOPIC_META: topic, ENCODING_META: encoding}
+        )
+        return channel
+
+    def _write_view(self, view: View, log_time: int) -> None:
+        assert self._writer is not None
+        channel = self._channels.get(view.topic)
+        if channel is None:
+            name = view.schema.name
+            schema_id = self._schemas.get(name)
+            if schema_id is None:
+                schema_id = self._schemas[name] = self._writer.register_schema(
+                    name, view.schema.encoding, bytes(view.schema.data)
+                )
+            channel = self._channels[view.topic] = self._writer.register_channel(view.topic, "protobuf", schema_id)
+        self._writer.add_message(channel, log_time=log_time, data=view.data, publish_time=log_time)
+        self.stats.views += 1
+
+    # ---- the end ------------------------------------------------------------------------------------
+    def detach(self, bus: Any) -> None:
+        for handle in self._handles:
+            try:
+                bus._undeclare(handle)
+            except Exception:  # the bus may be closed already
+                pass
+        self._handles = []
+
+    def close(self, timeout_s: float = 120.0) -> RecorderStats:
+        """Write what is queued, then the summary and indexes; idempotent."""
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                log.error("MCAP writer still busy after %.0f s: %s left without its summary", timeout_s, self.path)
+                return self.stats
+            self._thread = None
+        if self._writer is not None and self._file is not None:
+            if self._error is None:
+                self._writer.finish()
+            self._file.close()
+            self._writer = None
+            self.stats.closed_wall = time.monotonic()
+        return self.stats

@@ -1,0 +1,1 @@
+"""`ares soak`: a fault-injection soak of the whole stack (plan, injectors, measurements, report)."""
