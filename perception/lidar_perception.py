@@ -46,10 +46,11 @@ class GroundParams(Params):
     """Heightmap ground removal (Algorithm 2 and where it departs from it: perception/heightmap.py)."""
 
     method: Literal["floor", "cell_span"] = param(
-        "floor",
-        "floor: a point near its cell's lowest, which is near the floor around it, is ground; "
+        "cell_span",
         "cell_span: Algorithm 2 as published, a cell spanning less than threshold_m is ground, "
-        "within the occupancy grid only",
+        "within the occupancy grid only; floor: a point near its cell's lowest, which is near the "
+        "floor around it, is ground (agrees with Patchwork++, but stalled the tour in the lakeside "
+        "RTK-loss zone: not yet the default, docs/performance.md)",
     )
     threshold_m: float = param(
         0.15,
