@@ -49,8 +49,8 @@ class GroundParams(Params):
         "cell_span",
         "cell_span: Algorithm 2 as published, a cell spanning less than threshold_m is ground, "
         "within the occupancy grid only; floor: a point near its cell's lowest, which is near the "
-        "floor around it, is ground (agrees with Patchwork++, but stalled the tour in the lakeside "
-        "RTK-loss zone: not yet the default, docs/performance.md)",
+        "floor around it, is ground (agrees with Patchwork++; not yet the default: it has not "
+        "driven the whole tour, docs/performance.md)",
     )
     threshold_m: float = param(
         0.15,
