@@ -26,10 +26,11 @@ from typing import Any
 
 import orjson
 
-from ares.core.bus import Publisher
+from ares.core.bus import Publisher, PublisherFamily
 from ares.core.clock import ManualClock
 from ares.core.launch import load
 from ares.core.membus import MemoryNetwork
+from ares.core.node import Node
 from ares.core.recording import as_payload, as_record
 from ares.core.schema import Payload
 
@@ -82,6 +83,23 @@ def read(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     return lines[0], lines[1:]
 
 
+def capture_outputs(node: Node) -> list[list[Any]]:
+    """What `node` publishes from now on, as [topic, record] in order (its events included): the
+    outputs a replay compares with the recorded ones."""
+    published: list[list[Any]] = []
+
+    def capture(topic: str, payload: Payload) -> None:
+        published.append([topic, as_record(payload)])
+
+    for port in node._ports.values():
+        if isinstance(port, Publisher):
+            port.tap = capture
+        elif isinstance(port, PublisherFamily):  # made as used: each gets the tap when made
+            port._tap = capture
+    node._events.tap = capture
+    return published
+
+
 def replay(
     path: str | Path, config_overrides: dict[str, dict[str, Any]] | None = None, max_mismatches: int = 20
 ) -> ReplayResult:
@@ -93,15 +111,7 @@ def replay(
     clock = ManualClock(header["start"])
     network = MemoryNetwork(cfg["vehicle_id"])
     node = load(header["class"])(cfg, clock=clock, bus=network.bus(header["node"], clock), name=header["node"])
-    published: list[list[Any]] = []
-
-    def capture(topic: str, payload: Payload) -> None:
-        published.append([topic, as_record(payload)])
-
-    for port in node._ports.values():
-        if isinstance(port, Publisher):
-            port.tap = capture
-    node._events.tap = capture
+    published = capture_outputs(node)
     feeder = network.bus("replay", clock)
     result = ReplayResult(node=header["node"], steps=0, outputs=0)
     node.setup()
@@ -115,8 +125,8 @@ def replay(
         result.outputs += len(published)
         if len(result.mismatches) < max_mismatches:
             result.mismatches += _compare(index, frame["t"], frame["out"], published)
-        result.replayed.append(published)
-        published = []
+        result.replayed.append(list(published))
+        published.clear()
     node.teardown()
     return result
 

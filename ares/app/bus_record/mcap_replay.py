@@ -45,12 +45,11 @@ from mcap.stream_reader import StreamReader
 from ares.app import processes
 from ares.app.bus_record.recorder import ENCODING_META, RUN_METADATA, TOPIC_META
 from ares.core import schema, topics
-from ares.core.bus import BaseBus, Publisher, Subscription
+from ares.core.bus import BaseBus, Subscription
 from ares.core.clock import ManualClock
 from ares.core.membus import MemoryNetwork
 from ares.core.recording import as_record
-from ares.core.replay import ReplayResult, _compare
-from ares.core.schema import Payload
+from ares.core.replay import ReplayResult, _compare, capture_outputs
 
 log = logging.getLogger("ares.app.bus_record.replay")
 
@@ -279,17 +278,7 @@ def replay_node(path: str | Path, node_name: str, max_mismatches: int = 20) -> B
     clock = ManualClock(0.0)
     network = MemoryNetwork(cfg["vehicle_id"])
     node = cls(cfg, clock=clock, bus=network.bus(node_name, clock), name=node_name)
-    published: list[list[Any]] = []
-
-    def capture(topic: str, payload: Payload) -> None:
-        published.append([topic, as_record(payload)])
-
-    for port in node._ports.values():
-        if isinstance(port, Publisher):
-            port.tap = capture
-        elif hasattr(port, "_tap"):  # a family of publishers, made as used
-            port._tap = capture
-    node._events.tap = capture
+    published = capture_outputs(node)
     feeder = network.bus("replay", clock)
     result = BusReplayResult(node=node_name, steps=0, outputs=0)
     matcher = _StepMatcher(result, max_mismatches, _run_setup(node, published))
