@@ -7,7 +7,18 @@ order of trust:
      intersections and road openings there is no road to follow, whatever the odometry score;
   2. ODOMETRY while the odometry score deserves it;
   3. RRC (road reactive control) when the score does not, but road detection is confident;
-  4. STOP: nothing deserves trust, a controlled stop is asked for.
+  4. STOP: nothing deserves trust, a controlled stop is asked for;
+  5. CREEP: after standing `creep_after_s` in a stop with nothing trusted, the odometry controller
+     at `creep_speed_mps` for at most `creep_distance_m`, while the pose's standard deviation
+     (the localization's own, sqrt of eq. 6's cov) stays within `creep_std_enter_m`/`_exit_m`;
+     then a stop again. The odometry score is nearly binary: it says whether RTK corrections
+     come, not how far off the pose is. Under the trees, without corrections, the fused pose is
+     good to centimetres for a minute (its σ grows ~1e-3 m²/s, pessimistic), while road
+     detection on grass verges can fail for good from one standing spot: it sees the same
+     scene every frame. A few metres at walking pace give it another view; the obstacle manager
+     and the movement gate still stand between the creep and anything in the way. Once σ
+     exceeds the bound (a long outage, a drifting dead reckoning) the stop is final until the
+     road or the pose is trusted again.
 
 A mode is *acceptable* while its candidate is fresh (and, for the MPC, not asking for a hand-over)
 and its trust holds. Trust has hysteresis: a mode is entered at `enter` and kept down to `exit`,
@@ -45,6 +56,7 @@ class Mode(str, Enum):
     ODOMETRY = "odometry"
     RRC = "rrc"
     STOP = "stop"
+    CREEP = "creep"
 
 
 @dataclass(frozen=True)
@@ -57,10 +69,17 @@ class SelectionParams:
     max_kappa_rate: float  # 1/m per s: the steering's speed, as curvature
     stop_decel_mps2: float  # a controlled stop's deceleration
     pinned: Mode | None = None  # only this mode drives (comparisons); STOP when its candidate is missing
+    creep_after_s: float = 2.0  # standing this long in a stop before creeping
+    creep_speed_mps: float = 0.8
+    creep_distance_m: float = 0.0  # per creep, before standing again (0: never creep)
+    creep_std_enter_m: float = 0.25  # the pose's standard deviation to creep by it ...
+    creep_std_exit_m: float = 0.3  # ... and beyond which a creep stops
 
     def __post_init__(self):
         if not (0 <= self.score_exit <= self.score_enter and 0 <= self.road_exit <= self.road_enter):
             raise ValueError("each exit threshold must lie at or below its enter threshold")
+        if not 0 <= self.creep_std_enter_m <= self.creep_std_exit_m:
+            raise ValueError("creep_std_enter_m must lie at or below creep_std_exit_m")
 
 
 @dataclass(frozen=True)
@@ -79,6 +98,7 @@ class Inputs:
     force_odometry: bool
     odometry: Candidate | None  # the odometry controller's candidate (None: stale, or it hands over)
     rrc: Candidate | None
+    pose_std_m: float | None = None  # the fused pose's standard deviation (None: no fresh pose)
 
 
 @dataclass(frozen=True)
@@ -101,6 +121,8 @@ class ControlSelector:
         self.kappa = 0.0
         self.catching_up = False  # after a switch, until the curvature has caught up
         self.last_t: float | None = None
+        self.standing_since: float | None = None  # when a stop came to a standstill
+        self.crept_m = 0.0  # in the creep in charge
 
     # ---- trust ----------------------------------------------------------------------------------
     def _odometry_trusted(self, inputs: Inputs, holding: bool) -> bool:
@@ -148,16 +170,37 @@ class ControlSelector:
             if inputs.road_confidence is None:
                 return False, "no_road", "no road detection"
             return False, "road_low", f"road confidence {inputs.road_confidence:.2f} too low"
+        if mode is Mode.CREEP:
+            return self._creep_acceptable(inputs, holding)
         return True, "stop", "in a controlled stop"
+
+    def _creep_acceptable(self, inputs: Inputs, holding: bool) -> tuple[bool, str, str]:
+        p = self.p
+        if p.creep_distance_m <= 0:
+            return False, "creep_off", "creeping is off"
+        if inputs.odometry is None:
+            return False, "no_candidate", "no odometry candidate to creep by"
+        std = inputs.pose_std_m
+        if std is None:
+            return False, "no_pose", "no fresh pose to creep by"
+        if std > (p.creep_std_exit_m if holding else p.creep_std_enter_m):
+            return False, "pose_std_high", f"the pose's σ {std:.2f} m is too large to creep by"
+        if holding:
+            if self.crept_m >= p.creep_distance_m:
+                return False, "crept", f"crept {p.creep_distance_m:g} m: standing again"
+        elif self.standing_since is None or self.last_t is None or self.last_t - self.standing_since < p.creep_after_s:
+            return False, "not_standing", f"a creep waits for {p.creep_after_s:g} s of standing still"
+        return True, "creep", f"creeping on the odometry at {p.creep_speed_mps:g} m/s (pose σ {std:.2f} m)"
 
     def wanted(self, inputs: Inputs) -> tuple[Mode, str, str]:
         """The most trusted acceptable mode, in the fixed order, with its cause and sentence."""
         reasons = []
-        for mode in (Mode.ODOMETRY, Mode.RRC):
+        for mode in (Mode.ODOMETRY, Mode.RRC, Mode.CREEP):
             ok, cause, why = self.acceptable(mode, inputs, holding=mode is self.mode)
             if ok:
                 return mode, cause, why
-            reasons.append(why)
+            if mode is not Mode.CREEP:
+                reasons.append(why)
         return Mode.STOP, "nothing_trusted", "nothing deserves trust: " + "; ".join(reasons)
 
     # ---- each cycle -----------------------------------------------------------------------------
@@ -175,17 +218,25 @@ class ControlSelector:
                 if not current_ok:
                     reason, cause = f"{current_why}; {reason}", current_cause  # why it was left
                 self.mode, self.since, switched = want, t, True
+                self.crept_m = 0.0
             else:
                 cause = current_cause
                 reason = f"{current_why}; {want.value} is wanted once {self.p.min_dwell_s:g} s in charge have passed"
-        target = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc}.get(self.mode)
+        target = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc, Mode.CREEP: inputs.odometry}.get(self.mode)
         if target is None:  # STOP: slow down, steer along the road or hold
             self.v = max(0.0, self.v - self.p.stop_decel_mps2 * dt)
             steer_by = inputs.rrc if self.p.pinned is None else None
             kappa_target = self.kappa if steer_by is None else steer_by.kappa
             self.catching_up = True  # a stop's curvature always moves at the steering's rate
+        elif self.mode is Mode.CREEP:
+            self.crept_m += self.v * dt  # as commanded: a creep held back by the gate ends no later
+            self.v, kappa_target = min(target.v, self.p.creep_speed_mps), target.kappa
         else:
             self.v, kappa_target = target.v, target.kappa
+        if self.mode is Mode.STOP and self.v == 0.0:
+            self.standing_since = t if self.standing_since is None else self.standing_since
+        else:
+            self.standing_since = None
         if switched:
             self.catching_up = True
         if first or not self.catching_up:

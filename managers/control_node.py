@@ -4,8 +4,10 @@ Every controller computes all the time and publishes its candidate on its own to
 road reactive control and pure pursuit. This process is the only publisher of control/setpoint.
 managers/control.py decides, each cycle, in a fixed order of trust: the odometry
 controller where the path manager forces it or while the odometry score deserves it; the RRC
-while road detection is confident; otherwise a controlled stop. Hysteresis, a minimum dwell and a
-curvature ramp at the steering's rate make the switches few and bumpless.
+while road detection is confident; otherwise a controlled stop, and from a stop that has stood
+still a while, a creep on the odometry at walking pace for a few metres while the pose's own
+standard deviation allows it (so that road detection gets another view). Hysteresis, a minimum
+dwell and a curvature ramp at the steering's rate make the switches few and bumpless.
 
 The odometry controller is `odometry_controller` (the MPC by default); when its candidate is
 missing or it asks for a hand-over (a solver that keeps failing), the other odometry controller
@@ -23,6 +25,7 @@ to 0.5; road detection's confidence is trusted from 0.6 and kept down to 0.4.
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 from ares.core.config import Params, param
@@ -68,6 +71,24 @@ class ControlManagerParams(Params):
         1.0, "the curvature ramps at this share of the steering motor's rate", gt=0, le=1
     )
     stop_decel_mps2: float = param(1.0, "a controlled stop's deceleration", unit="m/s^2", gt=0)
+    creep_after_s: float = param(
+        2.0, "a stop with nothing trusted stands this long before it creeps on the odometry", unit="s", ge=0
+    )
+    creep_speed_mps: float = param(0.8, "a creep's speed (walking pace)", unit="m/s", gt=0)
+    creep_distance_m: float = param(
+        4.0,
+        "a creep goes this far, then stands again (0: never creep; road detection's guide after a loss reaches 5 m)",
+        unit="m",
+        ge=0,
+    )
+    creep_std_enter_m: float = param(
+        0.25,
+        "a creep needs the pose's standard deviation within this (without RTK it grows ~1e-3 m^2/s: "
+        "about a minute; docs/odometry_score.md)",
+        unit="m",
+        gt=0,
+    )
+    creep_std_exit_m: float = param(0.3, "... and stops beyond this", unit="m", gt=0)
     finish_distance_m: float = param(0.5, "an open route is finished this close to its end", unit="m", gt=0)
 
 
@@ -101,6 +122,11 @@ class ControlManager(Node):
                 max_kappa_rate=vehicle.max_curvature_rate * p.steering_rate_share,
                 stop_decel_mps2=p.stop_decel_mps2,
                 pinned=pinned,
+                creep_after_s=p.creep_after_s,
+                creep_speed_mps=p.creep_speed_mps,
+                creep_distance_m=p.creep_distance_m,
+                creep_std_enter_m=p.creep_std_enter_m,
+                creep_std_exit_m=p.creep_std_exit_m,
             )
         )
         primary = p.pinned if p.pinned in ODOMETRY_CONTROLLERS else p.odometry_controller
@@ -133,9 +159,16 @@ class ControlManager(Node):
                 force_odometry=bool(match is not None and match.force_odometry),
                 odometry=None if odometry is None else Candidate(odometry[1].v, odometry[1].kappa),
                 rrc=None if rrc is None else Candidate(rrc.v, rrc.kappa, rrc.stop_only),
+                pose_std_m=None
+                if score is None or score.pose_age_s > self.params.input_timeout_s
+                else math.sqrt(max(score.covariance, 0.0)),
             ),
         )
-        controller = {Mode.ODOMETRY: odometry[0] if odometry else "stop", Mode.RRC: "rrc"}.get(decision.mode, "stop")
+        controller = {
+            Mode.ODOMETRY: odometry[0] if odometry else "stop",
+            Mode.RRC: "rrc",
+            Mode.CREEP: "creep" if odometry else "stop",
+        }.get(decision.mode, "stop")
         if controller != self.in_charge:
             cause = decision.cause if decision.switched else "stand_in"
             reason = (

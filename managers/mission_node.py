@@ -17,7 +17,8 @@ no faster than `pause_decel_mps2` from the speed the shuttle has (a pause is a s
 
 A restarted mission manager goes on where its predecessor was: the mission is written to
 `mission_manager.json` beside the run's configuration at every change, and read back on a restart.
-At a first start it sets itself the goal `autostart` names (the tour, a drive, or none).
+At a first start it sets itself the goal `autostart` names (the tour, a drive, or none); so does a
+restart that finds nothing kept (its predecessor died before it set that goal).
 """
 
 from __future__ import annotations
@@ -107,13 +108,15 @@ class MissionManager(Node):
         self._last_s: float | None = None
         self._saved_at = -math.inf
         self.state_path = self.kept_state_path()
+        # a restart before the first start set its goal finds nothing kept: that goal is still to set
+        never_set = self.state_path is not None and not self.state_path.exists()
         if self.restarted and self._restore():
             self.event(
                 "mission",
                 f"restarted: going on with goal {self.goal_id} ({self.mission.state.value} "
                 f"at {self.mission.current_name()})",
             )
-        self._autostart_pending = not self.restarted and self.params.autostart != "none"
+        self._autostart_pending = self.params.autostart != "none" and (not self.restarted or never_set)
 
     # ---- where things are ------------------------------------------------------------------------
     def _follow(self, match: PathMatch | None) -> None:

@@ -87,12 +87,14 @@ class Harness:
         handover: bool = False,
         limit: float | None = None,
         to_end: float | None = None,
+        covariance: float = 1e-4,
+        pose_age_s: float = 0.02,
     ):
         t = self.t = round(self.t + PERIOD, 9)
         self.clock.set(t)
         pub = self.bus.publish
         if score is not None:
-            pub("odometry/score", OdometryScore(t=t, score=score, covariance=1e-4, pose_age_s=0.02))
+            pub("odometry/score", OdometryScore(t=t, score=score, covariance=covariance, pose_age_s=pose_age_s))
         if confidence is not None:
             pub("perception/road", road(t, confidence))
         pub("path/match", match(t, force, to_end))
@@ -153,6 +155,36 @@ def test_a_stale_candidate_is_never_forwarded(run_config):
     v = setpoint.v
     setpoint, _ = h.step(mpc=None, pure_pursuit=None)
     assert setpoint.v == pytest.approx(max(v - h.node.params.stop_decel_mps2 * PERIOD, 0.0))
+
+
+def test_a_stop_with_nothing_trusted_creeps_on_the_odometry_while_the_pose_allows(run_config):
+    h = Harness(run_config)
+    h.run(1.5, confidence=0.9, rrc=(2.0, -0.01))
+    p = h.node.params
+    # RTK lost (score 0, σ 5 cm) and the road lost: a stop, standing creep_after_s, then a creep
+    lost = {"score": 0.0, "covariance": 0.05**2, "confidence": 0.0}
+    setpoint, status = h.run(3.0 + p.creep_after_s + 0.2, **lost)
+    assert status.controller == "creep" and status.mode == "creep" and setpoint.source == "creep"
+    assert setpoint.v == p.creep_speed_mps and "pose σ 0.05 m" in status.reason
+    causes = [(s["from"], s["to"], s["cause"]) for s in h.switches()]
+    assert causes[-2:] == [("mpc", "stop", "score_low"), ("stop", "creep", "creep")]
+    setpoint, _ = h.run(1.0, **lost)
+    assert setpoint.kappa == pytest.approx(0.01)  # the MPC's, once the ramp from the stop's has caught up
+    # its distance crept, it stands again
+    setpoint, status = h.run(p.creep_distance_m / p.creep_speed_mps - 1.0, **lost)
+    assert status.controller == "stop" and setpoint.v < p.creep_speed_mps
+    assert h.switches()[-1]["cause"] == "crept"
+    # a pose too uncertain (σ 0.4 m) or too old: the stop is final
+    for stale in ({"covariance": 0.4**2}, {"pose_age_s": 2.0}):
+        setpoint, status = h.run(p.creep_after_s + 3.0, **{**lost, **stale})
+        assert status.controller == "stop" and setpoint.v == 0.0, stale
+
+
+def test_creeping_is_off_with_a_zero_distance(run_config):
+    h = Harness(run_config, creep_distance_m=0.0)
+    h.run(1.5)
+    setpoint, status = h.run(10.0, score=0.0, covariance=0.05**2, confidence=0.0)
+    assert status.controller == "stop" and setpoint.v == 0.0
 
 
 def test_pure_pursuit_stands_in_for_an_mpc_that_hands_over(run_config):

@@ -1,7 +1,8 @@
 """The control manager's choice of controller (managers/control.py): every mode × every
-combination of inputs against the rule written out plainly, then hypothesis properties over
-random sequences (no stale candidate forwarded, the dwell respected unless the mode in charge
-fails, the curvature within the steering's rate, a controlled stop that only slows)."""
+combination of inputs against the rule written out plainly, with creeping off and on, then
+hypothesis properties over random sequences (no stale candidate forwarded, the dwell respected
+unless the mode in charge fails, the curvature within the steering's rate, a controlled stop that
+only slows, a creep only after standing, at its speed and for its distance)."""
 
 from __future__ import annotations
 
@@ -25,13 +26,28 @@ P = SelectionParams(
 ODO, RRC = Candidate(3.0, 0.01), Candidate(2.0, -0.02)
 RRC_REMEMBERED = Candidate(0.0, -0.03, stop_only=True)  # the road lost, remembered: steers a stop only
 LEVELS = (None, 0.2, 0.5, 0.9)  # missing, below exit, between exit and enter, above enter
+P_CREEP = SelectionParams(
+    **{**P.__dict__, "creep_after_s": 2.0, "creep_speed_mps": 0.8, "creep_distance_m": 4.0},
+)
+STDS = (None, 0.1, 0.27, 0.5)  # the pose's σ: missing, within enter, between enter and exit, beyond exit
 
 
-def rule(current: Mode, i: Inputs, dwelt: bool) -> Mode:
-    """The module docstring's order of trust, as plainly as it reads."""
+def rule(
+    current: Mode, i: Inputs, dwelt: bool, p: SelectionParams = P, stood: bool = False, crept: bool = False
+) -> Mode:
+    """The module docstring's order of trust, as plainly as it reads. stood: standing still in a
+    stop for creep_after_s; crept: the creep in charge has gone its distance."""
 
     def ok(mode: Mode) -> bool:
         holding = mode is current
+        if mode is Mode.CREEP:
+            return (
+                p.creep_distance_m > 0
+                and i.odometry is not None
+                and i.pose_std_m is not None
+                and i.pose_std_m <= (p.creep_std_exit_m if holding else p.creep_std_enter_m)
+                and (not crept if holding else stood)
+            )
         if mode is Mode.ODOMETRY:
             return i.odometry is not None and (
                 i.force_odometry
@@ -47,7 +63,7 @@ def rule(current: Mode, i: Inputs, dwelt: bool) -> Mode:
             )
         return True
 
-    want = next((m for m in (Mode.ODOMETRY, Mode.RRC) if ok(m)), Mode.STOP)
+    want = next((m for m in (Mode.ODOMETRY, Mode.RRC, Mode.CREEP) if ok(m)), Mode.STOP)
     return want if want is not current and (not ok(current) or dwelt) else current
 
 
@@ -71,6 +87,75 @@ def test_every_mode_and_input(current, score, road, force, odo, rrc, dwelt):
         assert decision.mode is Mode.ODOMETRY  # (a stop, once begun, lasts its dwell)
     if decision.mode is Mode.STOP and current is not Mode.STOP:
         assert rule(Mode.STOP, inputs, True) is Mode.STOP  # left for STOP only when nothing else would do
+
+
+def test_every_mode_input_and_creep_state_with_creeping_on():
+    """Every mode × input × pose σ × (stood long enough, crept its distance): in one test, not
+    24,576 parametrized ones."""
+    checked = 0
+    for (current, score, road, force, odo, rrc, dwelt), std, stood, crept in itertools.product(
+        CASES, STDS, (False, True), (False, True)
+    ):
+        t = 1.5 if dwelt else 0.5
+        selector = ControlSelector(P_CREEP, start=current)
+        selector.since, selector.last_t = 0.0, 0.0
+        if current is Mode.STOP:
+            selector.v, selector.standing_since = 0.0, (t - 3.0 if stood else None)
+        if current is Mode.CREEP:
+            selector.crept_m = P_CREEP.creep_distance_m if crept else 0.0
+        inputs = Inputs(score, road, force, odo, rrc, std)
+        decision = selector.step(t, inputs)
+        expected = rule(current, inputs, dwelt, P_CREEP, stood=stood and current is Mode.STOP, crept=crept)
+        case = (current, score, road, force, odo, rrc, dwelt, std, stood, crept)
+        assert decision.mode is expected, case
+        if decision.mode is Mode.CREEP:
+            assert odo is not None and decision.v <= P_CREEP.creep_speed_mps, case
+            assert std is not None and std <= P_CREEP.creep_std_exit_m, case
+        checked += 1
+    assert checked == len(CASES) * 16
+
+
+def test_a_stop_that_stands_creeps_on_the_odometry_then_stands_again():
+    selector = ControlSelector(P_CREEP, start=Mode.RRC)
+    remembered = Inputs(0.0, 0.1, False, ODO, RRC_REMEMBERED, 0.1)
+    selector.step(0.0, Inputs(0.0, 0.9, False, ODO, RRC, 0.1))
+    t, modes = 0.0, []
+    while t < 20.0:
+        t = round(t + 0.1, 1)
+        modes.append((t, selector.step(t, remembered)))
+    stop_at = next(t for t, d in modes if d.mode is Mode.STOP)
+    standing_at = next(t for t, d in modes if d.v == 0.0)
+    creep_at = next(t for t, d in modes if d.mode is Mode.CREEP)
+    assert stop_at == 0.1 and standing_at == pytest.approx(2.0)  # from 2 m/s at 1 m/s², the first 0.1 s at 0.1
+    assert creep_at == pytest.approx(standing_at + P_CREEP.creep_after_s)  # stood 2 s
+    creeping = [d for t, d in modes if d.mode is Mode.CREEP]
+    assert all(d.v == pytest.approx(0.8) for d in creeping) and "pose σ 0.10 m" in creeping[0].reason
+    # 4 m at 0.8 m/s: 5 s of creeping, then a stop that stands 2 s, and the next creep
+    first_leg = [t for t, d in modes if d.mode is Mode.CREEP and t < creep_at + 6]
+    assert len(first_leg) == pytest.approx(51, abs=1)
+    after = [d for t, d in modes if t > creep_at and d.mode is not Mode.CREEP]
+    assert (
+        after[0].switched
+        and after[0].mode is Mode.STOP
+        and after[0].cause == "crept"
+        and "standing again" in after[0].reason
+    )
+    assert any(d.mode is Mode.CREEP for t, d in modes if t > creep_at + 8.5)
+
+
+def test_a_creep_ends_as_the_pose_grows_uncertain_or_a_trusted_mode_returns():
+    selector = ControlSelector(P_CREEP, start=Mode.CREEP)
+    selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.28))  # between enter and exit: kept
+    assert selector.mode is Mode.CREEP
+    d = selector.step(0.1, Inputs(0.0, None, False, ODO, None, 0.31))
+    assert d.mode is Mode.STOP and d.cause == "pose_std_high"
+    selector = ControlSelector(P_CREEP, start=Mode.CREEP)
+    selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.1))
+    assert selector.step(0.5, Inputs(0.0, 0.9, False, ODO, RRC, 0.1)).mode is Mode.CREEP  # the dwell
+    assert selector.step(1.1, Inputs(0.0, 0.9, False, ODO, RRC, 0.1)).mode is Mode.RRC
+    assert selector.step(1.2, Inputs(0.0, None, False, None, None, 0.1)).mode is Mode.STOP
+    d = selector.step(9.0, Inputs(0.0, None, False, ODO, None, None))  # standing, but no pose
+    assert d.mode is Mode.STOP and "no fresh pose" not in d.reason  # the sentence names the trusted modes
 
 
 def test_hysteresis_keeps_odometry_down_to_its_exit_threshold():
@@ -133,36 +218,53 @@ def test_a_pinned_stop_holds_the_curvature_whatever_the_rrc_says():
 def test_thresholds_are_checked():
     with pytest.raises(ValueError):
         SelectionParams(0.4, 0.6, 0.6, 0.4, 1.0, 0.2, 1.0)
+    with pytest.raises(ValueError):
+        SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, creep_std_enter_m=0.4, creep_std_exit_m=0.3)
 
 
 maybe_level = st.one_of(st.none(), st.floats(0.0, 1.0))
 maybe_candidate = st.one_of(st.none(), st.builds(Candidate, st.floats(0.0, 5.0), st.floats(-0.3, 0.3), st.booleans()))
-cycle = st.tuples(st.floats(0.01, 0.6), maybe_level, maybe_level, st.booleans(), maybe_candidate, maybe_candidate)
+maybe_std = st.one_of(st.none(), st.floats(0.0, 0.6))
+cycle = st.tuples(
+    st.floats(0.01, 0.6), maybe_level, maybe_level, st.booleans(), maybe_candidate, maybe_candidate, maybe_std
+)
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.sampled_from(list(Mode)), st.lists(cycle, min_size=1, max_size=60))
-def test_properties_over_random_sequences(start, cycles):
-    selector = ControlSelector(P, start=start)
+@given(st.sampled_from(list(Mode)), st.lists(cycle, min_size=1, max_size=60), st.sampled_from([P, P_CREEP]))
+def test_properties_over_random_sequences(start, cycles, p):
+    selector = ControlSelector(p, start=start)
     t, last_switch, kappa, v, mode = 0.0, 0.0, None, None, start
-    for dt, score, road, force, odo, rrc in cycles:
+    standing_since, crept = None, 0.0
+    for dt, score, road, force, odo, rrc, std in cycles:
         t += dt
-        inputs = Inputs(score, road, force, odo, rrc)
+        inputs = Inputs(score, road, force, odo, rrc, std)
         held_ok, _, _ = selector.acceptable(mode, inputs, holding=True)
         ramping = selector.catching_up
         d = selector.step(t, inputs)
-        assert {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(d.mode, "stop") is not None
+        assert {Mode.ODOMETRY: odo, Mode.RRC: rrc, Mode.CREEP: odo}.get(d.mode, "stop") is not None
         assert not (d.mode is Mode.RRC and rrc.stop_only)  # a stop-only candidate never drives
         if d.switched:
-            assert held_ok is False or t - last_switch >= P.min_dwell_s - 1e-9  # early only when it had to
+            assert held_ok is False or t - last_switch >= p.min_dwell_s - 1e-9  # early only when it had to
             last_switch = t
-        target = {Mode.ODOMETRY: odo, Mode.RRC: rrc}.get(d.mode)
+        if d.mode is Mode.CREEP:
+            assert p.creep_distance_m > 0 and std is not None and std <= p.creep_std_exit_m
+            assert d.v <= p.creep_speed_mps
+            if d.switched:  # only from a stop that stood still long enough
+                assert mode is Mode.STOP and standing_since is not None and t - standing_since >= p.creep_after_s
+                crept = 0.0
+            crept += d.v * dt
+            assert crept <= p.creep_distance_m + p.creep_speed_mps * 0.6  # its distance, give or take a cycle
+        target = {Mode.ODOMETRY: odo, Mode.RRC: rrc, Mode.CREEP: odo}.get(d.mode)
         if kappa is not None and (d.switched or ramping or target is None):
-            assert abs(d.kappa - kappa) <= P.max_kappa_rate * dt + 1e-9  # a switch, a stop: bumpless
+            assert abs(d.kappa - kappa) <= p.max_kappa_rate * dt + 1e-9  # a switch, a stop: bumpless
         elif kappa is not None:
             assert d.kappa == target.kappa  # in charge and caught up: passed through, never delayed
         if d.mode is Mode.STOP and mode is Mode.STOP and v is not None:
             assert d.v <= v + 1e-9
+        standing_since = (
+            (standing_since if standing_since is not None else t) if d.mode is Mode.STOP and d.v == 0 else None
+        )
         kappa, v, mode = d.kappa, d.v, d.mode
 
 

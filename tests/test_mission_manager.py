@@ -144,6 +144,15 @@ def test_a_first_start_ignores_what_an_earlier_run_left(tour_cfg, tmp_path, monk
     assert tour.status.latest.state == "IDLE" and math.isclose(tour.status.latest.limit_mps, 0.0)
 
 
+def test_a_restart_before_the_first_goal_sets_the_autostart_goal(tour_cfg, tmp_path, monkeypatch):
+    monkeypatch.setenv(config.RUN_CONFIG_ENV, str(tmp_path / "config.json"))
+    monkeypatch.setenv(INCARNATION_ENV, "1")  # the first process died before it set its goal: nothing kept
+    tour = Tour(tour_cfg)
+    tour.run(1.0)
+    assert tour.status.latest.goal_id == 1 and tour.status.latest.poi == "Depot"
+    assert any(e.message.startswith("autostart (tour)") for e in tour.kinds("mission"))
+
+
 def test_the_tour_goes_round_again_after_its_last_poi(tour_cfg):
     tour = Tour(tour_cfg, s0=1400.0)  # before the Main gate, the last POI of the lap
     tour.until(lambda: tour.status.latest.poi == "Main gate", 10, "the goal")

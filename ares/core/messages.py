@@ -389,8 +389,9 @@ class PredictedTrajectory(Msg):
 class ControllerStatus(Msg):
     """The control manager's choice: who drives, why, and the errors along the route."""
 
-    controller: str  # the candidate forwarded: mpc, rrc, pure_pursuit, or stop
-    mode: str  # odometry, rrc, stop (managers/control.py)
+    controller: str  # the candidate forwarded: mpc, rrc, pure_pursuit, creep (the odometry controller's,
+    # at walking pace), or stop
+    mode: str  # odometry, rrc, stop, creep (managers/control.py)
     reason: str
     s: float | None  # the path match (None while it is stale)
     xte: float | None

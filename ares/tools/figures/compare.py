@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-SHADES = {"rrc": "#fecaca", "stop": "#e5e7eb"}
+SHADES = {"rrc": "#fecaca", "creep": "#fde68a", "stop": "#e5e7eb"}
 
 
 def write_comparison_png(path: str | Path, traces: dict[str, Path], title: str) -> Path:
