@@ -71,8 +71,14 @@ class ServiceError(RuntimeError):
 
 
 def encoding_name(msg_schema: type[Msg]) -> str:
-    media = "application/octet-stream" if schema.is_bulk(msg_schema) else "application/json"
-    return f"{media};{msg_schema.schema_name()}"
+    name = _ENCODINGS.get(msg_schema)
+    if name is None:
+        media = "application/octet-stream" if schema.is_bulk(msg_schema) else "application/json"
+        name = _ENCODINGS[msg_schema] = f"{media};{msg_schema.schema_name()}"
+    return name
+
+
+_ENCODINGS: dict[type[Msg], str] = {}  # schema -> its encoding: asked for every received message
 
 
 class ServiceInbox:
@@ -137,10 +143,11 @@ def decode(payload: Payload, encoding: str, expected: type[M] | None, topic: str
     if expected is None:
         rejects.reject("unknown topic", topic)
         return None
-    _, _, schema_name = encoding.partition(";")
-    if schema_name and schema_name != expected.schema_name():
-        rejects.reject("unknown schema", f"{topic}: got {schema_name}, expected {expected.schema_name()}")
-        return None
+    if encoding != encoding_name(expected):  # what our publishers send passes on one comparison
+        _, _, schema_name = encoding.partition(";")
+        if schema_name and schema_name != expected.schema_name():
+            rejects.reject("unknown schema", f"{topic}: got {schema_name}, expected {expected.schema_name()}")
+            return None
     try:
         return schema.decode(payload, expected)
     except pydantic.ValidationError as exc:
@@ -205,6 +212,8 @@ class Subscription(Generic[M]):
     def latch(self) -> int:
         """Take in what arrived since the last latch (a node does this at the start of each step);
         returns how many messages arrived."""
+        if not self._staged_stamps:  # read unlocked: a message arriving now waits for the next latch
+            return 0
         with self._lock:
             staged, self._staged = list(self._staged), collections.deque(maxlen=self._staged.maxlen)
             stamps, self._staged_stamps = self._staged_stamps, []
@@ -270,6 +279,14 @@ class Subscription(Generic[M]):
         return out
 
 
+class _KeyReaders:
+    """The subscriptions of one bus to one key, and the transport subscriber they share."""
+
+    def __init__(self) -> None:
+        self.subs: list[Subscription[Msg]] = []
+        self.handle: object = None
+
+
 class Publisher(Generic[M]):
     def __init__(self, bus: BaseBus, topic: str, entry: topics.Topic, reliable: bool):
         self.topic, self.schema = topic, entry.schema
@@ -324,6 +341,7 @@ class BaseBus:
         # before it): no topic may drop under congestion, a slow reader slows the simulation instead
         self._every_message_counts = self.clock.mode == "driven"
         self._subscriptions: list[Subscription[Msg]] = []
+        self._by_key: dict[str, _KeyReaders] = {}  # topic (one key) -> the subscriptions sharing its subscriber
         self._services: list[tuple[str, ServiceInbox, Callable[[Msg], Msg]]] = []
         self._queryables: list[object] = []
         self._fleet_subscriptions: list[object] = []
@@ -377,24 +395,55 @@ class BaseBus:
             rejects=self.rejects,
             tap=tap,
         )
-        fixed = None if "*" in topic else topics.topic(topic).schema
+        if "*" in topic:
+            sub.handle = self._declare_subscriber(self.key(topic), self._pattern_receiver(sub))
+        else:
+            self._join_key_readers(topic, sub)
+        self._subscriptions.append(sub)
+        return sub
+
+    def _pattern_receiver(self, sub: Subscription[Msg]) -> Callable[[str, str, bytes], None]:
+        """The transport callback of a subscription to a pattern: each key checked against its own topic."""
 
         def on_payload(key: str, encoding: str, payload: bytes) -> None:
             try:
                 key_topic = self.topic_of(key)
-                expected = fixed
-                if expected is None:
-                    found = topics.find(key_topic)
-                    expected = found.schema if found is not None else None
-                msg = decode(payload, encoding, expected, key_topic, self.rejects)
+                found = topics.find(key_topic)
+                msg = decode(payload, encoding, found.schema if found is not None else None, key_topic, self.rejects)
                 if msg is not None:
                     sub.deliver(key_topic, msg, payload)
             except Exception as exc:  # a bad message must never take the receiver down
                 self.rejects.reject("receiver error", f"{key}: {exc!r}")
 
-        sub.handle = self._declare_subscriber(self.key(topic), on_payload)
-        self._subscriptions.append(sub)
-        return sub
+        return on_payload
+
+    def _join_key_readers(self, topic: str, sub: Subscription[Msg]) -> None:
+        """Subscriptions of this bus to one key share one transport subscriber, and each message is
+        decoded once and handed to all of them, the same object: every transport subscriber costs
+        a thread wake-up per message (the simulator reads clock/done twice, as its input and in
+        the lockstep)."""
+        readers = self._by_key.get(topic)
+        if readers is None:
+            readers = self._by_key[topic] = _KeyReaders()
+            expected = topics.topic(topic).schema
+
+            def on_payload(key: str, encoding: str, payload: bytes) -> None:
+                try:
+                    msg = decode(payload, encoding, expected, topic, self.rejects)
+                except Exception as exc:  # a bad message must never take the receiver down
+                    self.rejects.reject("receiver error", f"{key}: {exc!r}")
+                    return
+                if msg is None:
+                    return
+                for reader in readers.subs:  # one reader's failure is its own, as with a subscriber each
+                    try:
+                        reader.deliver(topic, msg, payload)
+                    except Exception as exc:
+                        self.rejects.reject("receiver error", f"{key}: {exc!r}")
+
+            readers.handle = self._declare_subscriber(self.key(topic), on_payload)
+        readers.subs = [*readers.subs, sub]  # a new list: the transport thread may be going through the old one
+        sub.handle = readers.handle
 
     def subscribe_raw(self, pattern: str, on_payload: Callable[[str, str, bytes], None]) -> object:
         """Every key of this vehicle matching `pattern` (`**`: all of them), undecoded:
@@ -434,6 +483,12 @@ class BaseBus:
         kept = [s for s in self._subscriptions if s is not sub]
         if len(kept) < len(self._subscriptions):
             self._subscriptions = kept
+            readers = self._by_key.get(sub.topic)
+            if readers is not None and readers.handle is sub.handle:
+                readers.subs = [s for s in readers.subs if s is not sub]
+                if readers.subs:
+                    return  # the others still read the key
+                del self._by_key[sub.topic]
             self._undeclare(sub.handle)
 
     # ---- services ---------------------------------------------------------------------------
@@ -625,7 +680,10 @@ class Bus(BaseBus):
         def on_sample(sample: zenoh.Sample) -> None:
             on_payload(str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes())
 
-        return self.session.declare_subscriber(key, on_sample)
+        def on_key_sample(sample: zenoh.Sample) -> None:  # one key, known: not asked of every sample
+            on_payload(key, str(sample.encoding), sample.payload.to_bytes())
+
+        return self.session.declare_subscriber(key, on_sample if "*" in key else on_key_sample)
 
     def _undeclare(self, handle: object) -> None:
         cast("zenoh.Subscriber[None]", handle).undeclare()
