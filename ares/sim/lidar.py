@@ -77,13 +77,16 @@ def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
     )
 
 
-def rotate_into(out: np.ndarray, vectors: np.ndarray, matrix: np.ndarray) -> None:
-    """out = vectors @ matrix.T, column by column: a BLAS product of (n, 3) by (3, 3) costs more
-    in threads and calls than its 9 multiply-adds per row."""
+def rotate_into(out: np.ndarray, columns: np.ndarray, matrix: np.ndarray, scratch: np.ndarray) -> None:
+    """out[i] = Σ_j matrix[i, j] columns[j]: (3, n) column vectors turned, in contiguous rows (a
+    BLAS product of (n, 3) by (3, 3) costs more in threads and calls than its 9 multiply-adds per
+    row, and strided columns cost twice contiguous ones). scratch: (n,) of out's dtype."""
     for i in range(3):
-        np.multiply(vectors[:, 0], matrix[i, 0], out=out[:, i])
-        out[:, i] += vectors[:, 1] * matrix[i, 1]
-        out[:, i] += vectors[:, 2] * matrix[i, 2]
+        np.multiply(columns[0], matrix[i, 0], out=out[i])
+        np.multiply(columns[1], matrix[i, 1], out=scratch)
+        out[i] += scratch
+        np.multiply(columns[2], matrix[i, 2], out=scratch)
+        out[i] += scratch
 
 
 def mount_pose(mount: LidarMount) -> tuple[np.ndarray, np.ndarray]:
@@ -205,8 +208,19 @@ class SimulatedLidar:
         self.all_columns = np.ascontiguousarray(np.concatenate([self.leaving_dirs, self.body_dirs]).T)
         self.all_ring = np.concatenate([self.leaving_ring, self.body_ring])
         self.all_index = np.concatenate([self.leaving, self.body_index])
+        self.ghost_elevation = np.radians(self.sheet.elevations_deg())
+        # Reused every sweep (nothing returned points into them): the rays cast, their world
+        # directions in contiguous rows, and a row of scratch.
+        self.rays = np.empty((len(self.leaving), 6), dtype=np.float32)
+        self.world_directions = np.empty((3, len(self.leaving)), dtype=np.float32)
+        self.scratch = np.empty(len(self.leaving), dtype=np.float32)
         # reach by material: max range × sqrt(reflectivity / 0.8), at most the max range
         self.reach = self.sheet.max_range_m * np.sqrt(np.minimum(REFLECTIVITY / FULL_REACH_REFLECTIVITY, 1.0))
+        # what of a body return does not change from sweep to sweep: whether it is within reach, and
+        # its intensity before the noise
+        body_material = MATERIAL_IDS["body"]
+        self.body_within_reach = self.body_t <= self.reach[body_material]
+        self.body_brightness = REFLECTIVITY[body_material] * np.maximum(self.body_incidence, 0.05)
 
     @property
     def rays_per_sweep(self) -> int:
@@ -233,22 +247,23 @@ class SimulatedLidar:
         if self.fixed_rays:  # the rays are a packet format's: exactly those (the draw keeps the stream)
             spin = np.eye(3)
         to_world = (vehicle_rotation @ self.rotation @ spin).astype(np.float32)
-        leaving = len(self.leaving)
-        rays = np.empty((leaving, 6), dtype=np.float32)
+        rays, directions = self.rays, self.world_directions
         origin = vehicle_rotation @ self.position + vehicle_position
+        rotate_into(directions, self.leaving_columns, to_world, self.scratch)
         for i in range(3):  # a column at a time: 3x faster than broadcasting a row over (n, 3)
             rays[:, i] = origin[i]
-        rotate_into(rays[:, 3:], self.leaving_columns.T, to_world)
+            rays[:, 3 + i] = directions[i]
         hit = world_scene.cast_rays(open3d().core.Tensor.from_numpy(rays), nthreads=self.params.raycast_threads)
         t = hit["t_hit"].numpy()
         normal = hit["primitive_normals"].numpy()
+        geometry, primitive = hit["geometry_ids"].numpy(), hit["primitive_ids"].numpy()
         if obstacles_scene is None:
             world = np.flatnonzero(np.isfinite(t))
-            world_material = material_of(hit["geometry_ids"].numpy()[world], hit["primitive_ids"].numpy()[world])
+            world_material = material_of(np.take(geometry, world), np.take(primitive, world))
         else:
             material = np.full(len(t), MATERIAL_IDS["asphalt"], dtype=np.uint8)
-            found = np.isfinite(t)
-            material[found] = material_of(hit["geometry_ids"].numpy()[found], hit["primitive_ids"].numpy()[found])
+            found = np.flatnonzero(np.isfinite(t))
+            material[found] = material_of(np.take(geometry, found), np.take(primitive, found))
             near = obstacles_scene.cast_rays(
                 open3d().core.Tensor.from_numpy(rays), nthreads=self.params.raycast_threads
             )
@@ -258,62 +273,73 @@ class SimulatedLidar:
             normal = np.where(closer[:, None], near["primitive_normals"].numpy(), normal)
             material[closer] = MATERIAL_IDS["metal"]
             world = np.flatnonzero(np.isfinite(t))
-            world_material = material[world]
+            world_material = np.take(material, world)
 
-        # the world's returns, then the body's (the same every sweep); only hits are worth the noise
-        incidence = np.abs(normal[:, 0] * rays[:, 3] + normal[:, 1] * rays[:, 4] + normal[:, 2] * rays[:, 5])[world]
-        body = len(self.body_t)
-        t = np.concatenate([t[world], self.body_t])
-        material = np.concatenate(
-            [world_material.astype(np.uint8, copy=False), np.full(body, MATERIAL_IDS["body"], np.uint8)]
-        )
-        m = len(t)
+        # the world's returns, then the body's (the same every sweep); only hits are worth the noise.
+        # Each array below is the world's part then the body's, handled apart where the body's is fixed.
+        hits, m = len(world), len(world) + len(self.body_t)
+        t_world = np.take(t, world)
         # the draws in their order: intensity noise, range noise, dropouts (each sensor's stream)
         intensity_noise = rng.standard_normal(m, dtype=np.float32)
-        r = t + self.sheet.range_sigma_m * rng.standard_normal(m, dtype=np.float32)
-        keep = np.flatnonzero(
-            (r >= self.sheet.min_range_m)
-            & (t <= self.reach[material])
-            & (rng.random(m, dtype=np.float32) >= self.params.dropout)
-        )
-        source = np.concatenate([world, leaving + np.arange(body)])[keep]  # into the rays: world's, then body's
-        incidence = np.concatenate([incidence, self.body_incidence])[keep]
-        intensity = (
-            REFLECTIVITY[material[keep]]
-            * np.maximum(incidence, 0.05)
-            * (1.0 + self.params.intensity_sigma * intensity_noise[keep])
-        )
+        r = rng.standard_normal(m, dtype=np.float32)  # r = t + σ noise, in place (the same float32 sums)
+        r *= self.sheet.range_sigma_m
+        r[:hits] += t_world
+        r[hits:] += self.body_t
+        returned = r >= self.sheet.min_range_m
+        returned[:hits] &= t_world <= np.take(self.reach, world_material)
+        returned[hits:] &= self.body_within_reach
+        returned &= rng.random(m, dtype=np.float32) >= self.params.dropout
+        keep = np.flatnonzero(returned)
+        kept_world = int(np.searchsorted(keep, hits))  # keep is sorted: the world's returns come first
+        source = keep.copy()  # into the rays: the world's, then the body's
+        np.take(world, keep[:kept_world], out=source[:kept_world])
+        source[kept_world:] += len(self.leaving) - hits
+        kept_body = keep[kept_world:] - hits
+        intensity = np.empty(len(keep), dtype=np.float32)
+        cosine = np.multiply(normal[:, 0], directions[0])  # over every ray: cheaper than gathering the hits' first
+        cosine += np.multiply(normal[:, 1], directions[1], out=self.scratch)
+        cosine += np.multiply(normal[:, 2], directions[2], out=self.scratch)
+        incidence = np.abs(np.take(cosine, source[:kept_world]))
+        np.take(REFLECTIVITY, np.take(world_material, keep[:kept_world]), out=intensity[:kept_world])
+        intensity[:kept_world] *= np.maximum(incidence, 0.05, out=incidence)
+        np.take(self.body_brightness, kept_body, out=intensity[kept_world:])
+        noise = np.take(intensity_noise, keep)
+        noise *= self.params.intensity_sigma
+        noise += 1.0
+        intensity *= noise
         ghosts = self._ghosts()
         kept, total = len(keep), len(keep) + len(ghosts[0])
         columns = [np.empty(total, dtype=np.float32) for _ in range(3)]
         d0, d1, d2 = (np.take(self.all_columns[i], source) for i in range(3))
-        spin32, range_kept = spin.astype(np.float32), r[keep]
+        spin32, range_kept = spin.astype(np.float32), np.take(r, keep)
+        product = np.empty(kept, dtype=np.float32)
         for i, out in enumerate(columns):  # the direction turned by the spin, times the range
             np.multiply(d0, spin32[i, 0], out=out[:kept])
-            out[:kept] += d1 * spin32[i, 1]
-            out[:kept] += d2 * spin32[i, 2]
+            out[:kept] += np.multiply(d1, spin32[i, 1], out=product)
+            out[:kept] += np.multiply(d2, spin32[i, 2], out=product)
             out[:kept] *= range_kept
             out[kept:] = ghosts[i]
         out_intensity = np.empty(total, dtype=np.float32)
-        out_intensity[:kept] = np.clip(intensity, 0.0, 1.0)
+        np.clip(intensity, 0.0, 1.0, out=out_intensity[:kept])
         out_intensity[kept:] = ghosts[3]
         ring = np.empty(total, dtype=np.uint8)
-        ring[:kept] = self.all_ring[source]
+        np.take(self.all_ring, source, out=ring[:kept])
         ring[kept:] = ghosts[4]
         slot = None
         if self.fixed_rays:
-            slot = np.concatenate([self.all_index[source], np.full(len(ghosts[0]), -1)])
+            slot = np.concatenate([np.take(self.all_index, source), np.full(len(ghosts[0]), -1)])
         return Sweep(x=columns[0], y=columns[1], z=columns[2], intensity=out_intensity, ring=ring, slot=slot)
 
     def _ghosts(self):
         p, rng = self.params, self.rng
         k = int(rng.poisson(p.ghosts_per_sweep))
-        elevation = np.radians(self.sheet.elevations_deg())
+        elevation = self.ghost_elevation
         ring = rng.integers(0, len(elevation), k)
         az = rng.uniform(-1.0, 1.0, k) * math.radians(p.ghost_half_angle_deg)
         r = rng.uniform(max(p.ghost_range_m[0], self.sheet.min_range_m), p.ghost_range_m[1], k)
-        ce = np.cos(elevation[ring])
-        return (r * ce * np.cos(az), r * ce * np.sin(az), r * np.sin(elevation[ring]), rng.uniform(0.0, 0.1, k), ring)
+        ghost_elevation = elevation[ring]
+        across = r * np.cos(ghost_elevation)
+        return (across * np.cos(az), across * np.sin(az), r * np.sin(ghost_elevation), rng.uniform(0.0, 0.1, k), ring)
 
     def _empty(self) -> Sweep:
         # behind the cover every ray returns at a few centimetres, below the minimum range
