@@ -114,3 +114,15 @@ def test_the_cpu_sampler_names_each_child_by_the_node_it_runs():
         idle.kill()
         busy.wait()
         idle.wait()
+
+
+def test_the_bench_runs_ares_run_at_the_speed_asked_on_ports_and_a_store_of_its_own(tmp_path):
+    from ares.cli import build_parser
+    from ares.tools.bench.stack import run_argv
+
+    for speed in ("max", "1"):
+        args = build_parser().parse_args(run_argv(1, None, (), False, tmp_path, speed))
+        assert args.headless and args.speed == build_parser().parse_args(["run", "--speed", speed]).speed
+        assert args.store == str(tmp_path / "blackbox.sqlite") and args.listen != "tcp/127.0.0.1:7447"
+    bench = build_parser().parse_args(["bench", "stack", "--speed", "1", "--seconds", "60"])
+    assert bench.speed == "1" and bench.seconds == 60

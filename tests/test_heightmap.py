@@ -167,7 +167,7 @@ def test_ground_params_run_the_configured_method_in_the_vehicle_frame():
     floor = GroundParams(method="floor").mask(cloud.astype(np.float32), grid)
     assert (floor == floor_ground_mask(shifted)).all()
     assert paper.sum() < floor.sum()
-    assert GroundParams().method == "cell_span"  # the stack's default, until the floor drives the whole tour
+    assert GroundParams().method == "floor"  # the stack's default (it drove whole laps: docs/performance.md)
 
 
 def test_a_small_simulated_street_agrees_with_patchwork_and_keeps_its_obstacles():

@@ -150,6 +150,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     stack.add_argument("--config", action="append", metavar="FILE", help="configuration overrides, as for ares run")
     stack.add_argument("--wire", action="store_true", help="through the devices' wire formats, as ares run --wire")
     stack.add_argument(
+        "--speed",
+        default="max",
+        metavar="max|FACTOR",
+        help="as ares run --speed: max (default, the lockstep) or 1 (paced at real time, as on the vehicle)",
+    )
+    stack.add_argument(
         "--profile",
         type=Path,
         metavar="DIR",
@@ -242,6 +248,7 @@ def _run(args: argparse.Namespace, progress):
                 args.wire,
                 profile_dir=args.profile,
                 progress=progress,
+                speed=args.speed,
             ), format_stack_result
         except BenchError as exc:
             raise CliError(f"stack bench failed: {exc}") from None

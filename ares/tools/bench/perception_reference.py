@@ -13,8 +13,8 @@ The scans:
 
 Each goes through the pipeline's filters (LidarPipeline.road_frame: vehicle frame, self hits and
 ghosts removed); then the same points are labelled three ways: our floor ground stage
-(GroundParams.mask, method floor), Algorithm 2 as published (method cell_span: the stack's default
-until the floor has driven the whole tour: docs/performance.md), and
+(GroundParams.mask, method floor: the stack's default), Algorithm 2 as published (method
+cell_span), and
 Patchwork++ on the points moved back into the sensor's frame, its
 sensor_height set to the mount's height above the road (its other parameters its defaults; its
 reflected-noise removal off, as a scan without intensities has it anyway). Per scan: the share of

@@ -16,6 +16,10 @@ LiDARs of the configuration) with four probes beside the headless drive:
 
 The speed-up is the run's own `speed_factor` (stack seconds per wall second). The lap's figures
 (the README's bounds) are in `lap`, as `ares run --headless` prints them.
+
+`speed` 1 runs it paced at real time, as on the vehicle: no lockstep (the processes step on
+their own timers, the simulator waits for nobody), so the vehicle's CPU is what the shuttle's
+computer would spend, where `max` adds the lockstep's tick and report per step.
 """
 
 from __future__ import annotations
@@ -234,9 +238,11 @@ class Published:
         }
 
 
-def run_argv(laps: int, seconds: float | None, config_files: tuple[str, ...], wire: bool, run_dir: Path) -> list[str]:
+def run_argv(
+    laps: int, seconds: float | None, config_files: tuple[str, ...], wire: bool, run_dir: Path, speed: str = "max"
+) -> list[str]:
     """The `ares run` the bench drives, on ports and a store of its own."""
-    argv = ["run", "--headless", "--speed", "max", "--run-dir", str(run_dir)]
+    argv = ["run", "--headless", "--speed", speed, "--run-dir", str(run_dir)]
     argv += ["--listen", f"tcp/127.0.0.1:{free_port()}", "--api-port", str(free_port())]
     argv += ["--store", str(run_dir / "blackbox.sqlite")]
     argv += ["--seconds", f"{seconds:g}"] if seconds else ["--laps", str(laps)]
@@ -257,11 +263,12 @@ def run_stack_bench(
     profile_dir: Path | None = None,
     run_dir: Path | None = None,
     progress: Callable[[str], None] = lambda _msg: None,
+    speed: str = "max",
 ) -> dict:
     run_dir = run_dir or Path(tempfile.mkdtemp(prefix="ares-bench-stack-"))
     if profile_dir is not None:
         profile_dir.mkdir(parents=True, exist_ok=True)
-    args = parse_run(run_argv(laps, seconds, config_files, wire, run_dir))  # the CLI's parser: it is `ares run`
+    args = parse_run(run_argv(laps, seconds, config_files, wire, run_dir, speed))  # the CLI's parser: it is `ares run`
     probes: dict = {}
 
     def probed_drive(args, cfg, route, bus, clock, stop, run_dir, inject):
@@ -284,7 +291,7 @@ def run_stack_bench(
             probes["ended"] = (clock.now(), time.monotonic())
             sampler.stop()
 
-    progress(f"ares run --headless --speed max ({f'{seconds:g} s' if seconds else f'{laps} lap(s)'}), in {run_dir}")
+    progress(f"ares run --headless --speed {speed} ({f'{seconds:g} s' if seconds else f'{laps} lap(s)'}), in {run_dir}")
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         code = stack.run(args, headless_drive=probed_drive)
@@ -299,6 +306,7 @@ def run_stack_bench(
     vehicle = {n: f for n, f in cpu.items() if n != HOST and n not in probes["sim"]}
     return {
         "ok": bool(lap.get("ok")),
+        "speed": speed,
         "speedup": speedup,
         "vehicle_cpu_cores": round(sum(f["mean_cores"] or 0.0 for f in vehicle.values()), 3),
         "simulator_cpu_cores": round(sum(cpu[n]["mean_cores"] or 0.0 for n in probes["sim"] if n in cpu), 3),
