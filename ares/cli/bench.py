@@ -152,8 +152,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     stack.add_argument(
         "--speed",
         default="max",
-        metavar="max|FACTOR",
-        help="as ares run --speed: max (default, the lockstep) or 1 (paced at real time, as on the vehicle)",
+        metavar="max|paced|FACTOR",
+        help="as ares run --speed: max (default: the lockstep, as fast as every process keeps up), paced (the "
+        "same, never faster than real time) or 1 (the wall clock, no lockstep: as on the vehicle)",
     )
     stack.add_argument(
         "--profile",

@@ -51,8 +51,8 @@ class LidarSimParams(Params):
     raycast_threads: int = param(
         1,
         "open3d threads per cast (0: all cores); in a run the other processes need "
-        "the second core more than the caster does (one thread: 38 ms of CPU a frame, "
-        "all: 56 ms for 36 ms of wall time)",
+        "the second core more than the caster does (one thread: 30 ms of CPU a frame of three sensors, "
+        "ares bench perception; all cores cost more CPU for less wall time)",
         ge=0,
     )
     seed: int = param(11, "seed of the LiDARs' random streams (noise, dropouts, ghosts, roadside objects)", ge=0)

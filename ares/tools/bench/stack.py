@@ -17,9 +17,11 @@ LiDARs of the configuration) with four probes beside the headless drive:
 The speed-up is the run's own `speed_factor` (stack seconds per wall second). The lap's figures
 (the README's bounds) are in `lap`, as `ares run --headless` prints them.
 
-`speed` 1 runs it paced at real time, as on the vehicle: no lockstep (the processes step on
-their own timers, the simulator waits for nobody), so the vehicle's CPU is what the shuttle's
-computer would spend, where `max` adds the lockstep's tick and report per step.
+`speed` 1 runs it on the wall clock, as on the vehicle: no lockstep (the processes step on their
+own timers, the simulator waits for nobody), where `max` adds the lockstep's tick and report per
+step. On this 2-core machine the simulated LiDARs (niced: they stand for hardware) then miss
+some of their 10 Hz slots and the awareness manager rightly latches an emergency stop
+(docs/performance.md); `paced` is the lockstep capped at real time.
 """
 
 from __future__ import annotations
