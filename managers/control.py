@@ -33,8 +33,10 @@ curvature forwarded so far to the new candidate's, no faster than the steering c
 unchanged: the controller in charge already commands no faster than the steering turns (the
 MPC's model has the rate), and a ramp on top would only delay it (at 25 km/h, by enough to make
 the MPC weave). In STOP the speed ramps down at `stop_decel_mps2`, and the curvature goes, at the
-steering's rate, to the RRC's while it has a candidate (the road seen, however faintly, or
-remembered for a few metres after it was lost: `stop_only`), else it is held. A held curvature rolls
+steering's rate, to the odometry controller's while creeping is on and the pose's σ is within
+`creep_std_exit_m` (a pose good enough to creep by is good enough to steer a stop by: the RRC's
+remembered road can be the wrong one), else to the RRC's while it has a candidate (the road seen,
+however faintly, or remembered for a few metres after it was lost: `stop_only`), else it is held. A held curvature rolls
 the shuttle off a bend's line (0.5 m over the 6 m of a stop from 2.5 m/s, measured on grass).
 A `stop_only` candidate never drives.
 
@@ -223,9 +225,9 @@ class ControlSelector:
                 cause = current_cause
                 reason = f"{current_why}; {want.value} is wanted once {self.p.min_dwell_s:g} s in charge have passed"
         target = {Mode.ODOMETRY: inputs.odometry, Mode.RRC: inputs.rrc, Mode.CREEP: inputs.odometry}.get(self.mode)
-        if target is None:  # STOP: slow down, steer along the road or hold
+        if target is None:  # STOP: slow down, steer along the path or the road, or hold
             self.v = max(0.0, self.v - self.p.stop_decel_mps2 * dt)
-            steer_by = inputs.rrc if self.p.pinned is None else None
+            steer_by = self._stop_steering(inputs)
             kappa_target = self.kappa if steer_by is None else steer_by.kappa
             self.catching_up = True  # a stop's curvature always moves at the steering's rate
         elif self.mode is Mode.CREEP:
@@ -246,6 +248,23 @@ class ControlSelector:
         else:
             self.kappa += _clip(kappa_target - self.kappa, self.p.max_kappa_rate * dt)
         return Decision(self.mode, self.v, self.kappa, switched, reason, cause)
+
+    def _stop_steering(self, inputs: Inputs) -> Candidate | None:
+        """Whose curvature a controlled stop follows: the odometry controller's while creeping is on
+        and the pose is good enough to creep by (a pose good to centimetres follows the path; the
+        RRC's remembered road can be the wrong one, as it was before a crossing in a soak, where
+        it steered a stop 0.55 m aside), else the RRC's road, seen or remembered; none when pinned."""
+        if self.p.pinned is not None:
+            return None
+        std = inputs.pose_std_m
+        if (
+            self.p.creep_distance_m > 0
+            and inputs.odometry is not None
+            and std is not None
+            and std <= self.p.creep_std_exit_m
+        ):
+            return inputs.odometry
+        return inputs.rrc
 
 
 def _clip(value: float, limit: float) -> float:

@@ -206,6 +206,17 @@ def test_a_controlled_stop_steers_along_the_rrc_at_the_steering_rate():
     assert d.kappa == pytest.approx(-0.05)
 
 
+def test_a_stop_steers_by_the_odometry_while_the_pose_is_good_enough_to_creep_by():
+    # before a crossing the RRC's remembered road bent away (k +0.05) while the path ran straight
+    bent, straight = Candidate(0.0, 0.05, stop_only=True), Candidate(3.0, 0.0)
+    for std, creeping, expected in ((0.05, P_CREEP, 0.0), (0.5, P_CREEP, 0.05), (None, P_CREEP, 0.05), (0.05, P, 0.05)):
+        selector = ControlSelector(creeping, start=Mode.STOP)
+        selector.step(0.0, Inputs(0.0, None, False, straight, bent, std))
+        for t in (0.5, 1.0):  # (the steering's rate: 0.2 /m/s; standing, a creep would begin at 2 s)
+            d = selector.step(t, Inputs(0.0, None, False, straight, bent, std))
+        assert d.mode is Mode.STOP and d.kappa == pytest.approx(expected), (std, creeping.creep_distance_m)
+
+
 def test_a_pinned_stop_holds_the_curvature_whatever_the_rrc_says():
     selector = ControlSelector(
         SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, pinned=Mode.ODOMETRY), start=Mode.ODOMETRY
