@@ -176,23 +176,36 @@ class ControlSelector:
             return self._creep_acceptable(inputs, holding)
         return True, "stop", "in a controlled stop"
 
-    def _creep_acceptable(self, inputs: Inputs, holding: bool) -> tuple[bool, str, str]:
+    def _creep_refusal(self, inputs: Inputs, holding: bool) -> tuple[str, str] | None:
+        """Why the odometry controller may not creep (or steer a stop) by the pose now, as a cause
+        and a sentence; None when it may (holding: the exit threshold applies)."""
         p = self.p
         if p.creep_distance_m <= 0:
-            return False, "creep_off", "creeping is off"
+            return "creep_off", "creeping is off"
         if inputs.odometry is None:
-            return False, "no_candidate", "no odometry candidate to creep by"
+            return "no_candidate", "no odometry candidate to creep by"
         std = inputs.pose_std_m
         if std is None:
-            return False, "no_pose", "no fresh pose to creep by"
+            return "no_pose", "no fresh pose to creep by"
         if std > (p.creep_std_exit_m if holding else p.creep_std_enter_m):
-            return False, "pose_std_high", f"the pose's σ {std:.2f} m is too large to creep by"
+            return "pose_std_high", f"the pose's σ {std:.2f} m is too large to creep by"
+        return None
+
+    def _creep_acceptable(self, inputs: Inputs, holding: bool) -> tuple[bool, str, str]:
+        p = self.p
+        refusal = self._creep_refusal(inputs, holding)
+        if refusal is not None:
+            return False, *refusal
         if holding:
             if self.crept_m >= p.creep_distance_m:
                 return False, "crept", f"crept {p.creep_distance_m:g} m: standing again"
         elif self.standing_since is None or self.last_t is None or self.last_t - self.standing_since < p.creep_after_s:
             return False, "not_standing", f"a creep waits for {p.creep_after_s:g} s of standing still"
-        return True, "creep", f"creeping on the odometry at {p.creep_speed_mps:g} m/s (pose σ {std:.2f} m)"
+        return (
+            True,
+            "creep",
+            f"creeping on the odometry at {p.creep_speed_mps:g} m/s (pose σ {inputs.pose_std_m:.2f} m)",
+        )
 
     def wanted(self, inputs: Inputs) -> tuple[Mode, str, str]:
         """The most trusted acceptable mode, in the fixed order, with its cause and sentence."""
@@ -256,15 +269,7 @@ class ControlSelector:
         it steered a stop 0.55 m aside), else the RRC's road, seen or remembered; none when pinned."""
         if self.p.pinned is not None:
             return None
-        std = inputs.pose_std_m
-        if (
-            self.p.creep_distance_m > 0
-            and inputs.odometry is not None
-            and std is not None
-            and std <= self.p.creep_std_exit_m
-        ):
-            return inputs.odometry
-        return inputs.rrc
+        return inputs.odometry if self._creep_refusal(inputs, holding=True) is None else inputs.rrc
 
 
 def _clip(value: float, limit: float) -> float:
