@@ -93,7 +93,7 @@ class MpcParams(Params):
         1000.0,
         "eq. 13: weight of the change of wheel angle between steps (1000 rather "
         "than 100: the stack's own latency, 0.1-0.2 s from pose to wheels, makes "
-        "100 oscillate; docs/mpc.md)",
+        "100 oscillate; docs/control.md)",
         unit="1/rad^2",
         ge=0,
     )
@@ -104,6 +104,30 @@ class MpcParams(Params):
         1, "Gauss-Newton steps per solve, from the shifted previous solution (1: the real-time iteration)", ge=1, le=50
     )
     first_iterations: int = param(8, "... and for a solve without a previous solution", ge=1, le=50)
+    rejoin_band_m: float = param(
+        0.15,
+        "further from the path than this, the reference is a way back to it, not the path itself "
+        "(the path from half a metre aside made the MPC stand, or weave lock to lock; docs/control.md)",
+        unit="m",
+        ge=0,
+    )
+    rejoin_length_m: float = param(
+        4.0, "... L: the way back's length scale, at least (e ~ exp(-d / L) over the distance d ahead)", unit="m", gt=0
+    )
+    rejoin_speed_mps: float = param(
+        2.0,
+        "... on the way back, no faster than this (from twice the band; between the band and twice "
+        "it, the cap falls from the path's limit): the steering turns further per metre when slower",
+        unit="m/s",
+        gt=0,
+    )
+    rejoin_turn_share: float = param(
+        0.5,
+        "... and longer if its first turn, beside the path's own, would ask more than this share "
+        "of the largest curvature the vehicle steers",
+        gt=0,
+        le=1,
+    )
     compensate_dead_time: bool = param(True, "solve from the state the actuators' dead time ahead")
     max_solve_ms: float = param(
         60.0, "a solve taking longer counts as failed (its answer would be late)", unit="ms", gt=0
@@ -168,6 +192,7 @@ class Mpc:
         self.max_delta = vehicle.max_wheel_angle_rad
         self.max_accel, self.max_decel = vehicle.max_accel_mps2, vehicle.max_decel_mps2
         self.max_speed = vehicle.max_speed_mps
+        self.max_kappa = math.tan(self.max_delta) / self.wheelbase
         steering = vehicle.actuators.steering
         self.wheel_rate = wheel_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio  # rad/s
         self.max_delta_step = wheel_rate * p.step_s
@@ -261,6 +286,7 @@ class Mpc:
         if len(px) < 2 or float(np.hypot(px[-1] - px[0], py[-1] - py[0])) < 1.0:
             return self._fallback(state, started, "too little path ahead")
         path = _Polyline(px, py, np.minimum(np.asarray(path_speed, float), self.max_speed))
+        path.rejoin(p.rejoin_band_m, p.rejoin_length_m, p.rejoin_turn_share * self.max_kappa, p.rejoin_speed_mps)
         first = self._previous is None
         U = self._initial_guess(start[3], state.delta)
         # the first step may move δ from where the wheels will be when it acts, at the motor's rate: at
@@ -383,6 +409,45 @@ class _Polyline:
         k, self.s_vehicle = self._project(np.zeros(1), np.zeros(1))
         self.k_vehicle = int(k[0])
         self.yaw -= 2 * math.pi * round(float(self.yaw[self.k_vehicle]) / (2 * math.pi))
+        self.rejoin_e0, self.rejoin_slope, self.rejoin_m = 0.0, 0.0, 1.0  # no way back: the path itself
+        self.rejoin_speed = math.inf
+
+    def rejoin(self, band_m: float, length_m: float, max_kappa: float, speed_mps: float) -> None:
+        """References from where the vehicle is, as it is headed, back to the path. Over the
+        distance d ahead, the references lie this far to the left of the path:
+
+            e(d) = (e0 + (e0 / L + θ0) d) exp(−d / L)        (e(0) = e0, e'(0) = θ0)
+
+        a critically damped approach from the vehicle's offset beyond `band_m` (e0) and its heading
+        to the path (θ0). The references thus start `band_m` nearer the path than the vehicle, a
+        pull the MPC keeps answering, instead of the whole offset: from half a metre aside and
+        turned away, the path itself is a plan to stand (every start first adds to the offset)
+        or, moving, to turn lock to lock. The curve is the same from anywhere on it, headed along
+        it, so a later cycle asks for nothing new but that pull. Within the band the references
+        are the path; the heading counts in proportion up to twice the band, so the references
+        move smoothly as the vehicle leaves the band.
+
+        L is `length_m` or, if the first turn e''(0) = −(2 θ0 / L + e0 / L²), beside the path's
+        own curvature, would ask more than `max_kappa`, the length at which it asks just that (a
+        way back the vehicle cannot steer is one it leaves at once: it crawls, or stands); but,
+        when headed back already, no longer than e0 / |θ0|, beyond which the curve would itself
+        cross the path. On the way back the speed is capped at `speed_mps`, in proportion too."""
+        cte, epsi = self.errors_at_origin()
+        left = -cte
+        e0 = math.copysign(max(abs(left) - band_m, 0.0), left)
+        if e0 == 0.0:
+            return
+        share = min(1.0, abs(e0) / band_m) if band_m > 0 else 1.0
+        slope = share * math.tan(epsi)
+        turn = -math.copysign(1.0, 2 * slope * length_m + e0)  # which way the way back first turns
+        ahead = float(np.interp(self.s_vehicle[0] + 5.0, self.s[:-1], self.yaw))
+        path_kappa = (ahead - float(self.yaw[self.k_vehicle])) / 5.0
+        room = max(max_kappa - turn * path_kappa, 0.2 * max_kappa)
+        needed = (abs(slope) + math.sqrt(slope * slope + room * abs(e0))) / room
+        if slope * e0 < 0:
+            needed = min(needed, abs(e0) / abs(slope))
+        self.rejoin_e0, self.rejoin_slope, self.rejoin_m = e0, slope, max(length_m, needed)
+        self.rejoin_speed = speed_mps + (1.0 - share) * float(np.max(self.speed))
 
     def _project(self, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For each point, the nearest segment and the arc length of the nearest point on it."""
@@ -400,12 +465,17 @@ class _Polyline:
         k = np.clip(np.searchsorted(self.s, s_at, side="right") - 1, 0, len(self.yaw) - 1)
         beyond = s_at - self.s[k]
         yaw = self.yaw[k]
+        # the way back: an offset to the left of the path, and the slope of its approach
+        d, e0, length = s_at - self.s_vehicle[0], self.rejoin_e0, self.rejoin_m
+        fade = np.exp(-d / length)
+        offset = (e0 + (e0 / length + self.rejoin_slope) * d) * fade
+        slope = (self.rejoin_slope - (e0 / length + self.rejoin_slope) * d / length) * fade
         return np.concatenate(
             [
-                self.x[k] + beyond * np.cos(yaw),
-                self.y[k] + beyond * np.sin(yaw),
-                yaw,
-                np.interp(s_at, self.s, self.speed),
+                self.x[k] + beyond * np.cos(yaw) - offset * np.sin(yaw),
+                self.y[k] + beyond * np.sin(yaw) + offset * np.cos(yaw),
+                yaw + np.arctan(slope),
+                np.minimum(np.interp(s_at, self.s, self.speed), self.rejoin_speed),
             ]
         )
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ares.core.config import load_vehicle
-from control.mpc import Mpc, MpcParams, VehicleState, predict
+from control.mpc import Mpc, MpcParams, VehicleState, _Polyline, predict
 
 VEHICLE = load_vehicle("ares_shuttle")
 PLANT_DT = 0.01
@@ -36,21 +36,37 @@ def arc_path(radius: float, straight_m: float = 15.0, turn_deg: float = 90.0, af
 
 def distance_to(path, x: float, y: float) -> float:
     """From (x, y) to the polyline through the path's poses."""
+    return abs(offset_from(path, x, y))
+
+
+def offset_from(path, x: float, y: float) -> float:
+    """From the polyline through the path's poses to (x, y): + left of it."""
     px, py = path
     ax, ay, bx, by = px[:-1], py[:-1], px[1:], py[1:]
     dx, dy = bx - ax, by - ay
     t = np.clip(((x - ax) * dx + (y - ay) * dy) / np.maximum(dx * dx + dy * dy, 1e-12), 0.0, 1.0)
-    return float(np.min(np.hypot(ax + t * dx - x, ay + t * dy - y)))
+    gaps = np.hypot(ax + t * dx - x, ay + t * dy - y)
+    i = int(np.argmin(gaps))
+    return float(gaps[i]) * (1.0 if dx[i] * (y - ay[i]) - dy[i] * (x - ax[i]) >= 0 else -1.0)
 
 
-def closed_loop(mpc: Mpc, path, offset_m: float, speed: float = 3.0, seconds: float = 12.0, v0: float | None = None):
-    """Drive the path from `offset_m` left of its start; the wheels follow each command after the
-    steering's dead time at its rate. Returns the distance from the path at each plant step and
-    the commands."""
+def closed_loop(
+    mpc: Mpc,
+    path,
+    offset_m: float,
+    speed: float = 3.0,
+    seconds: float = 12.0,
+    v0: float | None = None,
+    yaw0: float = 0.0,
+    signed: bool = False,
+):
+    """Drive the path from `offset_m` left of its start, headed `yaw0`; the wheels follow each
+    command after the steering's dead time at its rate. Returns the distance from the path at each
+    plant step (`signed`: + left of it) and the commands."""
     px, py = path
     steering = VEHICLE.actuators.steering
     rate = math.radians(steering.max_rate_deg_s) / VEHICLE.steering_ratio * PLANT_DT
-    x, y, yaw, v, delta, accel = 0.0, offset_m, 0.0, speed if v0 is None else v0, 0.0, 0.0
+    x, y, yaw, v, delta, accel = 0.0, offset_m, yaw0, speed if v0 is None else v0, 0.0, 0.0
     pending, target, errors, commands = [], 0.0, [], []
     every = round(1.0 / mpc.params.rate_hz / PLANT_DT)
     for k in range(round(seconds / PLANT_DT)):
@@ -66,7 +82,7 @@ def closed_loop(mpc: Mpc, path, offset_m: float, speed: float = 3.0, seconds: fl
         delta += float(np.clip(target - delta, -rate, rate))
         v = max(0.0, v + accel * PLANT_DT)
         x, y, yaw, _ = predict(x, y, yaw, v, delta, 0.0, PLANT_DT, VEHICLE.wheelbase_m)
-        errors.append(distance_to(path, x, y))
+        errors.append(offset_from(path, x, y) if signed else distance_to(path, x, y))
     return np.array(errors), commands
 
 
@@ -196,3 +212,87 @@ def test_a_plan_that_keeps_the_shuttle_standing_hands_over_after_a_while(v_comma
     answers = [guard.stalled(t / 10, v_command, v_now, v_path) for t in range(31)]
     assert answers[19] is False and answers[-1] is stalls  # never before 2 s
     assert guard.stalled(3.1, 0.5, 0.0, v_path) is False and guard.since is None  # moving again: reset
+
+
+# ---- the way back (docs/control.md, "The MPC from half a metre aside: the way back") ----------------------
+# From a default-tour soak: a controlled stop left the shuttle standing 0.55 m aside, turned 9.5°
+# further away. With the path itself as the reference every start first adds to the offset, so the
+# plan stood; pure pursuit started it (the stall guard), and the MPC, moving, turned lock to lock.
+
+
+def right_bend():
+    px, py = arc_path(20.0, straight_m=3.0)
+    return px, -py
+
+
+@pytest.mark.parametrize(
+    "path, offset_m, yaw0, speed",
+    [
+        (arc_path(math.inf), 0.55, 0.165, 3.0),  # the soak's stop
+        (arc_path(math.inf), 1.0, 0.3, 3.0),
+        (right_bend(), 1.5, 0.3, 2.4),  # outside a 20 m bend, turned further out
+        (arc_path(12.0, straight_m=3.0), 0.55, 0.0, 2.4),  # inside a 12 m bend
+    ],
+)
+def test_from_aside_and_turned_away_a_standing_shuttle_sets_off_and_rejoins_the_path(path, offset_m, yaw0, speed):
+    errors, commands = closed_loop(
+        Mpc(VEHICLE, MpcParams(**UNTIMED)), path, offset_m, speed, seconds=20.0, v0=0.0, yaw0=yaw0, signed=True
+    )
+    setting_off = next(i for i, c in enumerate(commands) if c.v > 0.3)
+    assert setting_off <= 10  # within a second
+    assert np.abs(errors[-500:]).max() < 0.05  # back on the path: measured within 5.8-11.8 s
+    assert -errors.min() < 0.3  # crossing it by little (measured 0.04-0.24 m)
+    # beyond a quarter lock, the wheel swings over at most once (in the soak: lock to lock every 12 s)
+    quarter = 0.25 * VEHICLE.max_wheel_angle_rad
+    steering = np.sign([c.delta for c in commands if abs(c.delta) > quarter])
+    assert np.count_nonzero(np.diff(steering)) <= 1
+    assert all(c.ok for c in commands)
+
+
+def test_with_the_path_itself_as_the_reference_the_soaks_stop_stood_for_good():
+    """Why the way back: without it, the same start is a plan to stand."""
+    errors, commands = closed_loop(
+        Mpc(VEHICLE, MpcParams(rejoin_band_m=100.0, **UNTIMED)),
+        arc_path(math.inf),
+        0.55,
+        3.0,
+        seconds=10.0,
+        v0=0.0,
+        yaw0=0.165,
+    )
+    assert max(c.v for c in commands) < 0.05 and errors[-1] == pytest.approx(0.55, abs=0.01)
+
+
+def way_back(left_m: float, heading: float, band_m: float = 0.15, length_m: float = 4.0):
+    """The references of a straight path (world x axis) seen from a vehicle `left_m` left of it,
+    headed `heading` to it: the lateral offset (world y) of the references at world x = 0..8 m."""
+    s = np.arange(-2.0, 40.0, 0.25)
+    c, si = math.cos(heading), math.sin(heading)
+    dx, dy = s - 0.0, -left_m  # the path's poses from the vehicle, turned into its frame
+    path = _Polyline(c * dx + si * dy, -si * dx + c * dy, np.full(len(s), 3.0))
+    path.rejoin(band_m, length_m, max_kappa=10.0, speed_mps=2.0)  # a curvature never reached: L stays
+    ahead = np.arange(0.0, 8.0, 0.5)
+    x = c * ahead - si * left_m
+    y = -si * ahead - c * left_m  # the path's points at x = ahead, in the vehicle's frame ...
+    n = len(ahead)
+    refs = path.references(x, y)
+    rx, ry = refs[:n], refs[n : 2 * n]  # ... and their references, back in the world
+    return ahead, si * rx + c * ry + left_m, path
+
+
+def test_within_the_band_the_references_are_the_path_itself():
+    _, offsets, path = way_back(0.12, 0.1)
+    assert np.allclose(offsets, 0.0, atol=1e-9) and path.rejoin_speed == math.inf
+
+
+def test_the_way_back_is_the_same_curve_from_any_point_on_it():
+    """e(d) = (e0 + (e0 / L + θ0) d) exp(-d / L), starting the band nearer the path than the
+    vehicle: a vehicle the band beside it, headed along it, is asked for the same curve again."""
+    band, length, e0, theta0 = 0.15, 4.0, 0.65, 0.12
+    curve = lambda d: (e0 + (e0 / length + theta0) * d) * np.exp(-d / length)  # noqa: E731
+    slope = lambda d: (theta0 - (e0 / length + theta0) * d / length) * np.exp(-d / length)  # noqa: E731
+    ahead, offsets, _ = way_back(band + e0, math.atan(theta0), band, length)
+    assert np.allclose(offsets, curve(ahead), atol=0.01)
+    d1 = 2.0  # 2 m on: the vehicle the band beside the curve, headed along it
+    later_ahead, later, _ = way_back(band + float(curve(d1)), math.atan(float(slope(d1))), band, length)
+    assert np.allclose(later, curve(d1 + later_ahead), atol=0.02)
