@@ -12,11 +12,13 @@ real one. While the heading's sigma is above max_heading_sigma_rad the candidate
 path's own curvature at no more than creep_speed_mps, as pure pursuit does.
 
 A standing shuttle off the path (road reactive control left it 0.56 m aside and turned away, and
-then stopped) can be the MPC's local minimum: any start first adds to the cross-track error, so
-the best plan is to stay. Seen after the 6-minute GNSS outage: the MPC in charge, everything
-allowing motion, and `v = 0` for a minute. A plan that keeps the shuttle standing while the path
-asks it to move, for `stall_handover_s`, asks for a hand-over: pure pursuit stands in, starts from
-any offset, and the MPC takes over again once moving (`StallGuard`).
+then stopped) was the MPC's local minimum while its references were the path itself: any start
+first adds to the cross-track error, so the best plan was to stay. Seen after the 6-minute GNSS
+outage: the MPC in charge, everything allowing motion, and `v = 0` for a minute. The MPC's
+references are now a way back from such an offset (control/mpc.py, `_Polyline.rejoin`); as a
+second line, a plan that keeps the shuttle standing while the path asks it to move, for
+`stall_handover_s`, asks for a hand-over: pure pursuit stands in, starts from any offset, and the
+MPC takes over again once moving (`StallGuard`).
 
 Without a fresh pose and path there is no candidate: the control manager must never forward a
 command computed from stale data.
