@@ -192,7 +192,7 @@ class Mpc:
         self.max_delta = vehicle.max_wheel_angle_rad
         self.max_accel, self.max_decel = vehicle.max_accel_mps2, vehicle.max_decel_mps2
         self.max_speed = vehicle.max_speed_mps
-        self.max_kappa = math.tan(self.max_delta) / self.wheelbase
+        self.max_kappa = vehicle.max_curvature
         steering = vehicle.actuators.steering
         self.wheel_rate = wheel_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio  # rad/s
         self.max_delta_step = wheel_rate * p.step_s
