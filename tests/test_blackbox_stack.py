@@ -173,9 +173,9 @@ def test_the_api_process_beats_from_its_event_loop_and_waits_for_a_taken_port(ro
 @pytest.mark.timeout(240)
 def test_a_30_s_store_outage_mid_run_loses_no_second(tmp_path):
     path = tmp_path / "blackbox.sqlite"
-    run = start_headless("--seconds", "80", "--store", str(path))
+    run = start_headless("--seconds", "50", "--store", str(path))
     try:
-        before = wait_until(lambda: (t := latest_t(path)) is not None and t >= 30 and t, 120, "30 s of records", 0.2)
+        before = wait_until(lambda: (t := latest_t(path)) is not None and t >= 10 and t, 120, "10 s of records", 0.2)
         locker = lock_store(str(path), 30 / SPEED)  # 6 s of wall time: 30 s of vehicle time
         assert locker.wait(timeout=30) == 0
         result = finish(run)

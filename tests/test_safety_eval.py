@@ -6,7 +6,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ares.core.clock import ManualClock
 from ares.core.config import Scenario
@@ -28,6 +31,54 @@ from ares.tools.evaluation.safety_eval import SafetyTracker
 from ares.tools.scenario_driver import ScenarioDriver
 
 SHUTTLE = dict(length_m=3.93, width_m=1.99, front_bumper_m=3.365)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_far_obstacles_left_out_change_neither_the_clearance_nor_the_collisions(seed):
+    """The tracker skips the exact gap of an obstacle too far to matter: the same figures as the gap
+    to every obstacle at every step."""
+    rng = np.random.default_rng(seed)
+    obstacles = [
+        ObstacleBox(
+            name=f"o{i}",
+            kind="parked",
+            x=float(x),
+            y=float(y),
+            yaw=float(yaw),
+            length_m=float(length),
+            width_m=float(width),
+            height_m=1.0,
+        )  # fmt: skip
+        for i, (x, y, yaw, length, width) in enumerate(
+            zip(
+                *(
+                    rng.uniform(-25, 25, 8),
+                    rng.uniform(-25, 25, 8),
+                    rng.uniform(-3, 3, 8),
+                    rng.uniform(0.3, 5, 8),
+                    rng.uniform(0.3, 3, 8),
+                )
+            )  # fmt: skip
+        )
+    ]
+    tracker = SafetyTracker(**SHUTTLE)
+    tracker.add_world(WorldTruth(t=0.0, obstacles=obstacles))
+    smallest, hit = math.inf, set()
+    for k, (x, y, yaw) in enumerate(zip(rng.uniform(-20, 20, 30), rng.uniform(-20, 20, 30), rng.uniform(-3, 3, 30))):
+        tracker.add_truth(float(k), float(x), float(y), float(yaw), 1.0)
+        me = rectangle_corners(x, y, yaw, SHUTTLE["front_bumper_m"], SHUTTLE["length_m"] - SHUTTLE["front_bumper_m"],
+                               SHUTTLE["width_m"] / 2)  # fmt: skip
+        for ob in obstacles:
+            gap = convex_gap(
+                me, rectangle_corners(ob.x, ob.y, ob.yaw, ob.length_m / 2, ob.length_m / 2, ob.width_m / 2)
+            )
+            smallest = min(smallest, gap)
+            if gap <= 0.0:
+                hit.add(ob.name)
+    out = tracker.summary()
+    assert out["min_clearance_m"] == round(smallest, 3)
+    assert out["collisions"] == len(hit)
 
 
 def status(t: float, v: float, limit: float | None, latched: bool = False, stopping: bool = False) -> MovementStatus:

@@ -35,10 +35,10 @@ def test_the_simulator_driven_clock_behind_the_wires_gives_the_wall_clock_result
     frames on udp_multicast, read by the drivers). Same lap: neither the lockstep nor the wires
     change the drive, and the drivers lose and refuse nothing."""
     route = tmp_path / "s_bend.csv"
-    # 12 m straight, a 90 degree bend of ~15 m radius, 10 m straight
-    points = [(x, 0.0) for x in range(0, 12, 2)]
-    points += [(12 + 15 * math.sin(a), 15 - 15 * math.cos(a)) for a in [i * math.pi / 40 for i in range(21)]]
-    points += [(27.0, 15 + y) for y in range(2, 12, 2)]
+    # 6 m straight, a 90 degree bend of ~15 m radius, 6 m straight
+    points = [(x, 0.0) for x in range(0, 6, 2)]
+    points += [(6 + 15 * math.sin(a), 15 - 15 * math.cos(a)) for a in [i * math.pi / 40 for i in range(21)]]
+    points += [(21.0, 15 + y) for y in range(2, 8, 2)]
     route.write_text("\n".join(f"{x:.3f},{y:.3f}" for x, y in points))
     stores = {speed: tmp_path / f"blackbox_{speed}.sqlite" for speed in ("2", "max")}
     # the wall clock, hurried: timers as at real time; then the clock the simulator drives

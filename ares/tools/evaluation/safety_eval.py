@@ -85,7 +85,14 @@ class SafetyTracker:
             me = rectangle_corners(
                 x, y, yaw, self.front_bumper_m, self.length_m - self.front_bumper_m, self.width_m / 2
             )
+            centre = me.mean(axis=0)
+            reach = math.hypot(self.length_m, self.width_m) / 2  # the footprint's corners from its centre
             for ob in self.obstacles:
+                # no nearer than the two circles around the footprints allow: a gap that cannot be the
+                # smallest yet, nor a collision, needs no exact figure (most obstacles are far away)
+                bound = math.hypot(ob.x - centre[0], ob.y - centre[1]) - reach - math.hypot(ob.length_m, ob.width_m) / 2
+                if bound > 0.0 and bound >= self.min_clearance_m:
+                    continue
                 other = rectangle_corners(ob.x, ob.y, ob.yaw, ob.length_m / 2, ob.length_m / 2, ob.width_m / 2)
                 gap = convex_gap(me, other)
                 self.min_clearance_m = min(self.min_clearance_m, gap)
