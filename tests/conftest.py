@@ -30,6 +30,13 @@ from tests.helpers.api import open_test_store  # noqa: E402
 from tests.helpers.stack import make_run_config  # noqa: E402
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A whole-stack test is a stack test (scripts/test.sh runs `-m whole_stack` among those of `-m stack`)."""
+    for item in items:
+        if item.get_closest_marker("whole_stack") and not item.get_closest_marker("stack"):
+            raise pytest.UsageError(f"{item.nodeid} is marked whole_stack but not stack")
+
+
 @pytest.fixture
 def port() -> int:
     return free_port()

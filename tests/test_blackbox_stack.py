@@ -171,6 +171,7 @@ def test_the_api_process_beats_from_its_event_loop_and_waits_for_a_taken_port(ro
 
 
 @pytest.mark.timeout(240)
+@pytest.mark.whole_stack
 def test_a_30_s_store_outage_mid_run_loses_no_second(tmp_path):
     path = tmp_path / "blackbox.sqlite"
     run = start_headless("--seconds", "50", "--store", str(path))

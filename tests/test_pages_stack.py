@@ -33,7 +33,7 @@ from blackbox.api.credentials import Argon2Settings, Passwords, add_user
 from blackbox.store.sqlite_store import SqliteStore
 from tests.helpers.stack import LIGHT_LIDARS, REPO, make_run_config, wait_until
 
-pytestmark = pytest.mark.stack
+pytestmark = [pytest.mark.stack, pytest.mark.whole_stack]
 
 ARTIFACTS = REPO / "artifacts" / "pages"
 PASSWORD = "a page test password"

@@ -18,7 +18,7 @@ from ares.core.localhost import free_port
 from ares.tools.soak.plan import kinds_for
 from tests.helpers.stack import NO_LIDARS, REPO
 
-pytestmark = pytest.mark.stack
+pytestmark = [pytest.mark.stack, pytest.mark.whole_stack]
 
 FAULTS = 50
 SLOT_S = 4.0  # stack seconds per fault: the plan's least

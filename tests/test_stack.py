@@ -26,7 +26,7 @@ from ares.core.route import load_route
 from tests.helpers.records import assert_drive_recorded
 from tests.helpers.stack import headless, make_run_config
 
-pytestmark = pytest.mark.stack
+pytestmark = [pytest.mark.stack, pytest.mark.whole_stack]
 
 
 def test_the_simulator_driven_clock_behind_the_wires_gives_the_wall_clock_result(tmp_path):
