@@ -398,6 +398,12 @@ class DbwBridgeParams(Params):
     brake_assist_max_decel_mps2: float = param(
         3.0, "... at most (the full brake is for emergencies)", unit="m/s^2", gt=0
     )
+    speed_feedforward: bool = param(
+        False,
+        "the speed loop adds the commanded speed's steady effort (v / the motor's full-effort speed): "
+        "the PI keeps only the rest, so a ramp is followed at once, not after the integral (off: the "
+        "DBW paper's board; in the whole stack it did not help, docs/control.md)",
+    )
     can_timeout_s: float = param(
         0.5, "older CAN readings leave the inner loops blind: engaged, the board brakes", unit="s", gt=0
     )
@@ -426,6 +432,7 @@ class BridgeLoop:
         self.brake_effort_per_mps2 = (
             profile.empty_mass_kg + 2 * profile.passenger_mass_kg
         ) / profile.actuators.traction.max_brake_force_n
+        self.full_effort_speed_mps = profile.actuators.traction.full_effort_speed_mps
         self._was_engaged = False
         self.emergency = False  # the movement manager's latched emergency stop: brake fully
 
@@ -458,7 +465,10 @@ class BridgeLoop:
                 self.steering_pid.reset()
                 self.wheel_speed_pid.reset()
             steer_effort = self.steering_pid.step(reference.steering_wheel_angle_deg, can.steering_wheel_deg, self.dt)
-            drive_effort = self.wheel_speed_pid.step(reference.wheel_speed_rad_s, can.wheel_speed_rad_s, self.dt)
+            steady = cmd.v / self.full_effort_speed_mps if self.params.speed_feedforward else 0.0
+            drive_effort = self.wheel_speed_pid.step(
+                reference.wheel_speed_rad_s, can.wheel_speed_rad_s, self.dt, feedforward=steady
+            )
             gap = can.speed_mps - cmd.v
             if gap > self.params.brake_assist_deadband_mps:
                 decel = min(

@@ -11,8 +11,10 @@ every Δt = 100 ms. The paper removed the derivative term after tuning (it worse
 transient), so Kd defaults to 0; when it is used it can act on the measurement instead of
 the error, so that a step of the reference does not kick the actuator.
 
-Two additions a real board needs and the paper's equations leave out:
+Three additions a real board needs and the paper's equations leave out:
   * output limits: the effort is a normalised voltage in [-1, 1];
+  * a feed-forward: an effort known without feedback (the speed loop's: the commanded speed's
+    steady effort), added to (8) before the limits, so that the anti-windup below sees it;
   * anti-windup by clamping: while the output is saturated the integral stops growing in
     the direction that pushes further into saturation, and it is also bounded on its own.
     Without this, a long saturated stretch (a 200° steering step, a climb at full throttle)
@@ -75,8 +77,9 @@ class PID:
         self._prev_measurement: float | None = None
         self.last_output = 0.0
 
-    def step(self, reference: float, measurement: float, dt: float) -> float:
-        """One controller period: the effort to hold until the next call."""
+    def step(self, reference: float, measurement: float, dt: float, feedforward: float = 0.0) -> float:
+        """One controller period: the effort to hold until the next call. `feedforward`, an effort
+        known without feedback, is added before the output's limits, so the anti-windup sees it."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"PID.step: dt must be a positive number, got {dt!r}")
         error = reference - measurement  # (4)
@@ -94,13 +97,13 @@ class PID:
 
         candidate = self.integral + self.ki * error * dt  # (6)
         candidate = min(max(candidate, -self.integral_limit), self.integral_limit)
-        unclamped = proportional + candidate + derivative  # (8)
+        unclamped = proportional + candidate + derivative + feedforward  # (8)
         # Clamping anti-windup: keep the new integral unless the output saturates and the
         # integral step pushes it further the same way.
         pushes_up = unclamped > self.out_max and candidate > self.integral
         pushes_down = unclamped < self.out_min and candidate < self.integral
         if not (pushes_up or pushes_down):
             self.integral = candidate
-        output = proportional + self.integral + derivative
+        output = proportional + self.integral + derivative + feedforward
         self.last_output = min(max(output, self.out_min), self.out_max)
         return self.last_output
