@@ -39,36 +39,21 @@ def test_far_obstacles_left_out_change_neither_the_clearance_nor_the_collisions(
     """The tracker skips the exact gap of an obstacle too far to matter: the same figures as the gap
     to every obstacle at every step."""
     rng = np.random.default_rng(seed)
-    obstacles = [
-        ObstacleBox(
-            name=f"o{i}",
-            kind="parked",
-            x=float(x),
-            y=float(y),
-            yaw=float(yaw),
-            length_m=float(length),
-            width_m=float(width),
-            height_m=1.0,
-        )  # fmt: skip
-        for i, (x, y, yaw, length, width) in enumerate(
-            zip(
-                *(
-                    rng.uniform(-25, 25, 8),
-                    rng.uniform(-25, 25, 8),
-                    rng.uniform(-3, 3, 8),
-                    rng.uniform(0.3, 5, 8),
-                    rng.uniform(0.3, 3, 8),
-                )
-            )  # fmt: skip
-        )
-    ]
+
+    def obstacle(i: int) -> ObstacleBox:
+        x, y, yaw = rng.uniform(-25, 25), rng.uniform(-25, 25), rng.uniform(-3, 3)
+        length, width = rng.uniform(0.3, 5), rng.uniform(0.3, 3)
+        return ObstacleBox(name=f"o{i}", kind="parked", x=x, y=y, yaw=yaw, length_m=length, width_m=width, height_m=1.0)
+
+    obstacles = [obstacle(i) for i in range(8)]
     tracker = SafetyTracker(**SHUTTLE)
     tracker.add_world(WorldTruth(t=0.0, obstacles=obstacles))
     smallest, hit = math.inf, set()
-    for k, (x, y, yaw) in enumerate(zip(rng.uniform(-20, 20, 30), rng.uniform(-20, 20, 30), rng.uniform(-3, 3, 30))):
-        tracker.add_truth(float(k), float(x), float(y), float(yaw), 1.0)
-        me = rectangle_corners(x, y, yaw, SHUTTLE["front_bumper_m"], SHUTTLE["length_m"] - SHUTTLE["front_bumper_m"],
-                               SHUTTLE["width_m"] / 2)  # fmt: skip
+    front, length, width = SHUTTLE["front_bumper_m"], SHUTTLE["length_m"], SHUTTLE["width_m"]
+    for k in range(30):
+        x, y, yaw = rng.uniform(-20, 20), rng.uniform(-20, 20), rng.uniform(-3, 3)
+        tracker.add_truth(float(k), x, y, yaw, 1.0)
+        me = rectangle_corners(x, y, yaw, front, length - front, width / 2)
         for ob in obstacles:
             gap = convex_gap(
                 me, rectangle_corners(ob.x, ob.y, ob.yaw, ob.length_m / 2, ob.length_m / 2, ob.width_m / 2)
