@@ -214,8 +214,7 @@ class ControlSelector:
             ok, cause, why = self.acceptable(mode, inputs, holding=mode is self.mode)
             if ok:
                 return mode, cause, why
-            if mode is not Mode.CREEP:
-                reasons.append(why)
+            reasons.append(why if mode is not Mode.CREEP else f"no creep: {why}")
         return Mode.STOP, "nothing_trusted", "nothing deserves trust: " + "; ".join(reasons)
 
     # ---- each cycle -----------------------------------------------------------------------------

@@ -125,4 +125,8 @@ def test_the_bench_runs_ares_run_at_the_speed_asked_on_ports_and_a_store_of_its_
         assert args.headless and args.speed == build_parser().parse_args(["run", "--speed", speed]).speed
         assert args.store == str(tmp_path / "blackbox.sqlite") and args.listen != "tcp/127.0.0.1:7447"
     bench = build_parser().parse_args(["bench", "stack", "--speed", "1", "--seconds", "60"])
-    assert bench.speed == "1" and bench.seconds == 60
+    assert bench.speed == "1" and bench.seconds == 60 and bench.vehicle_cpus is None
+    # --vehicle-cpus reaches ares run as it was given
+    bench = build_parser().parse_args(["bench", "stack", "--vehicle-cpus", "0"])
+    args = build_parser().parse_args(run_argv(1, None, (), False, tmp_path, "max", bench.vehicle_cpus))
+    assert args.vehicle_cpus == [0]

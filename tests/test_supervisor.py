@@ -22,7 +22,7 @@ import pytest
 
 from ares.app.processes import Process
 from ares.app.supervisor import Supervisor
-from ares.core import config
+from ares.core import affinity, config
 from ares.core.bus import Bus
 from ares.core.clock import ManualClock, WallClock
 from ares.core.messages import EventLevel, ProcessState, SupervisorState
@@ -332,6 +332,30 @@ def test_joins_an_external_router_when_not_embedded(router, tmp_path, port):
             lambda: sup.children["solo"].state is RUNNING and sup.children["solo"].token_seen,
             what="solo running, its token heard through the external router",
         )
+    finally:
+        sup.stop()
+
+
+def test_children_run_on_the_cpus_of_their_part(tmp_path, port):
+    """`cpus:`: the vehicle's processes on theirs, the simulator's on its own, every thread of each
+    (Zenoh's threads start after the child pinned itself: they inherit it)."""
+    cpus = sorted(affinity.available())
+    vehicle, simulator = [cpus[0]], [cpus[-1]]
+    cfg = make_run_config(port, {**TEST_OVERRIDES, "cpus": {"vehicle": vehicle, "simulator": simulator}})
+    table = [
+        Process("onboard", "ares.tools.bench.ticker:Ticker", safety_relevant=False),
+        Process("simulated", "ares.tools.bench.ticker:Ticker", safety_relevant=False, sim_only=True),
+    ]
+    sup = Supervisor(cfg, table, tmp_path / "run", WallClock())
+    try:
+        sup.start()
+        drive(sup, lambda: all(c.state is RUNNING for c in sup.children.values()), what="both running")
+        for name, expected in (("onboard", vehicle), ("simulated", simulator)):
+            pid = sup.children[name].proc.pid
+            threads = os.listdir(f"/proc/{pid}/task")
+            assert len(threads) > 1  # Zenoh's threads beside the main one
+            assert {tuple(sorted(os.sched_getaffinity(int(t)))) for t in threads} == {tuple(expected)}, name
+        assert os.sched_getaffinity(0) == set(cpus)  # no host CPUs given: this process is left as it was
     finally:
         sup.stop()
 

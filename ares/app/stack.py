@@ -34,8 +34,8 @@ from pathlib import Path
 from ares.app import contracts, processes, run_config, vehicle_io
 from ares.app.bus_record import in_run as bus_record
 from ares.app.fleet import fleet_configs, start_fleet
-from ares.app.supervisor import Supervisor
-from ares.core import config
+from ares.app.supervisor import Supervisor, check_cpus
+from ares.core import affinity, config
 from ares.core.bus import Bus, ServiceError
 from ares.core.clock import MODE_ENV, Clock, DrivenClock, ScaledClock, WallClock
 from ares.core.messages import DriveMode, DriverCommand
@@ -94,6 +94,9 @@ def overrides_from_args(args) -> dict:
         over["bus"]["embedded_router"] = False
     if getattr(args, "store", None):
         over["blackbox_store"]["uri"] = args.store
+    if getattr(args, "vehicle_cpus", None):
+        rest = sorted(affinity.available() - set(args.vehicle_cpus)) or None  # one CPU: all share it
+        over["cpus"] = {"vehicle": args.vehicle_cpus, "simulator": rest, "host": rest}
     if getattr(args, "api_port", None):
         over["api"] = {"port": args.api_port}
     return over
@@ -206,6 +209,7 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str, wire_di
             cfg.setdefault("mission_manager", {})["autostart"] = loaded.mission  # --mission still wins
     store = config.section(cfg, "blackbox_store", StoreSettings)
     cfg["blackbox_store"]["uri"] = store_uri(store)
+    check_cpus(config.core(cfg).cpus)
     if speed in ("max", "paced"):
         running = processes.for_config(cfg)
         cfg["lockstep"]["participants"] = contracts.fed_by(contracts.all_contracts(cfg, running), "sim")

@@ -44,7 +44,7 @@ from pydantic import Field
 
 import ares
 from ares.app.processes import Process, for_config
-from ares.core import config
+from ares.core import affinity, config
 from ares.core.bus import Bus
 from ares.core.clock import Clock, DrivenClock
 from ares.core.config import Params, param
@@ -161,6 +161,18 @@ def _signal_group(pgid: int, sig: int) -> None:
         pass
 
 
+def check_cpus(cpus: config.CpuSettings) -> None:
+    """Refuse a `cpus:` section that names CPUs this machine does not let us use."""
+    for part in ("vehicle", "simulator", "host"):
+        missing = affinity.unavailable(getattr(cpus, part) or [])
+        if missing:
+            allowed = ", ".join(str(c) for c in sorted(affinity.available()))
+            cpus_named = ", ".join(map(str, missing))
+            raise config.ConfigError(
+                f"cpus.{part}: CPU {cpus_named} is not available here (this process may use {allowed})"
+            )
+
+
 class Supervisor:
     def __init__(self, cfg: dict, processes: list[Process], run_dir: Path, clock: Clock, publishes_state: bool = True):
         """`publishes_state` False: a supervisor beside the vehicle's own on its bus (the simulator
@@ -175,6 +187,10 @@ class Supervisor:
         self.log_dir = self.run_dir / "logs"
         self.config_path = self.run_dir / "config.json"
         core = config.core(cfg)
+        self.cpus = core.cpus
+        check_cpus(self.cpus)
+        if self.cpus.host is not None:  # this process: the supervisor, the embedded router, measurements
+            affinity.pin_process(self.cpus.host)
         self.settings = sup = config.section(cfg, "supervisor", SupervisorSettings)
         self.check_period_s = sup.check_period_s
         self.backoff_s = list(sup.restart_backoff_s)
@@ -520,6 +536,9 @@ class Supervisor:
         _signal_group(proc.pid, signal.SIGKILL)  # whatever it left behind in its group
         return proc.returncode
 
+    def _cpus_of(self, spec: Process) -> list[int] | None:
+        return self.cpus.simulator if spec.sim_only else self.cpus.vehicle
+
     def _spawn(self, child: Child) -> None:
         spec = child.spec
         env = dict(os.environ)
@@ -536,6 +555,7 @@ class Supervisor:
                 config.RUN_CONFIG_ENV: str(self.config_path),
                 PROCESS_ENV: spec.name,
                 NICE_ENV: str(spec.nice),
+                affinity.CPUS_ENV: affinity.as_env(self._cpus_of(spec)),
                 INCARNATION_ENV: str(child.spawns),
                 "PYTHONUNBUFFERED": "1",
             }

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from .args import CliError, Command, positive_float, positive_int
+from .args import CliError, Command, cpu_list, positive_float, positive_int
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
@@ -150,6 +150,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     stack.add_argument("--config", action="append", metavar="FILE", help="configuration overrides, as for ares run")
     stack.add_argument("--wire", action="store_true", help="through the devices' wire formats, as ares run --wire")
     stack.add_argument(
+        "--vehicle-cpus",
+        type=cpu_list,
+        metavar="LIST",
+        help="as ares run --vehicle-cpus: the vehicle's own processes on these CPUs only, the simulator and "
+        "the bench on the others (a vehicle computer of that many cores beside the simulated shuttle)",
+    )
+    stack.add_argument(
         "--speed",
         default="max",
         metavar="max|paced|FACTOR",
@@ -250,6 +257,7 @@ def _run(args: argparse.Namespace, progress):
                 profile_dir=args.profile,
                 progress=progress,
                 speed=args.speed,
+                vehicle_cpus=args.vehicle_cpus,
             ), format_stack_result
         except BenchError as exc:
             raise CliError(f"stack bench failed: {exc}") from None

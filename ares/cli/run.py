@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from .args import CliError, Command, endpoint, non_negative_int, positive_float, positive_int, vehicle_id
+from .args import CliError, Command, cpu_list, endpoint, non_negative_int, positive_float, positive_int, vehicle_id
 
 
 def speed(text: str) -> float | str:
@@ -100,6 +100,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         type=endpoint,
         metavar="ENDPOINT",
         help="where the embedded router listens (default: bus.router, tcp/127.0.0.1:7447)",
+    )
+    run.add_argument(
+        "--vehicle-cpus",
+        type=cpu_list,
+        metavar="LIST",
+        help="run the vehicle's own processes on these CPUs only (like 0 or 0-1), the simulator and this "
+        "process (supervisor, router, measurements) on the others: the vehicle computer's share of this "
+        "machine (the cpus: section sets each part)",
     )
     run.add_argument("--run-dir", metavar="DIR", help="where the run's config and logs go")
     run.add_argument("--api-port", type=int, metavar="PORT", help="port of the REST API (default: api.port, 8443)")

@@ -11,6 +11,7 @@ import os
 import signal
 import sys
 
+from ares.core import affinity
 from ares.core.node import Node, run_node
 
 
@@ -40,6 +41,7 @@ def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 1:
         sys.exit("usage: python -m ares.core.launch module:Class")
+    affinity.pin_from_env()  # before the node's imports start their threads
     if os.environ.get(FAULT_INJECTION_ENV) == "1":  # never on a vehicle: only a soak sets it
         signal.signal(signal.SIGUSR1, spin_holding_the_gil)
     run_node(load(args[0]))

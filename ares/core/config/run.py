@@ -140,6 +140,28 @@ class ReplaySettings(Params):
     dir: str | None = param(None, "where the recordings go (default: <run dir>/replay)")
 
 
+class CpuSettings(Params):
+    """Which CPUs (Linux's numbering) each part of a run may use; null: any. A way to give the
+    vehicle's own processes one computer's share of a bigger machine, with the simulated shuttle
+    beside it (`ares run --vehicle-cpus`, ares.core.affinity)."""
+
+    vehicle: list[int] | None = param(
+        None, "the vehicle's own processes: every process of the table but the simulator's (sim_only)"
+    )
+    simulator: list[int] | None = param(None, "the simulated shuttle and its LiDARs (the sim_only processes)")
+    host: list[int] | None = param(
+        None, "`ares run`'s own process: the supervisor, the embedded router, a headless run's measurements"
+    )
+
+    @model_validator(mode="after")
+    def _cpu_numbers(self) -> CpuSettings:
+        for part in ("vehicle", "simulator", "host"):
+            cpus = getattr(self, part)
+            if cpus is not None and (not cpus or min(cpus) < 0):
+                raise ValueError(f"cpus.{part}: give CPU numbers (0, 1, ...), or null for any")
+        return self
+
+
 class UtmOrigin(Params):
     """The local frame's origin in UTM: x east, y north, z above the origin's altitude."""
 
@@ -188,6 +210,7 @@ class CoreConfig(Params):
     heartbeat: HeartbeatSettings = param(doc="process heartbeats", factory=HeartbeatSettings)
     lockstep: LockstepSettings = param(doc="the simulator-driven clock of `--speed max`", factory=LockstepSettings)
     replay: ReplaySettings = param(doc="process replay recordings", factory=ReplaySettings)
+    cpus: CpuSettings = param(doc="which CPUs each part of a run may use", factory=CpuSettings)
     vehicle_profile: VehicleProfile | None = param(
         None, "the profile named by `vehicle`, resolved by `ares run`; its fields may be overridden here"
     )

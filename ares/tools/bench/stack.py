@@ -241,7 +241,13 @@ class Published:
 
 
 def run_argv(
-    laps: int, seconds: float | None, config_files: tuple[str, ...], wire: bool, run_dir: Path, speed: str = "max"
+    laps: int,
+    seconds: float | None,
+    config_files: tuple[str, ...],
+    wire: bool,
+    run_dir: Path,
+    speed: str = "max",
+    vehicle_cpus: list[int] | None = None,
 ) -> list[str]:
     """The `ares run` the bench drives, on ports and a store of its own."""
     argv = ["run", "--headless", "--speed", speed, "--run-dir", str(run_dir)]
@@ -252,6 +258,8 @@ def run_argv(
         argv += ["--config", f]
     if wire:
         argv.append("--wire")
+    if vehicle_cpus:
+        argv += ["--vehicle-cpus", ",".join(map(str, vehicle_cpus))]
     return argv
 
 
@@ -266,15 +274,18 @@ def run_stack_bench(
     run_dir: Path | None = None,
     progress: Callable[[str], None] = lambda _msg: None,
     speed: str = "max",
+    vehicle_cpus: list[int] | None = None,
 ) -> dict:
     run_dir = run_dir or Path(tempfile.mkdtemp(prefix="ares-bench-stack-"))
     if profile_dir is not None:
         profile_dir.mkdir(parents=True, exist_ok=True)
-    args = parse_run(run_argv(laps, seconds, config_files, wire, run_dir, speed))  # the CLI's parser: it is `ares run`
+    # the CLI's parser: it is `ares run`
+    args = parse_run(run_argv(laps, seconds, config_files, wire, run_dir, speed, vehicle_cpus))
     probes: dict = {}
 
     def probed_drive(args, cfg, route, bus, clock, stop, run_dir, inject):
         table = processes.for_config(cfg)
+        probes["cpus"] = cfg["cpus"]
         sampler = CpuSampler({p.node: p.name for p in table}, profile_dir)
         probes.update(
             sampler=sampler,
@@ -306,11 +317,15 @@ def run_stack_bench(
     # the run's own figure when it finished; over what it drove when it did not (a failed run's too)
     speedup = lap.get("speed_factor") or round((t1 - t0) / max(wall1 - wall0, 1e-9), 2)
     vehicle = {n: f for n, f in cpu.items() if n != HOST and n not in probes["sim"]}
+    vehicle_cores = sum(f["mean_cores"] or 0.0 for f in vehicle.values())
     return {
         "ok": bool(lap.get("ok")),
         "speed": speed,
         "speedup": speedup,
-        "vehicle_cpu_cores": round(sum(f["mean_cores"] or 0.0 for f in vehicle.values()), 3),
+        "vehicle_cpu_cores": round(vehicle_cores, 3),
+        # what the same work needs at real time: the vehicle's own clock
+        "vehicle_cpu_s_per_vehicle_s": round(vehicle_cores / speedup, 3) if speedup else None,
+        "cpus": probes["cpus"],
         "simulator_cpu_cores": round(sum(cpu[n]["mean_cores"] or 0.0 for n in probes["sim"] if n in cpu), 3),
         "host_cpu_cores": cpu.get(HOST, {}).get("mean_cores"),
         "cpu_per_process": cpu,
@@ -330,6 +345,8 @@ def format_stack_result(result: dict, out) -> None:
     lap = result["lap"]
     out.write(f"{'speedup (stack s per wall s)':40} {result['speedup']}\n")
     out.write(f"{'vehicle processes, CPU cores (mean)':40} {result['vehicle_cpu_cores']}\n")
+    out.write(f"{'  CPU-s per vehicle second':40} {result['vehicle_cpu_s_per_vehicle_s']}\n")
+    out.write(f"{'CPUs (vehicle, simulator, host)':40} {result['cpus']}\n")
     out.write(f"{'simulator, CPU cores (mean)':40} {result['simulator_cpu_cores']}\n")
     out.write(f"{'host process, CPU cores (mean)':40} {result['host_cpu_cores']}\n")
     for name, fig in result["cpu_per_process"].items():
