@@ -83,7 +83,6 @@ class LidarPerception(Node):
     def setup(self) -> None:
         self.pipeline = LidarPipeline(self.vehicle, self.params)
         self.last_t: float | None = None
-        self.arrivals = {name: deque() for name in LIDAR_NAMES}
         self.seen = {name: None for name in LIDAR_NAMES}
         self.first_seen: dict[str, float | None] = {name: None for name in LIDAR_NAMES}
         self.counts = {name: deque(maxlen=USUAL_FRAMES) for name in LIDAR_NAMES}
@@ -100,7 +99,6 @@ class LidarPerception(Node):
                 self.seen[name] = msg.t
                 if self.first_seen[name] is None:
                     self.first_seen[name] = msg.t
-                self.arrivals[name].append(msg.t)
         if not fresh:
             return
         t = max(msg.t for msg in fresh.values())
@@ -154,13 +152,13 @@ class LidarPerception(Node):
 
     def _status(self, t: float, now: float, result: FrameResult) -> LidarStatus:
         sensors = {}
+        sweeps = self.sweeps
         for name in self.pipeline.names:
-            arrivals = self.arrivals[name]
-            while arrivals and arrivals[0] <= now - RATE_WINDOW_S:
-                arrivals.popleft()
             seen = self.seen[name]
             sensors[name] = LidarHealth(
-                rate_hz=len(arrivals) / RATE_WINDOW_S,
+                # every sweep that arrived counts, also one a later sweep replaced before a step used
+                # it (it came late, behind the clock's tick): the sensor's rate, not this loop's
+                rate_hz=sweeps[name].rate_hz(RATE_WINDOW_S, now),
                 points=result.raw_points.get(name, 0),
                 road_points=result.road_points.get(name, 0),
                 age_s=None if seen is None else round(now - seen, 3),
