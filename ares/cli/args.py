@@ -51,15 +51,16 @@ def non_negative_int(text: str) -> int:
 
 def cpu_list(text: str) -> list[int]:
     """CPU numbers as taskset takes them: `0`, `0,2`, `0-3`."""
+    refusal = argparse.ArgumentTypeError(f"not a CPU list (like 0 or 0,2 or 0-3): {text!r}")
     cpus: set[int] = set()
     for part in text.split(","):
         first, _, last = part.strip().partition("-")
         try:
             low, high = int(first), int(last or first)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"not a CPU list (like 0 or 0,2 or 0-3): {text!r}") from None
+            raise refusal from None
         if low < 0 or high < low:
-            raise argparse.ArgumentTypeError(f"not a CPU list (like 0 or 0,2 or 0-3): {text!r}")
+            raise refusal
         cpus.update(range(low, high + 1))
     return sorted(cpus)
 

@@ -285,9 +285,9 @@ def run_stack_bench(
 
     def probed_drive(args, cfg, route, bus, clock, stop, run_dir, inject):
         table = processes.for_config(cfg)
-        probes["cpus"] = cfg["cpus"]
         sampler = CpuSampler({p.node: p.name for p in table}, profile_dir)
         probes.update(
+            cpus=cfg["cpus"],
             sampler=sampler,
             sim=[p.name for p in table if p.sim_only],
             load=BusLoad(bus),
