@@ -39,6 +39,8 @@ from ares.core.messages import CanFrame, DriveMode
 from control.ackermann import ActuatorSetpoint, SetpointConversion, max_curvature
 from control.pid import PID
 
+GRAVITY = 9.81  # m/s^2
+
 
 class Mode(str, Enum):
     MANUAL = "MANUAL"
@@ -407,6 +409,14 @@ class DbwBridgeParams(Params):
     can_timeout_s: float = param(
         0.5, "older CAN readings leave the inner loops blind: engaged, the board brakes", unit="s", gt=0
     )
+    imu_timeout_s: float = param(
+        0.5, "an older IMU reading leaves the hill-hold without a pitch: it assumes the steepest grade", unit="s", gt=0
+    )
+    hill_hold_unknown_grade: float = param(
+        0.15,
+        "the grade the hill-hold assumes without a pitch: the steepest the shuttle stands on (the tour's: 15 %)",
+        ge=0,
+    )
 
 
 @dataclass(frozen=True)
@@ -433,6 +443,11 @@ class BridgeLoop:
             profile.empty_mass_kg + 2 * profile.passenger_mass_kg
         ) / profile.actuators.traction.max_brake_force_n
         self.full_effort_speed_mps = profile.actuators.traction.full_effort_speed_mps
+        traction = profile.actuators.traction
+        # the motor at standstill pushes k_slip * effort * full-effort speed; the grade pulls m g sin(climb)
+        self.loaded_weight_n = (profile.empty_mass_kg + profile.seats * profile.passenger_mass_kg) * GRAVITY
+        self.stall_force_per_effort_n = traction.slip_stiffness_n_per_mps * traction.full_effort_speed_mps
+        self.hill_hold = False  # standing on the brake until the motor holds the grade
         self._was_engaged = False
         self.emergency = False  # the movement manager's latched emergency stop: brake fully
 
@@ -452,9 +467,18 @@ class BridgeLoop:
             return [self.handle(Event.steering_wheel(now))]
         return []
 
-    def efforts(self, now: float, can: CanFrame | None) -> BridgeOutput:
+    def hold_effort(self, pitch_rad: float | None) -> float:
+        """The drive effort whose motor force at standstill holds the fully loaded shuttle on this
+        pitch (REP-103: a climb's is negative); without a pitch, on the steepest grade it stands on.
+        Rolling resistance, which helps to hold, is left out: the brake lets go a little late
+        rather than early."""
+        climb = -pitch_rad if pitch_rad is not None else math.atan(self.params.hill_hold_unknown_grade)
+        return min(max(self.loaded_weight_n * math.sin(climb) / self.stall_force_per_effort_n, 0.0), 1.0)
+
+    def efforts(self, now: float, can: CanFrame | None, pitch_rad: float | None = None) -> BridgeOutput:
         """The period's command and the efforts of the two inner loops; `can` None: no fresh
-        readings, so the loops cannot close and an engaged board brakes with the wheel left alone."""
+        readings, so the loops cannot close and an engaged board brakes with the wheel left alone.
+        `pitch_rad`: the IMU's (None: none fresh), for the hill-hold."""
         cmd = self.core.command(now)
         reference = self.conversion.to_actuators(cmd.v, cmd.kappa)
         steer_effort = drive_effort = 0.0
@@ -476,9 +500,16 @@ class BridgeLoop:
                     self.params.brake_assist_max_decel_mps2,
                 )
                 drive_effort = min(drive_effort, -min(1.0, decel * self.brake_effort_per_mps2))
-            if cmd.v == 0.0 and can.speed_mps < self.params.standstill_speed_mps:
-                # a PI loop alone creeps around zero on a slope; the board holds the brake
+            standing = can.speed_mps < self.params.standstill_speed_mps
+            if standing and (cmd.v == 0.0 or not self._was_engaged):
+                self.hill_hold = True
+            if standing and self.hill_hold and (cmd.v == 0.0 or drive_effort < self.hold_effort(pitch_rad)):
+                # a PI loop alone creeps around zero on a slope, and a start lets go of the brake
+                # with the integral at nought (after an engagement, a restart): the board holds the
+                # brake until the loop asks enough of the motor to hold the grade (a hill-hold)
                 drive_effort = min(drive_effort, -self.params.standstill_brake_effort)
+            else:
+                self.hill_hold = False
             if self.emergency:
                 drive_effort = -1.0
         self._was_engaged = cmd.engaged and can is not None

@@ -47,6 +47,7 @@ class DbwBridge(Node):
     can = Input(
         "sensors/can", max_age="can_timeout_s", doc="measured steering-wheel angle and wheel speed, pedal positions"
     )
+    imu = Input("sensors/imu", max_age="imu_timeout_s", doc="the pitch: how hard the hill-hold must let the motor push")
     actuators = Output("dbw/actuators", rate="rate_hz", doc="efforts to the steering motor and traction/brake")
     reference = Output("dbw/reference", rate="rate_hz", doc="the inner loops' references")
     measure = Output("dbw/measure", doc="when CAN readings have arrived")
@@ -112,7 +113,8 @@ class DbwBridge(Node):
             self._handle(Event.setpoint(sp.v, sp.kappa, sp.t))
             self.board.emergency = sp.emergency
         self._handle(Event.tick(now))
-        out = self.board.efforts(now, can)
+        imu = self.imu.fresh(now)
+        out = self.board.efforts(now, can, None if imu is None else imu.pitch)
         cmd = out.command
         self.actuators.put(
             ActuatorCommand(t=now, engaged=cmd.engaged, steer_effort=out.steer_effort, drive_effort=out.drive_effort)

@@ -9,16 +9,24 @@ order of trust:
   3. RRC (road reactive control) when the score does not, but road detection is confident;
   4. STOP: nothing deserves trust, a controlled stop is asked for;
   5. CREEP: after standing `creep_after_s` in a stop with nothing trusted, the odometry controller
-     at `creep_speed_mps` for at most `creep_distance_m`, while the pose's standard deviation
-     (the localization's own, sqrt of eq. 6's cov) stays within `creep_std_enter_m`/`_exit_m`;
-     then a stop again. The odometry score is nearly binary: it says whether RTK corrections
-     come, not how far off the pose is. Under the trees, without corrections, the fused pose is
-     good to centimetres for a minute (its σ grows ~1e-3 m²/s, pessimistic), while road
+     at `creep_speed_mps` for at most `creep_distance_m`, while the pose is good enough for the
+     road it is on; then a stop again. The odometry score is nearly binary: it says whether RTK
+     corrections come, not how far off the pose is. Under the trees, without corrections, the
+     fused pose is good to centimetres for a minute (its σ grows ~1e-3 m²/s while standing, ~3e-3
+     while driving, and is ~1.5 times the actual error: docs/odometry_score.md), while road
      detection on grass verges can fail for good from one standing spot: it sees the same
      scene every frame. A few metres at walking pace give it another view; the obstacle manager
-     and the movement gate still stand between the creep and anything in the way. Once σ
-     exceeds the bound (a long outage, a drifting dead reckoning) the stop is final until the
-     road or the pose is trusted again.
+     and the movement gate still stand between the creep and anything in the way.
+     *Good enough* is, first, a pose that a GNSS fix (RTK or not) has anchored within
+     `creep_fix_age_s`: a dead-reckoned pose can be off by far more than its σ says (an
+     unmodelled gyro bias and wheel scale put it 3.6 m off in `dead_reckoning_drift` where σ says
+     0.7 m), so it never creeps. Then, the road's room: with the shuttle on the path, (road width
+     - vehicle width) / 2 lies between its side and the road's edge; less `creep_clearance_m`,
+     that room must hold `creep_sigmas_enter` of the pose's standard deviation (the
+     localization's own, sqrt of eq. 6's cov) to begin a creep and `creep_sigmas_exit` to go on
+     with one. On the tour's 6 m roads that is σ within 0.57 / 0.68 m, in its 3.2 m lane 0.10 /
+     0.12 m. Past it (a GNSS outage, a narrow road) the stop is final until the road or the pose
+     is trusted again.
 
 A mode is *acceptable* while its candidate is fresh (and, for the MPC, not asking for a hand-over)
 and its trust holds. Trust has hysteresis: a mode is entered at `enter` and kept down to `exit`,
@@ -34,7 +42,7 @@ unchanged: the controller in charge already commands no faster than the steering
 MPC's model has the rate), and a ramp on top would only delay it (at 25 km/h, by enough to make
 the MPC weave). In STOP the speed ramps down at `stop_decel_mps2`, and the curvature goes, at the
 steering's rate, to the odometry controller's while creeping is on and the pose's σ is within
-`creep_std_exit_m` (a pose good enough to creep by is good enough to steer a stop by: the RRC's
+the creep's exit bound (a pose good enough to creep by is good enough to steer a stop by: the RRC's
 remembered road can be the wrong one), else to the RRC's while it has a candidate (the road seen,
 however faintly, or remembered for a few metres after it was lost: `stop_only`), else it is held. A held curvature rolls
 the shuttle off a bend's line (0.5 m over the 6 m of a stop from 2.5 m/s, measured on grass).
@@ -74,14 +82,21 @@ class SelectionParams:
     creep_after_s: float = 2.0  # standing this long in a stop before creeping
     creep_speed_mps: float = 0.8
     creep_distance_m: float = 0.0  # per creep, before standing again (0: never creep)
-    creep_std_enter_m: float = 0.25  # the pose's standard deviation to creep by it ...
-    creep_std_exit_m: float = 0.3  # ... and beyond which a creep stops
+    creep_fix_age_s: float = 2.0  # a creep drives by a pose that a GNSS fix anchored this recently
+    creep_clearance_m: float = 0.3  # kept between the shuttle's side and the road's edge in a creep
+    creep_sigmas_enter: float = 3.0  # the pose's σ the road's room must hold to begin a creep ...
+    creep_sigmas_exit: float = 2.5  # ... and to go on with one
 
     def __post_init__(self):
         if not (0 <= self.score_exit <= self.score_enter and 0 <= self.road_exit <= self.road_enter):
             raise ValueError("each exit threshold must lie at or below its enter threshold")
-        if not 0 <= self.creep_std_enter_m <= self.creep_std_exit_m:
-            raise ValueError("creep_std_enter_m must lie at or below creep_std_exit_m")
+        if not 0 < self.creep_sigmas_exit <= self.creep_sigmas_enter:
+            raise ValueError("creep_sigmas_exit must be positive and lie at or below creep_sigmas_enter")
+
+    def creep_std_limit(self, road_room_m: float, holding: bool) -> float:
+        """The largest pose σ to creep by with `road_room_m` beside the shuttle (holding: to go on)."""
+        room = road_room_m - self.creep_clearance_m
+        return room / (self.creep_sigmas_exit if holding else self.creep_sigmas_enter)
 
 
 @dataclass(frozen=True)
@@ -101,6 +116,8 @@ class Inputs:
     odometry: Candidate | None  # the odometry controller's candidate (None: stale, or it hands over)
     rrc: Candidate | None
     pose_std_m: float | None = None  # the fused pose's standard deviation (None: no fresh pose)
+    road_room_m: float | None = None  # (road width - vehicle width) / 2 where the shuttle is (None: unknown)
+    fix_age_s: float | None = None  # since a GNSS fix was last fused into the pose (None: none, or unknown)
 
 
 @dataclass(frozen=True)
@@ -187,8 +204,16 @@ class ControlSelector:
         std = inputs.pose_std_m
         if std is None:
             return "no_pose", "no fresh pose to creep by"
-        if std > (p.creep_std_exit_m if holding else p.creep_std_enter_m):
-            return "pose_std_high", f"the pose's σ {std:.2f} m is too large to creep by"
+        if inputs.fix_age_s is None or inputs.fix_age_s > p.creep_fix_age_s:
+            since = "no GNSS fix" if inputs.fix_age_s is None else f"no GNSS fix for {inputs.fix_age_s:.1f} s"
+            return "dead_reckoning", f"the pose is dead-reckoned ({since})"
+        if inputs.road_room_m is None:
+            return "no_road_width", "the road's width here is unknown"
+        limit = p.creep_std_limit(inputs.road_room_m, holding)
+        if limit <= 0:
+            return "road_narrow", "the road leaves no room to creep by"
+        if std > limit:
+            return "pose_std_high", f"the pose's σ {std:.2f} m is too large to creep by here (at most {limit:.2f} m)"
         return None
 
     def _creep_acceptable(self, inputs: Inputs, holding: bool) -> tuple[bool, str, str]:

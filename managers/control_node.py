@@ -81,14 +81,22 @@ class ControlManagerParams(Params):
         unit="m",
         ge=0,
     )
-    creep_std_enter_m: float = param(
-        0.25,
-        "a creep needs the pose's standard deviation within this (without RTK it grows ~1e-3 m^2/s: "
-        "about a minute; docs/odometry_score.md)",
-        unit="m",
+    creep_fix_age_s: float = param(
+        2.0,
+        "a creep drives by a pose that a GNSS fix (RTK or float) anchored this recently, never by dead reckoning",
+        unit="s",
         gt=0,
     )
-    creep_std_exit_m: float = param(0.3, "... and stops beyond this", unit="m", gt=0)
+    creep_clearance_m: float = param(
+        0.3, "a creep keeps this much room between the shuttle's side and the road's edge", unit="m", ge=0
+    )
+    creep_sigmas_enter: float = param(
+        3.0,
+        "a creep begins while the road's room (less the clearance) holds this many of the pose's σ (without "
+        "RTK σ grows ~1e-3 m^2/s standing, ~3e-3 driving; docs/odometry_score.md)",
+        gt=0,
+    )
+    creep_sigmas_exit: float = param(2.5, "... and goes on while it holds this many", gt=0)
     finish_distance_m: float = param(0.5, "an open route is finished this close to its end", unit="m", gt=0)
 
 
@@ -103,8 +111,9 @@ class ControlManager(Node):
         "control/candidate/pure_pursuit", max_age="candidate_max_age_s", doc="pure pursuit's (v, kappa)"
     )
     score = Input("odometry/score", max_age="input_timeout_s", doc="trust in the pose (eq. 6)")
+    pose = Input("localization/pose", max_age="input_timeout_s", doc="when a GNSS fix last anchored the pose")
     road = Input("perception/road", max_age="input_timeout_s", doc="road detection's confidence")
-    match = Input("path/match", max_age="input_timeout_s", doc="forced odometry zones; the errors; the route's end")
+    match = Input("path/match", max_age="input_timeout_s", doc="zones; the errors; the route's end; the road's width")
     limits = Input("speed/limits", max_age="input_timeout_s", doc="the speed limit where the vehicle is")
     setpoint = Output("control/setpoint", rate="rate_hz", doc="(v, kappa) to the drive-by-wire bridge")
     status = Output("control/status", rate="rate_hz", doc="who is in charge, why, and the errors")
@@ -125,8 +134,10 @@ class ControlManager(Node):
                 creep_after_s=p.creep_after_s,
                 creep_speed_mps=p.creep_speed_mps,
                 creep_distance_m=p.creep_distance_m,
-                creep_std_enter_m=p.creep_std_enter_m,
-                creep_std_exit_m=p.creep_std_exit_m,
+                creep_fix_age_s=p.creep_fix_age_s,
+                creep_clearance_m=p.creep_clearance_m,
+                creep_sigmas_enter=p.creep_sigmas_enter,
+                creep_sigmas_exit=p.creep_sigmas_exit,
             )
         )
         primary = p.pinned if p.pinned in ODOMETRY_CONTROLLERS else p.odometry_controller
@@ -143,11 +154,12 @@ class ControlManager(Node):
         return None
 
     def step(self, now: float) -> None:
-        score, road, match, limits = (
+        score, road, match, limits, pose = (
             self.score.fresh(now),
             self.road.fresh(now),
             self.match.fresh(now),
             self.limits.fresh(now),
+            self.pose.fresh(now),
         )
         odometry = self._odometry_candidate(now)
         rrc = self.rrc.fresh(now)
@@ -162,6 +174,10 @@ class ControlManager(Node):
                 pose_std_m=None
                 if score is None or score.pose_age_s > self.params.input_timeout_s
                 else math.sqrt(max(score.covariance, 0.0)),
+                road_room_m=None
+                if match is None or match.road_width_m is None
+                else (match.road_width_m - self.vehicle.width_m) / 2,
+                fix_age_s=None if pose is None or pose.gnss_age_s is None else pose.gnss_age_s + (now - pose.t),
             ),
         )
         controller = {

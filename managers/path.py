@@ -370,6 +370,7 @@ class PathTracker:
             zones=zones,
             force_odometry=not self.force_odometry_zones.isdisjoint(zones),
             distance_to_end_m=None if self.route.closed else max(self.route.length - m.s, 0.0),
+            road_width_m=float(self.route.width[m.index]),
             ahead_x=ahead.x.tolist(),
             ahead_y=ahead.y.tolist(),
             ahead_yaw=ahead.yaw.tolist(),

@@ -17,6 +17,7 @@ from ares.core.messages import (
     DriveMode,
     OdometryScore,
     PathMatch,
+    Pose,
     RoadBoundary,
     RoadDetection,
     SpeedLimits,
@@ -27,7 +28,7 @@ from managers.control_node import ControlManager
 PERIOD = 0.05
 
 
-def match(t: float, force: bool = False, to_end: float | None = None) -> PathMatch:
+def match(t: float, force: bool = False, to_end: float | None = None, road_width: float | None = 6.0) -> PathMatch:
     return PathMatch(
         t=t,
         index=10,
@@ -38,6 +39,7 @@ def match(t: float, force: bool = False, to_end: float | None = None) -> PathMat
         zones=["intersection"] if force else [],
         force_odometry=force,
         distance_to_end_m=to_end,
+        road_width_m=road_width,
         ahead_x=[0.0, 1.0],
         ahead_y=[0.0, 0.0],
         ahead_yaw=[0.0, 0.0],
@@ -45,6 +47,14 @@ def match(t: float, force: bool = False, to_end: float | None = None) -> PathMat
         ahead_speed=[3.0, 3.0],
         ahead_s=[5.0, 6.0],
     )
+
+
+def pose(t: float, covariance: float, gnss_age_s: float | None) -> Pose:
+    std = covariance**0.5
+    return Pose(
+        t=t, x=0.0, y=0.0, z=0.0, yaw=0.0, v=0.0, yaw_rate=0.0, cov_xx=covariance, cov_xy=0.0, cov_yy=covariance,
+        var_yaw=1e-4, var_v=1e-4, position_std_m=std, rtk=False, gnss_age_s=gnss_age_s,
+    )  # fmt: skip
 
 
 def road(t: float, confidence: float = 0.9, offset: float = 0.1) -> RoadDetection:
@@ -89,6 +99,8 @@ class Harness:
         to_end: float | None = None,
         covariance: float = 1e-4,
         pose_age_s: float = 0.02,
+        road_width: float | None = 6.0,
+        gnss_age_s: float | None = 0.1,
     ):
         t = self.t = round(self.t + PERIOD, 9)
         self.clock.set(t)
@@ -97,7 +109,8 @@ class Harness:
             pub("odometry/score", OdometryScore(t=t, score=score, covariance=covariance, pose_age_s=pose_age_s))
         if confidence is not None:
             pub("perception/road", road(t, confidence))
-        pub("path/match", match(t, force, to_end))
+        pub("path/match", match(t, force, to_end, road_width))
+        pub("localization/pose", pose(t, covariance, gnss_age_s))
         for name, cand in (("mpc", mpc), ("rrc", rrc), ("pure_pursuit", pure_pursuit)):
             if cand is not None:
                 pub(
@@ -174,8 +187,16 @@ def test_a_stop_with_nothing_trusted_creeps_on_the_odometry_while_the_pose_allow
     setpoint, status = h.run(p.creep_distance_m / p.creep_speed_mps - 1.0, **lost)
     assert status.controller == "stop" and setpoint.v < p.creep_speed_mps
     assert h.switches()[-1]["cause"] == "crept"
-    # a pose too uncertain (σ 0.4 m) or too old: the stop is final
-    for stale in ({"covariance": 0.4**2}, {"pose_age_s": 2.0}):
+    # a pose too uncertain for the road (σ 0.4 m: within 0.57 m on a 6 m road, not 0.23 m on a 4 m one),
+    # too old, the road's width unknown
+    # or dead-reckoned (no GNSS fix for 3 s, or none at all):
+    for stale in (
+        {"covariance": 0.4**2, "road_width": 4.0},
+        {"pose_age_s": 2.0},
+        {"road_width": None},
+        {"gnss_age_s": 3.0},
+        {"gnss_age_s": None},
+    ):
         setpoint, status = h.run(p.creep_after_s + 3.0, **{**lost, **stale})
         assert status.controller == "stop" and setpoint.v == 0.0, stale
 

@@ -30,6 +30,10 @@ P_CREEP = SelectionParams(
     **{**P.__dict__, "creep_after_s": 2.0, "creep_speed_mps": 0.8, "creep_distance_m": 4.0},
 )
 STDS = (None, 0.1, 0.27, 0.5)  # the pose's σ: missing, within enter, between enter and exit, beyond exit
+ROOM = 1.0  # (road width - vehicle width) / 2: σ within 0.7 / 3 = 0.23 m to begin a creep, 0.7 / 2.5 = 0.28 to go on
+ROOMS = (None, 0.2, ROOM)  # the road's width unknown, narrower than the clearance, a 4 m road
+FIX = 0.2  # a GNSS fix anchored the pose 0.2 s ago (the creep's limit: 2 s)
+FIX_AGES = (None, FIX, 5.0)  # never a fix (or unknown), a fresh one, dead reckoning for 5 s
 
 
 def rule(
@@ -45,7 +49,12 @@ def rule(
                 p.creep_distance_m > 0
                 and i.odometry is not None
                 and i.pose_std_m is not None
-                and i.pose_std_m <= (p.creep_std_exit_m if holding else p.creep_std_enter_m)
+                and i.fix_age_s is not None
+                and i.fix_age_s <= p.creep_fix_age_s
+                and i.road_room_m is not None
+                and i.road_room_m > p.creep_clearance_m
+                and i.pose_std_m
+                <= (i.road_room_m - p.creep_clearance_m) / (p.creep_sigmas_exit if holding else p.creep_sigmas_enter)
                 and (not crept if holding else stood)
             )
         if mode is Mode.ODOMETRY:
@@ -90,11 +99,11 @@ def test_every_mode_and_input(current, score, road, force, odo, rrc, dwelt):
 
 
 def test_every_mode_input_and_creep_state_with_creeping_on():
-    """Every mode × input × pose σ × (stood long enough, crept its distance): in one test, not
-    24,576 parametrized ones."""
+    """Every mode × input × pose σ × the road's room × the last fix's age × (stood long enough,
+    crept its distance): in one test, not 110,592 parametrized ones."""
     checked = 0
-    for (current, score, road, force, odo, rrc, dwelt), std, stood, crept in itertools.product(
-        CASES, STDS, (False, True), (False, True)
+    for (current, score, road, force, odo, rrc, dwelt), std, room, fix, stood, crept in itertools.product(
+        CASES, STDS, ROOMS, FIX_AGES, (False, True), (False, True)
     ):
         t = 1.5 if dwelt else 0.5
         selector = ControlSelector(P_CREEP, start=current)
@@ -103,22 +112,23 @@ def test_every_mode_input_and_creep_state_with_creeping_on():
             selector.v, selector.standing_since = 0.0, (t - 3.0 if stood else None)
         if current is Mode.CREEP:
             selector.crept_m = P_CREEP.creep_distance_m if crept else 0.0
-        inputs = Inputs(score, road, force, odo, rrc, std)
+        inputs = Inputs(score, road, force, odo, rrc, std, room, fix)
         decision = selector.step(t, inputs)
         expected = rule(current, inputs, dwelt, P_CREEP, stood=stood and current is Mode.STOP, crept=crept)
-        case = (current, score, road, force, odo, rrc, dwelt, std, stood, crept)
+        case = (current, score, road, force, odo, rrc, dwelt, std, room, fix, stood, crept)
         assert decision.mode is expected, case
         if decision.mode is Mode.CREEP:
             assert odo is not None and decision.v <= P_CREEP.creep_speed_mps, case
-            assert std is not None and std <= P_CREEP.creep_std_exit_m, case
+            assert std is not None and room is not None and fix is not None and fix <= P_CREEP.creep_fix_age_s, case
+            assert std <= P_CREEP.creep_std_limit(room, holding=True), case
         checked += 1
-    assert checked == len(CASES) * 16
+    assert checked == len(CASES) * 144
 
 
 def test_a_stop_that_stands_creeps_on_the_odometry_then_stands_again():
     selector = ControlSelector(P_CREEP, start=Mode.RRC)
-    remembered = Inputs(0.0, 0.1, False, ODO, RRC_REMEMBERED, 0.1)
-    selector.step(0.0, Inputs(0.0, 0.9, False, ODO, RRC, 0.1))
+    remembered = Inputs(0.0, 0.1, False, ODO, RRC_REMEMBERED, 0.1, ROOM, FIX)
+    selector.step(0.0, Inputs(0.0, 0.9, False, ODO, RRC, 0.1, ROOM, FIX))
     t, modes = 0.0, []
     while t < 20.0:
         t = round(t + 0.1, 1)
@@ -145,18 +155,48 @@ def test_a_stop_that_stands_creeps_on_the_odometry_then_stands_again():
 
 def test_a_creep_ends_as_the_pose_grows_uncertain_or_a_trusted_mode_returns():
     selector = ControlSelector(P_CREEP, start=Mode.CREEP)
-    selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.28))  # between enter and exit: kept
+    selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.27, ROOM, FIX))  # between enter and exit: kept
     assert selector.mode is Mode.CREEP
-    d = selector.step(0.1, Inputs(0.0, None, False, ODO, None, 0.31))
+    d = selector.step(0.1, Inputs(0.0, None, False, ODO, None, 0.29, ROOM, FIX))
     assert d.mode is Mode.STOP and d.cause == "pose_std_high"
     selector = ControlSelector(P_CREEP, start=Mode.CREEP)
-    selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.1))
-    assert selector.step(0.5, Inputs(0.0, 0.9, False, ODO, RRC, 0.1)).mode is Mode.CREEP  # the dwell
-    assert selector.step(1.1, Inputs(0.0, 0.9, False, ODO, RRC, 0.1)).mode is Mode.RRC
-    assert selector.step(1.2, Inputs(0.0, None, False, None, None, 0.1)).mode is Mode.STOP
-    d = selector.step(9.0, Inputs(0.0, None, False, ODO, None, None))  # standing, but no pose
+    selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.1, ROOM, FIX))
+    assert selector.step(0.5, Inputs(0.0, 0.9, False, ODO, RRC, 0.1, ROOM, FIX)).mode is Mode.CREEP  # the dwell
+    assert selector.step(1.1, Inputs(0.0, 0.9, False, ODO, RRC, 0.1, ROOM, FIX)).mode is Mode.RRC
+    assert selector.step(1.2, Inputs(0.0, None, False, None, None, 0.1, ROOM, FIX)).mode is Mode.STOP
+    d = selector.step(9.0, Inputs(0.0, None, False, ODO, None, None, ROOM, FIX))  # standing, but no pose
     # the sentence names what each mode lacks, the creep's too: why a standing shuttle does not creep
     assert d.mode is Mode.STOP and d.reason.endswith("; no creep: no fresh pose to creep by")
+
+
+def test_the_road_s_room_sets_how_uncertain_a_pose_may_be_to_creep_by():
+    """σ 0.45 m: a creep on the tour's 6 m roads (room 2.0 m: within 0.57 m), none on a 4 m road
+    (room 1.0 m: 0.23 m), none in its 3.2 m lane between walls, none where the width is unknown."""
+    shuttle_width = 1.99
+    for road_width, room, creeps, says in (
+        (6.0, (6.0 - shuttle_width) / 2, True, "pose σ 0.45 m"),
+        (4.0, (4.0 - shuttle_width) / 2, False, "the pose's σ 0.45 m is too large to creep by here (at most 0.23 m)"),
+        (3.2, (3.2 - shuttle_width) / 2, False, "at most 0.10 m"),
+        (2.5, (2.5 - shuttle_width) / 2, False, "the road leaves no room to creep by"),
+        (None, None, False, "the road's width here is unknown"),
+    ):
+        selector = ControlSelector(P_CREEP, start=Mode.STOP)
+        selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.45, room, FIX))
+        d = selector.step(2.5, Inputs(0.0, None, False, ODO, None, 0.45, room, FIX))  # stood 2.5 s
+        assert (d.mode is Mode.CREEP) is creeps and says in d.reason, (road_width, d.reason)
+
+
+def test_a_dead_reckoned_pose_never_creeps_however_small_its_sigma():
+    for fix, says in ((None, "the pose is dead-reckoned (no GNSS fix)"), (2.5, "no GNSS fix for 2.5 s")):
+        selector = ControlSelector(P_CREEP, start=Mode.STOP)
+        selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.01, 2.0, fix))
+        d = selector.step(5.0, Inputs(0.0, None, False, ODO, None, 0.01, 2.0, fix))
+        assert d.mode is Mode.STOP and d.reason.endswith(f"no creep: {says}" if fix is None else f"({says})")
+    # a creep under way ends when the fixes stop
+    selector = ControlSelector(P_CREEP, start=Mode.CREEP)
+    assert selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.01, 2.0, FIX)).mode is Mode.CREEP
+    d = selector.step(0.1, Inputs(0.0, None, False, ODO, None, 0.01, 2.0, 2.1))
+    assert d.mode is Mode.STOP and d.cause == "dead_reckoning"
 
 
 def test_hysteresis_keeps_odometry_down_to_its_exit_threshold():
@@ -212,9 +252,9 @@ def test_a_stop_steers_by_the_odometry_while_the_pose_is_good_enough_to_creep_by
     bent, straight = Candidate(0.0, 0.05, stop_only=True), Candidate(3.0, 0.0)
     for std, creeping, expected in ((0.05, P_CREEP, 0.0), (0.5, P_CREEP, 0.05), (None, P_CREEP, 0.05), (0.05, P, 0.05)):
         selector = ControlSelector(creeping, start=Mode.STOP)
-        selector.step(0.0, Inputs(0.0, None, False, straight, bent, std))
+        selector.step(0.0, Inputs(0.0, None, False, straight, bent, std, ROOM, FIX))
         for t in (0.5, 1.0):  # (the steering's rate: 0.2 /m/s; standing, a creep would begin at 2 s)
-            d = selector.step(t, Inputs(0.0, None, False, straight, bent, std))
+            d = selector.step(t, Inputs(0.0, None, False, straight, bent, std, ROOM, FIX))
         assert d.mode is Mode.STOP and d.kappa == pytest.approx(expected), (std, creeping.creep_distance_m)
 
 
@@ -231,14 +271,24 @@ def test_thresholds_are_checked():
     with pytest.raises(ValueError):
         SelectionParams(0.4, 0.6, 0.6, 0.4, 1.0, 0.2, 1.0)
     with pytest.raises(ValueError):
-        SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, creep_std_enter_m=0.4, creep_std_exit_m=0.3)
+        SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, creep_sigmas_enter=2.0, creep_sigmas_exit=3.0)
 
 
 maybe_level = st.one_of(st.none(), st.floats(0.0, 1.0))
 maybe_candidate = st.one_of(st.none(), st.builds(Candidate, st.floats(0.0, 5.0), st.floats(-0.3, 0.3), st.booleans()))
 maybe_std = st.one_of(st.none(), st.floats(0.0, 0.6))
+maybe_room = st.one_of(st.none(), st.floats(0.0, 3.0))
+maybe_fix_age = st.one_of(st.none(), st.floats(0.0, 5.0))
 cycle = st.tuples(
-    st.floats(0.01, 0.6), maybe_level, maybe_level, st.booleans(), maybe_candidate, maybe_candidate, maybe_std
+    st.floats(0.01, 0.6),
+    maybe_level,
+    maybe_level,
+    st.booleans(),
+    maybe_candidate,
+    maybe_candidate,
+    maybe_std,
+    maybe_room,
+    maybe_fix_age,
 )
 
 
@@ -248,9 +298,9 @@ def test_properties_over_random_sequences(start, cycles, p):
     selector = ControlSelector(p, start=start)
     t, last_switch, kappa, v, mode = 0.0, 0.0, None, None, start
     standing_since, crept = None, 0.0
-    for dt, score, road, force, odo, rrc, std in cycles:
+    for dt, score, road, force, odo, rrc, std, room, fix in cycles:
         t += dt
-        inputs = Inputs(score, road, force, odo, rrc, std)
+        inputs = Inputs(score, road, force, odo, rrc, std, room, fix)
         held_ok, _, _ = selector.acceptable(mode, inputs, holding=True)
         ramping = selector.catching_up
         d = selector.step(t, inputs)
@@ -260,7 +310,9 @@ def test_properties_over_random_sequences(start, cycles, p):
             assert held_ok is False or t - last_switch >= p.min_dwell_s - 1e-9  # early only when it had to
             last_switch = t
         if d.mode is Mode.CREEP:
-            assert p.creep_distance_m > 0 and std is not None and std <= p.creep_std_exit_m
+            assert p.creep_distance_m > 0 and std is not None and room is not None
+            assert fix is not None and fix <= p.creep_fix_age_s  # never on dead reckoning
+            assert std <= p.creep_std_limit(room, holding=True)  # the road's room holds the pose's σ
             assert d.v <= p.creep_speed_mps
             if d.switched:  # only from a stop that stood still long enough
                 assert mode is Mode.STOP and standing_since is not None and t - standing_since >= p.creep_after_s

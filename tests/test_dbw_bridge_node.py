@@ -12,7 +12,7 @@ import pytest
 from ares.core import config, topics
 from ares.core.clock import ManualClock
 from ares.core.membus import MemoryNetwork
-from ares.core.messages import CanFrame, DriveMode, EventLevel, MovementCommand, PanelEvent, PanelInput
+from ares.core.messages import CanFrame, DriveMode, EventLevel, Imu, MovementCommand, PanelEvent, PanelInput
 from ares.core.node import ContractError
 from control import dbw_bridge_node as dbw_bridge
 from control.dbw_bridge_node import DbwBridge
@@ -59,6 +59,17 @@ class BridgeOnTheBus:
             self.bus.publish("sensors/can", CanFrame(t=t, **{**can, **can_changes}))
         self.node.step_once(t)
         return self.car.latest, self.actuators.latest
+
+    def imu(self, pitch: float) -> None:
+        """An IMU reading at rest with this pitch (REP-103: a climb's is negative)."""
+        g = 9.81
+        self.bus.publish(
+            "sensors/imu",
+            Imu(
+                t=self.clock.now(), yaw=0.0, roll=0.0, pitch=pitch, gyro_x=0.0, gyro_y=0.0, gyro_z=0.0,
+                accel_x=-g * math.sin(pitch), accel_y=0.0, accel_z=g * math.cos(pitch),
+            ),
+        )  # fmt: skip
 
     def press(self, what: PanelInput) -> None:
         self.bus.publish("vehicle/panel", PanelEvent(t=self.clock.now(), input=what))
@@ -114,6 +125,7 @@ def test_the_contract_is_the_documented_one():
         "movement/command": "setpoints",
         "vehicle/panel": "panel",
         "sensors/can": "can",
+        "sensors/imu": "imu",
     }
     assert {o.topic: o.attr for o in DbwBridge.outputs()} == {
         "dbw/actuators": "actuators",
@@ -200,6 +212,7 @@ def test_automatic_drives_the_setpoints_through_ackermann_to_the_inner_loops(bri
     assert bridge.mode_changes() == [("MANUAL", "READY", "BUTTON"), ("READY", "AUTOMATIC", "SET_AUTOMATIC")]
     kappa = 0.05
     bridge.setpoint(2.0, kappa)
+    bridge.imu(0.0)  # on the flat (the hill-hold lets go at once)
     car, actuators = bridge.step(0.2)
     assert car.mode == DriveMode.AUTOMATIC and not car.watchdog_tripped
     assert (car.v_command, car.kappa_command) == (2.0, kappa)
@@ -386,8 +399,32 @@ def test_the_brake_helps_the_speed_loop_only_for_a_gap_beyond_its_deadband(bridg
 def test_no_brake_when_the_setpoint_asks_to_move_off(bridge):
     t = bridge.arm(0.0)
     bridge.setpoint(1.0, 0.0)
+    bridge.imu(0.0)  # on the flat
     _, actuators = bridge.step(t)
     assert actuators.drive_effort > 0
+
+
+@pytest.mark.parametrize("pitch", [-0.139, None])  # a 14 % climb, said by the IMU or assumed without one
+def test_a_start_on_a_climb_stands_on_the_brake_until_the_loop_asks_enough_to_hold_it(bridge, pitch):
+    # the shuttle fully loaded (2,450 + 12 x 75 kg) on 14 %: m g sin = 4,560 N; its motor at
+    # standstill pushes 1,930 N/(m/s) x 11.1 m/s x effort, so an effort of 0.213 holds it
+    # (15 %, assumed without a pitch: 0.225)
+    bridge.press(PanelInput.BUTTON)
+    bridge.step(0.0)
+    assert bridge.set_automatic_mode().accepted
+    hold = 3350 * 9.81 * math.sin(-pitch if pitch is not None else math.atan(0.15)) / (1930 * 11.1)
+    efforts = []
+    for now in ticks(PERIOD, 3.0):
+        bridge.setpoint(min(0.8 * now, 2.0), 0.0, stamp=now)  # the movement manager's ramp from standstill
+        if pitch is not None:
+            bridge.imu(pitch)
+        _, actuators = bridge.step(now)
+        efforts.append(actuators.drive_effort)
+    released = next(k for k, e in enumerate(efforts) if e > 0)
+    assert released > 0 and all(e == -STANDSTILL_BRAKE for e in efforts[:released])
+    assert efforts[released] >= hold and efforts[released - 1] > -1.0  # let go once the loop's effort holds
+    assert all(e > 0 for e in efforts[released:])  # once let go, never braking again on the way up
+    assert bridge.node.board.hold_effort(pitch) == pytest.approx(hold, rel=1e-6)
 
 
 def test_re_engaging_starts_the_inner_loops_afresh(bridge):

@@ -203,20 +203,21 @@ def test_open_route_end_and_distance_to_end(tmp_path):
     assert msg.ahead_x == [100.0]  # past the end: only the end remains
 
 
-def test_zones_and_forced_odometry(index, tour):
+def test_zones_forced_odometry_and_the_road_s_width(index, tour):
     tracker = PathTracker(tour, PARAMS, index.speed_limit)
     cases = [
-        (100.0, ["narrow"], False),
-        (400.0, [], False),
-        (517.0, ["intersection"], True),
-        (620.0, ["rtk_loss"], False),
-        (1320.0, ["intersection"], True),
-        (1575.0, ["road_opening"], True),
+        (100.0, ["narrow"], False, 3.2),
+        (400.0, [], False, 6.0),
+        (517.0, ["intersection"], True, 6.0),
+        (620.0, ["rtk_loss"], False, 6.0),
+        (1320.0, ["intersection"], True, 6.0),
+        (1575.0, ["road_opening"], True, 6.0),
     ]
-    for s, zones, forced in cases:
+    for s, zones, forced, width in cases:
         tracker.progress = s - 0.3
         _, msg = tracker.update(1.0, *offset_pose(tour, s, 0.2))
         assert msg.zones == zones and msg.force_odometry is forced, s
+        assert msg.road_width_m == width, s  # the control manager's creep keeps within it
         assert msg.distance_to_end_m is None
         assert zone_kinds_at(tour, s) == zones
         assert len(msg.ahead_x) == int(PARAMS.ahead_length_m / PARAMS.ahead_step_m) + 1

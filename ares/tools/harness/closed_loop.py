@@ -306,6 +306,7 @@ def run(
 
     rows: list[tuple] = []
     last_can: CanFrame | None = None
+    last_imu: Imu | None = None
     setpoints: list[tuple[float, float, float]] = []  # (t, v, kappa) on their way to the bridge
     steer_effort = drive_effort = 0.0
     progress = 0.0
@@ -320,7 +321,8 @@ def run(
             last_can = CanFrame(t=t, **sensors.can.measure(st))
             localizer.push("can", last_can)
         if due("imu"):
-            localizer.push("imu", Imu(t=t, **sensors.imu.measure(st)))
+            last_imu = Imu(t=t, **sensors.imu.measure(st))
+            localizer.push("imu", last_imu)
         if due("gnss") and sensors.gnss.fix_available(st.s, t):
             fix = fix_of(st)
             if fix is not None:
@@ -356,7 +358,7 @@ def run(
                 board.handle(Event.setpoint(v_cmd, kappa_cmd, t_set))
             del setpoints[: len(arrived)]
             board.handle(Event.tick(t))
-            out = board.efforts(t, last_can)
+            out = board.efforts(t, last_can, None if last_imu is None else last_imu.pitch)
             steer_effort, drive_effort = out.steer_effort, out.drive_effort
 
         if record and due("record"):
