@@ -11,6 +11,7 @@ import json
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -24,18 +25,27 @@ FAULTS = 50
 SLOT_S = 4.0  # stack seconds per fault: the plan's least
 
 
-@pytest.mark.timeout(600)  # ~100 s on an idle machine; a busy one starts a dozen processes slowly
-def test_a_short_soak_of_50_faults_hits_nothing_breaks_no_invariant_and_loses_no_second(tmp_path):
-    out = tmp_path / "soak"
-    hours = FAULTS * SLOT_S / 3600.0
-    command = [sys.executable, "-m", "ares.cli", "soak", "--hours", f"{hours:.6f}", "--faults", str(FAULTS)]
-    command += ["--seed", "7", "--json", "--lead", "5", "--config", str(NO_LIDARS), "--out", str(out)]
+STOP_AFTER = 20  # faults written down when the first segment is stopped (Ctrl-C), to be resumed
+
+
+def soak(args: list[str], *, stop_after: int | None = None, out=None) -> subprocess.CompletedProcess:
+    """`ares soak ARGS --json` with its own router and API ports; with stop_after, sent SIGINT (as
+    Ctrl-C) once that many faults are written down in `out`."""
+    command = [sys.executable, "-m", "ares.cli", "soak", *args, "--json"]
     command += ["--listen", f"tcp/127.0.0.1:{free_port()}", "--api-port", str(free_port())]
     proc = subprocess.Popen(
         command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL
     )
     try:
-        stdout, stderr = proc.communicate(timeout=560)
+        if stop_after is not None:
+            deadline = time.monotonic() + 400
+            faults = out / "faults.jsonl"
+            while proc.poll() is None and time.monotonic() < deadline:
+                if faults.exists() and len(faults.read_text().splitlines()) >= stop_after:
+                    proc.send_signal(signal.SIGINT)
+                    break
+                time.sleep(0.5)
+        stdout, stderr = proc.communicate(timeout=460)
     finally:
         if proc.poll() is None:  # out of time: SIGINT lets the soak stop its stack (a SIGKILL would orphan it)
             proc.send_signal(signal.SIGINT)
@@ -43,12 +53,35 @@ def test_a_short_soak_of_50_faults_hits_nothing_breaks_no_invariant_and_loses_no
                 proc.communicate(timeout=60)
             except subprocess.TimeoutExpired:
                 proc.kill()
-    assert proc.returncode == 0, f"exit {proc.returncode}\n{stdout[-2000:]}\n{stderr[-3000:]}"
-    summary = json.loads(stdout.strip().splitlines()[-1])
-    assert summary["finished"] and summary["faults_injected"] >= FAULTS
+    return subprocess.CompletedProcess(command, proc.returncode, stdout, stderr)
+
+
+@pytest.mark.timeout(900)  # ~130 s on an idle machine; a busy one starts a dozen processes slowly
+def test_a_short_soak_of_50_faults_stopped_and_resumed_hits_nothing_breaks_no_invariant_and_loses_no_second(
+    tmp_path,
+):
+    out = tmp_path / "soak"
+    hours = FAULTS * SLOT_S / 3600.0
+    first = soak(
+        ["--hours", f"{hours:.6f}", "--faults", str(FAULTS), "--seed", "7", "--lead", "5"]
+        + ["--config", str(NO_LIDARS), "--out", str(out)],
+        stop_after=STOP_AFTER,
+        out=out,
+    )
+    # Ctrl-C: the stack stopped, the figures so far written down, not finished
+    assert first.returncode == 1, f"exit {first.returncode}\n{first.stdout[-2000:]}\n{first.stderr[-3000:]}"
+    stopped = json.loads(first.stdout.strip().splitlines()[-1])
+    assert not stopped["finished"] and stopped["error"] == "interrupted"
+    assert STOP_AFTER <= stopped["faults_injected"] < FAULTS
+    # the rest, from where the shuttle stood: a segment of its own, then the figures of both
+    second = soak(["--resume", str(out)])
+    assert second.returncode == 0, f"exit {second.returncode}\n{second.stdout[-2000:]}\n{second.stderr[-3000:]}"
+    summary = json.loads(second.stdout.strip().splitlines()[-1])
+    assert summary["segments"] == 2 and summary["finished"]
+    assert summary["faults_injected"] == FAULTS  # each fault once, a fault cut short by the stop injected again
     assert set(summary["per_kind"]) == set(kinds_for(False)), "every kind without LiDARs"
     assert summary["collisions"] == 0 and summary["invariant_violations"] == 0, summary["invariant_examples"]
-    assert summary["blackbox_seconds_lost"] == 0, summary["blackbox_lost_examples"]
+    assert summary["blackbox_seconds_lost"] == 0, summary
     # every bad request the running API answered got a 4xx (none unanswered while it was up)
     assert summary["api_requests"] > 0 and summary["api_not_4xx"] == 0
     # a safety-relevant fault that found the shuttle driving normally brought it to its safe state
@@ -56,10 +89,11 @@ def test_a_short_soak_of_50_faults_hits_nothing_breaks_no_invariant_and_loses_no
     # and every fault was got over: each killed, hung or busy process restarted, the shuttle driving again
     assert summary["all"]["not_recovered"] == 0
     assert summary["availability"] is not None and 0.0 < summary["availability"] <= 1.0
-    lines = (out / "faults.jsonl").read_text().splitlines()
-    assert len(lines) == FAULTS and all(json.loads(line)["injected"] for line in lines)
-    assert (out / "soak.png").stat().st_size > 10_000
-    # the same figures from the directory alone, as for a soak stopped early
+    resumed = out / "segments" / "1"
+    lines = [json.loads(line) for line in (resumed / "faults.jsonl").read_text().splitlines()]
+    assert all(line["injected"] for line in lines) and len(lines) == FAULTS - summary["per_segment"][0]["faults_kept"]
+    assert (resumed / "soak.png").stat().st_size > 10_000 and (out / "soak-all.png").stat().st_size > 10_000
+    # the same figures from the directory alone
     again = subprocess.run(
         [sys.executable, "-m", "ares.cli", "soak", "--summarise", str(out), "--json"],
         cwd=REPO,
@@ -68,10 +102,14 @@ def test_a_short_soak_of_50_faults_hits_nothing_breaks_no_invariant_and_loses_no
         timeout=60,
     )
     partial = json.loads(again.stdout.strip().splitlines()[-1])
-    assert partial["faults_injected"] == summary["faults_injected"]
-    assert partial["blackbox_seconds_lost"] == 0
+    assert partial["faults_injected"] == summary["faults_injected"] and partial["blackbox_seconds_lost"] == 0
+    # a soak run to its end is not resumed
+    refused = subprocess.run(
+        [sys.executable, "-m", "ares.cli", "soak", "--resume", str(out)], cwd=REPO, capture_output=True, text=True
+    )
+    assert refused.returncode == 1 and "nothing to resume" in refused.stderr
     print(
-        f"\nshort soak: {summary['faults_injected']} faults in {summary['vehicle_hours'] * 3600:.0f} s vehicle time, "
-        f"{summary['run']['wall_time_s']} s wall; max time to safe state {summary['time_to_safe_state_max_s']} s; "
-        f"availability {summary['availability']}"
+        f"\nshort soak in two segments: {summary['faults_injected']} faults in "
+        f"{summary['vehicle_hours'] * 3600:.0f} s vehicle time, {summary['wall_hours'] * 3600:.0f} s wall; "
+        f"max time to safe state {summary['time_to_safe_state_max_s']} s; availability {summary['availability']}"
     )

@@ -38,6 +38,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     soak.add_argument(
         "--summarise", metavar="DIR", help="only summarise the soak in DIR (running, stopped or finished)"
     )
+    soak.add_argument(
+        "--resume",
+        metavar="DIR",
+        help="go on with the stopped soak in DIR: the plan's rest as a segment of its own (DIR/segments/<k>), "
+        "the shuttle starting where it stood; then the figures of every segment together (DIR/soak-all.json)",
+    )
     return {"soak": cmd_soak}
 
 
@@ -46,13 +52,19 @@ def cmd_soak(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ares.core import config
-    from ares.tools.soak import report
+    from ares.tools.soak import report, resume
     from ares.tools.soak.plan import KINDS
     from ares.tools.soak.runner import Soak, SoakOptions
 
+    if args.resume:
+        return resume_soak(args)
     if args.summarise:
         if not (Path(args.summarise) / "plan.json").exists():
             raise CliError(f"{args.summarise}: no soak there (no plan.json)")
+        if len(resume.segment_dirs(Path(args.summarise))) > 1:
+            summary = resume.write_merged(Path(args.summarise))
+            print(json.dumps(summary) if args.json else table(summary))
+            return 0
         summary = report.summarise_dir(Path(args.summarise))
         try:  # the picture of the soak so far, beside its files
             summary["picture"] = str(report.picture(Path(args.summarise), summary))
@@ -85,12 +97,53 @@ def cmd_soak(args: argparse.Namespace) -> int:
     return 0 if summary["ok"] else 1
 
 
+def resume_soak(args: argparse.Namespace) -> int:
+    """The next segment of a stopped soak, then the figures of all its segments."""
+    from pathlib import Path
+
+    from ares.core import config
+    from ares.tools.soak import resume
+    from ares.tools.soak.runner import Soak, SoakOptions
+
+    root = Path(args.resume)
+    if args.hours != 1.0 or args.faults != 100 or args.config or args.route or args.kinds or args.out:
+        raise CliError("--resume takes the soak's own plan and configuration: no --hours, --faults, --config, "
+                       "--route, --kinds or --out beside it")  # fmt: skip
+    try:
+        spec = resume.next_segment(root)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    opts = SoakOptions(
+        hours=spec["hours"],
+        faults=len(spec["plan"]),
+        seed=spec["seed"],
+        out_dir=spec["out_dir"],
+        configs=spec["configs"],
+        listen=args.listen,
+        api_port=args.api_port,
+        lead_s=spec["lead_s"],
+        kinds=spec["kinds"],
+        route=spec["route"],
+        plan=spec["plan"],
+        start_s_m=spec["start_s_m"],
+        segment=spec["segment"],
+    )
+    try:
+        Soak(opts).run()
+    except (config.ConfigError, ValueError) as exc:
+        raise CliError(str(exc)) from None
+    summary = resume.write_merged(root)
+    print(json.dumps(summary) if args.json else table(summary))
+    return 0 if summary["ok"] else 1
+
+
 def table(summary: dict) -> str:
     """The figures for people: the totals, then one line per fault kind."""
     lines = [
         f"soak seed {summary['seed']}: {summary['faults_injected']} of {summary['faults_planned']} faults "
-        f"({summary['faults_injected_so_far']} injected so far) in "
-        f"{summary['vehicle_hours']} vehicle hours ({'finished' if summary['finished'] else 'partial'})"
+        + (f"({summary['faults_injected_so_far']} injected so far) " if "faults_injected_so_far" in summary else "")
+        + (f"in {summary['segments']} segments, " if "segments" in summary else "")
+        + f"in {summary['vehicle_hours']} vehicle hours ({'finished' if summary['finished'] else 'partial'})"
         + (f" [{summary['error']}]" if summary.get("error") else ""),
         f"  collisions {summary['collisions']}   invariant violations {summary['invariant_violations']}   "
         f"black-box seconds lost {summary.get('blackbox_seconds_lost')} "

@@ -31,6 +31,7 @@ from ares.tools.soak.plan import PlannedFault
 MOVING_MPS = 0.05
 RESUMED_MPS = 0.5
 TIMELINE_PERIOD_S = 1.0  # one point of the picture per stack second
+GIVE_UP_S = 600.0  # stack seconds after its end a fault may take to recover before it is written down as not
 
 
 @dataclass

@@ -52,7 +52,7 @@ from ares.core.messages import DriveMode, MissionGoal, ProcessState, RearmReques
 from ares.tools.evaluation.safety_eval import SafetyTracker
 from ares.tools.soak import report
 from ares.tools.soak.injectors import LASTING, LIDAR_PROCESS, SIGNAL_OF, Injectors, RouterProcess
-from ares.tools.soak.measure import FaultOutcome, SoakTracker
+from ares.tools.soak.measure import GIVE_UP_S, FaultOutcome, SoakTracker
 from ares.tools.soak.plan import KINDS, OBSTACLE_KINDS, PlannedFault, fault_plan, kinds_for
 from blackbox.api.api_node import api_url
 
@@ -64,7 +64,6 @@ PROGRESS_WALL_S = 30.0
 REARM_EVERY_S = 1.0  # stack seconds between two re-arm attempts
 GOAL_AFTER_S = 10.0  # stack seconds without a mission (none set, or it ended) before the soak sets the tour again
 ENGAGE_AFTER_S = 3.0  # stack seconds out of Automatic (no fault holding) before the soak engages again
-GIVE_UP_S = 600.0  # stack seconds after its end a fault may take to recover before it is written down as not
 CLOCK_STALL_S = 120.0  # wall seconds without the stack clock moving: the soak has stalled
 END_GRACE_S = 60.0  # stack seconds after the last fault's slot for it to recover
 PEDESTRIAN_SPEED_MPS = 0.8
@@ -86,6 +85,9 @@ class SoakOptions:
     kinds: tuple[str, ...] | None = None  # default: every kind the run's vehicle can take
     route: str | None = None  # a built-in tour or a route file, as for ares run (default: the configuration's)
     quiet: bool = False
+    plan: list[PlannedFault] | None = None  # this plan, not one drawn from the seed (a resumed soak's rest)
+    start_s_m: float | None = None  # where along the route the shuttle starts (default: the configuration's)
+    segment: dict | None = None  # a resumed soak's segment: {"of": its first directory, "index": k, "plan_offset_s": P}
 
 
 def obstacle_scenario(plan: list[PlannedFault], lead_s: float, seed: int) -> dict:
@@ -140,6 +142,8 @@ class Soak:
         }
         if opts.route:
             overrides = config.deep_merge(overrides_from_args(SimpleNamespace(route=opts.route)), overrides)
+        if opts.start_s_m is not None:
+            overrides = config.deep_merge(overrides, {"sim": {"start_s_m": round(opts.start_s_m, 1)}})
         cfg = prepare(opts.configs, overrides, "max")
         core = config.core(cfg)
         lidars = sorted(core.vehicle_profile.lidars) if cfg["lidars"] else []
@@ -147,13 +151,18 @@ class Soak:
         kinds = list(opts.kinds) if opts.kinds else kinds_for(bool(lidars))
         if not lidars and any(KINDS[k].needs_lidars for k in kinds):
             raise config.ConfigError("LiDAR and obstacle faults need a run with LiDARs")
-        plan = fault_plan(opts.seed, opts.hours, opts.faults, kinds, [p.name for p in running], lidars)
+        plan = (
+            list(opts.plan)
+            if opts.plan is not None
+            else fault_plan(opts.seed, opts.hours, opts.faults, kinds, [p.name for p in running], lidars)
+        )
         scenario = obstacle_scenario(plan, opts.lead_s, opts.seed)
         if scenario["obstacles"]:
             path = self.out / "scenario.yaml"
             path.write_text(yaml.safe_dump(scenario, sort_keys=False))
             cfg = prepare(opts.configs, {**overrides, "scenario": str(path.resolve())}, "max")
         self.safety_relevant = {p.name: p.safety_relevant for p in running}
+        route_file = Path(opts.route or "").resolve()
         (self.out / "plan.json").write_text(
             json.dumps(
                 {
@@ -163,6 +172,10 @@ class Soak:
                     "lead_s": opts.lead_s,
                     "kinds": kinds,
                     "lidars": lidars,
+                    # what a resumed soak starts its next segment with (ares soak --resume)
+                    "configs": [str(Path(c).resolve()) for c in opts.configs],
+                    "route": route_file if route_file.is_file() else opts.route,
+                    **({"segment": opts.segment} if opts.segment else {}),
                     "plan": [f.as_dict() for f in plan],
                 },
                 indent=1,
@@ -286,6 +299,7 @@ class Soak:
                 "t": round(now, 2),
                 "t_start_s": round(tracker.t_start, 2),
                 "plan_start_s": t0,
+                "s": None if truth.latest is None else round(truth.latest.s, 1),  # where a resumed soak starts
                 "faults_injected": injected,
                 "faults_planned": len(plan),
                 "collisions": len(safety.collided),
