@@ -42,10 +42,12 @@ unchanged: the controller in charge already commands no faster than the steering
 MPC's model has the rate), and a ramp on top would only delay it (at 25 km/h, by enough to make
 the MPC weave). In STOP the speed ramps down at `stop_decel_mps2`, and the curvature goes, at the
 steering's rate, to the odometry controller's while creeping is on and the pose's σ is within
-the creep's exit bound (a pose good enough to creep by is good enough to steer a stop by: the RRC's
-remembered road can be the wrong one), else to the RRC's while it has a candidate (the road seen,
-however faintly, or remembered for a few metres after it was lost: `stop_only`), else it is held. A held curvature rolls
-the shuttle off a bend's line (0.5 m over the 6 m of a stop from 2.5 m/s, measured on grass).
+the creep's exit bound, the pose dead-reckoned for at most `stop_steer_fix_age_s` (a pose good
+enough to creep by is good enough to steer a stop by, and so is one a fix anchored half a minute
+ago, for the few metres of a stop: the RRC's remembered road can be the wrong one), else to the
+RRC's while it has a candidate (the road seen, however faintly, or remembered for a few metres
+after it was lost: `stop_only`), else it is held. A held curvature rolls the shuttle off a
+bend's line (0.5 m over the 6 m of a stop from 2.5 m/s, measured on grass).
 A `stop_only` candidate never drives.
 
 `pinned` (for comparisons, `ares run --controller`) takes the order of trust away: the pinned
@@ -83,6 +85,7 @@ class SelectionParams:
     creep_speed_mps: float = 0.8
     creep_distance_m: float = 0.0  # per creep, before standing again (0: never creep)
     creep_fix_age_s: float = 2.0  # a creep drives by a pose that a GNSS fix anchored this recently
+    stop_steer_fix_age_s: float = 30.0  # ... and a stop steers by one anchored this recently
     creep_clearance_m: float = 0.3  # kept between the shuttle's side and the road's edge in a creep
     creep_sigmas_enter: float = 3.0  # the pose's σ the road's room must hold to begin a creep ...
     creep_sigmas_exit: float = 2.5  # ... and to go on with one
@@ -90,6 +93,8 @@ class SelectionParams:
     def __post_init__(self):
         if not (0 <= self.score_exit <= self.score_enter and 0 <= self.road_exit <= self.road_enter):
             raise ValueError("each exit threshold must lie at or below its enter threshold")
+        if not 0 <= self.creep_fix_age_s <= self.stop_steer_fix_age_s:
+            raise ValueError("a stop steers by any pose a creep may drive by: creep_fix_age_s <= stop_steer_fix_age_s")
         if not 0 < self.creep_sigmas_exit <= self.creep_sigmas_enter:
             raise ValueError("creep_sigmas_exit must be positive and lie at or below creep_sigmas_enter")
 
@@ -193,10 +198,12 @@ class ControlSelector:
             return self._creep_acceptable(inputs, holding)
         return True, "stop", "in a controlled stop"
 
-    def _creep_refusal(self, inputs: Inputs, holding: bool) -> tuple[str, str] | None:
+    def _creep_refusal(self, inputs: Inputs, holding: bool, fix_age_s: float | None = None) -> tuple[str, str] | None:
         """Why the odometry controller may not creep (or steer a stop) by the pose now, as a cause
-        and a sentence; None when it may (holding: the exit threshold applies)."""
+        and a sentence; None when it may (holding: the exit threshold applies; fix_age_s: the
+        longest dead reckoning allowed, by default the creep's)."""
         p = self.p
+        fix_age_s = p.creep_fix_age_s if fix_age_s is None else fix_age_s
         if p.creep_distance_m <= 0:
             return "creep_off", "creeping is off"
         if inputs.odometry is None:
@@ -204,7 +211,7 @@ class ControlSelector:
         std = inputs.pose_std_m
         if std is None:
             return "no_pose", "no fresh pose to creep by"
-        if inputs.fix_age_s is None or inputs.fix_age_s > p.creep_fix_age_s:
+        if inputs.fix_age_s is None or inputs.fix_age_s > fix_age_s:
             since = "no GNSS fix" if inputs.fix_age_s is None else f"no GNSS fix for {inputs.fix_age_s:.1f} s"
             return "dead_reckoning", f"the pose is dead-reckoned ({since})"
         if inputs.road_room_m is None:
@@ -288,12 +295,15 @@ class ControlSelector:
 
     def _stop_steering(self, inputs: Inputs) -> Candidate | None:
         """Whose curvature a controlled stop follows: the odometry controller's while creeping is on
-        and the pose is good enough to creep by (a pose good to centimetres follows the path; the
-        RRC's remembered road can be the wrong one, as it was before a crossing in a soak, where
-        it steered a stop 0.55 m aside), else the RRC's road, seen or remembered; none when pinned."""
+        and the pose is good enough to creep by, or dead-reckoned for no longer than
+        `stop_steer_fix_age_s` (a pose good to centimetres follows the path; the RRC's remembered
+        road can be the wrong one, as it was before a crossing in a soak during a GNSS outage,
+        where it steered a stop 0.55 m aside), else the RRC's road, seen or remembered; none when
+        pinned."""
         if self.p.pinned is not None:
             return None
-        return inputs.odometry if self._creep_refusal(inputs, holding=True) is None else inputs.rrc
+        refusal = self._creep_refusal(inputs, holding=True, fix_age_s=self.p.stop_steer_fix_age_s)
+        return inputs.odometry if refusal is None else inputs.rrc
 
 
 def _clip(value: float, limit: float) -> float:

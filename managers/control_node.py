@@ -87,6 +87,13 @@ class ControlManagerParams(Params):
         unit="s",
         gt=0,
     )
+    stop_steer_fix_age_s: float = param(
+        30.0,
+        "a controlled stop steers by a pose good enough to creep by, or dead-reckoned no longer than this "
+        "(the few metres of a stop; else by the RRC's road)",
+        unit="s",
+        gt=0,
+    )
     creep_clearance_m: float = param(
         0.3, "a creep keeps this much room between the shuttle's side and the road's edge", unit="m", ge=0
     )
@@ -135,6 +142,7 @@ class ControlManager(Node):
                 creep_speed_mps=p.creep_speed_mps,
                 creep_distance_m=p.creep_distance_m,
                 creep_fix_age_s=p.creep_fix_age_s,
+                stop_steer_fix_age_s=p.stop_steer_fix_age_s,
                 creep_clearance_m=p.creep_clearance_m,
                 creep_sigmas_enter=p.creep_sigmas_enter,
                 creep_sigmas_exit=p.creep_sigmas_exit,

@@ -248,14 +248,24 @@ def test_a_controlled_stop_steers_along_the_rrc_at_the_steering_rate():
 
 
 def test_a_stop_steers_by_the_odometry_while_the_pose_is_good_enough_to_creep_by():
-    # before a crossing the RRC's remembered road bent away (k +0.05) while the path ran straight
+    # before a crossing, in a GNSS outage, the RRC's remembered road bent away (k +0.05) while the
+    # path ran straight: a pose good enough to creep by, or dead-reckoned for no longer than 30 s,
+    # steers the stop along the path (k 0)
     bent, straight = Candidate(0.0, 0.05, stop_only=True), Candidate(3.0, 0.0)
-    for std, creeping, expected in ((0.05, P_CREEP, 0.0), (0.5, P_CREEP, 0.05), (None, P_CREEP, 0.05), (0.05, P, 0.05)):
+    for std, fix, creeping, expected in (
+        (0.05, FIX, P_CREEP, 0.0),
+        (0.05, 20.0, P_CREEP, 0.0),  # dead-reckoned 20 s: too long to creep by, not to steer a stop by
+        (0.05, 40.0, P_CREEP, 0.05),
+        (0.05, None, P_CREEP, 0.05),
+        (0.5, FIX, P_CREEP, 0.05),  # beyond what a 4 m road's room holds
+        (None, FIX, P_CREEP, 0.05),
+        (0.05, FIX, P, 0.05),  # creeping off
+    ):
         selector = ControlSelector(creeping, start=Mode.STOP)
-        selector.step(0.0, Inputs(0.0, None, False, straight, bent, std, ROOM, FIX))
+        selector.step(0.0, Inputs(0.0, None, False, straight, bent, std, ROOM, fix))
         for t in (0.5, 1.0):  # (the steering's rate: 0.2 /m/s; standing, a creep would begin at 2 s)
-            d = selector.step(t, Inputs(0.0, None, False, straight, bent, std, ROOM, FIX))
-        assert d.mode is Mode.STOP and d.kappa == pytest.approx(expected), (std, creeping.creep_distance_m)
+            d = selector.step(t, Inputs(0.0, None, False, straight, bent, std, ROOM, fix))
+        assert d.mode is Mode.STOP and d.kappa == pytest.approx(expected), (std, fix, creeping.creep_distance_m)
 
 
 def test_a_pinned_stop_holds_the_curvature_whatever_the_rrc_says():
@@ -272,6 +282,8 @@ def test_thresholds_are_checked():
         SelectionParams(0.4, 0.6, 0.6, 0.4, 1.0, 0.2, 1.0)
     with pytest.raises(ValueError):
         SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, creep_sigmas_enter=2.0, creep_sigmas_exit=3.0)
+    with pytest.raises(ValueError):
+        SelectionParams(0.6, 0.4, 0.6, 0.4, 1.0, 0.2, 1.0, creep_fix_age_s=5.0, stop_steer_fix_age_s=3.0)
 
 
 maybe_level = st.one_of(st.none(), st.floats(0.0, 1.0))
