@@ -11,18 +11,19 @@ order of trust:
   5. CREEP: after standing `creep_after_s` in a stop with nothing trusted, the odometry controller
      at `creep_speed_mps` for at most `creep_distance_m`, while the pose is good enough for the
      road it is on; then a stop again. The odometry score is nearly binary: it says whether RTK
-     corrections come, not how far off the pose is. Under the trees, without corrections, the
-     fused pose is good to centimetres for a minute (its σ grows ~1e-3 m²/s while standing, ~3e-3
-     while driving, and is ~1.5 times the actual error: docs/odometry_score.md), while road
-     detection on grass verges can fail for good from one standing spot: it sees the same
-     scene every frame. A few metres at walking pace give it another view; the obstacle manager
+     corrections come, not how far off the pose is. Under the trees, having lost the corrections,
+     the fused pose stays good to centimetres for a minute or two while its σ grows past 0.25 m
+     (~1e-3 m²/s standing, ~3.4e-3 driving: docs/control.md, "The creep"), while road detection
+     on grass verges can fail for good from one standing spot: it sees the same scene every
+     frame. A few metres at walking pace give it another view; the obstacle manager
      and the movement gate still stand between the creep and anything in the way.
      *Good enough* is, first, a pose that a GNSS fix (RTK or not) has anchored within
      `creep_fix_age_s`: a dead-reckoned pose can be off by far more than its σ says (an
      unmodelled gyro bias and wheel scale put it 3.6 m off in `dead_reckoning_drift` where σ says
-     0.7 m), so it never creeps. Then, the road's room: with the shuttle on the path, (road width
-     - vehicle width) / 2 lies between its side and the road's edge; less `creep_clearance_m`,
-     that room must hold `creep_sigmas_enter` of the pose's standard deviation (the
+     0.7 m), so it never creeps. Then, the road's room: (road width - vehicle width) / 2 - |xte|
+     lies between the shuttle's side and the road's edge, the width the narrowest over the path
+     ahead (a creep must not carry a wide road's bound into a narrow lane); less
+     `creep_clearance_m`, that room must hold `creep_sigmas_enter` of the pose's standard deviation (the
      localization's own, sqrt of eq. 6's cov) to begin a creep and `creep_sigmas_exit` to go on
      with one. On the tour's 6 m roads that is σ within 0.57 / 0.68 m, in its 3.2 m lane 0.10 /
      0.12 m. Past it (a GNSS outage, a narrow road) the stop is final until the road or the pose
@@ -121,7 +122,7 @@ class Inputs:
     odometry: Candidate | None  # the odometry controller's candidate (None: stale, or it hands over)
     rrc: Candidate | None
     pose_std_m: float | None = None  # the fused pose's standard deviation (None: no fresh pose)
-    road_room_m: float | None = None  # (road width - vehicle width) / 2 where the shuttle is (None: unknown)
+    road_room_m: float | None = None  # (road width ahead - vehicle width) / 2 - |xte| (None: unknown)
     fix_age_s: float | None = None  # since a GNSS fix was last fused into the pose (None: none, or unknown)
 
 
@@ -198,12 +199,14 @@ class ControlSelector:
             return self._creep_acceptable(inputs, holding)
         return True, "stop", "in a controlled stop"
 
-    def _creep_refusal(self, inputs: Inputs, holding: bool, fix_age_s: float | None = None) -> tuple[str, str] | None:
+    def _creep_refusal(
+        self, inputs: Inputs, holding: bool, max_fix_age_s: float | None = None
+    ) -> tuple[str, str] | None:
         """Why the odometry controller may not creep (or steer a stop) by the pose now, as a cause
-        and a sentence; None when it may (holding: the exit threshold applies; fix_age_s: the
+        and a sentence; None when it may (holding: the exit threshold applies; max_fix_age_s: the
         longest dead reckoning allowed, by default the creep's)."""
         p = self.p
-        fix_age_s = p.creep_fix_age_s if fix_age_s is None else fix_age_s
+        max_fix_age_s = p.creep_fix_age_s if max_fix_age_s is None else max_fix_age_s
         if p.creep_distance_m <= 0:
             return "creep_off", "creeping is off"
         if inputs.odometry is None:
@@ -211,8 +214,8 @@ class ControlSelector:
         std = inputs.pose_std_m
         if std is None:
             return "no_pose", "no fresh pose to creep by"
-        if inputs.fix_age_s is None or inputs.fix_age_s > fix_age_s:
-            since = "no GNSS fix" if inputs.fix_age_s is None else f"no GNSS fix for {inputs.fix_age_s:.1f} s"
+        if inputs.fix_age_s is None or inputs.fix_age_s > max_fix_age_s:
+            since = "no GNSS fix known" if inputs.fix_age_s is None else f"no GNSS fix for {inputs.fix_age_s:.1f} s"
             return "dead_reckoning", f"the pose is dead-reckoned ({since})"
         if inputs.road_room_m is None:
             return "no_road_width", "the road's width here is unknown"
@@ -302,7 +305,7 @@ class ControlSelector:
         pinned."""
         if self.p.pinned is not None:
             return None
-        refusal = self._creep_refusal(inputs, holding=True, fix_age_s=self.p.stop_steer_fix_age_s)
+        refusal = self._creep_refusal(inputs, holding=True, max_fix_age_s=self.p.stop_steer_fix_age_s)
         return inputs.odometry if refusal is None else inputs.rrc
 
 

@@ -90,7 +90,7 @@ class ControlManagerParams(Params):
     stop_steer_fix_age_s: float = param(
         30.0,
         "a controlled stop steers by a pose good enough to creep by, or dead-reckoned no longer than this "
-        "(the few metres of a stop; else by the RRC's road)",
+        "(the few metres of a stop; else by the RRC's road); at least creep_fix_age_s",
         unit="s",
         gt=0,
     )
@@ -183,8 +183,8 @@ class ControlManager(Node):
                 if score is None or score.pose_age_s > self.params.input_timeout_s
                 else math.sqrt(max(score.covariance, 0.0)),
                 road_room_m=None
-                if match is None or match.road_width_m is None
-                else (match.road_width_m - self.vehicle.width_m) / 2,
+                if match is None or match.road_width_ahead_m is None
+                else (match.road_width_ahead_m - self.vehicle.width_m) / 2 - abs(match.xte),
                 fix_age_s=None if pose is None or pose.gnss_age_s is None else pose.gnss_age_s + (now - pose.t),
             ),
         )

@@ -370,7 +370,10 @@ class PathTracker:
             zones=zones,
             force_odometry=not self.force_odometry_zones.isdisjoint(zones),
             distance_to_end_m=None if self.route.closed else max(self.route.length - m.s, 0.0),
-            road_width_m=float(self.route.width[m.index]),
+            # a creep or a stop must not carry a wide road's bounds into a narrow one
+            road_width_ahead_m=float(
+                min(self.route.width[m.index], np.interp(ahead.s, self.route.s, self.route.width).min())
+            ),
             ahead_x=ahead.x.tolist(),
             ahead_y=ahead.y.tolist(),
             ahead_yaw=ahead.yaw.tolist(),

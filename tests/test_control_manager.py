@@ -28,18 +28,20 @@ from managers.control_node import ControlManager
 PERIOD = 0.05
 
 
-def match(t: float, force: bool = False, to_end: float | None = None, road_width: float | None = 6.0) -> PathMatch:
+def match(
+    t: float, force: bool = False, to_end: float | None = None, road_width: float | None = 6.0, xte: float = 0.02
+) -> PathMatch:
     return PathMatch(
         t=t,
         index=10,
         s=5.0,
         lap=0,
-        xte=0.02,
+        xte=xte,
         heading_error=0.01,
         zones=["intersection"] if force else [],
         force_odometry=force,
         distance_to_end_m=to_end,
-        road_width_m=road_width,
+        road_width_ahead_m=road_width,
         ahead_x=[0.0, 1.0],
         ahead_y=[0.0, 0.0],
         ahead_yaw=[0.0, 0.0],
@@ -101,6 +103,7 @@ class Harness:
         pose_age_s: float = 0.02,
         road_width: float | None = 6.0,
         gnss_age_s: float | None = 0.1,
+        xte: float = 0.02,
     ):
         t = self.t = round(self.t + PERIOD, 9)
         self.clock.set(t)
@@ -109,7 +112,7 @@ class Harness:
             pub("odometry/score", OdometryScore(t=t, score=score, covariance=covariance, pose_age_s=pose_age_s))
         if confidence is not None:
             pub("perception/road", road(t, confidence))
-        pub("path/match", match(t, force, to_end, road_width))
+        pub("path/match", match(t, force, to_end, road_width, xte))
         pub("localization/pose", pose(t, covariance, gnss_age_s))
         for name, cand in (("mpc", mpc), ("rrc", rrc), ("pure_pursuit", pure_pursuit)):
             if cand is not None:
@@ -199,6 +202,17 @@ def test_a_stop_with_nothing_trusted_creeps_on_the_odometry_while_the_pose_allow
     ):
         setpoint, status = h.run(p.creep_after_s + 3.0, **{**lost, **stale})
         assert status.controller == "stop" and setpoint.v == 0.0, stale
+
+
+@pytest.mark.parametrize("xte, creeps", [(0.02, True), (-0.6, False)])
+def test_a_stop_off_the_path_has_less_room_to_creep_in(run_config, xte, creeps):
+    # σ 0.45 m on a 6 m road: within (6 - 1.99) / 2 - 0.02 - 0.3 = 1.69 m / 3 = 0.56 m on the path,
+    # beyond (2.0 - 0.6 - 0.3) / 3 = 0.37 m with the shuttle 0.6 m to the right of it
+    h = Harness(run_config)
+    h.run(1.5)
+    lost = {"score": 0.0, "covariance": 0.45**2, "confidence": 0.0, "xte": xte}
+    _, status = h.run(3.0 + h.node.params.creep_after_s + 0.2, **lost)
+    assert (status.controller == "creep") is creeps, status.reason
 
 
 def test_creeping_is_off_with_a_zero_distance(run_config):

@@ -187,7 +187,7 @@ def test_the_road_s_room_sets_how_uncertain_a_pose_may_be_to_creep_by():
 
 
 def test_a_dead_reckoned_pose_never_creeps_however_small_its_sigma():
-    for fix, says in ((None, "the pose is dead-reckoned (no GNSS fix)"), (2.5, "no GNSS fix for 2.5 s")):
+    for fix, says in ((None, "the pose is dead-reckoned (no GNSS fix known)"), (2.5, "no GNSS fix for 2.5 s")):
         selector = ControlSelector(P_CREEP, start=Mode.STOP)
         selector.step(0.0, Inputs(0.0, None, False, ODO, None, 0.01, 2.0, fix))
         d = selector.step(5.0, Inputs(0.0, None, False, ODO, None, 0.01, 2.0, fix))

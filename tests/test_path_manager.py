@@ -205,8 +205,10 @@ def test_open_route_end_and_distance_to_end(tmp_path):
 
 def test_zones_forced_odometry_and_the_road_s_width(index, tour):
     tracker = PathTracker(tour, PARAMS, index.speed_limit)
-    cases = [
+    cases = [  # s, zones, forced odometry, the narrowest width over the 30 m sent ahead
+        (40.0, [], False, 3.2),  # 20 m before the narrow lane: its width already
         (100.0, ["narrow"], False, 3.2),
+        (230.0, [], False, 6.0),  # 30 m past it
         (400.0, [], False, 6.0),
         (517.0, ["intersection"], True, 6.0),
         (620.0, ["rtk_loss"], False, 6.0),
@@ -217,7 +219,7 @@ def test_zones_forced_odometry_and_the_road_s_width(index, tour):
         tracker.progress = s - 0.3
         _, msg = tracker.update(1.0, *offset_pose(tour, s, 0.2))
         assert msg.zones == zones and msg.force_odometry is forced, s
-        assert msg.road_width_m == width, s  # the control manager's creep keeps within it
+        assert msg.road_width_ahead_m == pytest.approx(width), s  # the control manager's creep keeps within it
         assert msg.distance_to_end_m is None
         assert zone_kinds_at(tour, s) == zones
         assert len(msg.ahead_x) == int(PARAMS.ahead_length_m / PARAMS.ahead_step_m) + 1

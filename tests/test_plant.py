@@ -593,7 +593,7 @@ def drive_through_the_bridge(vehicle: str, feedforward: bool, seconds: float, v_
                 t=t, wheel_speed_rad_s=st.wheel_speed_rad_s, speed_mps=st.v, steering_wheel_deg=st.steering_wheel_deg,
                 throttle_pedal=0.0, brake_pedal=0.0, steering_torque=False,
             )  # fmt: skip
-            out = loop.efforts(t, can)
+            out = loop.efforts(t, can, 0.0)  # on the flat
             steer, drive = out.steer_effort, out.drive_effort
             commanded.append(out.command.v)
             measured.append(st.v)

@@ -111,12 +111,12 @@ def test_the_next_segment_runs_the_plan_s_rest_moved_back_from_where_the_shuttle
     assert spec["configs"] == ("/abs/no_lidars.yaml",) and spec["seed"] == 3 and spec["lead_s"] == LEAD_S
 
 
-def test_faults_cut_short_come_again_a_slot_apart(tmp_path):
+def test_faults_cut_short_come_again_each_once_the_one_before_is_over_and_a_slot_has_passed(tmp_path):
     plan = [PlannedFault(index=k, at_s=1.0 * k, kind="rtk_loss", duration_s=0.5) for k in range(3)]
     rows = [fault_row(k, LEAD_S + k, kind="rtk_loss", time_to_recover_s=None) for k in range(3)]
     root = tmp_path / "soak"
     write_segment(root, plan, rows, end_t=LEAD_S + 3.0)
-    assert [f.at_s for f in resume.next_segment(root)["plan"]] == [0.0, MIN_SLOT_S, 2 * MIN_SLOT_S]
+    assert [f.at_s for f in resume.next_segment(root)["plan"]] == [0.0, 0.5 + MIN_SLOT_S, 2 * (0.5 + MIN_SLOT_S)]
 
 
 def test_a_fault_given_up_on_is_not_injected_again(tmp_path):
@@ -146,7 +146,7 @@ def test_the_segments_figures_are_one_soak_s(stopped):
     summary = resume.merged_summary(stopped)
     assert summary["segments"] == 2 and summary["finished"] and summary["ok"]
     assert summary["faults_injected"] == 8  # each fault once: 3 is the second segment's
-    assert summary["faults_cut_short_and_injected_again"] == 1
+    assert summary["faults_cut_short"] == 1 and summary["time_to_safe_state_max_cut_short_s"] == 0.3
     assert summary["all"]["not_recovered"] == 0
     assert summary["time_to_safe_state_max_s"] == pytest.approx(1.2)  # fault 7, in the second segment
     assert summary["vehicle_hours"] == pytest.approx(1500.0 / 3600.0, abs=1e-3)
@@ -161,3 +161,35 @@ def test_the_segments_figures_are_one_soak_s(stopped):
     assert (stopped / "soak-all.json").exists() and Path(written["picture"]).stat().st_size > 10_000
     timeline, starts = resume.merged_timeline(stopped)
     assert starts == [400.0] and timeline[0][0] == 0.0 and max(r[0] for r in timeline) > 700.0
+
+
+def test_a_soak_from_before_resume_existed_is_refused_and_the_start_is_the_last_one_known(tmp_path, stopped):
+    old = tmp_path / "old"
+    write_segment(old, PLAN, [], end_t=200.0)
+    plan = json.loads((old / "plan.json").read_text())
+    del plan["configs"]
+    (old / "plan.json").write_text(json.dumps(plan))
+    with pytest.raises(ValueError, match="does not record the soak's configuration"):
+        resume.next_segment(old)
+    # a resumed segment that died before it said where the shuttle stood: the one before says
+    spec = resume.next_segment(stopped)
+    spec["out_dir"].mkdir(parents=True)
+    (spec["out_dir"] / "plan.json").write_text(json.dumps({**plan, "segment": spec["segment"]}))
+    again = resume.next_segment(stopped)
+    assert again["start_s_m"] == 640.0 and again["segment"]["index"] == 2
+    assert again["segment"]["plan_offset_s"] == 400.0  # it got no further
+
+
+def test_a_soak_s_plan_records_a_route_file_to_resume_with(tmp_path):
+    from ares.tools.soak.runner import Soak, SoakOptions
+
+    route = tmp_path / "street.csv"  # an open route file: a 300 m straight street
+    route.write_text("x,y,z\n" + "".join(f"{x}.0,0.0,0.0\n" for x in range(300)))
+    no_lidars = str(Path(__file__).with_name("no_lidars.yaml"))
+    opts = SoakOptions(
+        hours=0.1, faults=5, seed=1, out_dir=tmp_path / "soak", configs=(no_lidars,), route=str(route),
+        kinds=("rtk_loss",),
+    )  # fmt: skip
+    Soak(opts).configure()  # (it wrote a Path into plan.json once: a TypeError)
+    plan = json.loads((tmp_path / "soak" / "plan.json").read_text())
+    assert plan["route"] == str(route.resolve()) and plan["configs"] == [no_lidars]

@@ -20,9 +20,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         "time to recover, availability; and a picture. Progress on stderr; every fault as it recovers in "
         "DIR/faults.jsonl (a partial soak: --summarise DIR).",
     )
-    soak.add_argument("--hours", type=positive_float, default=1.0, metavar="H", help="stack (vehicle) hours")
-    soak.add_argument("--faults", type=positive_int, default=100, metavar="N", help="faults to inject")
-    soak.add_argument("--seed", type=int, default=1, metavar="S", help="the plan's seed (default 1)")
+    soak.add_argument("--hours", type=positive_float, metavar="H", help="stack (vehicle) hours (default 1)")
+    soak.add_argument("--faults", type=positive_int, metavar="N", help="faults to inject (default 100)")
+    soak.add_argument("--seed", type=int, metavar="S", help="the plan's seed (default 1)")
     soak.add_argument("--json", action="store_true", help="print the figures as one JSON line (else a table)")
     soak.add_argument(
         "--config", action="append", default=[], metavar="FILE", help="a config file (repeatable), as for ares run"
@@ -32,7 +32,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     soak.add_argument("--listen", type=endpoint, metavar="ENDPOINT", help="the soak's router (default: a free port)")
     soak.add_argument("--api-port", type=port, metavar="PORT", help="the black box API's port (default: a free one)")
     soak.add_argument(
-        "--lead", type=positive_float, default=60.0, metavar="S", help="stack time at which the plan starts"
+        "--lead", type=positive_float, metavar="S", help="stack time at which the plan starts (default 60)"
     )
     soak.add_argument("--kinds", metavar="K,K", help="only these fault kinds (default: every kind the run can take)")
     soak.add_argument(
@@ -78,14 +78,14 @@ def cmd_soak(args: argparse.Namespace) -> int:
         raise CliError(f"unknown fault kinds {unknown}; the kinds: {', '.join(KINDS)}")
     out = Path(args.out) if args.out else Path("runs") / time.strftime("soak-%Y%m%d-%H%M%S")
     opts = SoakOptions(
-        hours=args.hours,
-        faults=args.faults,
-        seed=args.seed,
+        hours=1.0 if args.hours is None else args.hours,
+        faults=100 if args.faults is None else args.faults,
+        seed=1 if args.seed is None else args.seed,
         out_dir=out,
         configs=tuple(args.config),
         listen=args.listen,
         api_port=args.api_port,
-        lead_s=args.lead,
+        lead_s=60.0 if args.lead is None else args.lead,
         kinds=kinds,
         route=args.route,
     )
@@ -106,9 +106,16 @@ def resume_soak(args: argparse.Namespace) -> int:
     from ares.tools.soak.runner import Soak, SoakOptions
 
     root = Path(args.resume)
-    if args.hours != 1.0 or args.faults != 100 or args.config or args.route or args.kinds or args.out:
-        raise CliError("--resume takes the soak's own plan and configuration: no --hours, --faults, --config, "
-                       "--route, --kinds or --out beside it")  # fmt: skip
+    given = [
+        flag
+        for flag, value in (("--hours", args.hours), ("--faults", args.faults), ("--seed", args.seed),
+                            ("--lead", args.lead), ("--route", args.route), ("--kinds", args.kinds),
+                            ("--out", args.out), ("--config", args.config or None))
+        if value is not None
+    ]  # fmt: skip
+    if given:
+        flags = ", ".join(given)
+        raise CliError(f"--resume goes on with the soak's own plan and configuration: no {flags} beside it")
     try:
         spec = resume.next_segment(root)
     except ValueError as exc:

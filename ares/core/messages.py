@@ -257,7 +257,8 @@ class PathMatch(Msg):
     zones: list[str]  # zones the vehicle is in: rtk_loss, intersection, road_opening, narrow
     force_odometry: bool  # intersection or road opening: the path manager forces odometry control
     distance_to_end_m: float | None  # open routes only
-    road_width_m: float | None = None  # the road's width at the match (None: recorded before it was sent)
+    # the road's narrowest width from the match over the path ahead (None: recorded before it was sent)
+    road_width_ahead_m: float | None = None
     ahead_x: list[float]  # poses ahead of the match, every ~0.5 m
     ahead_y: list[float]
     ahead_yaw: list[float]

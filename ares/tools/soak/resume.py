@@ -93,6 +93,8 @@ def next_segment(root: Path) -> dict:
     whole = _json(root / "plan.json")
     if not whole:
         raise ValueError(f"{root}: no soak there (no plan.json)")
+    if "configs" not in whole:
+        raise ValueError(f"{root}: its plan.json does not record the soak's configuration (older than --resume)")
     segments = [Segment(d) for d in segment_dirs(root)]
     last = segments[-1]
     if last.finished:
@@ -105,17 +107,19 @@ def next_segment(root: Path) -> dict:
             continue
         fault = _planned(row)
         at = fault.at_s - offset
-        if rest:  # one cut short comes again at once, the next one slot after it at least
-            at = max(at, rest[-1].at_s + MIN_SLOT_S)
+        if rest:  # one cut short comes again at once, the next once it is over and a slot has passed
+            at = max(at, rest[-1].ends_s + MIN_SLOT_S)
         rest.append(replace(fault, at_s=round(max(at, 0.0), 2)))
     if not rest:
         raise ValueError(f"{root}: every fault of the plan is over; nothing to resume")
     hours = max(whole["hours"] - offset / 3600.0, (rest[-1].ends_s + MIN_SLOT_S) / 3600.0)
     index = len(segments)
+    # where the shuttle stood: the last segment that got as far as saying so
+    start_s = next((seg.progress["s"] for seg in reversed(segments) if seg.progress.get("s") is not None), None)
     return {
         "plan": rest,
         "hours": hours,
-        "start_s_m": last.progress.get("s"),
+        "start_s_m": start_s,
         "out_dir": root / SEGMENTS / str(index),
         "segment": {"of": str(root.resolve()), "index": index, "plan_offset_s": round(offset, 2)},
         "seed": whole["seed"],
@@ -136,6 +140,14 @@ def merged_summary(root: Path) -> dict:
     # a fault cut short and injected again counts once: the last segment's
     rows = list({row["index"]: row for row in rows}.values())
     per = summarise(rows)
+    # what a fault cut short did measure before the stop: its time to the safe state, if it got there
+    cut_short = [row for seg in segments for row in seg.rows if seg.cut_short(row)]
+    cut_short_safe = [
+        r["time_to_safe_state_s"]
+        for r in cut_short
+        if r["safety_relevant"] and not r["overlapped"] and r["time_to_safe_state_s"] is not None
+    ]
+    safe = [v for v in (per["all"]["time_to_safe_state_max_s"], *cut_short_safe) if v is not None]
     measured = sum(seg.progress.get("measured_s", 0.0) for seg in segments)
     available = sum(seg.progress.get("available_s", 0.0) for seg in segments)
     api = [f for f in rows if f["kind"] == "bad_api_burst"]
@@ -159,7 +171,8 @@ def merged_summary(root: Path) -> dict:
         "hours_planned": whole["hours"],
         "faults_planned": whole["faults"],
         "faults_injected": per["all"]["injected"],
-        "faults_cut_short_and_injected_again": sum(1 for seg in segments for row in seg.rows if seg.cut_short(row)),
+        # open when their segment stopped: injected again by the next one (or by the next --resume)
+        "faults_cut_short": len(cut_short),
         "vehicle_hours": round(measured / 3600.0, 3),
         "plan_hours_reached": round(last.reached_s() / 3600.0, 3),
         "wall_hours": round(sum(seg.progress.get("wall_s", 0.0) for seg in segments) / 3600.0, 3),
@@ -168,7 +181,9 @@ def merged_summary(root: Path) -> dict:
         "invariant_examples": [e for p in parts for e in p.get("invariant_examples", [])][:10],
         "min_clearance_m": min(clearances) if clearances else None,
         "availability": round(available / measured, 5) if measured else None,
-        "time_to_safe_state_max_s": per["all"]["time_to_safe_state_max_s"],
+        # over every fault, and over what the faults cut short measured before their stop
+        "time_to_safe_state_max_s": max(safe, default=None),
+        "time_to_safe_state_max_cut_short_s": max(cut_short_safe, default=None),
         "time_to_safe_state_p99_s": per["all"]["time_to_safe_state_p99_s"],
         "api_requests": sum(sum(f.get("api_answers", {}).values()) for f in api),
         "api_not_4xx": sum(f.get("api_not_4xx", 0) for f in api if f.get("api_running", True)),

@@ -174,7 +174,7 @@ class Soak:
                     "lidars": lidars,
                     # what a resumed soak starts its next segment with (ares soak --resume)
                     "configs": [str(Path(c).resolve()) for c in opts.configs],
-                    "route": route_file if route_file.is_file() else opts.route,
+                    "route": str(route_file) if route_file.is_file() else opts.route,
                     **({"segment": opts.segment} if opts.segment else {}),
                     "plan": [f.as_dict() for f in plan],
                 },
