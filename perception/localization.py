@@ -17,8 +17,15 @@ Pipeline (the `Localizer` class, also used in-process by ares.tools.harness.clos
     arrives late is applied at the filter's time (a fix shifted forward by the motion
     estimated since its time), and anything later than `max_late_s` is dropped;
   * GNSS fix -> UKF position update, yaw from poses (eqs. 1-2) -> UKF yaw update, altitude;
-  * IMU -> UKF yaw-rate update (gyro z) and the pitch (for the slope);
-  * CAN -> wheel odometry (eqs. 3-5) -> UKF speed and yaw-rate update;
+  * IMU -> UKF yaw-rate update (gyro z) and the pitch (for the slope), unless the IMU is
+    frozen: `imu_frozen_readings` identical readings in a row (a real IMU's noise never
+    repeats exactly) are not used until the readings move again;
+  * CAN -> wheel odometry (eqs. 3-5) -> UKF speed and yaw-rate update. Standing (the wheels'
+    speed below `standstill_speed_mps`) the wheels' yaw rate, nought, is trusted over the gyro
+    (`standstill_yaw_rate_var`), and the gyro is not fused: at a standstill GNSS cannot correct
+    the heading, so a gyro's bias or a frozen reading would turn it unchecked. (A 6.5 s IMU freeze in the west hairpin,
+    the shuttle stopping, used to leave the heading 20 degrees off for as long as it stood: in
+    a soak the obstacle manager saw the verge in the path ahead and held it for 100 s.)
   * the published pose is the filter's state carried forward to the loop's time by the
     process model (the covariance grown by the process noise), so a consumer sees where the
     vehicle is now, not where it was at the last message. If no sensor message has been
@@ -42,6 +49,7 @@ from perception.wheel_odometry import WheelOdometry
 from perception.yaw_from_poses import PoseFix, YawFromPoses, YawFromPosesParams
 
 KINDS = ("gnss", "imu", "can")
+STANDING_FRESH_S = 0.2  # a CAN reading that said "standing" holds for the gyro this long (CAN comes at 20-50 Hz)
 UNKNOWN_Z_VAR_M2 = 1.0e6  # the altitude before any fix has given one: the first that does takes over
 
 
@@ -58,6 +66,13 @@ class SensorVariances(Params):
     wheel_yaw_rate_var: float = param(
         1.0e-4,
         "eq. 5 yaw rate: kept above the gyro's, tyres slip and the shuttle steers both axles",
+        unit="(rad/s)^2",
+        gt=0,
+    )
+    standstill_yaw_rate_var: float = param(
+        1.0e-8,
+        "standing, the wheels' yaw rate (nought): trusted over the gyro, whose bias or frozen reading "
+        "must not turn a heading that GNSS cannot correct at a standstill",
         unit="(rad/s)^2",
         gt=0,
     )
@@ -84,6 +99,12 @@ class LocalizationParams(Params):
         1.0, "no sensor message applied for this long: publish nothing (the pose goes stale)", unit="s", gt=0
     )
     max_buffer: int = param(4000, "messages held for time ordering at most", ge=1)
+    standstill_speed_mps: float = param(
+        0.02, "the wheels' speed below which the vehicle stands (and does not turn)", unit="m/s", ge=0
+    )
+    imu_frozen_readings: int = param(
+        3, "this many identical IMU readings in a row are a frozen IMU: not used until they move again", ge=2
+    )
     initial: InitialHeading = param(doc="the heading before the vehicle has moved", factory=InitialHeading)
     yaw_from_poses: YawFromPosesParams = param(doc="ARES eqs. 1-2", factory=YawFromPosesParams)
     sensors: SensorVariances = param(doc="measurement variances", factory=SensorVariances)
@@ -134,6 +155,12 @@ class Localizer:
         self.gyro_var = params.sensors.gyro_var
         self.wheel_speed_var = params.sensors.wheel_speed_var
         self.wheel_yaw_rate_var = params.sensors.wheel_yaw_rate_var
+        self.standstill_yaw_rate_var = params.sensors.standstill_yaw_rate_var
+        self.standstill_speed_mps = params.standstill_speed_mps
+        self.imu_frozen_readings = params.imu_frozen_readings
+        self._last_imu_reading: tuple | None = None
+        self._imu_repeats = 0  # identical readings in a row, this one included
+        self._standing_at: float | None = None  # the time of the last CAN reading that said the vehicle stands
         self.init_yaw_var_imu = params.initial.yaw_sigma_rad**2
         self.init_yaw_var_none = params.initial.yaw_sigma_no_imu_rad**2
         self.hold_back_s = params.hold_back_s
@@ -153,7 +180,7 @@ class Localizer:
         self.last_fix_t: float | None = None
         self.last_fix_rtk = False
         self._last_float_z_t: float | None = None
-        self.counts = {"gnss": 0, "imu": 0, "can": 0, "yaw": 0, "late": 0, "dropped": 0, "gated": 0}
+        self.counts = {"gnss": 0, "imu": 0, "can": 0, "yaw": 0, "late": 0, "dropped": 0, "gated": 0, "imu_frozen": 0}
         self._buffer: list = []
         self._seq = itertools.count()
 
@@ -219,6 +246,13 @@ class Localizer:
 
     def _on_imu(self, imu: Imu) -> None:
         self.counts["imu"] += 1
+        reading = (imu.yaw, imu.roll, imu.pitch, imu.gyro_x, imu.gyro_y, imu.gyro_z)
+        reading += (imu.accel_x, imu.accel_y, imu.accel_z)
+        self._imu_repeats = self._imu_repeats + 1 if reading == self._last_imu_reading else 1
+        self._last_imu_reading = reading
+        if self._imu_repeats >= self.imu_frozen_readings:
+            self.counts["imu_frozen"] += 1  # a frozen IMU says nothing about the motion: neither rate nor pitch
+            return
         self.pitch = imu.pitch
         self.imu_yaw = imu.yaw
         self.gyro_rate = imu.gyro_z
@@ -229,6 +263,8 @@ class Localizer:
             self._yaw_guess_pending = False
         if not self.ukf.initialized or self._lateness(imu.t) is None:
             return
+        if self._standing_at is not None and imu.t - self._standing_at <= STANDING_FRESH_S:
+            return  # standing: the wheels' nought says more than the gyro (see the module's docstring)
         t = self._advance(imu.t)
         # the gyro's yaw rate: NOT the magnetometer yaw, which carries the calibration offset
         self.ukf.update_yaw_rate(t, imu.gyro_z, self.gyro_var)
@@ -240,7 +276,10 @@ class Localizer:
         if not self.ukf.initialized or self._lateness(can.t) is None:
             return
         t = self._advance(can.t)
-        self.ukf.update_wheel(t, reading.v, reading.yaw_rate, self.wheel_speed_var, self.wheel_yaw_rate_var)
+        standing = abs(reading.v) < self.standstill_speed_mps
+        self._standing_at = can.t if standing else None
+        yaw_rate_var = self.standstill_yaw_rate_var if standing else self.wheel_yaw_rate_var
+        self.ukf.update_wheel(t, reading.v, reading.yaw_rate, self.wheel_speed_var, yaw_rate_var)
 
     def _initialize(self, fix: GnssFix) -> None:
         yaw, yaw_var = (

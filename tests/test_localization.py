@@ -335,6 +335,76 @@ def test_a_wandering_uncorrected_fix_does_not_drag_a_good_estimate():
     assert poses[-1].position_std_m > 0.1  # but the filter knows it is dead reckoning
 
 
+def standing(t0: float, t1: float, where: tuple, gyro_z=lambda t: 0.0, frozen: Imu | None = None, dt=0.01):
+    """Messages of a vehicle standing at where = (x, y, yaw) from t0 to t1 (RTK fixes, the wheels at
+    nought); the gyro reads gyro_z(t) plus noise, or `frozen` repeats one reading (t aside)."""
+    rng = np.random.default_rng(5)
+    x, y, yaw = where
+    out = []
+    for i in range(int(round((t1 - t0) / dt))):
+        t = round(t0 + i * dt, 6)
+        if i % 2 == 0:
+            imu = (
+                frozen.model_copy(update={"t": t})
+                if frozen is not None
+                else Imu(
+                    t=t, yaw=yaw, roll=0.0, pitch=0.0, gyro_x=0.0, gyro_y=0.0,
+                    gyro_z=gyro_z(t) + 0.002 * rng.standard_normal(), accel_x=0.0, accel_y=0.0, accel_z=9.81,
+                )
+            )  # fmt: skip
+            out.append(("imu", imu, where))
+        if i % 5 == 0:
+            can = CanFrame(
+                t=t, wheel_speed_rad_s=0.0, speed_mps=0.0, steering_wheel_deg=0.0, throttle_pedal=0.0,
+                brake_pedal=0.0, steering_torque=False,
+            )  # fmt: skip
+            out.append(("can", can, where))
+        if i % 20 == 0:
+            noise = rng.normal(0, 0.007, 2)
+            fix = GnssFix(
+                t=t, x=x + noise[0], y=y + noise[1], z=0.0, lat=40.0, lon=-3.7, easting=440000.0 + x,
+                northing=4474000.0 + y, zone=30, hemisphere="N", quality=4, rtk=True, satellites=12, hdop=0.8,
+                var_x=0.007**2, var_y=0.007**2, var_z=2e-4,
+            )  # fmt: skip
+            out.append(("gnss", fix, where))
+    return out
+
+
+def test_a_standing_vehicle_s_heading_does_not_turn_with_a_gyro_bias():
+    # GNSS cannot see a heading at a standstill: a gyro biased 0.01 rad/s for a minute would turn
+    # it by 34 degrees; the wheels' nought is trusted instead
+    moving = drive(5.0, speed=3.0)
+    where = moving[-1][2]
+    loc, errors = run_localizer(moving + standing(5.01, 65.0, where, gyro_z=lambda t: 0.01))
+    assert abs(math.degrees(errors[-1][3])) < 0.2
+    assert abs(errors[-1][1]) < 0.05 and abs(errors[-1][2]) < 0.05
+
+
+def test_a_frozen_imu_in_a_bend_does_not_turn_the_heading_of_the_shuttle_it_stopped():
+    """The soak's 100 s standstill: the IMU froze in the west hairpin, its last yaw rate repeated
+    for 6.5 s while the shuttle stopped; the heading ended 20 degrees off and stayed so while it
+    stood (the path ahead pointed into the verge). Identical readings in a row are a frozen IMU,
+    not used; standing, the gyro is not used at all."""
+    turning = drive(8.0, speed=2.5, yaw_rate=-0.08)
+    last_imu = next(msg for kind, msg, _ in reversed(turning) if kind == "imu")
+    where = turning[-1][2]
+    frozen = standing(8.01, 14.5, where, frozen=last_imu)  # (stopping at once: the worst case is the standing)
+    loc, errors = run_localizer(turning + frozen + standing(14.51, 40.0, where))
+    assert loc.counts["imu_frozen"] >= 300  # all but the first two repeats of 6.5 s at 50 Hz, fused or not
+    assert abs(math.degrees(errors[-1][3])) < 0.5
+    # each guard alone is enough here; without either, the heading turns by the frozen rate
+    for guards, off_by_deg in (((True, False), (0, 0.5)), ((False, True), (0, 0.5)), ((False, False), (20, 40))):
+        frozen_guard, standstill_guard = guards
+        params = PARAMS.model_copy(
+            update={
+                "imu_frozen_readings": 3 if frozen_guard else 10**9,
+                "standstill_speed_mps": 0.02 if standstill_guard else 0.0,
+            }
+        )
+        _, errors = run_localizer(turning + frozen + standing(14.51, 40.0, where), params)
+        assert off_by_deg[0] <= abs(math.degrees(errors[-1][3])) < off_by_deg[1], guards
+
+
 def test_an_outlier_without_corrections_is_gated():
     msgs = drive(
         12.0, speed=3.0, rtk=lambda t: t < 10.0, fix_error=lambda t: (60.0, 0.0) if 11.0 <= t < 11.1 else (0.0, 0.0)
