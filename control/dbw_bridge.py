@@ -442,8 +442,8 @@ class BridgeLoop:
         self.brake_effort_per_mps2 = (
             profile.empty_mass_kg + 2 * profile.passenger_mass_kg
         ) / profile.actuators.traction.max_brake_force_n
-        self.full_effort_speed_mps = profile.actuators.traction.full_effort_speed_mps
         traction = profile.actuators.traction
+        self.full_effort_speed_mps = traction.full_effort_speed_mps
         # the motor at standstill pushes k_slip * effort * full-effort speed; the grade pulls m g sin(climb)
         self.loaded_weight_n = (profile.empty_mass_kg + profile.seats * profile.passenger_mass_kg) * GRAVITY
         self.stall_force_per_effort_n = traction.slip_stiffness_n_per_mps * traction.full_effort_speed_mps

@@ -159,7 +159,7 @@ def test_the_segments_figures_are_one_soak_s(stopped):
     assert rows[4]["plan_t_s"] == pytest.approx(410.0) and rows[1]["plan_t_s"] == pytest.approx(110.0)
     written = resume.write_merged(stopped)
     assert (stopped / "soak-all.json").exists() and Path(written["picture"]).stat().st_size > 10_000
-    timeline, starts = resume.merged_timeline(stopped)
+    timeline, starts = resume.merged_timeline([resume.Segment(d) for d in resume.segment_dirs(stopped)])
     assert starts == [400.0] and timeline[0][0] == 0.0 and max(r[0] for r in timeline) > 700.0
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -115,6 +116,17 @@ def blackbox_figures(out: Path, vehicle_id: str, t_from: float, t_to: float | No
     }
 
 
+def api_figures(faults: list[dict]) -> dict:
+    """The bad-API bursts' answers: every request, those a running API did not answer with a 4xx,
+    and those nothing answered while the API process itself was down (a fault of its own)."""
+    api = [f for f in faults if f["kind"] == "bad_api_burst"]
+    return {
+        "api_requests": sum(sum(f.get("api_answers", {}).values()) for f in api),
+        "api_not_4xx": sum(f.get("api_not_4xx", 0) for f in api if f.get("api_running", True)),
+        "api_unanswered_api_down": sum(f.get("api_not_4xx", 0) for f in api if not f.get("api_running", True)),
+    }
+
+
 def summarise_dir(out: Path, final: dict | None = None) -> dict:
     """The soak's figures from its directory; `final` is the runner's last word (when it ran to its end)."""
     out = Path(out)
@@ -128,7 +140,6 @@ def summarise_dir(out: Path, final: dict | None = None) -> dict:
     t_from = running.get("t_start_s")
     t_to = running.get("t") if final else None
     per = summarise(faults)
-    api = [f for f in faults if f["kind"] == "bad_api_burst"]
     summary = {
         "ok": bool(final and final.get("ok")),
         "finished": bool(final and final.get("ok")),  # ran to its planned end (not stopped, not failed)
@@ -146,11 +157,7 @@ def summarise_dir(out: Path, final: dict | None = None) -> dict:
         "availability": running.get("availability"),
         "time_to_safe_state_max_s": per["all"]["time_to_safe_state_max_s"],
         "time_to_safe_state_p99_s": per["all"]["time_to_safe_state_p99_s"],
-        "api_requests": sum(sum(f.get("api_answers", {}).values()) for f in api),
-        # answered by a running API: each a 4xx; while the API process itself was down (a fault of its
-        # own, restarting) nothing answers, and those are counted apart
-        "api_not_4xx": sum(f.get("api_not_4xx", 0) for f in api if f.get("api_running", True)),
-        "api_unanswered_api_down": sum(f.get("api_not_4xx", 0) for f in api if not f.get("api_running", True)),
+        **api_figures(faults),
         **({} if t_from is None else blackbox_figures(out, vehicle_id, t_from, t_to, faults)),
         "paper": PAPER,
         "per_kind": per["per_kind"],
@@ -161,53 +168,72 @@ def summarise_dir(out: Path, final: dict | None = None) -> dict:
     return summary
 
 
-def picture(out: Path, summary: dict | None = None) -> Path:
-    """The faults on a time line, with the speed and the awareness level (PNG)."""
+def draw(
+    path: Path,
+    rows: list[tuple[float, float, int]],
+    faults: list[tuple[float, str, float]],
+    title: str,
+    x_label: str,
+    starts: Sequence[float] = (),
+) -> Path:
+    """The three panels of a soak's picture, time in seconds on the x axis (shown in minutes, or
+    hours past two): the speed, the awareness level, and each fault (time, kind, duration) on its
+    kind's line; a dashed line at each of `starts`."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out = Path(out)
-    with (out / "timeline.csv").open() as f:
-        rows = [(float(r["t"]), float(r["v"]), int(r["level"])) for r in csv.DictReader(f)]
-    faults = read_faults(out)
-    if not rows:
-        raise ValueError("no time line yet")
-    t0 = rows[0][0]
-    hours = (rows[-1][0] - t0) > 7200
-    scale, unit = (3600.0, "h") if hours else (60.0, "min")
-    ts = [(r[0] - t0) / scale for r in rows]
+    scale, unit = (3600.0, "h") if rows[-1][0] - rows[0][0] > 7200 else (60.0, "min")
     fig, (ax_v, ax_l, ax_f) = plt.subplots(
         3, 1, figsize=(14, 7), sharex=True, gridspec_kw={"height_ratios": [3, 1, 2]}, constrained_layout=True
     )
+    ts = [r[0] / scale for r in rows]
     ax_v.plot(ts, [r[1] for r in rows], lw=0.6, color="tab:blue")
     ax_v.set_ylabel("speed (m/s)")
     ax_l.step(ts, [r[2] for r in rows], where="post", lw=0.8, color="tab:red")
     ax_l.set_yticks([-1, 0, 1, 2], ["?", "0", "1", "2"])
     ax_l.set_ylabel("awareness")
-    kinds = sorted({f["kind"] for f in faults})
+    kinds = sorted({kind for _, kind, _ in faults})
     colours = plt.get_cmap("tab20")
     for i, kind in enumerate(kinds):
-        mine = [f for f in faults if f["kind"] == kind]
-        xs = [(f["t"] - t0) / scale for f in mine]
-        ax_f.scatter(xs, [i] * len(xs), s=10, color=colours(i % 20), marker="|" if len(faults) > 200 else "o")
-        for f in mine:
-            if f.get("duration_s"):
-                x = (f["t"] - t0) / scale
-                ax_f.plot([x, x + f["duration_s"] / scale], [i, i], lw=2, color=colours(i % 20), alpha=0.6)
+        mine = [(t, d) for t, k, d in faults if k == kind]
+        ax_f.scatter([t / scale for t, _ in mine], [i] * len(mine), s=10, color=colours(i % 20),
+                     marker="|" if len(faults) > 200 else "o")  # fmt: skip
+        for t, duration in mine:
+            if duration:
+                ax_f.plot([t / scale, (t + duration) / scale], [i, i], lw=2, color=colours(i % 20), alpha=0.6)
     ax_f.set_yticks(range(len(kinds)), kinds, fontsize=7)
-    ax_f.set_xlabel(f"stack time since the drive began ({unit})")
-    if summary is None:
-        done = out / "soak.json"
-        summary = json.loads(done.read_text()) if done.exists() else summarise_dir(out)
-    fig.suptitle(
-        f"soak seed {summary['seed']}: {summary['faults_injected']} faults, collisions {summary['collisions']}, "
-        f"invariant violations {summary['invariant_violations']}, availability {summary['availability']}, "
-        f"max time to safe state {summary['time_to_safe_state_max_s']} s",
-        fontsize=9,
-    )
-    path = out / "soak.png"
+    ax_f.set_xlabel(f"{x_label} ({unit})")
+    for ax in (ax_v, ax_l, ax_f):
+        for start in starts:
+            ax.axvline(start / scale, color="grey", ls="--", lw=0.8)
+    fig.suptitle(title, fontsize=9)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def picture(out: Path, summary: dict | None = None) -> Path:
+    """The faults on a time line, with the speed and the awareness level (PNG)."""
+    out = Path(out)
+    with (out / "timeline.csv").open() as f:
+        rows = [(float(r["t"]), float(r["v"]), int(r["level"])) for r in csv.DictReader(f)]
+    if not rows:
+        raise ValueError("no time line yet")
+    t0 = rows[0][0]
+    if summary is None:
+        done = out / "soak.json"
+        summary = json.loads(done.read_text()) if done.exists() else summarise_dir(out)
+    title = (
+        f"soak seed {summary['seed']}: {summary['faults_injected']} faults, collisions {summary['collisions']}, "
+        f"invariant violations {summary['invariant_violations']}, availability {summary['availability']}, "
+        f"max time to safe state {summary['time_to_safe_state_max_s']} s"
+    )
+    return draw(
+        out / "soak.png",
+        [(t - t0, v, level) for t, v, level in rows],
+        [(f["t"] - t0, f["kind"], f.get("duration_s", 0.0)) for f in read_faults(out)],
+        title,
+        "stack time since the drive began",
+    )

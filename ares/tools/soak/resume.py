@@ -130,11 +130,12 @@ def next_segment(root: Path) -> dict:
     }
 
 
-def merged_summary(root: Path) -> dict:
-    """The figures of every segment as one soak's (see the module's docstring)."""
+def merged_summary(root: Path, segments: list[Segment] | None = None) -> dict:
+    """The figures of every segment as one soak's (see the module's docstring); `segments`: read
+    already."""
     root = Path(root)
     whole = _json(root / "plan.json")
-    segments = [Segment(d) for d in segment_dirs(root)]
+    segments = segments if segments is not None else [Segment(d) for d in segment_dirs(root)]
     parts = [report.summarise_dir(seg.path, final=seg.result.get("run") if seg.finished else None) for seg in segments]
     rows = [row for seg in segments for row in seg.kept_rows()]
     # a fault cut short and injected again counts once: the last segment's
@@ -150,7 +151,6 @@ def merged_summary(root: Path) -> dict:
     safe = [v for v in (per["all"]["time_to_safe_state_max_s"], *cut_short_safe) if v is not None]
     measured = sum(seg.progress.get("measured_s", 0.0) for seg in segments)
     available = sum(seg.progress.get("available_s", 0.0) for seg in segments)
-    api = [f for f in rows if f["kind"] == "bad_api_burst"]
     tallies = [p.get("reliability_from_records") or {} for p in parts]
     operating = sum(t.get("operating_hours", 0.0) for t in tallies)
     repair = sum(t.get("repair_hours", 0.0) for t in tallies)
@@ -185,9 +185,7 @@ def merged_summary(root: Path) -> dict:
         "time_to_safe_state_max_s": max(safe, default=None),
         "time_to_safe_state_max_cut_short_s": max(cut_short_safe, default=None),
         "time_to_safe_state_p99_s": per["all"]["time_to_safe_state_p99_s"],
-        "api_requests": sum(sum(f.get("api_answers", {}).values()) for f in api),
-        "api_not_4xx": sum(f.get("api_not_4xx", 0) for f in api if f.get("api_running", True)),
-        "api_unanswered_api_down": sum(f.get("api_not_4xx", 0) for f in api if not f.get("api_running", True)),
+        **report.api_figures(rows),
         "blackbox_records": total("blackbox_records"),
         "blackbox_seconds_lost": total("blackbox_seconds_lost"),
         "blackbox_seconds_lost_recorder_down": total("blackbox_seconds_lost_recorder_down"),
@@ -218,12 +216,12 @@ def merged_summary(root: Path) -> dict:
     }
 
 
-def merged_timeline(root: Path) -> tuple[list[tuple[float, float, int]], list[float]]:
+def merged_timeline(segments: list[Segment]) -> tuple[list[tuple[float, float, int]], list[float]]:
     """(plan time, v, level) rows of every segment on the whole soak's plan clock (a resumed one's
     from where the plan resumes), and where each resumed segment begins on it."""
     rows: list[tuple[float, float, int]] = []
     starts: list[float] = []
-    for k, seg in enumerate(Segment(d) for d in segment_dirs(root)):
+    for k, seg in enumerate(segments):
         path = seg.path / "timeline.csv"
         if not path.exists():
             continue
@@ -242,54 +240,28 @@ def merged_timeline(root: Path) -> tuple[list[tuple[float, float, int]], list[fl
     return rows, starts
 
 
-def merged_picture(root: Path, summary: dict) -> Path:
-    """The picture of report.picture over every segment, the segments' starts marked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows, starts = merged_timeline(root)
+def merged_picture(root: Path, summary: dict, segments: list[Segment]) -> Path:
+    """report.draw over every segment on the plan clock, the segments' starts marked."""
+    rows, starts = merged_timeline(segments)
     if not rows:
         raise ValueError("no time line yet")
-    faults = [row for seg in (Segment(d) for d in segment_dirs(root)) for row in seg.kept_rows()]
-    scale = 3600.0
-    fig, (ax_v, ax_l, ax_f) = plt.subplots(
-        3, 1, figsize=(14, 7), sharex=True, gridspec_kw={"height_ratios": [3, 1, 2]}, constrained_layout=True
-    )
-    ax_v.plot([r[0] / scale for r in rows], [r[1] for r in rows], lw=0.4, color="tab:blue")
-    ax_v.set_ylabel("speed (m/s)")
-    ax_l.step([r[0] / scale for r in rows], [r[2] for r in rows], where="post", lw=0.6, color="tab:red")
-    ax_l.set_yticks([-1, 0, 1, 2], ["?", "0", "1", "2"])
-    ax_l.set_ylabel("awareness")
-    kinds = sorted({f["kind"] for f in faults})
-    colours = plt.get_cmap("tab20")
-    for i, kind in enumerate(kinds):
-        xs = [f["plan_t_s"] / scale for f in faults if f["kind"] == kind]
-        ax_f.scatter(xs, [i] * len(xs), s=10, color=colours(i % 20), marker="|")
-    ax_f.set_yticks(range(len(kinds)), kinds, fontsize=7)
-    ax_f.set_xlabel("the soak's plan time (h); dashed: a resumed segment begins")
-    for ax in (ax_v, ax_l, ax_f):
-        for start in starts:
-            ax.axvline(start / scale, color="grey", ls="--", lw=0.8)
-    fig.suptitle(
+    faults = [(f["plan_t_s"], f["kind"], f.get("duration_s", 0.0)) for seg in segments for f in seg.kept_rows()]
+    title = (
         f"soak seed {summary['seed']} in {summary['segments']} segments: {summary['faults_injected']} faults in "
         f"{summary['vehicle_hours']} vehicle hours, collisions {summary['collisions']}, invariant violations "
         f"{summary['invariant_violations']}, availability {summary['availability']}, max time to safe state "
-        f"{summary['time_to_safe_state_max_s']} s",
-        fontsize=9,
+        f"{summary['time_to_safe_state_max_s']} s"
     )
-    path = Path(root) / "soak-all.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    x_label = "the soak's plan time; dashed: a resumed segment begins"
+    return report.draw(Path(root) / "soak-all.png", rows, faults, title, x_label, starts)
 
 
 def write_merged(root: Path) -> dict:
     """soak-all.json and soak-all.png in the soak's directory; the summary."""
-    summary = merged_summary(root)
+    segments = [Segment(d) for d in segment_dirs(root)]
+    summary = merged_summary(root, segments)
     try:
-        summary["picture"] = str(merged_picture(root, summary))
+        summary["picture"] = str(merged_picture(root, summary, segments))
     except (OSError, ValueError) as exc:
         summary["picture_error"] = str(exc)
     (Path(root) / "soak-all.json").write_text(json.dumps(summary, indent=1))
