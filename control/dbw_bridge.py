@@ -388,14 +388,19 @@ class DbwBridgeParams(Params):
     )
     brake_assist_deadband_mps: float = param(
         0.5,
-        "measured speed this far above the command: the brake helps the "
+        "measured speed this far above a moving command: the brake helps the "
         "speed loop (a limit that falls at once: an obstacle, a pause); "
-        "smaller gaps, as a speed section's step, are the loop's alone",
+        "smaller gaps, as a speed section's step, are the loop's alone; a stop "
+        "(a zero command) has no deadband",
         unit="m/s",
         ge=0,
     )
     brake_assist_time_s: float = param(
-        0.5, "... asking the deceleration that closes the gap beyond the deadband in this time", unit="s", gt=0
+        0.5,
+        "... asking the deceleration that closes the gap beyond the deadband in this time (downhill, "
+        "with the grade's pull added)",
+        unit="s",
+        gt=0,
     )
     brake_assist_max_decel_mps2: float = param(
         3.0, "... at most (the full brake is for emergencies)", unit="m/s^2", gt=0
@@ -475,6 +480,26 @@ class BridgeLoop:
         climb = -pitch_rad if pitch_rad is not None else math.atan(self.params.hill_hold_unknown_grade)
         return min(max(self.loaded_weight_n * math.sin(climb) / self.stall_force_per_effort_n, 0.0), 1.0)
 
+    def assist_effort(self, v_cmd: float, v: float, pitch_rad: float | None) -> float:
+        """The brake's help to the speed loop (1.0: none; negative: braking). A speed above the
+        command by more than the deadband asks the deceleration that closes the rest of the gap in
+        `brake_assist_time_s`; a stop asked for (a zero command) has no deadband, for a PI loop
+        alone lets a shuttle roll on down a slope at the deadband's speed until its integral winds
+        up (soak: 0.5 m/s for 4 s on a 12 % descent, to 0.7 m from a cart). Downhill the brake
+        also takes the grade's pull (the IMU's pitch; a stop without one assumes the steepest
+        descent, `hill_hold_unknown_grade`)."""
+        stopping = v_cmd == 0.0
+        deadband = 0.0 if stopping else self.params.brake_assist_deadband_mps
+        gap = v - v_cmd
+        if gap <= deadband:
+            return 1.0
+        decel = min((gap - deadband) / self.params.brake_assist_time_s, self.params.brake_assist_max_decel_mps2)
+        if pitch_rad is not None:
+            descent = max(pitch_rad, 0.0)  # REP-103: a descent's pitch is positive
+        else:
+            descent = math.atan(self.params.hill_hold_unknown_grade) if stopping else 0.0
+        return -min(1.0, (decel + GRAVITY * math.sin(descent)) * self.brake_effort_per_mps2)
+
     def efforts(self, now: float, can: CanFrame | None, pitch_rad: float | None = None) -> BridgeOutput:
         """The period's command and the efforts of the two inner loops; `can` None: no fresh
         readings, so the loops cannot close and an engaged board brakes with the wheel left alone.
@@ -493,13 +518,7 @@ class BridgeLoop:
             drive_effort = self.wheel_speed_pid.step(
                 reference.wheel_speed_rad_s, can.wheel_speed_rad_s, self.dt, feedforward=steady
             )
-            gap = can.speed_mps - cmd.v
-            if gap > self.params.brake_assist_deadband_mps:
-                decel = min(
-                    (gap - self.params.brake_assist_deadband_mps) / self.params.brake_assist_time_s,
-                    self.params.brake_assist_max_decel_mps2,
-                )
-                drive_effort = min(drive_effort, -min(1.0, decel * self.brake_effort_per_mps2))
+            drive_effort = min(drive_effort, self.assist_effort(cmd.v, can.speed_mps, pitch_rad))
             standing = can.speed_mps < self.params.standstill_speed_mps
             if standing and (cmd.v == 0.0 or not self._was_engaged):
                 self.hill_hold = True

@@ -374,26 +374,50 @@ def test_setpoints_beyond_the_vehicle_are_limited(bridge):
 
 
 @pytest.mark.parametrize("speed_mps, braked", [(0.0, True), (0.29, True), (1.0, False)])
-def test_the_brake_is_held_for_a_zero_speed_setpoint_only_near_standstill(bridge, speed_mps, braked):
+@pytest.mark.parametrize("pitch", [0.0, None])  # on the flat, said by the IMU or not known
+def test_the_brake_is_held_for_a_zero_speed_setpoint_only_near_standstill(bridge, speed_mps, braked, pitch):
     t = bridge.arm(0.0)
     bridge.setpoint(0.0, 0.0)
+    if pitch is not None:
+        bridge.imu(pitch)
     _, actuators = bridge.step(t, speed_mps=speed_mps, wheel_speed_rad_s=speed_mps / 0.28)
     if braked:
         assert actuators.drive_effort <= -STANDSTILL_BRAKE
-    else:  # from 1 m/s: no hold, the brake assist closes the gap in 0.5 s
-        assert actuators.drive_effort == pytest.approx(-1.0 * (2450 + 2 * 75) / 10000.0, abs=1e-3)
+    else:  # from 1 m/s: no hold; the brake assist closes the whole gap in 0.5 s (a stop has no deadband),
+        # without a pitch also against the steepest descent's pull (15 %)
+        pull = 0.0 if pitch is not None else 9.81 * math.sin(math.atan(0.15))
+        wanted = (1.0 / 0.5 + pull) * (2450 + 2 * 75) / 10000.0
+        assert actuators.drive_effort == pytest.approx(-wanted, abs=1e-3)
 
 
-@pytest.mark.parametrize("speed_mps, command_mps, assisted", [(3.0, 2.6, False), (3.0, 2.0, True), (3.5, 0.0, True)])
-def test_the_brake_helps_the_speed_loop_only_for_a_gap_beyond_its_deadband(bridge, speed_mps, command_mps, assisted):
+@pytest.mark.parametrize(
+    "speed_mps, command_mps, assisted, deadband",
+    [(3.0, 2.6, False, 0.5), (3.0, 2.0, True, 0.5), (3.5, 0.0, True, 0.0), (0.4, 0.0, True, 0.0)],
+)
+def test_the_brake_helps_the_speed_loop_only_for_a_gap_beyond_its_deadband(
+    bridge, speed_mps, command_mps, assisted, deadband
+):
+    """A moving command's gap within 0.5 m/s is the PI's alone; a stop (a zero command) has none."""
     t = bridge.arm(0.0)
     bridge.setpoint(command_mps, 0.0)
+    bridge.imu(0.0)  # on the flat
     _, actuators = bridge.step(t, speed_mps=speed_mps, wheel_speed_rad_s=speed_mps / 0.28)
-    wanted = min((speed_mps - command_mps - 0.5) / 0.5, 3.0) * (2450 + 2 * 75) / 10000.0
+    wanted = min((speed_mps - command_mps - deadband) / 0.5, 3.0) * (2450 + 2 * 75) / 10000.0
     if assisted:
-        assert actuators.drive_effort == pytest.approx(-wanted, abs=1e-3)
+        assert actuators.drive_effort <= -wanted + 1e-3
+        if speed_mps >= 0.3:  # above the standstill brake's speed: the assist's effort itself
+            assert actuators.drive_effort == pytest.approx(-wanted, abs=1e-3)
     else:  # tracking: the PI alone, gently
         assert actuators.drive_effort > -0.1
+
+
+def test_the_brake_takes_a_descents_pull_from_the_imu(bridge):
+    t = bridge.arm(0.0)
+    bridge.setpoint(0.0, 0.0)
+    bridge.imu(math.atan(0.12))  # REP-103: a descent's pitch is positive
+    _, actuators = bridge.step(t, speed_mps=0.5, wheel_speed_rad_s=0.5 / 0.28)
+    pull = 9.81 * math.sin(math.atan(0.12))
+    assert actuators.drive_effort == pytest.approx(-(0.5 / 0.5 + pull) * (2450 + 2 * 75) / 10000.0, abs=1e-3)
 
 
 def test_no_brake_when_the_setpoint_asks_to_move_off(bridge):

@@ -87,11 +87,13 @@ def test_a_collision_counts_once_per_obstacle_and_the_clearance_is_the_smallest_
         tracker.add_truth(float(k), x, 0.0, 0.0, 1.0)
     out = tracker.summary()
     assert out["collisions"] == 1 and out["min_clearance_m"] == 0.0
+    assert out["closest_approach"] == {"t": 4.0, "obstacle": "walker", "kind": "pedestrian", "v_mps": 1.0}
     assert out["invariant_violations"] == 1 and "collision with walker" in out["invariant_examples"][0]
     near = SafetyTracker(**SHUTTLE)
     near.add_world(WorldTruth(t=0.0, obstacles=[walker]))
     near.add_truth(0.0, 5.0, 0.0, 0.0, 0.0)  # bumper at 8.365, walker's back at 9.75
     assert near.summary()["min_clearance_m"] == pytest.approx(1.385) and near.summary()["collisions"] == 0
+    assert near.summary()["closest_approach"]["t"] == 0.0 and near.summary()["closest_approach"]["v_mps"] == 0.0
 
 
 @pytest.mark.parametrize(

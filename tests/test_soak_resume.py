@@ -45,6 +45,7 @@ def write_segment(
     measured_s: float = 1000.0,
     available_s: float = 900.0,
     collisions: int = 0,
+    min_clearance_m: float = 5.0,
 ) -> None:
     path.mkdir(parents=True, exist_ok=True)
     whole = {
@@ -71,7 +72,8 @@ def write_segment(
         "collisions": collisions,
         "invariant_violations": 0,
         "invariant_examples": [],
-        "min_clearance_m": 5.0,
+        "min_clearance_m": min_clearance_m,
+        "closest_approach": {"t": end_t - 5.0, "obstacle": "cart_1", "kind": "cart", "v_mps": 0.0},
         "router_restarts": 1,
         "rearms": 2,
         "engagements": 0,
@@ -140,7 +142,7 @@ def test_the_segments_figures_are_one_soak_s(stopped):
     rest_rows = [fault_row(f.index, LEAD_S + f.at_s, time_to_safe_state_s=0.5 + f.index / 10) for f in spec["plan"]]
     write_segment(
         spec["out_dir"], spec["plan"], rest_rows, end_t=LEAD_S + 400.0, finished=True, offset_s=400.0,
-        measured_s=500.0, available_s=400.0, collisions=0,
+        measured_s=500.0, available_s=400.0, collisions=0, min_clearance_m=2.5,
     )  # fmt: skip
     assert resume.segment_dirs(stopped) == [stopped, spec["out_dir"]]
     summary = resume.merged_summary(stopped)
@@ -153,6 +155,14 @@ def test_the_segments_figures_are_one_soak_s(stopped):
     assert summary["availability"] == pytest.approx(1300.0 / 1500.0, abs=1e-5)
     assert summary["run"]["process_restarts"] == 4 and summary["run"]["router_restarts"] == 2
     assert summary["plan_hours_reached"] == pytest.approx(800.0 / 3600.0, abs=1e-3)
+    assert summary["min_clearance_m"] == 2.5  # the second segment's, and where it was
+    assert summary["closest_approach"] == {
+        "t": LEAD_S + 395.0,
+        "obstacle": "cart_1",
+        "kind": "cart",
+        "v_mps": 0.0,
+        "segment": 1,
+    }
     assert [s["faults_kept"] for s in summary["per_segment"]] == [3, 5]
     # the faults on the whole soak's plan clock: fault 4 at 410 s wherever its segment began
     rows = {r["index"]: r for seg in resume.segment_dirs(stopped) for r in resume.Segment(seg).kept_rows()}

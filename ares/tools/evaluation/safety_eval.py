@@ -4,6 +4,7 @@
 |------------------------|--------------------------------------------------------------------------|
 | collisions             | the body's footprint overlapping an obstacle's (truth), counted once per obstacle |
 | min_clearance_m        | the smallest gap between them while the shuttle moves or stands         |
+| closest_approach       | ... when, to which obstacle, at what speed (the soak's: where to look)   |
 | invariant_violations   | moving (> 0.05 m/s) with a door not closed or the ramp not stowed; a     |
 |                        | command above the gate's active limit; moving under a latched emergency  |
 | faults                 | per fault: when it began; the stop begun (the gate stopping or latched,  |
@@ -59,6 +60,7 @@ class SafetyTracker:
     obstacles: list = field(default_factory=list)
     collided: set[str] = field(default_factory=set)
     min_clearance_m: float = math.inf
+    closest: dict | None = None  # where min_clearance_m was: t, obstacle, kind, speed
     violations: int = 0
     examples: list[str] = field(default_factory=list)
     level_history: list[list] = field(default_factory=list)
@@ -95,7 +97,9 @@ class SafetyTracker:
                     continue
                 other = rectangle_corners(ob.x, ob.y, ob.yaw, ob.length_m / 2, ob.length_m / 2, ob.width_m / 2)
                 gap = convex_gap(me, other)
-                self.min_clearance_m = min(self.min_clearance_m, gap)
+                if gap < self.min_clearance_m:
+                    self.min_clearance_m = gap
+                    self.closest = {"t": round(t, 2), "obstacle": ob.name, "kind": ob.kind, "v_mps": round(v, 2)}
                 if gap <= 0.0 and ob.name not in self.collided:
                     self.collided.add(ob.name)
                     self._violate(t, f"collision with {ob.name} ({ob.kind}) at {v:.2f} m/s")
@@ -159,6 +163,7 @@ class SafetyTracker:
         return {
             "collisions": len(self.collided),
             "min_clearance_m": round(self.min_clearance_m, 3) if math.isfinite(self.min_clearance_m) else None,
+            "closest_approach": self.closest,
             "invariant_violations": self.violations,
             "invariant_examples": self.examples,
             "level_history": self.level_history,

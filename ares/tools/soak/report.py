@@ -154,6 +154,7 @@ def summarise_dir(out: Path, final: dict | None = None) -> dict:
         "invariant_violations": running.get("invariant_violations"),
         "invariant_examples": running.get("invariant_examples", []),
         "min_clearance_m": running.get("min_clearance_m"),
+        "closest_approach": running.get("closest_approach"),  # stack time, obstacle, kind, speed
         "availability": running.get("availability"),
         "time_to_safe_state_max_s": per["all"]["time_to_safe_state_max_s"],
         "time_to_safe_state_p99_s": per["all"]["time_to_safe_state_p99_s"],

@@ -155,7 +155,8 @@ def merged_summary(root: Path, segments: list[Segment] | None = None) -> dict:
     operating = sum(t.get("operating_hours", 0.0) for t in tallies)
     repair = sum(t.get("repair_hours", 0.0) for t in tallies)
     failures = sum(t.get("failures", 0) for t in tallies)
-    clearances = [p["min_clearance_m"] for p in parts if p.get("min_clearance_m") is not None]
+    clearances = [p for p in parts if p.get("min_clearance_m") is not None]
+    closest = min(clearances, key=lambda p: p["min_clearance_m"], default=None)
     last = segments[-1]
     from blackbox import reliability as rel
 
@@ -179,7 +180,11 @@ def merged_summary(root: Path, segments: list[Segment] | None = None) -> dict:
         "collisions": total("collisions"),
         "invariant_violations": total("invariant_violations"),
         "invariant_examples": [e for p in parts for e in p.get("invariant_examples", [])][:10],
-        "min_clearance_m": min(clearances) if clearances else None,
+        "min_clearance_m": None if closest is None else closest["min_clearance_m"],
+        # in its segment's stack time (soaks before it was kept: none)
+        "closest_approach": None
+        if closest is None
+        else {**(closest.get("closest_approach") or {}), "segment": parts.index(closest)},
         "availability": round(available / measured, 5) if measured else None,
         # over every fault, and over what the faults cut short measured before their stop
         "time_to_safe_state_max_s": max(safe, default=None),

@@ -306,6 +306,7 @@ class Soak:
                 "invariant_violations": safety.violations,
                 "invariant_examples": safety.examples,
                 "min_clearance_m": None if safety.min_clearance_m == float("inf") else round(safety.min_clearance_m, 3),
+                "closest_approach": safety.closest,
                 "availability": None if tracker.availability() is None else round(tracker.availability(), 5),
                 "available_s": round(tracker.available_s, 1),
                 "measured_s": round(tracker.total_s, 1),
