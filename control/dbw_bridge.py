@@ -40,6 +40,7 @@ from control.ackermann import ActuatorSetpoint, SetpointConversion, max_curvatur
 from control.pid import PID
 
 GRAVITY = 9.81  # m/s^2
+STOP_COMMAND_MPS = 1e-3  # a command below this is a stop (the gate's ramps can leave 1e-17)
 
 
 class Mode(str, Enum):
@@ -397,13 +398,13 @@ class DbwBridgeParams(Params):
     )
     brake_assist_time_s: float = param(
         0.5,
-        "... asking the deceleration that closes the gap beyond the deadband in this time (downhill, "
-        "with the grade's pull added)",
+        "... asking the deceleration that closes the gap beyond the deadband in this time (a stop "
+        "downhill: the grade's pull braked on top)",
         unit="s",
         gt=0,
     )
     brake_assist_max_decel_mps2: float = param(
-        3.0, "... at most (the full brake is for emergencies)", unit="m/s^2", gt=0
+        3.0, "... at most, besides a stop's measured descent (the full brake is for emergencies)", unit="m/s^2", gt=0
     )
     speed_feedforward: bool = param(
         False,
@@ -452,6 +453,7 @@ class BridgeLoop:
         # the motor at standstill pushes k_slip * effort * full-effort speed; the grade pulls m g sin(climb)
         self.loaded_weight_n = (profile.empty_mass_kg + profile.seats * profile.passenger_mass_kg) * GRAVITY
         self.stall_force_per_effort_n = traction.slip_stiffness_n_per_mps * traction.full_effort_speed_mps
+        self.max_brake_force_n = traction.max_brake_force_n
         self.hill_hold = False  # standing on the brake until the motor holds the grade
         self._was_engaged = False
         self.emergency = False  # the movement manager's latched emergency stop: brake fully
@@ -481,24 +483,31 @@ class BridgeLoop:
         return min(max(self.loaded_weight_n * math.sin(climb) / self.stall_force_per_effort_n, 0.0), 1.0)
 
     def assist_effort(self, v_cmd: float, v: float, pitch_rad: float | None) -> float:
-        """The brake's help to the speed loop (1.0: none; negative: braking). A speed above the
+        """The brake's help to the speed loop (1.0: none; negative: braking). A speed above a moving
         command by more than the deadband asks the deceleration that closes the rest of the gap in
-        `brake_assist_time_s`; a stop asked for (a zero command) has no deadband, for a PI loop
-        alone lets a shuttle roll on down a slope at the deadband's speed until its integral winds
-        up (soak: 0.5 m/s for 4 s on a 12 % descent, to 0.7 m from a cart). Downhill the brake
-        also takes the grade's pull (the IMU's pitch; a stop without one assumes the steepest
-        descent, `hill_hold_unknown_grade`)."""
-        stopping = v_cmd == 0.0
+        `brake_assist_time_s`, at most `brake_assist_max_decel_mps2`, as before.
+
+        A stop (a zero command) has no deadband and takes a descent's pull too: the PI alone let a
+        shuttle roll on down a 12 % descent at the deadband's 0.5 m/s for 4 s after its command
+        had reached 0 (soak), for its effort balanced the grade until its integral had wound up. The
+        pull, m g sin(pitch) of the fully loaded shuttle, is braked on top of the deceleration asked
+        with the IMU's pitch (REP-103: a descent's is positive); without one the steepest descent
+        (`hill_hold_unknown_grade`) is assumed, within the largest deceleration, so that a stop on
+        the flat with a silent IMU brakes no harder than the assist may."""
+        stopping = v_cmd < STOP_COMMAND_MPS
         deadband = 0.0 if stopping else self.params.brake_assist_deadband_mps
         gap = v - v_cmd
         if gap <= deadband:
             return 1.0
-        decel = min((gap - deadband) / self.params.brake_assist_time_s, self.params.brake_assist_max_decel_mps2)
-        if pitch_rad is not None:
-            descent = max(pitch_rad, 0.0)  # REP-103: a descent's pitch is positive
-        else:
-            descent = math.atan(self.params.hill_hold_unknown_grade) if stopping else 0.0
-        return -min(1.0, (decel + GRAVITY * math.sin(descent)) * self.brake_effort_per_mps2)
+        most = self.params.brake_assist_max_decel_mps2
+        decel = min((gap - deadband) / self.params.brake_assist_time_s, most)
+        effort = decel * self.brake_effort_per_mps2
+        if stopping and pitch_rad is not None:
+            effort += self.loaded_weight_n * math.sin(max(pitch_rad, 0.0)) / self.max_brake_force_n
+        elif stopping:
+            assumed = GRAVITY * math.sin(math.atan(self.params.hill_hold_unknown_grade))
+            effort = min(decel + assumed, most) * self.brake_effort_per_mps2
+        return -min(1.0, effort)
 
     def efforts(self, now: float, can: CanFrame | None, pitch_rad: float | None = None) -> BridgeOutput:
         """The period's command and the efforts of the two inner loops; `can` None: no fresh

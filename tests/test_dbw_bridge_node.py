@@ -384,9 +384,9 @@ def test_the_brake_is_held_for_a_zero_speed_setpoint_only_near_standstill(bridge
     if braked:
         assert actuators.drive_effort <= -STANDSTILL_BRAKE
     else:  # from 1 m/s: no hold; the brake assist closes the whole gap in 0.5 s (a stop has no deadband),
-        # without a pitch also against the steepest descent's pull (15 %)
+        # without a pitch also against the steepest descent's pull (15 %), within its 3 m/s^2
         pull = 0.0 if pitch is not None else 9.81 * math.sin(math.atan(0.15))
-        wanted = (1.0 / 0.5 + pull) * (2450 + 2 * 75) / 10000.0
+        wanted = min(1.0 / 0.5 + pull, 3.0) * (2450 + 2 * 75) / 10000.0
         assert actuators.drive_effort == pytest.approx(-wanted, abs=1e-3)
 
 
@@ -416,8 +416,8 @@ def test_the_brake_takes_a_descents_pull_from_the_imu(bridge):
     bridge.setpoint(0.0, 0.0)
     bridge.imu(math.atan(0.12))  # REP-103: a descent's pitch is positive
     _, actuators = bridge.step(t, speed_mps=0.5, wheel_speed_rad_s=0.5 / 0.28)
-    pull = 9.81 * math.sin(math.atan(0.12))
-    assert actuators.drive_effort == pytest.approx(-(0.5 / 0.5 + pull) * (2450 + 2 * 75) / 10000.0, abs=1e-3)
+    pull = (2450 + 12 * 75) * 9.81 * math.sin(math.atan(0.12)) / 10000.0  # fully loaded
+    assert actuators.drive_effort == pytest.approx(-(0.5 / 0.5 * (2450 + 2 * 75) / 10000.0 + pull), abs=1e-3)
 
 
 def test_no_brake_when_the_setpoint_asks_to_move_off(bridge):

@@ -161,7 +161,8 @@ def test_the_segments_figures_are_one_soak_s(stopped):
         "obstacle": "cart_1",
         "kind": "cart",
         "v_mps": 0.0,
-        "segment": 1,
+        "plan_t_s": 795.0,  # the second segment began at plan time 400 s
+        "segment": "1",
     }
     assert [s["faults_kept"] for s in summary["per_segment"]] == [3, 5]
     # the faults on the whole soak's plan clock: fault 4 at 410 s wherever its segment began

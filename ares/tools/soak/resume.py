@@ -130,6 +130,16 @@ def next_segment(root: Path) -> dict:
     }
 
 
+def closest_approach(segment: Segment, part: dict) -> dict | None:
+    """Where a segment's closest approach was, with its time on the whole soak's plan clock (None
+    for a soak from before it was kept)."""
+    where = part.get("closest_approach")
+    if not where:
+        return None
+    plan_t_s = round(segment.offset_s + where["t"] - segment.plan_start_s, 2)
+    return {**where, "plan_t_s": plan_t_s, "segment": segment.path.name}
+
+
 def merged_summary(root: Path, segments: list[Segment] | None = None) -> dict:
     """The figures of every segment as one soak's (see the module's docstring); `segments`: read
     already."""
@@ -155,8 +165,11 @@ def merged_summary(root: Path, segments: list[Segment] | None = None) -> dict:
     operating = sum(t.get("operating_hours", 0.0) for t in tallies)
     repair = sum(t.get("repair_hours", 0.0) for t in tallies)
     failures = sum(t.get("failures", 0) for t in tallies)
-    clearances = [p for p in parts if p.get("min_clearance_m") is not None]
-    closest = min(clearances, key=lambda p: p["min_clearance_m"], default=None)
+    nearest = min(
+        (k for k, p in enumerate(parts) if p.get("min_clearance_m") is not None),
+        key=lambda k: parts[k]["min_clearance_m"],
+        default=None,
+    )
     last = segments[-1]
     from blackbox import reliability as rel
 
@@ -180,11 +193,8 @@ def merged_summary(root: Path, segments: list[Segment] | None = None) -> dict:
         "collisions": total("collisions"),
         "invariant_violations": total("invariant_violations"),
         "invariant_examples": [e for p in parts for e in p.get("invariant_examples", [])][:10],
-        "min_clearance_m": None if closest is None else closest["min_clearance_m"],
-        # in its segment's stack time (soaks before it was kept: none)
-        "closest_approach": None
-        if closest is None
-        else {**(closest.get("closest_approach") or {}), "segment": parts.index(closest)},
+        "min_clearance_m": None if nearest is None else parts[nearest]["min_clearance_m"],
+        "closest_approach": None if nearest is None else closest_approach(segments[nearest], parts[nearest]),
         "availability": round(available / measured, 5) if measured else None,
         # over every fault, and over what the faults cut short measured before their stop
         "time_to_safe_state_max_s": max(safe, default=None),
