@@ -445,10 +445,10 @@ class BridgeLoop:
         self.dt = 1.0 / params.rate_hz
         # the speed loop's PI, tuned for tracking (DBW paper), brakes at a fraction of 1 m/s^2 for
         # a speed 1 m/s too high: the brake's effort per m/s^2 for a gap it must close fast
+        traction = profile.actuators.traction
         self.brake_effort_per_mps2 = (
             profile.empty_mass_kg + 2 * profile.passenger_mass_kg
-        ) / profile.actuators.traction.max_brake_force_n
-        traction = profile.actuators.traction
+        ) / traction.max_brake_force_n
         self.full_effort_speed_mps = traction.full_effort_speed_mps
         # the motor at standstill pushes k_slip * effort * full-effort speed; the grade pulls m g sin(climb)
         self.loaded_weight_n = (profile.empty_mass_kg + profile.seats * profile.passenger_mass_kg) * GRAVITY
@@ -529,9 +529,10 @@ class BridgeLoop:
             )
             drive_effort = min(drive_effort, self.assist_effort(cmd.v, can.speed_mps, pitch_rad))
             standing = can.speed_mps < self.params.standstill_speed_mps
-            if standing and (cmd.v == 0.0 or not self._was_engaged):
+            stop_asked = cmd.v < STOP_COMMAND_MPS  # one meaning of a stop, as the brake assist's
+            if standing and (stop_asked or not self._was_engaged):
                 self.hill_hold = True
-            if standing and self.hill_hold and (cmd.v == 0.0 or drive_effort < self.hold_effort(pitch_rad)):
+            if standing and self.hill_hold and (stop_asked or drive_effort < self.hold_effort(pitch_rad)):
                 # a PI loop alone creeps around zero on a slope, and a start lets go of the brake
                 # with the integral at nought (after an engagement, a restart): the board holds the
                 # brake until the loop asks enough of the motor to hold the grade (a hill-hold)
