@@ -575,6 +575,14 @@ def test_a_profile_without_tyre_figures_drives_the_kinematic_bicycle():
 # ---- the bridge's speed loop on the plant ---------------------------------------------------------
 
 
+def can_frame(t: float, st) -> CanFrame:
+    """What the bridge reads of the plant's state on the CAN bus, no driver acting."""
+    return CanFrame(
+        t=t, wheel_speed_rad_s=st.wheel_speed_rad_s, speed_mps=st.v, steering_wheel_deg=st.steering_wheel_deg,
+        throttle_pedal=0.0, brake_pedal=0.0, steering_torque=False,
+    )  # fmt: skip
+
+
 def drive_through_the_bridge(vehicle: str, feedforward: bool, seconds: float, v_of_t) -> tuple[list, list]:
     """The bridge's loop (control.dbw_bridge.BridgeLoop, 10 Hz) engaged on the plant, commanded
     v_of_t(t) straight ahead: the commanded and the measured speeds at each period."""
@@ -590,10 +598,7 @@ def drive_through_the_bridge(vehicle: str, feedforward: bool, seconds: float, v_
         if k % TICKS == 0:
             loop.handle(BridgeEvent.setpoint(v_of_t(t), 0.0, t))
             st = plant.state
-            can = CanFrame(
-                t=t, wheel_speed_rad_s=st.wheel_speed_rad_s, speed_mps=st.v, steering_wheel_deg=st.steering_wheel_deg,
-                throttle_pedal=0.0, brake_pedal=0.0, steering_torque=False,
-            )  # fmt: skip
+            can = can_frame(t, st)
             out = loop.efforts(t, can, 0.0)  # on the flat
             steer, drive = out.steer_effort, out.drive_effort
             commanded.append(out.command.v)
@@ -643,10 +648,7 @@ def start_on_a_grade(vehicle: str, grade: float, pitch_of) -> tuple[float, float
         st = plant.state
         if k % TICKS == 0:
             loop.handle(BridgeEvent.setpoint(min(profile.max_accel_mps2 * t, 2.0), 0.0, t))
-            can = CanFrame(
-                t=t, wheel_speed_rad_s=st.wheel_speed_rad_s, speed_mps=st.v, steering_wheel_deg=st.steering_wheel_deg,
-                throttle_pedal=0.0, brake_pedal=0.0, steering_torque=False,
-            )  # fmt: skip
+            can = can_frame(t, st)
             drive = loop.efforts(t, can, pitch_of(st)).drive_effort
         st = plant.step(0.0, drive)
         lowest, back = min(lowest, st.v), max(back, x0 - st.x)
@@ -705,10 +707,7 @@ def stop_on_a_grade(
             else:
                 v = 0.0 if ramp_mps2 is None else max(0.0, v0 - ramp_mps2 * (t - t_stop))
             loop.handle(BridgeEvent.setpoint(v, 0.0, t))
-            can = CanFrame(
-                t=t, wheel_speed_rad_s=st.wheel_speed_rad_s, speed_mps=st.v, steering_wheel_deg=st.steering_wheel_deg,
-                throttle_pedal=0.0, brake_pedal=0.0, steering_torque=False,
-            )  # fmt: skip
+            can = can_frame(t, st)
             drive = loop.efforts(t, can, st.pitch if with_pitch else None).drive_effort
         if k == round(t_zero / PHYSICS_DT):
             x_zero, v_zero = st.x, st.v
