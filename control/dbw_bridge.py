@@ -512,7 +512,7 @@ class BridgeLoop:
     def efforts(self, now: float, can: CanFrame | None, pitch_rad: float | None = None) -> BridgeOutput:
         """The period's command and the efforts of the two inner loops; `can` None: no fresh
         readings, so the loops cannot close and an engaged board brakes with the wheel left alone.
-        `pitch_rad`: the IMU's (None: none fresh), for the hill-hold."""
+        `pitch_rad`: the IMU's (None: none fresh), for the hill-hold and a fresh loop's integral."""
         cmd = self.core.command(now)
         reference = self.conversion.to_actuators(cmd.v, cmd.kappa)
         steer_effort = drive_effort = 0.0
@@ -522,6 +522,12 @@ class BridgeLoop:
             if not self._was_engaged:
                 self.steering_pid.reset()
                 self.wheel_speed_pid.reset()
+                if pitch_rad is not None:
+                    # the integral that holds the climb it finds, not nought: a loop engaged (or
+                    # restarted) on a shuttle still rolling up a climb let it roll back (soak). A
+                    # pitch read on a bump may claim more: no steeper than the tour's steepest
+                    steepest = math.atan(self.params.hill_hold_unknown_grade)
+                    self.wheel_speed_pid.integral = self.hold_effort(max(pitch_rad, -steepest))
             steer_effort = self.steering_pid.step(reference.steering_wheel_angle_deg, can.steering_wheel_deg, self.dt)
             steady = cmd.v / self.full_effort_speed_mps if self.params.speed_feedforward else 0.0
             drive_effort = self.wheel_speed_pid.step(
