@@ -454,6 +454,7 @@ class BridgeLoop:
         self.loaded_weight_n = (profile.empty_mass_kg + profile.seats * profile.passenger_mass_kg) * GRAVITY
         self.stall_force_per_effort_n = traction.slip_stiffness_n_per_mps * traction.full_effort_speed_mps
         self.max_brake_force_n = traction.max_brake_force_n
+        self.steepest_climb_rad = math.atan(params.hill_hold_unknown_grade)  # the steepest the shuttle stands on
         self.hill_hold = False  # standing on the brake until the motor holds the grade
         self._was_engaged = False
         self.emergency = False  # the movement manager's latched emergency stop: brake fully
@@ -479,7 +480,7 @@ class BridgeLoop:
         pitch (REP-103: a climb's is negative); without a pitch, on the steepest grade it stands on.
         Rolling resistance, which helps to hold, is left out: the brake lets go a little late
         rather than early."""
-        climb = -pitch_rad if pitch_rad is not None else math.atan(self.params.hill_hold_unknown_grade)
+        climb = -pitch_rad if pitch_rad is not None else self.steepest_climb_rad
         return min(max(self.loaded_weight_n * math.sin(climb) / self.stall_force_per_effort_n, 0.0), 1.0)
 
     def assist_effort(self, v_cmd: float, v: float, pitch_rad: float | None) -> float:
@@ -505,7 +506,7 @@ class BridgeLoop:
         if stopping and pitch_rad is not None:
             effort += self.loaded_weight_n * math.sin(max(pitch_rad, 0.0)) / self.max_brake_force_n
         elif stopping:
-            assumed = GRAVITY * math.sin(math.atan(self.params.hill_hold_unknown_grade))
+            assumed = GRAVITY * math.sin(self.steepest_climb_rad)
             effort = min(decel + assumed, most) * self.brake_effort_per_mps2
         return -min(1.0, effort)
 
@@ -526,8 +527,7 @@ class BridgeLoop:
                     # the integral that holds the climb it finds, not nought: a loop engaged (or
                     # restarted) on a shuttle still rolling up a climb let it roll back (soak). A
                     # pitch read on a bump may claim more: no steeper than the tour's steepest
-                    steepest = math.atan(self.params.hill_hold_unknown_grade)
-                    self.wheel_speed_pid.integral = self.hold_effort(max(pitch_rad, -steepest))
+                    self.wheel_speed_pid.integral = self.hold_effort(max(pitch_rad, -self.steepest_climb_rad))
             steer_effort = self.steering_pid.step(reference.steering_wheel_angle_deg, can.steering_wheel_deg, self.dt)
             steady = cmd.v / self.full_effort_speed_mps if self.params.speed_feedforward else 0.0
             drive_effort = self.wheel_speed_pid.step(

@@ -576,6 +576,14 @@ def test_a_profile_without_tyre_figures_drives_the_kinematic_bicycle():
 # ---- the bridge's speed loop on the plant ---------------------------------------------------------
 
 
+def engaged_loop(profile, params: DbwBridgeParams) -> BridgeLoop:
+    """The bridge's loop just switched to automatic, as after a start or a restart."""
+    loop = BridgeLoop(profile, params)
+    for event in (BridgeEvent.button(0.0), BridgeEvent.set_automatic(0.0)):
+        loop.handle(event)
+    return loop
+
+
 def can_frame(t: float, st) -> CanFrame:
     """What the bridge reads of the plant's state on the CAN bus, no driver acting."""
     return CanFrame(
@@ -589,9 +597,7 @@ def drive_through_the_bridge(vehicle: str, feedforward: bool, seconds: float, v_
     v_of_t(t) straight ahead: the commanded and the measured speeds at each period."""
     profile = config.load_vehicle(vehicle)
     plant = VehiclePlant(straight_route(600.0), profile, SMOOTH_ROAD, s0=10.0)
-    loop = BridgeLoop(profile, DbwBridgeParams(speed_feedforward=feedforward))
-    for event in (BridgeEvent.button(0.0), BridgeEvent.set_automatic(0.0)):
-        loop.handle(event)
+    loop = engaged_loop(profile, DbwBridgeParams(speed_feedforward=feedforward))
     commanded, measured = [], []
     drive = steer = 0.0
     for k in range(round(seconds / PHYSICS_DT)):
@@ -639,9 +645,7 @@ def start_on_a_grade(vehicle: str, grade: float, pitch_of) -> tuple[float, float
     forwards."""
     profile = config.load_vehicle(vehicle)
     plant = VehiclePlant(straight_route(grade=grade), profile, SMOOTH_ROAD, passengers=profile.seats, s0=50.0)
-    loop = BridgeLoop(profile, DbwBridgeParams())
-    for event in (BridgeEvent.button(0.0), BridgeEvent.set_automatic(0.0)):
-        loop.handle(event)
+    loop = engaged_loop(profile, DbwBridgeParams())
     x0 = plant.state.x
     lowest, back, moved_at, drive = 0.0, 0.0, None, 0.0
     for k in range(round(6.0 / PHYSICS_DT)):
@@ -691,9 +695,7 @@ def engage_rolling_up_a_climb(vehicle: str, v0: float, v_cmd: float, pitch_of, f
     plant = VehiclePlant(straight_route(grade=0.14), profile, SMOOTH_ROAD, passengers=passengers, s0=50.0)
     while plant.state.v < v0:
         plant.step(0.0, 1.0)
-    loop = BridgeLoop(profile, DbwBridgeParams())
-    for event in (BridgeEvent.button(0.0), BridgeEvent.set_automatic(0.0)):
-        loop.handle(event)
+    loop = engaged_loop(profile, DbwBridgeParams())
     lowest, drive = plant.state.v, 0.0
     for k in range(round(8.0 / PHYSICS_DT)):
         t = k * PHYSICS_DT
@@ -730,9 +732,7 @@ def test_a_freshly_engaged_speed_loop_starts_with_the_integral_that_holds_the_cl
     for pitch, expected in (
         (-math.atan(0.14), fourteen), (-math.atan(0.30), fifteen), (0.0, 0.0), (math.atan(0.14), 0.0), (None, 0.0)
     ):  # fmt: skip
-        loop = BridgeLoop(profile, DbwBridgeParams())
-        for event in (BridgeEvent.button(0.0), BridgeEvent.set_automatic(0.0)):
-            loop.handle(event)
+        loop = engaged_loop(profile, DbwBridgeParams())
         loop.handle(BridgeEvent.setpoint(0.0, 0.0, 0.0))
         loop.efforts(0.0, can, pitch)
         assert loop.wheel_speed_pid.integral == pytest.approx(expected, abs=0.002), pitch
@@ -749,9 +749,7 @@ def stop_on_a_grade(
     deceleration over a tenth of a second from the stop's start."""
     profile = config.load_vehicle(vehicle)
     plant = VehiclePlant(straight_route(grade=grade), profile, SMOOTH_ROAD, passengers=passengers, s0=20.0)
-    loop = BridgeLoop(profile, DbwBridgeParams())
-    for event in (BridgeEvent.button(0.0), BridgeEvent.set_automatic(0.0)):
-        loop.handle(event)
+    loop = engaged_loop(profile, DbwBridgeParams())
     v0, t_stop = 2.6, 6.0
     t_zero = t_stop + (0.0 if ramp_mps2 is None else v0 / ramp_mps2)  # the command is 0 from then
     drive, x_zero, v_zero, stood, hardest, speeds = 0.0, 0.0, 0.0, None, 0.0, []
