@@ -522,12 +522,11 @@ class BridgeLoop:
         elif cmd.engaged:
             if not self._was_engaged:
                 self.steering_pid.reset()
-                self.wheel_speed_pid.reset()
-                if pitch_rad is not None:
-                    # the integral that holds the climb it finds, not nought: a loop engaged (or
-                    # restarted) on a shuttle still rolling up a climb let it roll back (soak). A
-                    # pitch read on a bump may claim more: no steeper than the tour's steepest
-                    self.wheel_speed_pid.integral = self.hold_effort(max(pitch_rad, -self.steepest_climb_rad))
+                # the integral that holds the climb it finds, not nought: a loop engaged (or
+                # restarted) on a shuttle still rolling up a climb let it roll back (soak). A pitch
+                # read on a bump may claim more: no steeper than the tour's steepest
+                holding = 0.0 if pitch_rad is None else self.hold_effort(max(pitch_rad, -self.steepest_climb_rad))
+                self.wheel_speed_pid.reset(integral=holding)
             steer_effort = self.steering_pid.step(reference.steering_wheel_angle_deg, can.steering_wheel_deg, self.dt)
             steady = cmd.v / self.full_effort_speed_mps if self.params.speed_feedforward else 0.0
             drive_effort = self.wheel_speed_pid.step(

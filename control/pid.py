@@ -70,9 +70,10 @@ class PID:
             derivative_on_measurement=gains.derivative_on_measurement,
         )
 
-    def reset(self) -> None:
-        """Forget the past: used when the board enters automatic mode or stops after a timeout."""
-        self.integral = 0.0
+    def reset(self, integral: float = 0.0) -> None:
+        """Forget the past: used when the board enters automatic mode or stops after a timeout.
+        `integral`: where the integral starts (within its limit), when the effort to hold is known."""
+        self.integral = min(max(float(integral), -self.integral_limit), self.integral_limit)
         self._prev_error: float | None = None
         self._prev_measurement: float | None = None
         self.last_output = 0.0

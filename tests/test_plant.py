@@ -109,6 +109,14 @@ def test_pid_reset_forgets_the_integral():
     assert pid.integral == 0.0 and pid.step(0.0, 0.0, 0.1) == 0.0
 
 
+def test_pid_reset_can_start_the_integral_within_its_limit():
+    pid = PID(kp=0.0, ki=1.0, integral_limit=0.5)
+    pid.reset(integral=0.2)
+    assert pid.step(0.0, 0.0, 0.1) == pytest.approx(0.2)
+    pid.reset(integral=0.9)
+    assert pid.integral == 0.5
+
+
 def test_pid_rejects_bad_arguments():
     with pytest.raises(ValueError):
         PID(1.0, out_min=1.0, out_max=-1.0)
