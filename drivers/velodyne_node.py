@@ -9,6 +9,13 @@ first packet's timestamp (µs past the UTC hour) by the stamp rule, so it carrie
 sensor fired, not the time it arrived. Truncated rotations (start-up, a stalled stream) are
 counted and not published. The latency is from the kernel's receive time of a rotation's last
 packet (SO_TIMESTAMPNS) to the put.
+
+The configured model decides the decoding: a factory byte that names another model (early VLP-16s
+write the HDL-32E's 0x21) is counted and reported once, never obeyed. Packets from any sender but
+the sensor's `source` address (when set) are refused. A sensor whose azimuth stops advancing has
+its rotations cut by packet count (memory stays bounded) and the stall reported. With `pcap: FILE`
+a capture plays in place of the socket, by its capture times on the stack clock; its rotations
+are stamped on that clock too (a capture's own hour is long past).
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from ares.core.config.vehicle_io import VelodyneDevice
 from ares.core.driver import DriverNode, device_stamp
 from ares.core.messages import PointCloud
 from ares.core.node import Output
+from ares.core.wire.pcap import CapturePlayer
 from ares.core.wire.velodyne import HOUR_US, Rotation, RotationAssembler, load_calibration
 
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux; Python names it only on some builds
@@ -58,13 +66,25 @@ class _Sensor:
         self.name = name
         self.device = device
         self.assembler = RotationAssembler(
-            load_calibration(device.model, device.calibration), device.rate_hz, params.truncated_below_deg
+            load_calibration(device.model, device.calibration),
+            device.rate_hz,
+            params.truncated_below_deg,
+            fov_deg=device.fov_deg,
         )
         self.sock: socket.socket | None = None
+        self.player: CapturePlayer | None = None  # a capture in place of the socket (device.pcap)
+        self.played_from = 0.0  # the stack time the capture started playing at
+        self.capture_epoch = 0.0  # the capture's stamp rule: its first packet's µs past the hour at played_from
         self.retry_at = 0.0  # wall
         self.last_packet_wall = 0.0
         self.opened_wall = 0.0
         self.silent = False
+        self.capture_done = False  # a capture played to its end (without pcap_loop): not opened again
+        self.loops_seen = 0
+
+    @property
+    def is_open(self) -> bool:
+        return self.sock is not None or self.player is not None
 
 
 class VelodyneDriver(DriverNode):
@@ -94,9 +114,12 @@ class VelodyneDriver(DriverNode):
         for sensor in self.sensors.values():
             self._close(sensor)
 
-    # ---- sockets -------------------------------------------------------------------------------
+    # ---- sockets and captures ------------------------------------------------------------------
     def _open(self, sensor: _Sensor, wall: float) -> None:
         counters = self.wire(f"lidar/{sensor.name}")
+        if sensor.device.pcap is not None:
+            self._open_capture(sensor, wall)
+            return
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -125,10 +148,30 @@ class VelodyneDriver(DriverNode):
             sensor.assembler.calibration.path,
         )
 
+    def _open_capture(self, sensor: _Sensor, wall: float) -> None:
+        counters = self.wire(f"lidar/{sensor.name}")
+        device = sensor.device
+        assert device.pcap is not None  # only for a capture
+        try:
+            sensor.player = CapturePlayer(device.pcap, port=device.port, source=device.source, loop=device.pcap_loop)
+            first = sensor.player.due(0.0, limit=0)  # opens the file: a bad one fails here, not mid-run
+        except ValueError as exc:
+            counters.connected = False
+            counters.problem("cannot open", str(exc))
+            sensor.player = None
+            sensor.retry_at = wall + self.params.reopen_s
+            return
+        del first
+        sensor.played_from = self.clock.now()
+        sensor.opened_wall = wall
+        sensor.silent = False
+        self.log.info("%s: %s from the capture %s (port %d)", sensor.name, device.model, device.pcap, device.port)
+
     def _close(self, sensor: _Sensor) -> None:
         if sensor.sock is not None:
             sensor.sock.close()
             sensor.sock = None
+        sensor.player = None
 
     def _drain(self, sensor: _Sensor) -> list[Rotation]:
         """Everything queued on the socket, without blocking: the rotations it finishes."""
@@ -137,7 +180,7 @@ class VelodyneDriver(DriverNode):
         cmsg_space = socket.CMSG_SPACE(_TIMESPEC.size)
         for _ in range(self.params.max_packets_per_step):
             try:
-                data, ancillary, _flags, _addr = sensor.sock.recvmsg(2048, cmsg_space)
+                data, ancillary, _flags, addr = sensor.sock.recvmsg(2048, cmsg_space)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError as exc:  # the interface went away: reopen
@@ -151,27 +194,60 @@ class VelodyneDriver(DriverNode):
                     seconds, nanos = _TIMESPEC.unpack_from(value)
                     wall = seconds + nanos * 1e-9
             sensor.last_packet_wall = wall
+            if sensor.device.source is not None and addr[0] != sensor.device.source:
+                sensor.assembler.packets += 1
+                self.wire(f"lidar/{sensor.name}").refuse("wrong source", f"from {addr[0]}:{addr[1]}")
+                continue
             done += sensor.assembler.add(data, wall)
         return done
+
+    def _play(self, sensor: _Sensor, now: float) -> list[Rotation]:
+        """The capture's datagrams due by the stack clock: the rotations they finish."""
+        player = sensor.player
+        assert player is not None
+        done: list[Rotation] = []
+        wall = time.time()
+        datagrams = player.due(now - sensor.played_from, limit=self.params.max_packets_per_step)
+        for datagram in datagrams:
+            if player.loops != sensor.loops_seen or sensor.assembler.packets == 0:
+                # the capture's hour on the stack clock, anew at each pass: a packet's own time
+                # maps to the stack time it plays at (the stamp rule then gives its rotation's age)
+                sensor.loops_seen = player.loops
+                device_s = int.from_bytes(datagram.payload[1200:1204], "little") / 1e6
+                sensor.capture_epoch = (device_s - sensor.played_from - player.play_time(datagram)) % HOUR_S
+            sensor.last_packet_wall = wall
+            done += sensor.assembler.add(datagram.payload, wall)
+        if player.finished:
+            done += sensor.assembler.flush()
+            sensor.capture_done = True
+            self.log.info("%s: the capture %s played to its end", sensor.name, sensor.device.pcap)
+            self._close(sensor)
+        return done
+
+    def _capture_over(self, sensor: _Sensor) -> bool:
+        return sensor.device.pcap is not None and sensor.capture_done
 
     # ---- the step ------------------------------------------------------------------------------
     def step(self, now: float) -> None:
         wall = time.time()
         for sensor in self.sensors.values():
             counters = self.wire(f"lidar/{sensor.name}")
-            if sensor.sock is None:
-                if wall >= sensor.retry_at:
+            if not sensor.is_open:
+                if wall >= sensor.retry_at and not self._capture_over(sensor):
                     self._open(sensor, wall)
-                if sensor.sock is None:
+                if not sensor.is_open:
                     continue
             asm = sensor.assembler
             before = asm.packets, asm.lost
-            rotations = self._drain(sensor)
+            rotations = self._play(sensor, now) if sensor.player is not None else self._drain(sensor)
             counters.got(asm.packets - before[0])
             counters.missing(asm.lost - before[1], "gaps in the packets' timestamps or azimuths")
             for cause, detail in asm.refused:
                 counters.refuse(cause, detail)
             asm.refused.clear()
+            for cause, text in asm.notices:
+                counters.problem(cause, text)
+            asm.notices.clear()
             for rotation in rotations:
                 self._publish(sensor, rotation, now)
             self._watch(sensor, counters, wall)
@@ -185,7 +261,7 @@ class VelodyneDriver(DriverNode):
         points = rotation.points
         self.outputs_by_sensor[sensor.name].put(
             PointCloud(
-                t=device_stamp(now, self.clock.utc_epoch, rotation.timestamp_us / 1e6, HOUR_S),
+                t=device_stamp(now, self._epoch(sensor), rotation.timestamp_us / 1e6, HOUR_S),
                 sensor=sensor.name,
                 frame=f"lidar/{sensor.name}",
                 x=points.x,
@@ -203,8 +279,16 @@ class VelodyneDriver(DriverNode):
         ):
             counters.problem("rotation rate", f"{rotation.rate_hz:.2f} Hz measured, {configured:g} Hz configured")
 
+    def _epoch(self, sensor: _Sensor) -> float:
+        """The calendar time of stack time 0 by which the sensor's packet times are read."""
+        return sensor.capture_epoch if sensor.device.pcap is not None else self.clock.utc_epoch
+
     def _watch(self, sensor: _Sensor, counters, wall: float) -> None:
         asm = sensor.assembler
+        if self._capture_over(sensor):
+            counters.connected = False
+            counters.detail = f"{self._summary(sensor)}; the capture {sensor.device.pcap} played to its end"
+            return
         heard = max(sensor.last_packet_wall, sensor.opened_wall)
         silent = wall - heard > self.params.silent_after_s
         if silent and not sensor.silent:
@@ -212,12 +296,22 @@ class VelodyneDriver(DriverNode):
             for rotation in asm.flush():  # what was under way will not be completed
                 self._publish(sensor, rotation, self.clock.now())
         sensor.silent = silent
-        counters.connected = sensor.sock is not None and sensor.last_packet_wall >= sensor.opened_wall and not silent
+        counters.connected = sensor.is_open and sensor.last_packet_wall >= sensor.opened_wall and not silent
         if silent and wall - heard > self.params.reopen_s + self.params.silent_after_s:
             self._close(sensor)  # a fresh socket: an interface that came back, a rebound address
             sensor.retry_at = wall
+        counters.detail = self._summary(sensor)
+
+    def _summary(self, sensor: _Sensor) -> str:
+        asm = sensor.assembler
         rate = f"{asm.measured_rate_hz:.2f} Hz" if asm.measured_rate_hz is not None else "no rate yet"
-        counters.detail = (
-            f"{sensor.device.model} port {sensor.device.port}: {asm.rotations} rotations, {asm.truncated} truncated, "
+        where = f"capture {sensor.device.pcap}" if sensor.device.pcap is not None else f"port {sensor.device.port}"
+        text = (
+            f"{sensor.device.model} {where}: {asm.rotations} rotations, {asm.truncated} truncated, "
             f"{rate} (set {sensor.device.rate_hz:g} Hz)"
         )
+        for product, n in asm.factory_bytes.items():
+            text += f"; factory byte 0x{product:02x} in {n} packets: decoded as the configured {sensor.device.model}"
+        if asm.azimuth_stalls:
+            text += f"; azimuth stalled: {asm.azimuth_stalls} rotations cut at {asm.max_packets} packets"
+        return text

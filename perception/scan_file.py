@@ -6,6 +6,11 @@
     .ply   (open3d.t.io.read_point_cloud), which keeps extra fields: an `intensity` and a
            `ring` field written by a sensor's driver come back with the points
 
+    .pcap  a packet capture of a Velodyne (tcpdump's or Wireshark's, classic or pcapng): its data
+    .pcapng packets cut into rotations and decoded by the sensor's model (ares/core/wire/velodyne.py,
+           as the LiDAR driver does); one rotation, `frame`, is the scan, with its rings
+           (`read_capture`; `capture_summary` tells the rotations, points and rate of the file)
+
 Points with a NaN or an infinite coordinate (a PCD of an organised cloud marks the rays that
 returned nothing so) are dropped and counted. The order of the other points is kept: it is the
 order the sensor fired them in, which perception/rings.py can use.
@@ -21,7 +26,8 @@ import numpy as np
 KITTI_RECORD_BYTES = 16  # 4 × float32
 KITTI_SENSOR_HEIGHT_M = 1.73  # KITTI's Velodyne above the road (its recording platform's set-up)
 OPEN3D_SUFFIXES = (".pcd", ".ply")
-SUFFIXES = (".bin",) + OPEN3D_SUFFIXES
+CAPTURE_SUFFIXES = (".pcap", ".pcapng")
+SUFFIXES = (".bin",) + OPEN3D_SUFFIXES + CAPTURE_SUFFIXES
 
 
 class ScanFileError(ValueError):
@@ -45,8 +51,11 @@ def read_scan(path: str | Path) -> Scan:
         raise ScanFileError(f"{path}: not a file")
     if suffix not in SUFFIXES:
         raise ScanFileError(
-            f"{path}: unknown extension {path.suffix or '(none)'!r}; expected a KITTI .bin, a .pcd or a .ply"
+            f"{path}: unknown extension {path.suffix or '(none)'!r}; expected a KITTI .bin, a .pcd, a .ply "
+            "or a Velodyne capture (.pcap, .pcapng)"
         )
+    if suffix in CAPTURE_SUFFIXES:
+        return read_capture(path)[0]
     points, intensity, ring = _read_kitti(path) if suffix == ".bin" else _read_open3d(path)
     finite = np.isfinite(points).all(axis=1)
     dropped = int(len(points) - finite.sum())
@@ -90,3 +99,91 @@ def _read_open3d(path: Path):
         finite_ring = np.isfinite(ring.astype(np.float64))
         ring = ring.astype(np.int64) if finite_ring.all() and (ring >= 0).all() else None
     return points, intensity, ring
+
+
+@dataclass
+class CaptureSummary:
+    """What a Velodyne capture held, as the LiDAR driver would have cut it."""
+
+    model: str
+    model_from: str  # "given", or "factory byte" when it was read from the packets
+    packets: int  # the datagrams to the data port
+    rotations: int  # whole rotations (not truncated: start and end of the file are usually cut)
+    truncated: int
+    points_per_rotation: list[int]  # of the whole ones, in order
+    points_total: int  # every return decoded, the truncated rotations' too
+    rate_hz: float | None  # median over the whole rotations
+    return_modes: list[str]
+    factory_bytes: dict[str, int]  # factory bytes that disagree with the model: "0x21" -> packets
+    malformed: dict[str, int]
+    lost: int
+    skipped_frames: dict[str, int]  # capture frames that were no UDP to the port, by cause
+    frame: int  # the rotation the scan is (its index among the whole ones)
+
+
+def read_capture(
+    path: str | Path,
+    model: str | None = None,
+    frame: int = 0,
+    calibration: str | None = None,
+    port: int = 2368,
+    fov_deg: tuple[float, float] | None = None,
+) -> tuple[Scan, CaptureSummary]:
+    """Rotation `frame` (0: the first whole one) of a Velodyne capture, and the capture's summary.
+    `model` None: the model the first packet's factory byte names (an HDL-64E writes none: give it)."""
+    from ares.core.wire.pcap import CaptureCounts, udp_datagrams
+    from ares.core.wire.velodyne import MODELS, PRODUCT_NAMES, RotationAssembler, load_calibration
+
+    path = Path(path)
+    counts = CaptureCounts()
+    try:
+        datagrams = [d for d in udp_datagrams(path, counts) if d.port == port]
+    except ValueError as exc:
+        raise ScanFileError(str(exc)) from None
+    if not datagrams:
+        raise ScanFileError(f"{path}: no UDP datagram to port {port} (a Velodyne's data port; --port to change)")
+    model_from = "given"
+    if model is None:
+        named = PRODUCT_NAMES.get(datagrams[0].payload[-1]) if len(datagrams[0].payload) == 1206 else None
+        if named not in MODELS:
+            raise ScanFileError(f"{path}: its packets do not say their model: give it (--model {'|'.join(MODELS)})")
+        model, model_from = named, "factory byte"
+    try:
+        cal = load_calibration(model, calibration)
+    except ValueError as exc:
+        raise ScanFileError(str(exc)) from None
+    # the rate only bounds the cut of a stalled azimuth: the slowest a Velodyne turns (5 Hz)
+    assembler = RotationAssembler(cal, rate_hz=5.0, fov_deg=fov_deg)
+    rotations = [r for datagram in datagrams for r in assembler.add(datagram.payload, datagram.time)]
+    rotations += assembler.flush()
+    whole = [r for r in rotations if not r.truncated]
+    summary = CaptureSummary(
+        model=model,
+        model_from=model_from,
+        packets=len(datagrams),
+        rotations=len(whole),
+        truncated=assembler.truncated,
+        points_per_rotation=[r.points.size for r in whole],
+        points_total=sum(r.points.size for r in rotations),
+        rate_hz=round(float(np.median([r.rate_hz for r in whole if r.rate_hz])), 3)
+        if any(r.rate_hz for r in whole)
+        else None,
+        return_modes=sorted({r.return_mode for r in whole}),
+        factory_bytes={f"0x{b:02x}": n for b, n in assembler.factory_bytes.items()},
+        malformed=dict(assembler.malformed),
+        lost=assembler.lost,
+        skipped_frames=dict(counts.skipped),
+        frame=frame,
+    )
+    if not whole:
+        raise ScanFileError(
+            f"{path}: no whole rotation in {len(datagrams)} packets ({summary.malformed or 'none refused'})"
+        )
+    if not 0 <= frame < len(whole):
+        raise ScanFileError(
+            f"{path}: frame {frame} asked, the capture has {len(whole)} whole rotations (0..{len(whole) - 1})"
+        )
+    points = whole[frame].points
+    xyz = np.stack([points.x, points.y, points.z], axis=1).astype(np.float32)
+    scan = Scan(np.ascontiguousarray(xyz), points.intensity, points.ring.astype(np.int64), 0)
+    return scan, summary

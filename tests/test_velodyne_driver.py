@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import socket
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -37,13 +38,14 @@ def sweep_packets(model: str, t: float, mode: str = "strongest") -> tuple[list[b
 
 
 class DriverOnTheBus:
-    def __init__(self, lidars: dict):
+    def __init__(self, lidars: dict, **device):
+        """`lidars`: name -> model; `device`: more fields of every LiDAR's vehicle_io entry."""
         self.ports = {name: free_port() for name in lidars}
         # the sections the driver reads; every other core setting at its default
         cfg = {
             "vehicle_io": {
                 "lidars": {
-                    name: {"model": model, "address": "127.0.0.1", "port": self.ports[name]}
+                    name: {"model": model, "address": "127.0.0.1", "port": self.ports[name]} | device
                     for name, model in lidars.items()
                 }
             },
@@ -88,8 +90,8 @@ class DriverOnTheBus:
 def driver():
     made = []
 
-    def make(lidars):
-        made.append(DriverOnTheBus(lidars))
+    def make(lidars, **device):
+        made.append(DriverOnTheBus(lidars, **device))
         return made[-1]
 
     yield make
@@ -149,12 +151,58 @@ def test_bad_packets_counted_and_the_stream_goes_on(driver):
     clouds = []
     d.step_until(lambda: bool(clouds.extend(take(d.clouds["front_right"])) or clouds))
     counters = d.node.wires["lidar/front_right"]
-    assert counters.malformed == {"wrong size": 1, "bad block flag": 1, "unknown product": 1}
+    assert counters.malformed == {"wrong size": 1, "bad block flag": 1}  # a factory byte 0x99 is no reason
     assert counters.lost == 5
     assert len(clouds) == 1 and clouds[0].size < points.size
     d.step(1.0)  # the status goes out once a second
     status = [s for s in take(d.status) if s.device == "lidar/front_right"]
     assert status and status[-1].malformed["wrong size"] == 1 and status[-1].lost == 5
+
+
+def test_packets_from_another_sender_are_refused(driver):
+    """With the sensor's `source` address set, a stray sender on the same port is refused and
+    counted (before: any packet that reached the port was decoded)."""
+    d = driver({"roof": "VLP-16"}, source="127.0.0.1")
+    packets, points = sweep_packets("VLP-16", 100.0)
+    stray = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    stray.bind(("127.0.0.2", 0))
+    try:
+        for p in packets[:30]:
+            stray.sendto(p, ("127.0.0.1", d.ports["roof"]))
+    finally:
+        stray.close()
+    d.send("roof", packets)
+    clouds: list = []
+    d.step_until(lambda: bool(clouds.extend(take(d.clouds["roof"])) or clouds))
+    counters = d.node.wires["lidar/roof"]
+    d.step_until(lambda: counters.malformed.get("wrong source", 0) == 30)
+    assert counters.malformed == {"wrong source": 30}
+    assert len(clouds) == 1 and clouds[0].size == points.size  # the sensor's own, whole
+
+
+def test_a_capture_plays_in_place_of_the_socket(driver):
+    """`pcap: FILE`: the early VLP-16's capture (factory byte 0x21, 20 Hz) played on the stack clock:
+    its rotations come out as it plays, stamped on the stack clock, the factory byte reported once
+    in the status, and at its end the sensor is no longer connected (and not played again)."""
+    capture = Path(__file__).parent / "data" / "lidar" / "VLP-16_early_20Hz.pcap"
+    d = driver({"front_left": "VLP-16"}, pcap=str(capture), port=2368, rate_hz=20.0)
+    start = d.clock.now()
+    clouds: list = []
+    for _ in range(60):  # 1.2 s of the capture's 2.6 s
+        d.step(0.02)
+        clouds += take(d.clouds["front_left"])
+    counters = d.node.wires["lidar/front_left"]
+    assert 20 <= len(clouds) <= 24 and counters.connected and not counters.malformed
+    assert all(13_500 < c.size < 14_100 for c in clouds)
+    stamps = np.array([c.t for c in clouds])
+    assert np.diff(stamps) == pytest.approx(0.05, abs=0.002)  # the sensor's 20 Hz, on the stack clock
+    assert start < stamps[0] and stamps[-1] <= d.clock.now()
+    assert "factory byte 0x21 in" in counters.detail and "decoded as the configured VLP-16" in counters.detail
+    for _ in range(100):
+        d.step(0.02)
+        clouds += take(d.clouds["front_left"])
+    assert len(clouds) == 50 and not counters.connected and "played to its end" in counters.detail
+    assert counters.received == 1902  # its 367 position packets (port 8308) are not the LiDAR's
 
 
 def test_truncated_rotation_not_published(driver):
@@ -180,9 +228,10 @@ def test_stamp_rule():
     assert device_stamp(now, epoch_at_hour, 3599.9, 3600.0) == pytest.approx(49.8)
 
 
-def test_simulated_sweep_through_the_wire(driver):
-    """A simulated sensor (ares/sim/velodyne_wire.py) in a small scene sends its sweep as packets
-    by UDP; the driver's cloud is the sweep (the ghosts moved to a free slot of their ring)."""
+@pytest.mark.parametrize("model", v.MODELS)
+def test_simulated_sweep_through_the_wire(driver, model):
+    """A simulated sensor (ares/sim/velodyne_wire.py) of each model in a small scene sends its sweep
+    as packets by UDP; the driver's cloud is the sweep (the ghosts moved to a free slot of their ring)."""
     from ares.core.config import load_vehicle
     from ares.core.config.vehicle_io import VelodyneDevice
     from ares.sim.lidar import LidarSimParams, vehicle_pose
@@ -194,7 +243,7 @@ def test_simulated_sweep_through_the_wire(driver):
     assert not {o.topic for o in WireLidarSimulator.outputs()} & {"lidar/roof/points", "lidar/front_left/points"}
     assert WireLidarSimulator.wire_outputs == ("wire/lidar",)
 
-    d = driver({"front_left": "VLP-16"})
+    d = driver({"front_left": model})
     shuttle = load_vehicle("ares_shuttle")
     mesh = Mesh.join(
         [
@@ -205,7 +254,7 @@ def test_simulated_sweep_through_the_wire(driver):
     )
     scene = open3d().t.geometry.RaycastingScene()
     scene.add_triangles(open3d().core.Tensor(mesh.vertices), open3d().core.Tensor(mesh.triangles))
-    device = VelodyneDevice(model="VLP-16", address="127.0.0.1", port=d.ports["front_left"])
+    device = VelodyneDevice(model=model, address="127.0.0.1", port=d.ports["front_left"])
     params = LidarSimParams(azimuth_decimation=2, ghosts_per_sweep=20.0)
     wired = WireLidar("front_left", shuttle.lidars["front_left"], shuttle, params, np.random.default_rng(3), device)
     rotation, position = vehicle_pose(0.0, 0.0, 0.0, 0.0, 0.0)

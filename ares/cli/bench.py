@@ -127,7 +127,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     drivers = bench_sub.add_parser(
         "drivers",
         help="the device drivers: Velodyne decode per rotation (VLP-16, HDL-64E), CAN frames per second",
-        description="Decodes and assembles full-resolution Velodyne rotations (VLP-16 and HDL-64E) as the LiDAR "
+        description="Decodes and assembles full-resolution Velodyne rotations (VLP-16, HDL-32E, VLP-32C, HDL-64E, VLS-128) as the LiDAR "
         "driver does, and pushes CAN frames through the DBC codec and through python-can's udp_multicast "
         "into the CAN driver; medians of repeated rounds, in this process.",
     )

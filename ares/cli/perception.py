@@ -15,11 +15,13 @@ import json
 import math
 import sys
 import time
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .args import CliError, Command, positive_float
 
 DEFAULT_VEHICLE = "techs4agecar"  # a car, as KITTI's is
+VELODYNE_MODELS = ("VLP-16", "HDL-32E", "VLP-32C", "HDL-64E", "VLS-128")  # ares.core.wire.velodyne.MODELS
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
@@ -38,8 +40,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     scan.add_argument(
         "file",
         metavar="FILE",
-        help="KITTI Velodyne .bin (float32 x, y, z, intensity), .pcd or .ply; "
-        "sensor frame, x forward, y left, z up, metres",
+        help="KITTI Velodyne .bin (float32 x, y, z, intensity), .pcd or .ply (sensor frame, x forward, "
+        "y left, z up, metres), or a Velodyne capture .pcap/.pcapng (one rotation of it: --frame)",
     )
     scan.add_argument(
         "--sensor-height",
@@ -53,7 +55,25 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         metavar="NAME",
         help=f"vehicle profile: a name in ares/core/config/vehicles/ or a YAML file (default: {DEFAULT_VEHICLE})",
     )
+    scan.add_argument("--json", action="store_true", help="the report as one JSON line (what it prints in any case)")
     scan.add_argument("--out", metavar="PNG", help="top view to write (default: FILE's name + .scan.png, here)")
+    scan.add_argument(
+        "--model",
+        choices=VELODYNE_MODELS,
+        help="a capture's sensor model: it decides the decoding (default: the one its factory byte names)",
+    )
+    scan.add_argument(
+        "--frame", type=int, default=0, metavar="N", help="a capture's rotation to run: N-th whole one (default 0)"
+    )
+    scan.add_argument("--calibration", metavar="YAML", help="a capture's unit calibration (ROS velodyne_pointcloud)")
+    scan.add_argument("--port", type=int, default=2368, metavar="PORT", help="a capture's data port (default 2368)")
+    scan.add_argument(
+        "--fov",
+        type=float,
+        nargs=2,
+        metavar=("START", "END"),
+        help="a capture's field of view as the sensor was set (azimuths, degrees, clockwise): cut at START",
+    )
     return {"perception": cmd_perception}
 
 
@@ -64,7 +84,15 @@ def cmd_perception(args: argparse.Namespace) -> int:
     if args.perception != "scan":
         raise CliError("which action? try `ares perception scan FILE`")
     try:
-        report = scan_report(args.file, args.vehicle, args.sensor_height, args.out)
+        report = scan_report(
+            args.file,
+            args.vehicle,
+            args.sensor_height,
+            args.out,
+            capture=CaptureOptions(
+                args.model, args.frame, args.calibration, args.port, tuple(args.fov) if args.fov else None
+            ),
+        )
     except (ScanFileError, ConfigError) as exc:
         print(f"ares perception scan: {exc}", file=sys.stderr)
         return 2
@@ -72,8 +100,23 @@ def cmd_perception(args: argparse.Namespace) -> int:
     return 0
 
 
+@dataclass(frozen=True)
+class CaptureOptions:
+    """How a Velodyne capture is read (`read_capture`)."""
+
+    model: str | None = None
+    frame: int = 0
+    calibration: str | None = None
+    port: int = 2368
+    fov_deg: tuple[float, float] | None = None
+
+
 def scan_report(
-    file: str, vehicle_name: str = DEFAULT_VEHICLE, sensor_height_m: float | None = None, out: str | None = None
+    file: str,
+    vehicle_name: str = DEFAULT_VEHICLE,
+    sensor_height_m: float | None = None,
+    out: str | None = None,
+    capture: CaptureOptions = CaptureOptions(),
 ) -> dict:
     """Run the scan in `file` through the pipeline; the JSON-ready report."""
     import numpy as np
@@ -83,7 +126,7 @@ def scan_report(
     from perception.lidar_perception import LidarPipeline, SensorSweep
     from perception.occupancy import FREE, OCCUPIED, UNKNOWN
     from perception.rings import recover_rings
-    from perception.scan_file import KITTI_SENSOR_HEIGHT_M, read_scan
+    from perception.scan_file import CAPTURE_SUFFIXES, KITTI_SENSOR_HEIGHT_M, read_capture, read_scan
 
     clock = time.perf_counter()
 
@@ -94,7 +137,13 @@ def scan_report(
         return round((now - start) * 1e3, 3)
 
     path = Path(file)
-    scan = read_scan(path)
+    summary = None
+    if path.suffix.lower() in CAPTURE_SUFFIXES and path.is_file():
+        scan, summary = read_capture(
+            path, capture.model, capture.frame, capture.calibration, capture.port, capture.fov_deg
+        )
+    else:
+        scan = read_scan(path)
     read_ms = lap()
     vehicle = load_vehicle(vehicle_name)
     roof = vehicle.lidars.get("roof")
@@ -102,8 +151,12 @@ def scan_report(
         raise ConfigError(f"vehicle {vehicle.name} has no roof LiDAR to take the scan's place")
     if sensor_height_m is None:
         sensor_height_m = KITTI_SENSOR_HEIGHT_M if path.suffix.lower() == ".bin" else roof.xyz_m[2]
-    mount = LidarMount(model="hdl64e", xyz_m=(roof.xyz_m[0], roof.xyz_m[1], sensor_height_m), rpy_deg=roof.rpy_deg)
-    if scan.ring is not None:
+    # the sensor class only sets the closest range kept: a 16- or 32-layer puck's, or a 64-layer's
+    sensor_class = "vlp16" if summary is not None and summary.model in ("VLP-16", "HDL-32E", "VLP-32C") else "hdl64e"
+    mount = LidarMount(model=sensor_class, xyz_m=(roof.xyz_m[0], roof.xyz_m[1], sensor_height_m), rpy_deg=roof.rpy_deg)
+    if summary is not None:
+        ring, ring_method = scan.ring, "decoder"
+    elif scan.ring is not None:
         ring, ring_method = scan.ring, "file"
     else:
         ring, ring_method = recover_rings(scan.points, LIDAR_MODELS["hdl64e"])
@@ -152,7 +205,21 @@ def scan_report(
         "width_m": _number(road.width_m),
         "confidence": round(float(road.confidence), 4),
         "picture": str(picture),
+    } | ({"capture": _capture_figures(summary)} if summary is not None else {})
+
+
+def _capture_figures(summary) -> dict:
+    import numpy as np
+
+    figures = asdict(summary)
+    per_rotation = figures.pop("points_per_rotation")
+    figures["points_per_rotation"] = {
+        "median": int(np.median(per_rotation)),
+        "min": int(min(per_rotation)),
+        "max": int(max(per_rotation)),
+        "each": per_rotation,
     }
+    return figures
 
 
 def _number(value: float) -> float | None:

@@ -6,6 +6,11 @@ back the simulated points within the format's quantisation (2 mm in range, 0.01Â
 Each kept point's range and intensity go in its (firing, laser) slot; a ghost (a spurious
 near-field return, ares/sim/lidar.py) goes to the free slot of its ring nearest its azimuth.
 With `azimuth_decimation` n, only every n-th firing is cast; the others are sent as no return.
+
+The device's model decides the rays and the packets (any of the decoder's models: VLP-16,
+HDL-32E, VLP-32C, HDL-64E, VLS-128, by their default or given calibration); the mount's sensor
+class keeps its range, its noise and its place on the vehicle. So a shuttle whose roof carries a
+VLS-128 is simulated by giving that LiDAR `model: VLS-128` in `vehicle_io`.
 """
 
 from __future__ import annotations
@@ -16,8 +21,6 @@ from ares.core.config import LidarMount, VehicleProfile
 from ares.core.config.vehicle_io import VelodyneDevice
 from ares.core.wire.velodyne import FiringPattern, encode_rotation, firing_pattern, load_calibration
 from ares.sim.lidar import LidarSimParams, SimulatedLidar
-
-SIM_MODELS = {"vlp16": "VLP-16", "hdl64e": "HDL-64E"}  # the simulated sensor classes and their Velodyne
 
 
 class WireLidar:
@@ -33,10 +36,6 @@ class WireLidar:
         device: VelodyneDevice,
         return_mode: str = "strongest",
     ):
-        if SIM_MODELS[mount.model] != device.model:
-            raise ValueError(
-                f"lidar {name}: the vehicle has a {mount.model}, vehicle_io says {device.model}: they must be the same"
-            )
         self.name = name
         self.device = device
         self.calibration = load_calibration(device.model, device.calibration)

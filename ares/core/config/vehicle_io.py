@@ -10,9 +10,10 @@ needs what that device would publish.
 
 from __future__ import annotations
 
+import ipaddress
 from typing import Literal
 
-from pydantic import model_validator
+from pydantic import field_validator, model_validator
 
 from ares.core.config.base import Params, param
 
@@ -44,15 +45,48 @@ class GnssDevice(Params):
 class VelodyneDevice(Params):
     """One Velodyne LiDAR sending its UDP data packets to this computer."""
 
-    model: Literal["VLP-16", "HDL-64E"] = param(doc="the sensor's model (its packet layout and default calibration)")
+    model: Literal["VLP-16", "HDL-32E", "VLP-32C", "HDL-64E", "VLS-128"] = param(
+        doc="the sensor's model: it decides the packet layout and the default calibration (a factory "
+        "byte in the packets that names another model is reported, not obeyed)"
+    )
     address: str = param("0.0.0.0", "the address the data packets are received on")
     port: int = param(2368, "the data packets' UDP port (Velodyne's default: 2368)", gt=0, lt=65536)
+    source: str | None = param(
+        None,
+        "the sensor's own IP address: packets from any other sender are refused and counted (null: any; "
+        "set it when two sensors or a stray sender can reach the port)",
+    )
+    pcap: str | None = param(
+        None,
+        "a capture file (.pcap or .pcapng, as tcpdump or Wireshark write it) read in place of the socket: "
+        "its datagrams to `port` (and from `source`, if set) played by their capture times on the stack "
+        "clock, so at --speed max as fast as the stack steps",
+    )
+    pcap_loop: bool = param(False, "pcap: play the capture again from its start when it ends")
+
+    @field_validator("source")
+    @classmethod
+    def _an_address(cls, value: str | None) -> str | None:
+        if value is not None:
+            try:
+                return str(ipaddress.ip_address(value))
+            except ValueError:
+                raise ValueError(f"{value!r} is not an IP address (the sensor's, e.g. 192.168.1.201)") from None
+        return value
+
     calibration: str | None = param(
         None,
         "the unit's calibration (a ROS velodyne_pointcloud YAML file); null: the model's default "
         "calibration shipped with ARES (ares/core/wire/calibrations)",
     )
     rate_hz: float = param(10.0, "rotations per second the sensor is set to", unit="Hz", gt=0)
+    fov_deg: tuple[float, float] | None = param(
+        None,
+        "the field of view the sensor is set to send (its FOV start and end azimuths, Velodyne's: "
+        "clockwise from forward): rotations are cut at the start and the hidden arc is no loss "
+        "(null: all round, cut at 0°)",
+        unit="deg",
+    )
 
 
 class CanDevice(Params):

@@ -40,17 +40,13 @@ import yaml
 PACKET_SIZE = 1206
 BLOCKS = 12
 CHANNELS = 32
-UPPER = 0xFFEE  # the block flag as its two bytes read big-endian (0xFF, 0xEE)
-LOWER = 0xFFDD  # HDL-64E's lower block
 HOUR_US = 3_600_000_000
 RETURN_MODES = {"strongest": 0x37, "last": 0x38, "dual": 0x39}
 MODE_NAMES = {code: name for name, code in RETURN_MODES.items()}
-VLP16_PRODUCT = 0x22
 # which return a point is (Points.returns)
 STRONGEST, LAST, BOTH = 1, 2, 3  # BOTH: in dual mode the strongest return was also the last
 
 CALIBRATION_DIR = Path(__file__).parent / "calibrations"
-MODELS = ("VLP-16", "HDL-64E")
 
 CHANNEL = np.dtype([("distance", "<u2"), ("intensity", "u1")])
 BLOCK = np.dtype([("flag", ">u2"), ("azimuth", "<u2"), ("channels", CHANNEL, (CHANNELS,))])
@@ -118,7 +114,7 @@ def default_calibration_path(model: str) -> Path:
 def load_calibration(model: str, path: str | Path | None = None) -> Calibration:
     """A calibration file in the ROS velodyne_pointcloud format; `path` None: the model's default."""
     path = Path(path) if path is not None else default_calibration_path(model)
-    lasers_expected = 16 if model == "VLP-16" else 64
+    lasers_expected = MODEL_SPECS[model].lasers if model in MODEL_SPECS else 0
     try:
         data = yaml.safe_load(path.read_text())
     except FileNotFoundError:
@@ -171,87 +167,170 @@ def load_calibration(model: str, path: str | Path | None = None) -> Calibration:
 
 
 @dataclass(frozen=True)
+class ModelSpec:
+    """What a model's packets look like, from its manual."""
+
+    lasers: int
+    product: int | None  # the factory byte a unit of the model writes (None: the HDL-64E's status bytes there)
+    banks: int  # blocks that fire together (one per 32 lasers; VLP-16: a block holds two 16-laser sequences)
+    cycle_us: float  # one firing sequence, every laser once (the VLS-128's: see VLS128_CHANNEL_US)
+    mode_byte: bool  # the return mode is in the packet's mode byte (the HDL-64E: by equal azimuths)
+
+
+MODEL_SPECS = {
+    "VLP-16": ModelSpec(lasers=16, product=0x22, banks=1, cycle_us=55.296, mode_byte=True),
+    "HDL-32E": ModelSpec(lasers=32, product=0x21, banks=1, cycle_us=46.080, mode_byte=True),
+    "VLP-32C": ModelSpec(lasers=32, product=0x28, banks=1, cycle_us=55.296, mode_byte=True),
+    "HDL-64E": ModelSpec(lasers=64, product=None, banks=2, cycle_us=57.6, mode_byte=False),
+    "VLS-128": ModelSpec(lasers=128, product=0xA1, banks=4, cycle_us=20 * 8 / 3, mode_byte=True),
+}
+MODELS: tuple[str, ...] = tuple(MODEL_SPECS)
+# factory bytes seen in the field and the model each names (the manuals' table; Puck LITE sends 0x22 too)
+PRODUCT_NAMES = {0x21: "HDL-32E", 0x22: "VLP-16", 0x23: "VLP-32A/B", 0x24: "Puck Hi-Res", 0x28: "VLP-32C"}
+PRODUCT_NAMES |= {0x31: "Velarray", 0xA1: "VLS-128"}
+BANK_FLAGS = (0xFFEE, 0xFFDD, 0xFFCC, 0xFFBB)  # lasers 0..31, 32..63, 64..95, 96..127
+# The VLS-128 fires a group of 8 lasers per channel slot, 20 slots a sequence: 8/3 µs a slot up to
+# firmware 5.1 (manual rev 3), 2.89 µs since 5.2 (rev 4). Which one a stream uses shows in its
+# packet period (3 sequences a packet): under VLS128_PERIOD_SPLIT_US, the older.
+VLS128_CHANNEL_US = (8 / 3, 2.89)
+VLS128_PERIOD_SPLIT_US = 167.0
+VLS128_TOH_US = 7.0  # its packet's timestamp is the fourth group's firing, not the first's
+
+
+@dataclass(frozen=True)
 class Layout:
     """Where one model's returns sit in a packet, in one return mode. Index arrays are (S, 32):
-    S source blocks (12, or 6 in dual mode) by 32 channels."""
+    S source blocks (12, or fewer in dual mode) by 32 channels."""
 
     model: str
     dual: bool
     block: np.ndarray  # (S,) the block holding the (strongest or only) return
     other: np.ndarray | None  # (S,) dual: the block of the last return (`block`: the strongest)
-    time_s: np.ndarray  # (S, 32) float32: each channel's firing time after the packet's first firing
+    bank: np.ndarray  # (12,) which 32 lasers each block carries (its flag: BANK_FLAGS[bank]); -1: unused
+    time_s: np.ndarray  # (S, 32) float32: each channel's firing time after the packet's timestamp
     dt_s: np.ndarray  # (S, 32) float32: ... after its own block's azimuth was read
-    duration_s: np.float32  # from block 0's azimuth to block 11's
+    duration_s: np.float32  # from block 0's azimuth to the last used block's (0: one firing a packet)
     firing: np.ndarray  # (S, 32) the firing (a sequence of every laser) within the packet
-    laser_in_block: np.ndarray  # (S, 32) laser id, before the HDL-64E's lower-block offset
+    laser_in_block: np.ndarray  # (S, 32) laser id, before the bank's offset (32 × bank)
     firings_per_packet: int
-    last_block_firing: int  # the firing block 11's azimuth belongs to
+    last_block_firing: int  # the firing the last used block's azimuth belongs to
+    last_block: int  # the last block that carries data (11, or 7 for the VLS-128 in dual mode)
+    rate_between_packets: bool  # the rotation rate from packet to packet (the VLS-128), not within one
+    step_pairs: tuple[
+        np.ndarray, np.ndarray, np.ndarray
+    ]  # (block a, block b, firings between): consecutive firings' blocks
     cycle_us: float  # one firing (all lasers once)
 
 
-FIRING_CYCLE_US = {"VLP-16": 55.296, "HDL-64E": 57.6}
+FIRING_CYCLE_US = {model: spec.cycle_us for model, spec in MODEL_SPECS.items()}
 _HDL64_PATTERN = (0.0, 1.3, 2.5, 3.7)
 
 
-@cache
-def layout(model: str, dual: bool) -> Layout:
-    j = np.arange(CHANNELS)
-    # the manuals' firing-time tables, computed as velodyne_decoder does (double, then float32)
+def _timing(model: str, channel_us: float) -> np.ndarray:
+    """(12, 32) float32 seconds: each (block, channel)'s firing time in single-return mode after
+    the packet's timestamp, by the manuals' firing-time tables, computed as velodyne_decoder does
+    (double, then float32)."""
     timing = np.empty((BLOCKS, CHANNELS), dtype=np.float32)
     for i in range(BLOCKS):
         for c in range(CHANNELS):
-            if model == "VLP-16":
-                timing[i, c] = (55.296 * 1e-6) * (2 * i + c // 16) + (2.304 * 1e-6) * (c % 16)
-            else:
-                timing[i, c] = (57.6 * (i // 2) + 7.2 * (c // 4) + _HDL64_PATTERN[c % 4]) * 1e-6
-    duration = np.float32(timing[(BLOCKS - 1) // 2 if dual else BLOCKS - 1, 0] - timing[0, 0])
+            if model == "VLP-16":  # 2.304 µs a laser, two 16-laser sequences a block
+                us = 55.296 * (2 * i + c // 16) + 2.304 * (c % 16)
+            elif model == "HDL-32E":  # 1.152 µs a laser, 46.08 µs a sequence
+                us = 46.080 * i + 1.152 * c
+            elif model == "VLP-32C":  # two lasers at once, 2.304 µs a pair
+                us = 55.296 * i + 2.304 * (c // 2)
+            elif model == "HDL-64E":  # S3: groups of four lasers, upper and lower blocks together
+                us = 57.6 * (i // 2) + 7.2 * (c // 4) + _HDL64_PATTERN[c % 4]
+            else:  # VLS-128: 8 lasers a slot, a pause of 2 slots after 64, 20 slots a sequence
+                dsr = 32 * (i % 4) + c
+                us = (i // 4) * 20 * channel_us + (dsr // 8 + dsr // 64 * 2) * channel_us - VLS128_TOH_US
+            timing[i, c] = us * 1e-6
+    return timing
+
+
+@cache
+def layout(model: str, dual: bool, channel_us: float = VLS128_CHANNEL_US[0]) -> Layout:
+    """The model's layout; `channel_us`: the VLS-128's channel slot (see VLS128_CHANNEL_US)."""
+    if model not in MODEL_SPECS:
+        raise ValueError(f"unknown Velodyne model {model!r}: expected one of {', '.join(MODELS)}")
+    spec = MODEL_SPECS[model]
+    j = np.arange(CHANNELS)
+    timing = _timing(model, channel_us)
+    sequences = BLOCKS // spec.banks  # firings a packet holds in single-return mode (VLP-16: twice that)
+    bank = np.arange(BLOCKS) % spec.banks
+    if not dual:
+        block, other, rows = np.arange(BLOCKS), None, np.arange(BLOCKS)
+        firing_of_block = block // spec.banks
+    elif spec.banks == 1:  # pairs (last, strongest): pair k is single mode's block k
+        block = np.arange(1, BLOCKS, 2)
+        other = block - 1
+        rows = block // 2
+        firing_of_block = rows
+    elif model == "HDL-64E":  # (upper, lower) strongest, then (upper, lower) last, per firing
+        block = np.array([i for i in range(BLOCKS) if i % 4 < 2])
+        other = block + 2
+        rows = (block // 4) * 2 + block % 2
+        firing_of_block = block // 4
+        bank = np.arange(BLOCKS) % 2
+    else:  # VLS-128: one sequence, pairs (last, strongest) bank by bank; blocks 8..11 carry nothing
+        block = np.arange(1, 8, 2)
+        other = block - 1
+        rows = block // 2
+        firing_of_block = np.zeros(len(block), dtype=int)
+        bank = np.array([k // 2 for k in range(8)] + [-1] * 4)
+    time = timing[rows]
+    read = timing[rows // spec.banks * spec.banks, 0] if model != "VLP-16" else timing[rows, 0]
     if model == "VLP-16":
-        if dual:  # pairs (last, strongest): pair k holds sequences 2k, 2k+1
-            block = np.arange(1, BLOCKS, 2)
-            other = block - 1
-            rows = block // 2
-            firing = 2 * rows[:, None] + j[None, :] // 16
-            last_firing = 10
-        else:
-            block, other, rows = np.arange(BLOCKS), None, np.arange(BLOCKS)
-            firing = 2 * rows[:, None] + j[None, :] // 16
-            last_firing = 22
-        time = timing[rows]
-        t0 = timing[rows, 0][:, None]
+        firing = 2 * firing_of_block[:, None] + j[None, :] // 16
         laser = np.broadcast_to(j % 16, time.shape)
-        per_packet = 24 if not dual else 12
-    elif model == "HDL-64E":
-        if dual:  # (upper, lower) strongest, then (upper, lower) last, per firing
-            block = np.array([i for i in range(BLOCKS) if i % 4 < 2])
-            other = block + 2
-            rows = (block // 4) * 2 + block % 2
-            firing = np.broadcast_to((block // 4)[:, None], (len(block), CHANNELS))
-            last_firing = 2
-            t0 = timing[(block // 4) * 2, 0][:, None]
-        else:
-            block, other, rows = np.arange(BLOCKS), None, np.arange(BLOCKS)
-            firing = np.broadcast_to((block // 2)[:, None], (BLOCKS, CHANNELS))
-            last_firing = 5
-            t0 = timing[(block // 2) * 2, 0][:, None]
-        time = timing[rows]
-        laser = np.broadcast_to(j, time.shape)
-        per_packet = 6 if not dual else 3
+        per_packet = 2 * sequences if not dual else sequences
     else:
-        raise ValueError(f"unknown Velodyne model {model!r}")
+        firing = np.broadcast_to(firing_of_block[:, None], (len(block), CHANNELS))
+        laser = np.broadcast_to(j, time.shape)
+        per_packet = sequences if not dual else max(sequences // 2, 1)
+    used = np.flatnonzero(bank >= 0)
+    last_block = int(used[-1])
+    last_source = int(np.flatnonzero((block == last_block) | (other == last_block if other is not None else False))[0])
+    last_firing = int(firing[last_source, 0])
+    duration = np.float32(read[last_source] - read[0])
+    cycle = 20 * channel_us if model == "VLS-128" else spec.cycle_us
     return Layout(
         model=model,
         dual=dual,
         block=block,
         other=other,
+        bank=bank,
         time_s=time,
-        dt_s=(time - t0).astype(np.float32),
+        dt_s=(time - read[:, None]).astype(np.float32),
         duration_s=duration,
         firing=np.ascontiguousarray(firing),
         laser_in_block=np.ascontiguousarray(laser),
         firings_per_packet=per_packet,
         last_block_firing=last_firing,
-        cycle_us=FIRING_CYCLE_US[model],
+        last_block=last_block,
+        rate_between_packets=model == "VLS-128",
+        step_pairs=_step_pairs(block, firing[:, 0]),
+        cycle_us=cycle,
     )
+
+
+def _step_pairs(block: np.ndarray, firing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Blocks of consecutive firings (one block each) and the firings between them."""
+    first_of: dict[int, int] = {}
+    for b, f in zip(block.tolist(), firing.tolist(), strict=True):
+        first_of.setdefault(f, b)
+    fired = sorted(first_of)
+    a = np.array([first_of[f] for f in fired[:-1]], dtype=np.int64)
+    b = np.array([first_of[f] for f in fired[1:]], dtype=np.int64)
+    return a, b, np.diff(np.array(fired, dtype=np.int64))
+
+
+def vls128_channel_us(packet_period_us: float | None) -> float:
+    """The VLS-128's channel slot from its single-return packet period (None: the newer firmware's,
+    as velodyne_decoder assumes before it has seen two packets)."""
+    if packet_period_us is None:
+        return VLS128_CHANNEL_US[1]
+    return VLS128_CHANNEL_US[0] if packet_period_us < VLS128_PERIOD_SPLIT_US else VLS128_CHANNEL_US[1]
 
 
 def packet_period_us(model: str, dual: bool) -> float:
@@ -260,13 +339,53 @@ def packet_period_us(model: str, dual: bool) -> float:
     return lay.firings_per_packet * lay.cycle_us
 
 
-def point_azimuth(lay: Layout, block_azimuth: np.ndarray) -> np.ndarray:
-    """(P, S, 32) each return's azimuth in 0.01°, from the packets' (P, 12) block azimuths: the
-    block's azimuth plus the packet's mean rotation rate times the laser's delay, rounded, in
-    float32 exactly as velodyne_decoder computes it (so both decoders agree to the bit)."""
+def rotation_rates(lay: Layout, block_azimuth: np.ndarray, timestamps_us: np.ndarray) -> np.ndarray:
+    """(P,) float32 each packet's rotation rate in 0.01° per second, as velodyne_decoder computes it:
+    from its first block's azimuth to its last used block's over the firing time between them; for
+    the VLS-128, from the packet before (its first packet: to the next) over the packets' firing
+    time (as many packet periods as the timestamps say passed: a lost packet is not a faster turn)."""
     az = block_azimuth.astype(np.int64)
-    diff = ((az[:, -1] - az[:, 0]) % 36000).astype(np.float32)
-    rate = diff / lay.duration_s  # 0.01° per second
+    if not lay.rate_between_packets:
+        rate: np.ndarray = ((az[:, lay.last_block] - az[:, 0]) % 36000).astype(np.float32) / lay.duration_s
+        jumped = _jumped(lay, az)
+        if jumped.any():  # a packet across a field of view's hidden arc: the rate of its firings
+            rate[jumped] = (_median_step(lay, az[jumped]) / (lay.cycle_us * 1e-6)).astype(np.float32)
+        return rate
+    if len(az) < 2:
+        return np.zeros(len(az), dtype=np.float32)
+    period_us = lay.firings_per_packet * lay.cycle_us
+    gaps_us: np.ndarray = np.mod(np.diff(timestamps_us.astype(np.int64)), HOUR_US)
+    periods = np.maximum(np.round(gaps_us / period_us), 1)
+    step = (np.diff(az[:, 0]) % 36000).astype(np.float32)
+    between = (step / (periods * period_us * 1e-6)).astype(np.float32)
+    return np.concatenate([between[:1], between]).astype(np.float32)
+
+
+def _block_steps(lay: Layout, az: np.ndarray) -> np.ndarray:
+    """(P, pairs) 0.01° per firing between the blocks of consecutive firings."""
+    a, b, between = lay.step_pairs
+    steps: np.ndarray = ((az[:, b] - az[:, a]) % 36000) / between
+    return steps
+
+
+def _median_step(lay: Layout, az: np.ndarray) -> np.ndarray:
+    median: np.ndarray = np.median(_block_steps(lay, az), axis=1)
+    return median
+
+
+def _jumped(lay: Layout, az: np.ndarray) -> np.ndarray:
+    """(P,) packets whose blocks jump (a step over twice their median): a field of view's end."""
+    if len(lay.step_pairs[0]) < 2:
+        return np.zeros(len(az), dtype=bool)
+    steps = _block_steps(lay, az)
+    jumped: np.ndarray = (steps > 2 * np.median(steps, axis=1)[:, None] + 1).any(axis=1)
+    return jumped
+
+
+def point_azimuth(lay: Layout, block_azimuth: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """(P, S, 32) each return's azimuth in 0.01°, from the packets' (P, 12) block azimuths: the
+    block's azimuth plus the packet's rotation rate (`rotation_rates`) times the laser's delay,
+    rounded, in float32 exactly as velodyne_decoder computes it (so both decoders agree to the bit)."""
     base = block_azimuth[:, lay.block].astype(np.float32)
     value = base[:, :, None] + rate[:, None, None] * lay.dt_s[None]
     value = value + np.float32(36000)  # float32, as the reference does before rounding
@@ -309,13 +428,24 @@ def _trig_table() -> tuple[np.ndarray, np.ndarray]:
 
 
 def is_dual(model: str, packet: np.ndarray) -> np.ndarray:
-    """Per packet: dual-return mode (VLP-16: its mode byte; HDL-64E: equal azimuths in blocks 0, 2)."""
-    if model == "VLP-16":
+    """Per packet: dual-return mode (its mode byte; the HDL-64E's: equal azimuths in blocks 0, 2)."""
+    if MODEL_SPECS[model].mode_byte:
         dual: np.ndarray = packet["mode"] == RETURN_MODES["dual"]
         return dual
     az = packet["blocks"]["azimuth"]
     same: np.ndarray = az[:, 0] == az[:, 2]
     return same
+
+
+def decode_layout(model: str, dual: bool, timestamps_us: np.ndarray) -> Layout:
+    """The layout packets decode by: the VLS-128's channel slot told from their period."""
+    if model != "VLS-128":
+        return layout(model, dual)
+    period = None
+    if len(timestamps_us) > 1:
+        gaps_us: np.ndarray = np.mod(np.diff(timestamps_us.astype(np.int64)), HOUR_US)
+        period = float(np.median(gaps_us)) * (3 if dual else 1)
+    return layout(model, dual, vls128_channel_us(period))
 
 
 def decode(calibration: Calibration, payloads: Sequence[bytes] | bytes) -> Points:
@@ -329,7 +459,8 @@ def decode(calibration: Calibration, payloads: Sequence[bytes] | bytes) -> Point
     dual = is_dual(model, packet)
     if dual.any() != dual.all():
         raise ValueError("packets in more than one return mode: decode them separately")
-    lay = layout(model, bool(dual[0]))
+    stamp = packet["timestamp"].astype(np.int64)
+    lay = decode_layout(model, bool(dual[0]), stamp)
     raw = np.frombuffer(data, dtype=np.uint8).reshape(len(packet), PACKET_SIZE)
     per_packet = lay.time_s.size  # S × 32 source positions
 
@@ -342,7 +473,7 @@ def decode(calibration: Calibration, payloads: Sequence[bytes] | bytes) -> Point
     # a gather from contiguous bytes: much faster than reading the 3-byte records' fields
     distances = [raw[:, w].astype(np.uint16) | (raw[:, w + 1].astype(np.uint16) << 8) for w in where]
     if not lay.dual:
-        mode = int(packet["mode"][0]) if model == "VLP-16" else RETURN_MODES["strongest"]
+        mode = int(packet["mode"][0]) if MODEL_SPECS[model].mode_byte else RETURN_MODES["strongest"]
         picks = [(np.flatnonzero(distances[0]), 0, LAST if mode == RETURN_MODES["last"] else STRONGEST)]
     else:
         strongest, last = distances
@@ -362,16 +493,15 @@ def decode(calibration: Calibration, payloads: Sequence[bytes] | bytes) -> Point
     intensity = raw[p, offsets + 2]
     # each return's azimuth (0.01°), only for the returns kept
     block_azimuth = packet["blocks"]["azimuth"]
-    az = block_azimuth.astype(np.int64)
-    rate = ((az[:, -1] - az[:, 0]) % 36000).astype(np.float32) / lay.duration_s
+    rate = rotation_rates(lay, block_azimuth, stamp)
     s_index = sj // CHANNELS
     base = block_azimuth[p, lay.block[s_index]].astype(np.float32)
     value = base + rate[p] * lay.dt_s.ravel()[sj] + np.float32(36000)
     azimuth = (np.floor(value.astype(np.float64) + 0.5).astype(np.int64) % 36000).astype(np.int32)
     laser = lay.laser_in_block.ravel()[sj]
-    if model == "HDL-64E":
-        laser = laser + 32 * (raw[p, BLOCK.itemsize * lay.block[s_index] + 1] == 0xDD)  # a lower block
-    stamp = packet["timestamp"].astype(np.int64)
+    if MODEL_SPECS[model].banks > 1:  # the bank the block's flag names (0xFF 0xEE, 0xDD, 0xCC, 0xBB)
+        flag_low = raw[p, BLOCK.itemsize * lay.block[s_index] + 1]
+        laser = laser + 32 * ((0xEE - flag_low.astype(np.int64)) // 0x11)
     since_first = ((stamp - stamp[0]) % HOUR_US).astype(np.float64) * 1e-6
     x, y, z = _place(calibration, raw_distance, azimuth, laser)
     return Points(
@@ -431,36 +561,56 @@ def _place(
 class PacketHeader:
     timestamp_us: int
     first_azimuth: int  # block 0's, 0.01°
-    last_azimuth: int  # block 11's
+    last_azimuth: int  # the last used block's
     dual: bool
     mode: int
+    product: int  # the factory byte as sent (the HDL-64E: a status byte)
+    azimuths: tuple[int, ...]  # every block's, 0.01°
 
 
 def check_packet(model: str, payload: bytes) -> tuple[PacketHeader | None, str, str]:
-    """(header, "", "") for a well-formed packet, else (None, cause, detail)."""
+    """(header, "", "") for a well-formed packet, else (None, cause, detail).
+
+    The configured model decides the layout: a factory byte that names another model is the
+    caller's to report (`factory_mismatch`), not a reason to refuse (early units write bytes the
+    manuals do not list). An azimuth of 36000, which real units write now and then, is 0°."""
     if len(payload) != PACKET_SIZE:
         return None, "wrong size", f"{len(payload)} bytes, expected {PACKET_SIZE}"
+    spec = MODEL_SPECS[model]
     fields = _HEADER.unpack_from(payload)
     flags, azimuths = fields[0 : 2 * BLOCKS : 2], fields[1 : 2 * BLOCKS : 2]
     timestamp, mode, product = fields[2 * BLOCKS :]
-    allowed = (b"\xff\xee",) if model == "VLP-16" else (b"\xff\xee", b"\xff\xdd")
-    for i, flag in enumerate(flags):
+    allowed = {flag.to_bytes(2, "big") for flag in BANK_FLAGS[: spec.banks]}
+    dual = mode == RETURN_MODES["dual"] if spec.mode_byte else azimuths[0] == azimuths[2]
+    used = BLOCKS if not (dual and model == "VLS-128") else 8  # its dual packets fill 8 blocks
+    for i, flag in enumerate(flags[:used]):
         if flag not in allowed:
             return None, "bad block flag", f"block {i}: {flag.hex()}"
-    if max(azimuths) > 35999:
-        return None, "azimuth > 35999", f"azimuth {max(azimuths)}"
+    if max(azimuths[:used]) > 36000:
+        return None, "azimuth > 36000", f"azimuth {max(azimuths[:used])}"
     if timestamp >= HOUR_US:
         return None, "timestamp past the hour", f"{timestamp} µs"
-    if model == "VLP-16":
+    if spec.mode_byte:
         if mode not in MODE_NAMES:
-            return None, "unknown return mode", f"0x{mode:02x}"
-        if product != VLP16_PRODUCT:
-            return None, "unknown product", f"0x{product:02x}, a VLP-16 sends 0x{VLP16_PRODUCT:02x}"
-        dual = mode == RETURN_MODES["dual"]
+            if model != "HDL-32E":
+                return None, "unknown return mode", f"0x{mode:02x}"
+            mode = RETURN_MODES["strongest"]  # HDL-32E firmware before 2.2.20 leaves the byte unset
     else:
-        dual = azimuths[0] == azimuths[2]
         mode = RETURN_MODES["dual"] if dual else RETURN_MODES["strongest"]
-    return PacketHeader(timestamp, azimuths[0], azimuths[-1], dual, mode), "", ""
+    first, last = azimuths[0] % 36000, azimuths[used - 1] % 36000
+    return PacketHeader(timestamp, first, last, dual, mode, product, azimuths), "", ""
+
+
+def factory_mismatch(model: str, product: int) -> str | None:
+    """What to report when a packet's factory byte names another model than the configured one."""
+    expected = MODEL_SPECS[model].product
+    if expected is None or product == expected:
+        return None
+    if model == "VLP-16" and product == 0x24:  # the Puck Hi-Res: a VLP-16 with other angles
+        said = "Puck Hi-Res (check the calibration: its vertical angles differ)"
+    else:
+        said = PRODUCT_NAMES.get(product, "no model we know")
+    return f"factory byte 0x{product:02x} says {said}; decoding as the configured {model}"
 
 
 @dataclass
@@ -495,13 +645,35 @@ class RotationAssembler:
     Rotations are whole packets: one ends after the packet at whose end the next packet would
     cross 0° azimuth (so a rotation is out without waiting for the next packet), or at a wrap
     of the azimuth, a change of return mode or a stall of the stream. Lost packets are told by
-    gaps in the timestamps or the azimuths beyond 1.5 packets' worth."""
+    gaps in the timestamps or the azimuths beyond 1.5 packets' worth. A sensor whose azimuth
+    stops advancing (a stuck motor, an encoder fault) never crosses 0°: a rotation is also cut
+    once it holds `stall_factor` times the packets a rotation at `rate_hz` has in dual mode, so
+    memory stays bounded; such a cut is counted in `azimuth_stalls` (and comes out truncated).
 
-    def __init__(self, calibration: Calibration, rate_hz: float, truncated_below_deg: float = 300.0):
+    `notices` holds (cause, text) the driver should report once: a factory byte that names another
+    model than the configured one (counted per byte in `factory_bytes`), an azimuth stall."""
+
+    def __init__(
+        self,
+        calibration: Calibration,
+        rate_hz: float,
+        truncated_below_deg: float = 300.0,
+        stall_factor: float = 2.5,
+        fov_deg: tuple[float, float] | None = None,
+    ):
         self.calibration = calibration
         self.model = calibration.model
         self.rate_hz = rate_hz
-        self.truncated_below_deg = truncated_below_deg
+        # a sensor set to a field of view sends packets from its start to its end azimuth only:
+        # rotations are cut at the start, the arc it hides is no loss, and "whole" is of the view
+        self.cut = round(fov_deg[0] * 100) % 36000 if fov_deg is not None else 0
+        self.hidden = (self.cut - round(fov_deg[1] * 100)) % 36000 if fov_deg is not None else 0
+        self.truncated_below_deg = truncated_below_deg * (36000 - self.hidden) / 36000
+        self.max_packets = max(2, int(np.ceil(stall_factor * 1e6 / (rate_hz * packet_period_us(self.model, True)))))
+        self.factory_bytes: Counter[int] = Counter()  # factory bytes that disagree with the model
+        self.azimuth_stalls = 0
+        self.notices: list[tuple[str, str]] = []
+        self._stalled = False
         self.packets = 0
         self.lost = 0
         self.malformed: Counter[str] = Counter()
@@ -522,21 +694,45 @@ class RotationAssembler:
             self.malformed[cause] += 1
             self.refused.append((cause, detail))
             return []
+        mismatch = factory_mismatch(self.model, header.product)
+        if mismatch is not None:
+            if header.product not in self.factory_bytes:
+                self.notices.append((f"factory byte 0x{header.product:02x}", mismatch))
+            self.factory_bytes[header.product] += 1
         done: list[Rotation] = []
         lay = layout(self.model, header.dual)
-        step = ((header.last_azimuth - header.first_azimuth) % 36000) / lay.last_block_firing
-        span = step * lay.firings_per_packet  # this packet's azimuth advance to the next
         previous, pending = self._previous, self._pending
+        if lay.last_block_firing > 0:
+            step = ((header.last_azimuth - header.first_azimuth) % 36000) / lay.last_block_firing
+            if step > 2 * self._previous_step + 1 > 1:  # a jump inside: a field of view's end
+                a, b, between = lay.step_pairs
+                az = header.azimuths
+                step = float(np.median([(az[j] - az[i]) % 36000 / n for i, j, n in zip(a, b, between, strict=True)]))
+        elif previous is not None and previous.dual == header.dual:  # one firing a packet: from the last
+            step = ((header.first_azimuth - previous.first_azimuth) % 36000) / lay.firings_per_packet
+            if step > 2 * self._previous_step > 0:  # a lost packet's gap: keep the rate we had
+                step = self._previous_step
+        else:
+            step = self._previous_step
+        span = step * lay.firings_per_packet  # this packet's azimuth advance to the next
         gap_azimuth = 0.0
         if previous is not None:
-            dt = (header.timestamp_us - previous.timestamp_us) % HOUR_US
+            dt: float = (header.timestamp_us - previous.timestamp_us) % HOUR_US
             if dt >= STALL_US:
                 self.stalls += 1
                 done += self._finish()
             else:
                 period = packet_period_us(self.model, header.dual)
-                lost_time = round(dt / period) - 1 if dt > GAP_PERIODS * period else 0
                 gap_azimuth = (header.first_azimuth - previous.first_azimuth) % 36000
+                if self.hidden and self._relative(header.first_azimuth) < self._relative(previous.first_azimuth):
+                    # across the hidden arc: the time and azimuth it takes are no loss, nor is the
+                    # packet's worth its edges can fall short by (the view ends and starts mid-packet)
+                    previous_lay = layout(self.model, previous.dual)
+                    per_us = self._previous_step / previous_lay.cycle_us
+                    span_before = self._previous_step * previous_lay.firings_per_packet
+                    gap_azimuth = max(gap_azimuth - self.hidden - span_before, 0)
+                    dt = max(dt - (self.hidden / per_us if per_us > 0 else dt) - period, 0)
+                lost_time = round(dt / period) - 1 if dt > GAP_PERIODS * period else 0
                 expected = self._previous_step * layout(self.model, previous.dual).firings_per_packet
                 lost_azimuth = (
                     round(gap_azimuth / expected) - 1 if expected > 0 and gap_azimuth > GAP_PERIODS * expected else 0
@@ -546,9 +742,10 @@ class RotationAssembler:
         if pending.last is not None:
             last = pending.last
             end_of_last = (
-                last.first_azimuth + pending.step * (layout(self.model, last.dual).firings_per_packet - 1)
+                self._relative(last.first_azimuth)
+                + pending.step * (layout(self.model, last.dual).firings_per_packet - 1)
             ) % 36000
-            if header.dual != last.dual or header.first_azimuth < end_of_last:
+            if header.dual != last.dual or self._relative(header.first_azimuth) < end_of_last:
                 done += self._finish()  # the azimuth wrapped between packets, or the mode changed
                 pending = self._pending
         if pending.first is None:
@@ -558,12 +755,23 @@ class RotationAssembler:
             pending.swept += (header.first_azimuth - pending.last.first_azimuth) % 36000
         pending.payloads.append(payload)
         pending.last, pending.last_wall, pending.step = header, received_wall, step
+        if len(pending.payloads) >= self.max_packets:  # the azimuth is not turning: cut, bounded
+            self.azimuth_stalls += 1
+            if not self._stalled:
+                self.notices.append(("azimuth stalled", f"azimuth stalled: {self.max_packets} packets without a turn"))
+            self._stalled = True
+            self._previous, self._previous_step = header, step
+            return done + self._finish()
         self._previous, self._previous_step = header, step
-        end = header.first_azimuth + step * (lay.firings_per_packet - 1)  # unwrapped
+        end = self._relative(header.first_azimuth) + step * (lay.firings_per_packet - 1)  # unwrapped
         wrapped_inside = end >= 36000
         if (wrapped_inside and len(pending.payloads) > 1) or (not wrapped_inside and end + span >= 36000):
             done += self._finish()
         return done
+
+    def _relative(self, azimuth: int) -> int:
+        """An azimuth from the cut (0°, or the start of the field of view), 0.01°."""
+        return (azimuth - self.cut) % 36000
 
     def flush(self) -> list[Rotation]:
         """The rotation under way, finished as it is (the stream stopped)."""
@@ -582,6 +790,8 @@ class RotationAssembler:
             rate = pending.swept / 100.0 / 360.0 / (elapsed_us * 1e-6)
             self.measured_rate_hz = rate
         truncated = coverage < self.truncated_below_deg
+        if not truncated:
+            self._stalled = False
         self.rotations += 1
         self.truncated += truncated
         return [
@@ -661,13 +871,14 @@ def firing_pattern(
         % 36000
     )
     block_az = block_az.astype(np.uint16)
-    azimuth = point_azimuth(lay, block_az)  # (P, S, 32)
+    period_us = 1e6 / rate_hz / packets
+    stamps = np.round(np.arange(packets) * period_us).astype(np.int64)
+    azimuth = point_azimuth(lay, block_az, rotation_rates(lay, block_az, stamps))  # (P, S, 32)
     shape = azimuth.shape
     slot_block = np.broadcast_to(lay.block[None, :, None], shape)
     slot_firing = np.arange(packets)[:, None, None] * lay.firings_per_packet + lay.firing[None]
     slot_laser = np.broadcast_to(lay.laser_in_block, shape)
-    if model == "HDL-64E":
-        slot_laser = slot_laser + 32 * (slot_block % 2)  # the encoder's blocks: upper, lower, upper, ...
+    slot_laser = slot_laser + 32 * lay.bank[slot_block]  # the encoder's blocks: bank by bank
     az_cdeg = np.zeros((firings, calibration.lasers), dtype=np.int32)
     az_cdeg[slot_firing, slot_laser] = azimuth
     cos_t, sin_t = _trig_table()
@@ -683,7 +894,7 @@ def firing_pattern(
         rate_hz=rate_hz,
         packets=packets,
         firings_per_packet=lay.firings_per_packet,
-        packet_period_us=1e6 / rate_hz / packets,
+        packet_period_us=period_us,
         block_azimuth=block_az,
         azimuth_cdeg=az_cdeg,
         directions=directions,
@@ -726,9 +937,7 @@ def encode_rotation(
     lay = layout(pattern.model, dual)
     packet = np.zeros(pattern.packets, dtype=PACKET)
     blocks = packet["blocks"]
-    blocks["flag"] = UPPER
-    if pattern.model == "HDL-64E":
-        blocks["flag"][:, 1::2] = LOWER
+    blocks["flag"] = np.array(BANK_FLAGS, dtype=np.uint16)[np.maximum(lay.bank, 0)]
     blocks["azimuth"] = pattern.block_azimuth
     p = np.broadcast_to(np.arange(pattern.packets)[:, None, None], pattern._slot_block.shape)
     j = np.broadcast_to(np.arange(CHANNELS), pattern._slot_block.shape)
@@ -747,9 +956,11 @@ def encode_rotation(
         channels["distance"][p, other, j] = raw2[pattern._slot_firing, pattern._slot_laser]
         channels["intensity"][p, other, j] = level2[pattern._slot_firing, pattern._slot_laser]
     packet["timestamp"] = timestamps % HOUR_US
-    if pattern.model == "VLP-16":
+    spec = MODEL_SPECS[pattern.model]
+    if spec.mode_byte:
         packet["mode"] = RETURN_MODES[pattern.return_mode]
-        packet["product"] = VLP16_PRODUCT
+    if spec.product is not None:
+        packet["product"] = spec.product
     # the HDL-64E S3's two status bytes stay 0 (no status cycle is simulated)
     data = packet.tobytes()
     return [data[i : i + PACKET_SIZE] for i in range(0, len(data), PACKET_SIZE)]

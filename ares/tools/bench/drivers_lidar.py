@@ -1,5 +1,5 @@
 """The LiDAR driver's cost (part of `ares bench drivers`): decoding and assembling one rotation of
-Velodyne packets, VLP-16 and HDL-64E at full resolution (10 Hz, strongest return).
+Velodyne packets, every model at full resolution (10 Hz, strongest return).
 
 The packets are made by the simulator's encoder (ares/core/wire/velodyne.py) from a synthetic
 scene (a ground plane 1.8 m down, walls 4 to 30 m away; every laser returns except those over
