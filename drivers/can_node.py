@@ -190,13 +190,13 @@ class CanDriver(DriverNode):
         counters = self.counters
         counters.got()
         decoded: Decoded = self.decoder.decode(frame, now)
-        if decoded.skipped != OWN_DIRECTION:
-            self._heard_at = time.monotonic()
         if decoded.lost:
             counters.missing(decoded.lost, f"counter gap on {decoded.frame}")
         if decoded.refused is not None:
             counters.refuse(decoded.refused, decoded.detail)
-            return
+            return  # garbage is not the vehicle speaking: a bus of only garbage goes silent
+        if decoded.skipped != OWN_DIRECTION:
+            self._heard_at = time.monotonic()
         if decoded.skipped is not None:
             counters.skip(decoded.skipped)
             return

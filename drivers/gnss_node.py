@@ -10,8 +10,13 @@ The fields are not parsed here beyond the time of day: a bad checksum or a nonse
 the gnss node's to refuse.
 
 Each message is stamped with the epoch's time of day mapped to stack time (the drivers' stamp
-rule, nmea_stream.stamp). A receiver absent, gone (a read error, the connection closed) or silent
-for `silent_after_s` is closed and reopened every `reopen_s`, each cause logged once.
+rule, nmea_stream.stamp). An epoch older than `max_fix_age_s` when it is read (a stream held up,
+then a burst of old epochs) is dropped and counted as stale, never stamped as new: a localization
+fed an old position as now is a safety defect. Ages are judged against the stack clock; a receiver
+clock that disagrees with it for good (a computer without time sync) is reported, and ages are
+then judged from the freshest epochs of the last `clock_window_s`. A receiver absent, gone (a read
+error, the connection closed) or silent for `silent_after_s` is closed and reopened every
+`reopen_s`, each cause logged once.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from typing import Protocol
 import serial
 
 from ares.core.config import GnssDevice, Params, param
-from ares.core.driver import DriverNode, device_stamp
+from ares.core.driver import DeviceAges, DriverNode
 from ares.core.messages import GnssSentences
 from ares.core.node import Output
 from ares.core.wire.gpsd import GPSD_PORT, GpsdClient, TcpStream
@@ -43,6 +48,15 @@ class GnssDriverParams(Params):
         ge=0,
     )
     max_line: int = param(MAX_LINE, "longer lines are refused (NMEA's limit is 82 characters)", unit="B", gt=10)
+    max_fix_age_s: float = param(
+        0.5, "an epoch older than this when it is read is dropped and counted (never stamped as new)", unit="s", gt=0
+    )
+    clock_window_s: float = param(
+        10.0,
+        "a receiver clock off from the stack clock's: ages are judged from the freshest epoch of this long",
+        unit="s",
+        gt=0,
+    )
 
 
 class _Port(Protocol):
@@ -88,14 +102,18 @@ class GnssDriver(DriverNode):
             raise RuntimeError("gnss_driver: vehicle_io.gnss is not set: there is no receiver to read")
         self.device: GnssDevice = gnss
         self.wire_counts = self.wire(DEVICE)
-        self.stream = NmeaStream(max_line=self.params.max_line, on_refuse=self.wire_counts.refuse)
+        self.stream = self._framer()
         self.epochs = EpochGroups(self.params.epoch_hold_s)
+        self.ages = DeviceAges(DAY_S, self.params.max_fix_age_s, self.params.clock_window_s)
         self.port: _Port | None = None
         self._gpsd: GpsdClient | None = None
         self._next_open = 0.0  # monotonic
         self._last_byte = 0.0  # monotonic
         self._ubx_seen = 0
         self.wire_counts.detail = self._where()
+
+    def _framer(self) -> NmeaStream:
+        return NmeaStream(max_line=self.params.max_line, on_refuse=self.wire_counts.refuse)
 
     def _where(self) -> str:
         d = self.device
@@ -125,7 +143,8 @@ class GnssDriver(DriverNode):
             absent = isinstance(exc, FileNotFoundError) or "No such file" in str(exc)
             self.wire_counts.problem("absent" if absent else "cannot open", f"{self._where()}: {exc}")
             return
-        self.stream = NmeaStream(max_line=self.params.max_line, on_refuse=self.wire_counts.refuse)
+        self.stream = self._framer()
+        self.ages = DeviceAges(DAY_S, self.params.max_fix_age_s, self.params.clock_window_s)  # a new device's clock
         self._ubx_seen = 0
         self._last_byte = time.monotonic()
         self.log.info("reading the GNSS receiver: %s", self._where())
@@ -151,7 +170,7 @@ class GnssDriver(DriverNode):
             self._read(now)
         epoch = self.epochs.due(time.time(), drained=True)
         if epoch is not None:
-            self._publish(epoch, now)
+            self._publish([epoch], now)
         self.report(now)
 
     def _read(self, now: float) -> None:
@@ -175,12 +194,27 @@ class GnssDriver(DriverNode):
         if self.stream.ubx_frames > self._ubx_seen:
             self.wire_counts.skip("ubx", self.stream.ubx_frames - self._ubx_seen)
             self._ubx_seen = self.stream.ubx_frames
-        for line, wall in lines:
-            done = self.epochs.add(line, wall)
-            if done is not None:
-                self._publish(done, now)
+        done = [epoch for line, wall in lines if (epoch := self.epochs.add(line, wall)) is not None]
+        self._publish(done, now)
 
-    def _publish(self, epoch: Epoch, now: float) -> None:
-        t = device_stamp(now, self.clock.utc_epoch, epoch.tod, DAY_S)
-        self.sentences.put(GnssSentences(t=t, sentences=epoch.lines))
-        self.wire_counts.put(epoch.read_wall)
+    def _publish(self, epochs: list[Epoch], now: float) -> None:
+        """The epochs completed by one read, in order; their ages are judged once all are seen, so
+        that a burst's newest epoch tells how old the others are."""
+        if not epochs:
+            return
+        utc_epoch = self.clock.utc_epoch
+        self.ages.observe(now, [self.ages.raw_age(now, utc_epoch, e.tod) for e in epochs if e.tod is not None])
+        offset = self.ages.clock_offset_s
+        if offset is not None:
+            self.wire_counts.problem(
+                "receiver clock", f"its time is {offset:+.2f} s from the stack clock's: ages judged from its freshest"
+            )
+        for epoch in epochs:
+            age = self.ages.age(now, utc_epoch, epoch.tod)
+            if age is not None and age > self.params.max_fix_age_s:
+                self.wire_counts.skip("stale")
+                self.wire_counts.problem("stale", f"an epoch {age:.2f} s old when read: dropped, not stamped as new")
+                continue
+            t = now - max(age, 0.0) if age is not None else now  # no time of day: as read
+            self.sentences.put(GnssSentences(t=t, sentences=epoch.lines))
+            self.wire_counts.put(epoch.read_wall)

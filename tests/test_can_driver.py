@@ -277,6 +277,31 @@ def test_a_device_that_cannot_be_opened_is_retried_without_stopping_the_driver(c
     node.teardown()
 
 
+def test_a_bus_of_only_garbage_is_not_connected():
+    """Frames that are all refused (bad checksums, unknown ids) are no vehicle speaking: before, they
+    kept `connected` true; now the bus goes silent, is reopened, and each frame is counted."""
+    rig = Rig(unique_device(), silent_after_s=0.2)
+    try:
+        rig.sim.send_can(SAMPLE)
+        rig.step_until(lambda: bool(rig.got("sensors/can")))
+        assert rig.status().connected
+        wire = rig.sim.bus
+        sent = 0
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:  # 0.5 s of garbage every few ms: longer than the silence
+            wire.send(can.Message(arbitration_id=0x555, is_extended_id=False, data=bytes(8)))
+            sent += 1
+            rig.step()
+            time.sleep(0.003)
+        status = rig.status()
+        assert not status.connected and sent // 2 < status.malformed["unknown id"] <= sent  # (a reopen drops a few)
+        rig.sim.send_can(SAMPLE)  # the vehicle again
+        rig.step_until(lambda: bool(rig.got("sensors/can")))
+        assert rig.status().connected
+    finally:
+        rig.close()
+
+
 def test_a_vehicle_gone_silent_marks_the_bus_disconnected():
     rig = Rig(unique_device(), silent_after_s=0.2)
     try:
@@ -292,3 +317,19 @@ def test_a_vehicle_gone_silent_marks_the_bus_disconnected():
         assert rig.status().connected
     finally:
         rig.close()
+
+
+def test_latencies_are_kept_in_bounded_memory():
+    """A driver's counters after a day's worth of frames at 80 a second would have held every
+    latency (about 220 MB); now only the window the percentiles are taken over."""
+    import logging
+
+    from ares.core.driver import LATENCY_WINDOW, WireCounters
+
+    counters = WireCounters("can", logging.getLogger("test"))
+    now = time.time()
+    for _ in range(50_000):
+        counters.put(read_wall=now)
+    held = [len(v) for v in vars(counters).values() if hasattr(v, "__len__") and not isinstance(v, str)]
+    assert max(held) == LATENCY_WINDOW and counters.published == 50_000
+    assert counters.percentile_ms(50) is not None

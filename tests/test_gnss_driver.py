@@ -152,6 +152,51 @@ def test_a_simulated_receiver_on_a_pseudo_terminal_gives_one_message_and_fix_per
     assert not link.exists() and not link.is_symlink()
 
 
+def test_a_burst_of_old_epochs_is_dropped_never_stamped_as_new(tmp_path):
+    """A stream held up for 6 s, then 31 epochs at once: those older than 0.5 s when read are
+    dropped and counted as stale. Before, all came out and the oldest (6 s) was stamped as now."""
+    link = tmp_path / "gnss"
+    pty = NmeaPty(link)
+    rig = Rig(make_cfg({"source": "serial", "device": str(link)}))
+    try:
+        rig.step(0.9)
+        for t, lines, _ in drive(5, 1.0, rig.clock.utc_epoch):  # a second of epochs as they come
+            rig.clock.set(t)
+            assert pty.write(lines) == 0
+            rig.step_until(lambda t=t: rig.messages and rig.messages[-1].t == pytest.approx(t), "an epoch", t)
+        held = drive(31, 2.0, rig.clock.utc_epoch)  # 2.0 .. 8.0 s, all written at 8.0
+        rig.clock.set(8.0)
+        assert pty.write([line for _, lines, _ in held for line in lines]) == 0
+        rig.step_until(lambda: rig.counts.skipped.get("stale", 0) + len(rig.messages) == 5 + 31, "the burst", 8.0)
+        fresh = [t for t, _, _ in held if 8.0 - t <= 0.5 + 1e-9]
+        assert rig.counts.skipped["stale"] == 31 - len(fresh) == 28
+        assert [m.t for m in rig.messages[5:]] == pytest.approx(fresh)  # their own times, not now
+        assert len(rig.fixes) == 5 + len(fresh)
+    finally:
+        rig.close()
+        pty.close()
+
+
+def test_a_receiver_clock_off_from_ours_is_reported_not_dropped(tmp_path, caplog):
+    """A computer whose clock is 3 s behind the receiver's: every fix would look 3 s from the future;
+    the driver reports the offset and judges ages from the freshest epochs instead."""
+    link = tmp_path / "gnss"
+    pty = NmeaPty(link)
+    rig = Rig(make_cfg({"source": "serial", "device": str(link)}))
+    try:
+        rig.step(0.9)
+        epochs = drive(10, 1.0, rig.clock.utc_epoch + 3.0)  # the receiver's time of day 3 s ahead
+        for k, (t, lines, _) in enumerate(epochs):
+            rig.clock.set(t)
+            assert pty.write(lines) == 0
+            rig.step_until(lambda k=k: len(rig.messages) == k + 1, f"epoch {k}", t)
+        assert not rig.counts.skipped and [m.t for m in rig.messages] == pytest.approx([t for t, _, _ in epochs])
+        assert any("receiver clock" in r.message and "-3.00 s" in r.message for r in caplog.records)
+    finally:
+        rig.close()
+        pty.close()
+
+
 def ubx(cls: int, ident: int, payload: bytes) -> bytes:
     body = bytes([cls, ident, len(payload) & 0xFF, len(payload) >> 8]) + payload
     a = b = 0

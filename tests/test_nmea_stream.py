@@ -43,6 +43,9 @@ GSV = sentence("GPGSV,3,1,10,02,45,123,44,05,60,240,46,07,12,310,38,13,33,045,41
 AIS = "!AIVDM,1,1,,A,13aEOK?P00PD2wVMdLDRhgvL289?,0*26"
 
 
+BYTE_S = 10 / 115200  # a byte's time on a 115,200 bit/s line (each chunk is read as its last byte arrives)
+
+
 def frame(data: bytes, chunks: list[int] | None = None) -> tuple[list[str], NmeaStream]:
     stream = NmeaStream()
     out = []
@@ -51,7 +54,7 @@ def frame(data: bytes, chunks: list[int] | None = None) -> tuple[list[str], Nmea
     else:
         i = 0
         for n in [*chunks, len(data)]:
-            out += stream.feed(data[i : i + n], float(i))
+            out += stream.feed(data[i : i + n], i * BYTE_S)
             i += n
     return [line for line, _ in out], stream
 
@@ -168,6 +171,25 @@ def test_a_receiver_log_framed():
 
 
 # ---- time and epochs -----------------------------------------------------------------------------
+
+
+def test_a_stray_ubx_header_does_not_hold_the_nmea_behind_it():
+    """Six bytes that look like a UBX header claiming an 8 KB frame, then the receiver's NMEA at 5 Hz:
+    before, every sentence was held until 8 KB had come (6 s at this rate); now the header is
+    abandoned 100 ms after its sync was read, and the sentences behind it come out, none lost."""
+    stray = b"\xb5\x62\x01\x07\x00\x20"  # NAV-PVT, length 0x2000
+    epoch = (GGA + "\r\n" + GST + "\r\n").encode()
+    stream = NmeaStream()
+    assert stream.feed(epoch, 0.0) != [] and stream.feed(stray, 0.01) == []
+    got = []
+    for k in range(1, 31):  # an epoch every 0.2 s
+        got += [wall for _, wall in stream.feed(epoch, 0.2 * k)]
+        if k == 1:
+            assert len(got) == 2 and stream.malformed == {"ubx abandoned": 1}  # out at the next read
+    assert len(got) == 60 and stream.pending == 0  # every sentence, each when read
+    whole = NmeaStream(ubx_wait_s=1e9)  # with no time budget: the stream is held for 8 KB
+    whole.feed(stray, 0.0)
+    assert all(whole.feed(epoch, 0.2 * k) == [] for k in range(1, 31)) and whole.pending > 3000
 
 
 def test_time_of_day_of_each_kind():

@@ -520,12 +520,15 @@ def test_ubx_frames_between_the_sentences_are_skipped_and_counted(tmp_path):
     assert together.log.ubx_frames == len(lines) and together.points_in == alone.points_in
     assert np.allclose(together.xyz, alone.xyz)
     assert f"UBX) frames between the sentences: {len(lines)}" in "\n".join(together.log.report())
-    # a broken frame (its checksum wrong) is not taken out: the file is then not text, as said before
+    # a broken frame (its checksum wrong) and one cut by the file's end: skipped and counted as the
+    # GNSS driver counts them, every sentence kept (before: "not a text file (byte 380 is NUL)")
     broken = bytearray(frames[0])
     broken[-1] ^= 0xFF
-    mixed.write_bytes(data + bytes(broken))
-    with pytest.raises(RouteImportError, match="not a text file"):
-        import_route(mixed, cfg=CFG)
+    mixed.write_bytes(data[:380] + bytes(broken) + data[380:] + frames[0][:40])
+    again = import_route(mixed, cfg=CFG)
+    assert again.points_in == alone.points_in and np.allclose(again.xyz, alone.xyz)
+    assert again.log.broken_binary and sum(again.log.broken_binary.values()) >= 2
+    assert "binary that is no whole frame" in "\n".join(again.log.report())
 
 
 def test_a_receiver_that_stood_still_is_not_a_route(tmp_path):

@@ -60,7 +60,7 @@ from ares.core import config
 from ares.core.config import Params, UtmOrigin, param
 from ares.core.geodesy import FrameError, LocalFrame, origin_at
 from ares.core.route import Route, RouteError, origin_comment, width_comment
-from ares.core.wire.nmea_stream import UBX_SYNC, ubx_frame_length
+from ares.core.wire.nmea_stream import UBX_SYNC, NmeaStream, ubx_frame_length
 from perception.gnss import RTK_FIXED
 from perception.nmea_parser import Gga, NmeaError, Other, Position, address, parse_sentence
 
@@ -262,6 +262,7 @@ class NmeaLog:
     hdop: np.ndarray | None = None  # per projected fix; NaN where the sentence gives none
     rtk: np.ndarray | None = None  # per projected fix: RTK fixed (GGA quality 4)
     ubx_frames: int = 0  # u-blox binary frames on the same stream (skipped)
+    broken_binary: dict[str, int] = field(default_factory=dict)  # binary that is no frame, by cause (skipped)
 
     def report(self) -> list[str]:
         unused = {a: n for a, n in self.sentences.items() if a[-3:] not in (self.used, "GST")}
@@ -284,6 +285,11 @@ class NmeaLog:
             lines.append(f"skipped, comment or header lines: {self.text_lines}")
         if self.ubx_frames:
             lines.append(f"skipped, u-blox binary (UBX) frames between the sentences: {self.ubx_frames}")
+        if self.broken_binary:
+            lines.append(
+                "skipped, binary that is no whole frame (a broken or cut UBX frame, noise): "
+                + _counts(self.broken_binary)
+            )
         if self.bad:
             lines.append(
                 "skipped, bad lines: "
@@ -342,6 +348,23 @@ def strip_ubx(data: bytes) -> tuple[bytes, int]:
         else:  # not a frame, or cut short by the end of the file: the bytes stay
             out += data[i : j + 2]
             i = j + 2
+
+
+def nmea_of_binary(data: bytes) -> tuple[bytes, dict[str, int]]:
+    """The sentences of a stream that holds binary the UBX scan did not take out (a frame with a
+    broken checksum, a cut one, noise), framed as the GNSS driver frames its port (NmeaStream),
+    one a line, and what was refused by cause. Comment lines between the sentences count as
+    refused text then: a binary stream has none."""
+    stream = NmeaStream()
+    lines = stream.feed(data + b"\n", 0.0)  # \n: the last line's end
+    wall = 0.0
+    while stream.pending:  # a frame that claims more bytes than the file has left: not a frame
+        before, wall = stream.pending, wall + 1.0
+        lines += stream.feed(b"", wall)
+        if stream.pending >= before:
+            break
+    text = "\n".join(line for line, _ in lines)
+    return (text + "\n").encode("ascii") if lines else b"", dict(stream.malformed)
 
 
 def log_lines(data: bytes) -> Iterator[tuple[int, bytes | None]]:
@@ -663,8 +686,12 @@ def import_route(
         raise RouteImportError(f"{source}: cannot read: {exc.strerror}") from None
     name = source.name
     data, ubx_frames = strip_ubx(data)
+    broken: dict[str, int] = {}
     if b"\x00" in data[:65536]:
-        raise RouteImportError(f"{name}: not a text file (byte {data.index(bytes(1))} is NUL)")
+        nul = data.index(bytes(1))
+        data, broken = nmea_of_binary(data)
+        if not data:
+            raise RouteImportError(f"{name}: not a text file (byte {nul} is NUL), and no NMEA sentence in it")
     if fmt == "auto":
         fmt = detect_format(data)
         if fmt is None:
@@ -677,6 +704,7 @@ def import_route(
     if fmt == "nmea":
         log = read_nmea_log(data, name, strict)
         log.ubx_frames = ubx_frames
+        log.broken_binary = broken
         if not log.fixes:
             detail = f" ({_counts(log.no_fix)} without a fix)" if log.no_fix else ""
             raise RouteImportError(f"{name}: no usable position (GGA, RMC or GLL) in the log{detail}")

@@ -126,10 +126,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     live.add_argument("--config", action="append", metavar="FILE", help="configuration overrides, as for ares run")
     drivers = bench_sub.add_parser(
         "drivers",
-        help="the device drivers: Velodyne decode per rotation (VLP-16, HDL-64E), CAN frames per second",
-        description="Decodes and assembles full-resolution Velodyne rotations (VLP-16, HDL-32E, VLP-32C, HDL-64E, VLS-128) as the LiDAR "
-        "driver does, and pushes CAN frames through the DBC codec and through python-can's udp_multicast "
-        "into the CAN driver; medians of repeated rounds, in this process.",
+        help="the device drivers: Velodyne decode per rotation (every model), CAN frames per second",
+        description="Decodes and assembles full-resolution Velodyne rotations (VLP-16, HDL-32E, VLP-32C, "
+        "HDL-64E, VLS-128) as the LiDAR driver does, and pushes CAN frames through the DBC codec and "
+        "through python-can's udp_multicast into the CAN driver; medians of repeated rounds, in this process.",
     )
     drivers.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
     drivers.add_argument("--repeats", type=positive_int, default=20, metavar="N", help="rotations per model (20)")

@@ -38,6 +38,45 @@ def device_stamp(now: float, utc_epoch: float, device_time: float | None, period
     return now if age > MAX_STAMP_AGE_S else now - age
 
 
+class DeviceAges:
+    """How old a device's data is when read, from the time it carries (`period_s`: a day for an
+    NMEA time of day): its calendar time against the stack clock's. A device clock that disagrees
+    for good (the smallest age over the last `window_s` beyond `tolerance_s` either way: a computer
+    without time sync) is an offset: ages are then taken from the freshest data of the window."""
+
+    def __init__(self, period_s: float, tolerance_s: float, window_s: float):
+        self.period_s = period_s
+        self.tolerance_s = tolerance_s
+        self.window_s = window_s
+        self._seen: deque[tuple[float, float]] = deque()  # (stack time, raw age)
+
+    def raw_age(self, now: float, utc_epoch: float, device_time: float) -> float:
+        """now's calendar time less the device's, within ± half a period (negative: from the future)."""
+        half = self.period_s / 2
+        return ((utc_epoch + now) % self.period_s - device_time + half) % self.period_s - half
+
+    def observe(self, now: float, raw_ages: list[float]) -> None:
+        for raw in raw_ages:
+            self._seen.append((now, raw))
+        while self._seen and self._seen[0][0] < now - self.window_s:
+            self._seen.popleft()
+
+    @property
+    def clock_offset_s(self) -> float | None:
+        """The device clock's offset from the stack clock's, when it is beyond the tolerance."""
+        if not self._seen:
+            return None
+        freshest = min(raw for _, raw in self._seen)
+        return freshest if abs(freshest) > self.tolerance_s else None
+
+    def age(self, now: float, utc_epoch: float, device_time: float | None) -> float | None:
+        if device_time is None:
+            return None
+        raw = self.raw_age(now, utc_epoch, device_time)
+        offset = self.clock_offset_s
+        return raw - offset if offset is not None else raw
+
+
 class WireCounters:
     """One device's counts: received, published, lost, malformed and skipped by cause, latencies."""
 
@@ -50,7 +89,6 @@ class WireCounters:
         self.malformed: Counter[str] = Counter()
         self.skipped: Counter[str] = Counter()
         self.latencies_s: deque[float] = deque(maxlen=LATENCY_WINDOW)
-        self.all_latencies_s: list[float] = []  # every one, for a run's final figures
         self.connected = False
         self.detail = ""
         self._problems: Counter[str] = Counter()
@@ -64,7 +102,6 @@ class WireCounters:
         if read_wall is not None:
             latency = max(time.time() - read_wall, 0.0)
             self.latencies_s.append(latency)
-            self.all_latencies_s.append(latency)
 
     def missing(self, n: int, why: str) -> None:
         if n <= 0:
@@ -89,11 +126,12 @@ class WireCounters:
         if n == 1 or n % LOG_EVERY == 0:
             self.log.warning("%s: %s (%d so far)%s", self.device, cause, n, f": {detail}" if detail else "")
 
-    def percentile_ms(self, q: float, every: bool = False) -> float | None:
-        values = self.all_latencies_s if every else self.latencies_s
-        if not values:
+    def percentile_ms(self, q: float) -> float | None:
+        """Over the latest LATENCY_WINDOW latencies: bounded memory (before, every sample of a run
+        was kept as well, about 220 MB a day for a CAN bus at 80 frames a second, and never read)."""
+        if not self.latencies_s:
             return None
-        return round(float(np.percentile(np.fromiter(values, dtype=float), q)) * 1e3, 3)
+        return round(float(np.percentile(np.fromiter(self.latencies_s, dtype=float), q)) * 1e3, 3)
 
     def status(self, t: float, driver: str) -> DriverStatus:
         return DriverStatus(

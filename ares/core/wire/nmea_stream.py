@@ -10,8 +10,13 @@ u-blox binary frame is recognised in one place.
   payload, Fletcher-8 checksum) are skipped and counted when their checksum holds; anything
   else that is not a sentence (binary garbage, a line longer than any sentence, bytes outside
   printable ASCII, a sentence cut short by the next '$') is refused, counted by cause, and
-  dropped up to the next '$', '!' or line end. It does not check the NMEA checksum or parse the
-  fields: the gnss node does (perception.nmea_parser); a bad checksum is the node's to refuse.
+  dropped up to the next '$', '!' or line end. A UBX frame has a byte budget (a claimed payload
+  over `max_ubx_payload` is no frame) and a time budget: one still incomplete 100 ms (wall) after
+  its sync was read is abandoned ("ubx abandoned") and the bytes after its sync are read again
+  as NMEA. Stray bytes that look like a UBX header claiming 8 KB must not hold the NMEA behind
+  them for seconds (and a real frame that long is of no use to the driver, which skips UBX).
+  It does not check the NMEA checksum or parse the fields: the gnss node does
+  (perception.nmea_parser); a bad checksum is the node's to refuse.
 - `EpochGroups` gathers the sentences of one receiver epoch (the same time of day: a GGA and its
   GST), which the driver publishes as one GnssSentences message.
 - `time_of_day` reads a sentence's time field; `stamp` turns it into stack time.
@@ -30,6 +35,7 @@ UBX_SYNC = b"\xb5\x62"
 UBX_OVERHEAD = 8  # sync (2), class, id, length (2), checksum (2)
 MAX_UBX_PAYLOAD = 8192  # u-blox's largest messages (RXM-RAWX, MGA) stay well below this
 MAX_LINE = 256  # NMEA allows 82 characters; proprietary sentences and tag blocks run longer
+UBX_WAIT_S = 0.1  # an incomplete UBX frame is waited for this long (wall), no longer
 DAY_S = 86400.0
 
 # In a sentence: printable ASCII except '$' and '!', which start the next one. Anything else ends it.
@@ -91,11 +97,17 @@ class NmeaStream:
     "non-ASCII", "truncated"); `on_refuse(cause, detail)` hears each refusal as it happens."""
 
     def __init__(
-        self, max_line: int = MAX_LINE, max_ubx_payload: int = MAX_UBX_PAYLOAD, on_refuse: Refuse | None = None
+        self,
+        max_line: int = MAX_LINE,
+        max_ubx_payload: int = MAX_UBX_PAYLOAD,
+        on_refuse: Refuse | None = None,
+        ubx_wait_s: float = UBX_WAIT_S,
     ):
         self.max_line = max_line
         self.max_ubx_payload = max_ubx_payload
         self.on_refuse = on_refuse
+        self.ubx_wait_s = ubx_wait_s
+        self._ubx_since: float | None = None  # when the incomplete UBX frame at the buffer's start was first seen
         self.sentences = 0
         self.ubx_frames = 0
         self.malformed: Counter[str] = Counter()
@@ -120,7 +132,7 @@ class NmeaStream:
                 if i < 0:  # not complete yet: keep it from its '$'
                     return out
             else:
-                i = self._between(buf, i)
+                i = self._between(buf, i, read_wall)
                 if i < 0:
                     return out
         self._buf = bytearray()
@@ -159,7 +171,7 @@ class NmeaStream:
         self._refuse("non-ASCII", bytes(buf[start : end + 1]))
         return end + 1
 
-    def _between(self, buf: bytearray, start: int) -> int:
+    def _between(self, buf: bytearray, start: int, read_wall: float) -> int:
         """Between sentences: skip to the next start, counting what is skipped."""
         match = _START.search(buf, start)
         end = len(buf) if match is None else match.start()
@@ -177,7 +189,14 @@ class NmeaStream:
             return end
         length = self._frame(buf, end)  # 0xB5: a UBX frame, perhaps
         if length == INCOMPLETE:
-            return self._keep(buf, end)
+            if end > 0 or self._ubx_since is None:  # a frame not seen before (a held one waits at 0)
+                self._ubx_since = read_wall
+            if read_wall - self._ubx_since <= self.ubx_wait_s:
+                return self._keep(buf, end)
+            self._ubx_since = None  # waited long enough: not a frame; what follows is read again
+            self._refuse("ubx abandoned", bytes(buf[end : end + 8]))  # its bytes up to the next start with it
+            return end + 1
+        self._ubx_since = None
         if length > 0:
             self.ubx_frames += 1
             self._dropping = False
