@@ -58,8 +58,11 @@ from ares.core.messages import (
     AwarenessState,
     CarState,
     ControllerStatus,
+    CorrectionsRecord,
+    CorrectionsStatus,
     Event,
     EventLevel,
+    GnssFix,
     MissionStatus,
     Pose,
     Position,
@@ -189,6 +192,8 @@ class Snapshot:
     supervisor: SupervisorState | None = None
     awareness: AwarenessState | None = None
     mission: MissionStatus | None = None
+    corrections: CorrectionsStatus | None = None
+    fix: GnssFix | None = None
     scores: dict[str, float] = field(default_factory=dict)
     sensor_rates: dict[str, float] = field(default_factory=dict)
 
@@ -222,7 +227,18 @@ def build_record(
         },
         awareness_level=snap.awareness.level if snap.awareness is not None else None,
         mission_state=mission_state(snap.mission),
+        corrections=corrections_of(snap.corrections, snap.fix),
         events=events,
+    )
+
+
+def corrections_of(status: CorrectionsStatus | None, fix: GnssFix | None) -> CorrectionsRecord | None:
+    if status is None and fix is None:
+        return None
+    return CorrectionsRecord(
+        link=status.link if status is not None else None,
+        age_s=status.age_s if status is not None else None,
+        fix_quality=fix.quality if fix is not None else None,
     )
 
 

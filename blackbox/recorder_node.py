@@ -45,6 +45,8 @@ class Recorder(Node):
     supervisor = Input("supervisor/state", max_age="max_age_s", doc="process health")
     awareness = Input("awareness/state", max_age="max_age_s", doc="the self-awareness level")
     mission = Input("mission/status", max_age="max_age_s", doc="the mission's state or the POI action running")
+    corrections = Input("gnss/corrections", max_age="max_age_s", doc="the RTK corrections' link and age")
+    fix = Input("gnss/fix", max_age="max_age_s", doc="the fix type (GGA quality) the corrections gave")
     scores = InputGroup(topics.score_topics(), max_age="max_age_s", doc="every manager's score")
     sensors = InputGroup(SENSOR_TOPICS, doc="message rates -> sensor health")
     events = Input("events", queue="event_queue", doc="recorded as they arrive")
@@ -122,6 +124,8 @@ class Recorder(Node):
             supervisor=self.supervisor.fresh(now),
             awareness=self.awareness.fresh(now),
             mission=self.mission.fresh(now),
+            corrections=self.corrections.fresh(now),
+            fix=self.fix.fresh(now),
             scores={name: float(msg.score) for name, sub in self.scores.items() if (msg := sub.fresh(now)) is not None},
             sensor_rates={name: sub.rate_hz(window, now) for name, sub in self.sensors.items()},
         )

@@ -7,7 +7,9 @@ UBX frames skipped, binary garbage, over-long lines and non-ASCII bytes refused 
 grouped by receiver epoch: one GnssSentences message per epoch (a GGA and its GST together), as
 the simulator publishes them, so the gnss node (perception.gnss_node) reads either the same way.
 The fields are not parsed here beyond the time of day: a bad checksum or a nonsensical field is
-the gnss node's to refuse.
+the gnss node's to refuse. The other way, the RTK corrections the NTRIP client publishes
+(`gnss/rtcm`, whole RTCM 3 frames) are written to the same port (serial or TCP), as a receiver
+takes them; gpsd gives its clients no way to write to its device (give gpsd the caster instead).
 
 Each message is stamped with the epoch's time of day mapped to stack time (the drivers' stamp
 rule, nmea_stream.stamp). An epoch older than `max_fix_age_s` when it is read (a stream held up,
@@ -30,11 +32,12 @@ import serial
 from ares.core.config import GnssDevice, Params, param
 from ares.core.driver import DeviceAges, DriverNode
 from ares.core.messages import GnssSentences
-from ares.core.node import Output
+from ares.core.node import Input, Output
 from ares.core.wire.gpsd import GPSD_PORT, GpsdClient, TcpStream
 from ares.core.wire.nmea_stream import DAY_S, MAX_LINE, Epoch, EpochGroups, NmeaStream
 
 DEVICE = "gnss"
+RTCM_BACKLOG = 16384  # corrections held for a port with no room: some seconds of a base station's
 
 
 class GnssDriverParams(Params):
@@ -68,7 +71,7 @@ class _SerialPort:
     """A serial port or pseudo-terminal, read without waiting."""
 
     def __init__(self, device: str, baud: int):
-        self.port = serial.Serial(device, baud, timeout=0)
+        self.port = serial.Serial(device, baud, timeout=0, write_timeout=0)  # neither way waits
         self.port.reset_input_buffer()  # what waited in the port before we opened it is stale
         self.device = device
         self.path = os.path.realpath(device)
@@ -84,6 +87,13 @@ class _SerialPort:
             raise serial.SerialException(f"{self.device} now leads to another device")
         return b"".join(chunks)
 
+    def write(self, data: bytes) -> int:
+        """What fits in the port's buffer now (write_timeout 0: never waits); how much that was."""
+        try:
+            return int(self.port.write(data) or 0)
+        except serial.SerialTimeoutException:
+            return 0
+
     def close(self) -> None:
         self.port.close()
 
@@ -95,6 +105,9 @@ class GnssDriver(DriverNode):
     Params = GnssDriverParams
     wire_inputs = ("wire/gnss",)
     sentences = Output("sensors/gnss", doc="the NMEA sentences of each receiver epoch, stamped with its time")
+    rtcm_in = Input(
+        "gnss/rtcm", queue=64, doc="RTK corrections (RTCM 3, from the NTRIP client): written to the receiver's port"
+    )
 
     def setup(self) -> None:
         gnss = self.core.vehicle_io.gnss
@@ -110,6 +123,7 @@ class GnssDriver(DriverNode):
         self._next_open = 0.0  # monotonic
         self._last_byte = 0.0  # monotonic
         self._ubx_seen = 0
+        self._rtcm_backlog = bytearray()  # corrections the port had no room for yet
         self.wire_counts.detail = self._where()
 
     def _framer(self) -> NmeaStream:
@@ -171,7 +185,42 @@ class GnssDriver(DriverNode):
         epoch = self.epochs.due(time.time(), drained=True)
         if epoch is not None:
             self._publish([epoch], now)
+        self._forward_corrections()
         self.report(now)
+
+    def _forward_corrections(self) -> None:
+        """The NTRIP client's RTCM frames to the receiver, through the port the NMEA comes from."""
+        chunks = [msg for _, msg in self.rtcm_in.drain()]
+        if not chunks:
+            return
+        counts = self.wire("gnss/rtcm")
+        frames = sum(msg.frames for msg in chunks)
+        counts.got(frames)
+        if self.port is None:
+            counts.skip("receiver closed", frames)
+            return
+        if self._gpsd is not None:  # gpsd has no way for a client to write to its device
+            counts.skip("gpsd: give gpsd the caster itself (gpsd ntrip://...)", frames)
+            return
+        if len(self._rtcm_backlog) > RTCM_BACKLOG:  # the receiver takes nothing: old corrections are no use
+            counts.skip("receiver's port full", 1)
+            self._rtcm_backlog.clear()
+        self._rtcm_backlog += b"".join(msg.data.tobytes() for msg in chunks)
+        try:
+            if isinstance(self.port, TcpStream):
+                sent = self.port.send_some(bytes(self._rtcm_backlog))
+            else:
+                assert isinstance(self.port, _SerialPort)  # serial is the only other port
+                sent = self.port.write(bytes(self._rtcm_backlog))
+        except (OSError, serial.SerialException) as exc:
+            counts.skip("write failed", frames)
+            counts.problem("write failed", f"{self._where()}: {exc}")
+            self._rtcm_backlog.clear()
+            return
+        del self._rtcm_backlog[:sent]  # the rest goes at the next step, never waited for
+        counts.put(n=frames)
+        counts.connected = True
+        counts.detail = f"RTCM to {self._where()}: {counts.published} frames, {len(self._rtcm_backlog)} bytes waiting"
 
     def _read(self, now: float) -> None:
         assert self.port is not None

@@ -15,6 +15,10 @@ A blocked LiDAR is level 1 because the shuttle is then blind on that side, whate
 localization; the others are level 2: the shuttle stops under control and goes on by itself once
 they clear. The level is the most severe of the causes (1 before 2).
 
+The corrections' own state (gnss/corrections: the NTRIP client's, or the simulated 4G link's) is
+`sensors["corrections"]`, and names the cause of a loss of RTK ("no RTK corrections (link down (no
+4G here), the newest 23 s old)"), so a 4G outage is seen for what it is, not only as a covariance.
+
 A GNSS that is slow, imprecise or without corrections for less than five minutes is no cause:
 driving through such stretches on the road the LiDARs see is what the control manager's road
 reactive control is for (ARES §3.6; the `dead_reckoning_drift` scenario), and the paper's
@@ -28,7 +32,7 @@ import collections
 from dataclasses import dataclass, field
 
 from ares.core.config import Params, param
-from ares.core.messages import GnssFix, Imu, LidarStatus, ProcessState, SupervisorState
+from ares.core.messages import CorrectionsStatus, GnssFix, Imu, LidarStatus, ProcessState, SupervisorState
 
 NOMINAL, CRITICAL, LOW = 0, 1, 2
 
@@ -109,6 +113,7 @@ class AwarenessChecks:
         self._gnss_good_at = started_at  # the last check that found the GNSS well
         self._started_at = started_at
         self._lidar_since: float | None = None  # the first LiDAR status: rates are judged a window later
+        self._corrections: CorrectionsStatus | None = None  # the corrections' latest state, if any comes
 
     def on_imu(self, imu: Imu) -> None:
         self.imu_rate.add(imu.t)
@@ -117,6 +122,9 @@ class AwarenessChecks:
             self._imu_last, self._imu_same_since = reading, imu.t
         elif self._imu_same_since is None:
             self._imu_same_since = imu.t
+
+    def on_corrections(self, status: CorrectionsStatus | None) -> None:
+        self._corrections = status
 
     def on_gnss(self, fix: GnssFix) -> None:
         self.gnss_rate.add(fix.t)
@@ -148,8 +156,12 @@ class AwarenessChecks:
             problems.append(f"{gnss_hz:.1f} Hz < {p.gnss_min_hz:.0f}")
         if self._gnss_var is not None and self._gnss_var > p.gnss_max_var_m2:
             problems.append(f"variance {self._gnss_var:.2f} m² > {p.gnss_max_var_m2:.2f}")
+        corrections = self._corrections
+        outage = corrections.outage() if corrections is not None and now - corrections.t <= 3.0 else None
+        if corrections is not None:
+            out.sensors["corrections"] = "ok" if outage is None else outage
         if warm and now - self._rtk_last_seen > p.rtk_recent_s:
-            problems.append("no RTK corrections")
+            problems.append("no RTK corrections" + (f" ({outage})" if outage else ""))
         if not problems:
             self._gnss_good_at = now
             out.sensors["gnss"] = "ok"

@@ -33,6 +33,7 @@ class AwarenessManager(Node):
     Params = AwarenessParams
     imu = Input("sensors/imu", queue=256, doc="rate; frozen readings")
     gnss = Input("gnss/fix", queue=64, doc="rate, variance, RTK corrections")
+    corrections = Input("gnss/corrections", doc="the corrections' link and age: the named cause of a loss of RTK")
     lidar = Input("perception/lidar_status", doc="each LiDAR's rate and road points")
     supervisor = Input("supervisor/state", doc="every process's state")
     state = Output("awareness/state", rate="rate_hz", doc="the level and its causes")
@@ -48,6 +49,7 @@ class AwarenessManager(Node):
             self.checks.on_imu(imu)
         for _, fix in self.gnss.drain():
             self.checks.on_gnss(fix)
+        self.checks.on_corrections(self.corrections.latest)
         found = self.checks.assess(now, self.lidar.latest, self.supervisor.latest)
         if found.level != self._level or (found.level != NOMINAL and _kinds(found.causes) != _kinds(self._causes)):
             level = (

@@ -25,7 +25,7 @@ import math
 from scipy.special import expit
 
 from ares.core.config import Params, param
-from ares.core.messages import Pose
+from ares.core.messages import CorrectionsStatus, Pose
 
 
 def score(cov: float, a: float, b: float, c: float) -> float:
@@ -78,3 +78,16 @@ class OdometryScorer:
         if not pose_age_s <= self.stale_after_s:
             return 0.0, cov
         return self(cov), cov
+
+
+CORRECTIONS_STATUS_STALE_S = 3.0  # the corrections' state comes once a second
+
+
+def no_rtk_cause(corrections: CorrectionsStatus | None, now: float) -> str:
+    """Why a pose has no RTK, from the corrections' state: the papers' main cause is a 4G link lost."""
+    if corrections is None or now - corrections.t > CORRECTIONS_STATUS_STALE_S:
+        return "no RTK (the corrections' state unknown)"
+    outage = corrections.outage()
+    if outage is not None:
+        return f"no RTK: corrections {outage}"
+    return "no RTK with fresh corrections (the sky blocked, or the receiver fixing again)"

@@ -12,8 +12,8 @@ STAMP="$VENV/.ares-install-stamp"
 # browser (Playwright drives Debian's Chromium). npm (the pages' libraries) only where no npm is on
 # the PATH: a Node.js from elsewhere brings its own, and Debian's npm package would conflict with it.
 # iproute2: `ares deploy rehearse` builds its hosts as network namespaces. gpsd, gpsd-clients: the GNSS driver's
-# tests replay receiver logs through gpsd with gpsfake.
-SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libgomp1 wrk chromium iproute2 gpsd gpsd-clients)
+# tests replay receiver logs through gpsd with gpsfake. rtklib: str2str, the NTRIP caster of `ares run --wire` and the tests.
+SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libgomp1 wrk chromium iproute2 gpsd gpsd-clients rtklib)
 command -v npm >/dev/null 2>&1 || SYSTEM_PACKAGES+=(npm)
 
 say() { echo "[setup] $*" >&2; }

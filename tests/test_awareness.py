@@ -221,3 +221,30 @@ def test_a_restarted_perceptions_rates_count_once_it_has_counted_a_window():
     assert checks.assess(3.1, lidars(3.05, roof=restarting, front_left=restarting), supervisor(3.0)).level == NOMINAL
     slow = LidarHealth(rate_hz=3.0, points=20000, road_points=3000, counting_s=2.5)
     assert checks.assess(6.0, lidars(5.95, roof=slow), supervisor(5.9)).level == CRITICAL
+
+
+def test_a_corrections_outage_is_named_for_what_it_is():
+    """Without RTK, the corrections' state names the cause: a 4G link down, or corrections too old;
+    fresh corrections leave no corrections problem (then it is the sky, not the link)."""
+    from ares.core.messages import CorrectionsStatus
+
+    checks = fed(seconds=10.0, rtk_until=1.0)
+    down = CorrectionsStatus(t=9.5, source="ntrip 10.0.0.1:2101/BASE", link="down", age_s=23.0, frames=40)
+    down = down.model_copy(update={"detail": "silent: no byte for 5 s"})
+    checks.on_corrections(down)
+    found = checks.assess(10.0, lidars(9.95), supervisor(9.95))
+    assert found.level == NOMINAL  # the control manager's, for five minutes
+    assert found.sensors["corrections"] == "link down (silent: no byte for 5 s), the newest 23 s old"
+    assert found.sensors["gnss"].startswith(
+        "no RTK corrections (link down (silent: no byte for 5 s), the newest 23 s old)"
+    )
+    old = CorrectionsStatus(t=9.5, source="simulated 4G link", link="streaming", age_s=12.0, frames=40)
+    checks.on_corrections(old)
+    assert (
+        checks.assess(10.0, lidars(9.95), supervisor(9.95)).sensors["corrections"]
+        == "streaming but the newest 12 s old"
+    )
+    fresh = CorrectionsStatus(t=9.5, source="simulated 4G link", link="streaming", age_s=0.4, frames=41)
+    checks.on_corrections(fresh)
+    found = checks.assess(10.0, lidars(9.95), supervisor(9.95))
+    assert found.sensors["corrections"] == "ok" and found.sensors["gnss"].startswith("no RTK corrections for")

@@ -109,6 +109,27 @@ def test_a_frame_holds_the_latest_of_each_topic_and_drops_what_went_stale():
     assert hub.frame("nobody") is None
 
 
+def test_the_operator_sees_the_fix_and_its_corrections():
+    from ares.core.messages import CorrectionsStatus
+    from tests.helpers.gnss import fix
+
+    hub = LiveHub(LiveSettings(), now=Wall())
+    assert hub.put(VEHICLE_ID, "dbw/car_state", car()) is None and hub.frame(VEHICLE_ID)["gnss"] is None
+    hub.put(VEHICLE_ID, "gnss/fix", fix(1.0, rtk=False, var=0.1).model_copy(update={"quality": 5, "satellites": 11}))
+    status = CorrectionsStatus(t=1.0, source="ntrip 127.0.0.1:2101/BASE", link="down", age_s=12.34, frames=7)
+    hub.put(VEHICLE_ID, "gnss/corrections", status)
+    cause = "no RTK: corrections link down, the newest 12 s old"
+    hub.put(VEHICLE_ID, "odometry/score", OdometryScore(t=1.0, score=0.1, covariance=0.06, pose_age_s=0.0, cause=cause))
+    assert hub.frame(VEHICLE_ID)["gnss"] == {
+        "fix": "RTK float",
+        "satellites": 11,
+        "corrections_link": "down",
+        "corrections_age_s": 12.3,
+        "corrections_source": "ntrip 127.0.0.1:2101/BASE",
+        "why_no_rtk": cause,
+    }
+
+
 def test_events_are_kept_in_order_per_vehicle_and_the_fleet_lists_vehicles_heard_lately():
     wall = Wall()
     hub = LiveHub(LiveSettings(vehicle_gone_s=30.0, events_kept=3), now=wall)

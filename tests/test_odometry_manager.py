@@ -192,3 +192,15 @@ def test_a_pose_delivered_late_is_as_old_as_its_stamp(run_config):
     manager.node.step_once(10.5)
     [late] = [m for _, m in manager.scores.drain()]
     assert late.pose_age_s == pytest.approx(2.5) and late.score == 0.0
+
+
+def test_a_pose_without_rtk_says_why():
+    from ares.core.messages import CorrectionsStatus
+    from managers.odometry import no_rtk_cause
+
+    down = CorrectionsStatus(t=99.5, source="ntrip", link="down", age_s=23.4, frames=3, detail="no 4G here")
+    assert no_rtk_cause(down, 100.0) == "no RTK: corrections link down (no 4G here), the newest 23 s old"
+    fresh = CorrectionsStatus(t=99.5, source="ntrip", link="streaming", age_s=0.3, frames=30)
+    assert no_rtk_cause(fresh, 100.0).startswith("no RTK with fresh corrections")
+    assert no_rtk_cause(fresh, 110.0) == "no RTK (the corrections' state unknown)"  # a stale state
+    assert no_rtk_cause(None, 100.0) == "no RTK (the corrections' state unknown)"

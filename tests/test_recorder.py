@@ -330,7 +330,19 @@ def test_a_record_carries_what_is_known_and_null_for_what_is_not():
     assert empty.position is None and empty.speed_mps is None and empty.mode is None
     assert empty.controller is None and empty.scores == {} and empty.processes == {}
     assert empty.sensors["gnss"].ok is False and empty.events == 3
-    assert empty.awareness_level is None and empty.mission_state is None
+    assert empty.awareness_level is None and empty.mission_state is None and empty.corrections is None
+
+
+def test_a_record_keeps_the_corrections_age_and_the_fix_type():
+    from ares.core.messages import CorrectionsStatus
+    from tests.helpers.gnss import fix
+
+    cfg = run_config.build()
+    status = CorrectionsStatus(t=6.5, source="ntrip 127.0.0.1:2101/BASE", link="down", age_s=12.5, frames=9)
+    snap = Snapshot(corrections=status, fix=fix(6.8, rtk=False, var=0.25).model_copy(update={"quality": 5}))
+    record = build_record("v1", ManualClock(utc_epoch=UTC_EPOCH).utc(7), 7, snap, frame_of(cfg), {}, 0)
+    assert record.corrections is not None
+    assert (record.corrections.link, record.corrections.age_s, record.corrections.fix_quality) == ("down", 12.5, 5)
 
 
 @pytest.mark.parametrize(

@@ -71,7 +71,7 @@ def test_gga_fields_are_well_formed():
     assert len(gga.lat.split(".")[1]) == 7 and len(gga.lon.split(".")[1]) == 7
     assert int(gga.num_sats) == SIM.gnss.rtk_satellites
     assert float(gga.horizontal_dil) == SIM.gnss.rtk_hdop
-    assert gga.altitude_units == "M" and float(gga.age_gps_data) > 0
+    assert gga.altitude_units == "M" and float(gga.age_gps_data) >= 0 and gga.ref_station_id == "0001"
 
 
 def test_southern_hemisphere_origin_round_trips():
@@ -81,6 +81,32 @@ def test_southern_hemisphere_origin_round_trips():
     assert gga.lat_dir == "S" and gga.latitude < 0
     xr, yr, zr = gga_to_local(gga, gnss)
     assert math.hypot(xr + 40.0, yr - 25.0) < 1e-3 and abs(zr - 1.0) < 1e-3
+
+
+def test_a_4g_outage_degrades_the_fix_as_its_corrections_age_and_it_recovers_after():
+    """Through the tour's no_4g zone at 2.5 m/s: RTK fixed while the last correction is fresh, then
+    float, then DGPS; out of it, float for refix_s, then fixed. The GGA tells the corrections' age."""
+    zone = next(z for z in ROUTE.zones if z.kind == "no_4g")
+    c = SIM.gnss.corrections
+    gnss = GnssSensor(ROUTE, SIM.gnss, FRAME, noise=False)
+    entered = None
+    seen = []
+    for k in range(int((zone.s_end - zone.s_start + 40.0) / 2.5 * 5)):  # 5 Hz from 20 m before
+        t = k * 0.2
+        s = zone.s_start - 20.0 + 2.5 * t
+        gga = gga_of(gnss.measure(VehicleState(t=t, s=s)))
+        if entered is None and s >= zone.s_start:
+            entered = t
+        seen.append((t, s, int(gga.gps_qual), gga.age_gps_data))
+    inside = [(t - entered, q, age) for t, s, q, age in seen if zone.s_start <= s <= zone.s_end]
+    assert {q for dt, q, _ in inside if dt < c.fixed_max_age_s - 1.0} == {4}
+    assert {q for dt, q, _ in inside if c.fixed_max_age_s + 1.0 < dt < c.float_max_age_s - 1.0} == {5}
+    assert {q for dt, q, _ in inside if dt > c.float_max_age_s + 1.0} == {2}
+    assert max(float(age) for _, _, age in inside) > c.float_max_age_s
+    after = [(t, q) for t, s, q, _ in seen if s > zone.s_end]
+    left = after[0][0]
+    assert {q for t, q in after if t - left < c.refix_s - 1.0} == {5}
+    assert {q for t, q in after if t - left > c.refix_s + 1.5} == {4}
 
 
 def test_fix_quality_and_gst_follow_the_rtk_loss_zones():

@@ -47,10 +47,13 @@ def test_the_simulator_driven_clock_behind_the_wires_gives_the_wall_clock_result
     assert (scaled["clock"], fast["clock"]) == ("scaled", "driven")
     assert "drivers" not in scaled
     drivers = fast["drivers"]
-    assert set(drivers) == {"gnss", "can"}  # no LiDARs in this run
+    # no LiDARs in this run; the RTK corrections from the NTRIP caster, through the receiver's port
+    assert set(drivers) == {"gnss", "can", "ntrip", "gnss/rtcm"}
     for device, figures in drivers.items():
         assert figures["published"] > 0 and figures["connected"], (device, figures)
         assert figures["lost"] == 0 and figures["malformed"] == {}, (device, figures)
+    assert fast["corrections"]["source"].startswith("ntrip 127.0.0.1:")
+    assert fast["corrections"]["rtk_fixed_share"] > 0.9 and fast["corrections"]["outages"] == 0
     assert drivers["gnss"]["published"] >= 5 * fast["total_time_s"] * 0.9  # every 5 Hz epoch
     assert drivers["can"]["published"] >= (20 + 50) * fast["total_time_s"] * 0.9  # speed frames and the IMU
     # the margins are for a shared, noisy machine, where real time is what varies (the clock

@@ -218,9 +218,10 @@ def problems(topic_graph: dict[str, dict[str, list[str]]]) -> list[str]:
     """Inputs nobody publishes, and single-publisher topics with several publishers."""
     found = []
     for topic, ends in topic_graph.items():
-        if ends["subscribers"] and not ends["publishers"]:
-            found.append(f"{topic}: read by {', '.join(ends['subscribers'])} but nobody publishes it")
         entry = topics.find(topic)
+        optional = entry is not None and entry.optional  # an optional device's (vehicle_io.ntrip)
+        if ends["subscribers"] and not ends["publishers"] and not optional:
+            found.append(f"{topic}: read by {', '.join(ends['subscribers'])} but nobody publishes it")
         if entry is not None and not entry.shared and len(set(ends["publishers"])) > 1:
             found.append(f"{topic}: a single-publisher topic published by {', '.join(ends['publishers'])}")
     return found

@@ -33,6 +33,7 @@ class Process:
     nice: int = 0
     wire: bool | None = None  # the simulator's variants: True only with --wire, False only without
     driver: bool = False  # reads a device: on a vehicle and with --wire, never in plain simulation
+    device: str | None = None  # runs only when this vehicle_io device is set (an optional one: ntrip)
 
     def node_class(self) -> type[Node]:
         return load(self.node)
@@ -64,6 +65,8 @@ PROCESSES: list[Process] = [
     Process("gnss_driver", "drivers.gnss_node:GnssDriver", safety_relevant=True, driver=True),
     Process("can_driver", "drivers.can_node:CanDriver", safety_relevant=True, driver=True),
     Process("lidar_driver", "drivers.velodyne_node:VelodyneDriver", safety_relevant=True, driver=True, lidars=True),
+    # RTK corrections to the receiver: without them the shuttle drives on road reactive control, not unsafely
+    Process("ntrip_client", "drivers.ntrip_node:NtripClientNode", safety_relevant=False, driver=True, device="ntrip"),
     Process("gnss", "perception.gnss_node:GnssNode", safety_relevant=True),
     Process("localization", "perception.localization_node:LocalizationNode", safety_relevant=True),
     Process("odometry_manager", "managers.odometry_node:OdometryManager", safety_relevant=True),
@@ -103,9 +106,12 @@ def by_name(name: str, wire: bool = False) -> Process:
     raise KeyError(f"unknown process {name!r}; known: {', '.join(p.name for p in [*PROCESSES, *FLEET_SERVER])}")
 
 
-def for_run(simulate: bool, lidars: bool = True, wire: bool = False) -> list[Process]:
+def for_run(
+    simulate: bool, lidars: bool = True, wire: bool = False, devices: frozenset[str] | None = None
+) -> list[Process]:
     """The processes of a run: the simulator's plain or wire variant, and the drivers wherever
-    devices are read (on a vehicle, or behind the simulator's wires)."""
+    devices are read (on a vehicle, or behind the simulator's wires); `devices`: the vehicle_io
+    devices set, for the drivers of optional ones (None: as if all were)."""
     wire = wire and simulate
     return [
         p
@@ -114,8 +120,11 @@ def for_run(simulate: bool, lidars: bool = True, wire: bool = False) -> list[Pro
         and (lidars or not p.lidars)
         and p.wire in (None, wire)
         and (not p.driver or wire or not simulate)
+        and (p.device is None or devices is None or p.device in devices)
     ]
 
 
 def for_config(cfg) -> list[Process]:  # type: ignore[no-untyped-def]
-    return for_run(cfg["simulate"], cfg["lidars"], cfg["wire"])
+    io = cfg.get("vehicle_io") or {}
+    devices = frozenset(key for key, value in io.items() if value)
+    return for_run(cfg["simulate"], cfg["lidars"], cfg["wire"], devices)

@@ -16,12 +16,13 @@ from pathlib import Path
 from typing import Any
 
 from ares.app import contracts, processes
-from ares.core import config
+from ares.core import config, topics
 from ares.core.config import VehicleIo
+from ares.core.localhost import free_port
 
 MODEL_OF_MOUNT = {"vlp16": "VLP-16", "hdl64e": "HDL-64E"}
 # the inputs each driver can publish, and the key of vehicle_io that enables them
-DRIVER_DEVICES = {"gnss_driver": "gnss", "can_driver": "can", "lidar_driver": "lidars"}
+DRIVER_DEVICES = {"gnss_driver": "gnss", "can_driver": "can", "lidar_driver": "lidars", "ntrip_client": "ntrip"}
 
 
 def load(path: str | Path) -> dict[str, Any]:
@@ -40,10 +41,19 @@ def _free_udp_port() -> int:
 
 def simulator_wires(cfg: dict[str, Any], wire_dir: Path) -> dict[str, Any]:
     """`--wire`: devices where the simulator writes, private to this run: a pseudo-terminal linked
-    in the run directory, a CAN group and port of its own, a loopback UDP port per LiDAR."""
+    in the run directory, a CAN group and port of its own, a loopback UDP port per LiDAR, and the
+    NTRIP caster behind the simulated 4G link (a port, a mount point and a password of its own)."""
     profile = config.core(cfg).vehicle_profile
     rng = random.SystemRandom()
     return {
+        "ntrip": {
+            "host": "127.0.0.1",
+            "port": free_port(),
+            "mountpoint": "ARES_BASE",
+            "user": "shuttle",
+            "password": f"{rng.getrandbits(64):016x}",
+            "version": 2,
+        },
         "gnss": {"source": "serial", "device": str((wire_dir / "gnss.tty").resolve()), "baud": 115200},
         "can": {
             "interface": "udp_multicast",
@@ -84,6 +94,9 @@ def missing_inputs(cfg: dict[str, Any]) -> list[str]:
     graph = contracts.graph(contracts.all_contracts(cfg, processes.for_config(cfg)))
     missing = []
     for topic, ends in graph.items():
+        entry = topics.find(topic)
+        if entry is not None and entry.optional:  # an optional device's: its readers do without it
+            continue
         device, configured = devices.get(topic, ("", True))
         readers = sorted(set(ends["subscribers"]))
         if not configured and readers:

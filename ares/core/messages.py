@@ -219,6 +219,38 @@ class GnssFix(Msg):
     var_z: float | None
 
 
+class CorrectionsStatus(Msg):
+    """Where the receiver's RTK corrections stand, once a second (gnss/corrections): their link (an
+    NTRIP caster over 4G, or the simulator's model of one) and how old the newest is."""
+
+    source: str  # "ntrip HOST:PORT/MOUNT", "simulated"
+    link: Literal["streaming", "connecting", "down", "unauthorized", "no mount point", "none"]
+    age_s: float | None  # stack seconds since the newest whole frame reached the receiver; None: none yet
+    frames: int = Field(ge=0)  # whole, checked RTCM frames forwarded
+    by_type: dict[str, int] = Field(default_factory=dict)  # message number -> frames
+    outages: int = Field(0, ge=0)  # streams that were flowing and stopped
+    station_id: int | None = None  # the reference station the corrections come from
+    detail: str = ""  # the last failure, or what the link is doing
+
+    def outage(self, fresh_s: float = 5.0) -> str | None:
+        """What keeps the corrections from the receiver, in a few words ("link down (no 4G here),
+        the newest 23 s old"); None while they stream and the newest is under `fresh_s` old."""
+        age = "none received yet" if self.age_s is None else f"the newest {self.age_s:.0f} s old"
+        if self.link != "streaming":
+            why = f" ({self.detail})" if self.detail else ""
+            return f"link {self.link}{why}, {age}"
+        if self.age_s is None or self.age_s > fresh_s:
+            return f"streaming but {age}"
+        return None
+
+
+class RtcmData(BulkMsg):
+    """Whole, CRC-checked RTCM 3 frames for the receiver's corrections port (gnss/rtcm)."""
+
+    frames: int = Field(ge=1)
+    data: Annotated[np.ndarray, Array("u1", doc="the frames' bytes, back to back")]
+
+
 class Pose(Msg):
     """The fused pose estimate (UKF) of the rear-axle centre, with its covariance."""
 
@@ -244,6 +276,7 @@ class OdometryScore(Msg):
     score: float = Field(ge=0.0, le=1.0)
     covariance: float  # the input: position variance, m^2
     pose_age_s: float
+    cause: str | None = None  # why the covariance is what it is, when it is not RTK: "corrections 23 s old (link down)"
 
 
 class PathMatch(Msg):
@@ -561,6 +594,16 @@ class ProcessHealth(BaseModel):
     restarts: int = 0
 
 
+class CorrectionsRecord(BaseModel):
+    """The RTK corrections in a second of the black box: their link and age, and the fix they gave."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    link: str | None = None  # streaming, connecting, down, ...; None: no corrections' state
+    age_s: float | None = None  # of the newest correction the receiver had
+    fix_quality: int | None = None  # the receiver's GGA quality: 4 RTK fixed, 5 float, 2 DGPS, 1 single
+
+
 class VehicleRecord(BaseModel):
     """One second of the vehicle's state, as the black box keeps it (ARES §3.8)."""
 
@@ -579,6 +622,7 @@ class VehicleRecord(BaseModel):
     processes: dict[str, ProcessHealth] = Field(default_factory=dict)
     awareness_level: int | None = None  # 0 nominal, 1 critical, 2 low (self-awareness)
     mission_state: str | None = None  # the mission's state, or the POI action running
+    corrections: CorrectionsRecord | None = None  # the RTK corrections' link and age, and the fix type
     events: int = 0  # events recorded during this second (kept in full apart)
 
 

@@ -45,7 +45,7 @@ class Poi:
 
 @dataclass(frozen=True)
 class Zone:
-    kind: str  # "rtk_loss" | "intersection" | "road_opening" | "narrow"
+    kind: str  # "rtk_loss" (sky blocked) | "no_4g" (no corrections) | "intersection" | "road_opening" | "narrow"
     s_start: float
     s_end: float
 

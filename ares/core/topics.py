@@ -29,6 +29,7 @@ class Topic:
     reliable: bool = False
     shared: bool = False  # several processes publish it
     score: str | None = None  # a manager's score (a `score` field): the black box records it under this name
+    optional: bool = False  # an optional device's: its readers do without it when nobody publishes it
 
     @property
     def encoding(self) -> str:
@@ -72,6 +73,8 @@ TOPIC_TABLE: list[Topic] = [
     Topic("vehicle/panel", m.PanelEvent, "a driver action: Auto/Manual button, pedals, steering wheel", reliable=True),
     # localization, odometry, path, speed
     Topic("gnss/fix", m.GnssFix, "a validated GNSS fix in UTM and the local frame"),
+    Topic("gnss/rtcm", m.RtcmData, "RTK corrections (RTCM 3 frames) for the receiver's port", optional=True),
+    Topic("gnss/corrections", m.CorrectionsStatus, "the RTK corrections' link and age, once a second", optional=True),
     Topic("localization/pose", m.Pose, "the fused pose (UKF) with its covariance"),
     Topic("odometry/score", m.OdometryScore, "how far the pose deserves trust (ARES eq. 6)", score="odometry"),
     Topic("path/match", m.PathMatch, "where the vehicle is on its route, and the path ahead"),

@@ -3,7 +3,8 @@ receiver's port (`ares run --wire`).
 
 `NmeaPty(link)` opens a pseudo-terminal pair in raw mode (no echo, no line-end translation: the
 bytes arrive as written), and makes `link` a symbolic link to its slave side, the "serial port"
-the driver opens (vehicle_io.gnss.device). `write(lines)` writes sentences CRLF-terminated to the
+the driver opens (vehicle_io.gnss.device); `read()` gives what the driver wrote to it (the RTK
+corrections a receiver takes on its port). `write(lines)` writes sentences CRLF-terminated to the
 master side without ever blocking: when nobody reads and the terminal's buffer is full, what does
 not fit is dropped and counted (`dropped_lines`), so the simulator never stalls on its reader.
 """
@@ -56,6 +57,21 @@ class NmeaPty:
         self.written_lines += sent
         self.dropped_lines += dropped
         return dropped
+
+    def read(self) -> bytes:
+        """What the driver wrote to the receiver's port (its RTK corrections), without waiting."""
+        chunks = []
+        while True:
+            try:
+                data = os.read(self.master, 65536)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:  # nobody has the port open: nothing was written
+                break
+            if not data:
+                break
+            chunks.append(data)
+        return b"".join(chunks)
 
     def close(self) -> None:
         """Removes the link (if it is still ours) and closes the terminal."""

@@ -5,6 +5,22 @@ from __future__ import annotations
 from ares.core.config import Params, param
 
 
+class SimCorrectionsParams(Params):
+    """The simulated receiver's corrections (sim.corrections) and its fix as they age."""
+
+    rate_hz: float = param(1.0, "corrections a second from the base station (RTCM epochs)", unit="Hz", gt=0)
+    fixed_max_age_s: float = param(
+        5.0, "RTK fixed (GGA quality 4) while the newest correction is at most this old", unit="s", gt=0
+    )
+    float_max_age_s: float = param(15.0, "... RTK float (quality 5) up to this age", unit="s", gt=0)
+    dgps_max_age_s: float = param(
+        60.0, "... DGPS (quality 2) up to this, then an autonomous fix (quality 1)", unit="s", gt=0
+    )
+    refix_s: float = param(3.0, "corrections back after a loss: RTK float this long before fixed again", unit="s", ge=0)
+    rtk_float_sigma_m: float = param(0.25, "horizontal error of an RTK float fix", unit="m", gt=0)
+    dgps_sigma_m: float = param(0.5, "horizontal error of a DGPS fix (the paper's ~0.5 m without RTK)", unit="m", gt=0)
+
+
 class SimGnssParams(Params):
     """The simulated RTK receiver (ARES §3.1)."""
 
@@ -22,6 +38,9 @@ class SimGnssParams(Params):
     rtk_satellites: int = param(16, "satellites in use with RTK corrections", ge=0)
     float_satellites: int = param(10, "satellites in use without corrections", ge=0)
     start_time_of_day_s: float = param(36000.0, "UTC time of day at sim t = 0 (10:00:00)", unit="s", ge=0, lt=86400)
+    corrections: SimCorrectionsParams = param(
+        doc="its RTK corrections: their rate, and the fix as they age", factory=SimCorrectionsParams
+    )
 
 
 class SimImuParams(Params):

@@ -11,11 +11,13 @@ Noise comes from a seeded numpy Generator per sensor, so a run is repeatable; `n
 gives exact readings (for tests). The figures (sigmas, offsets) are the `sim` section
 (ares/sim/params.py).
 
-GNSS (ARES paper §3.1): with RTK corrections the fix is "RTK fixed" (GGA quality 4) with a
-few millimetres of white noise; inside an `rtk_loss` zone of the route (4G lost, no NTRIP)
-the receiver falls back to an uncorrected fix whose error wanders: a first-order Gauss-Markov
-bias with a time constant of tens of seconds plus some white noise, so that consecutive
-positions drift together rather than jump. The local (x, y) is a UTM offset from the stack's
+GNSS (ARES paper §3.1): with fresh RTK corrections the fix is "RTK fixed" (GGA quality 4) with
+a few millimetres of white noise. The corrections come over a 4G link (ares/sim/corrections.py):
+inside a `no_4g` zone none arrive and the fix degrades as they age (RTK float, DGPS, then an
+autonomous fix); inside an `rtk_loss` zone (the sky blocked) there is no RTK whatever the
+corrections. Without RTK the error wanders: a first-order Gauss-Markov bias with a time constant
+of tens of seconds plus some white noise, so that consecutive positions drift together rather
+than jump; its size is that of the fix kind. The local (x, y) is a UTM offset from the stack's
 `origin_utm` (ares.core.geodesy.LocalFrame converts to latitude/longitude). A GST sentence
 carries the receiver's own error estimate (standard deviations of lat/lon/alt), which is
 where a real receiver reports its covariance.
@@ -39,6 +41,7 @@ from ares.core.geodesy import LocalFrame
 from ares.core.geometry import wrap_angle
 from ares.core.route import Route
 from ares.sim.actuators import GRAVITY
+from ares.sim.corrections import CorrectionsLink, FixKind, ReceiverCorrections
 from ares.sim.params import SimCanParams, SimGnssParams, SimImuParams, SimParams
 from ares.sim.vehicle import VehicleState
 
@@ -101,6 +104,10 @@ class GnssSensor:
         self.hdop = {"rtk": g.rtk_hdop, "float": g.float_hdop}
         self.satellites = {"rtk": g.rtk_satellites, "float": g.float_satellites}
         self.time_of_day0 = g.start_time_of_day_s
+        self.corrections = g.corrections
+        self.receiver = ReceiverCorrections(g.corrections)
+        # plain simulation's 4G link; with --wire the corrections come as RTCM (link None)
+        self.link: CorrectionsLink | None = CorrectionsLink(route, g.corrections)
         # Bias state (east, north, up) in units of the float sigmas, running all the time so
         # that entering a dead zone picks up a wander already in progress.
         self._bias = self.rng.standard_normal(3) if noise else np.zeros(3)
@@ -113,15 +120,28 @@ class GnssSensor:
     def latlon_to_local(self, lat: float, lon: float) -> tuple[float, float]:
         return self.frame.from_latlon_forced(lat, lon)
 
-    def rtk_available(self, s: float, t: float | None = None) -> bool:
-        """Corrections reach the receiver: outside the tour's rtk_loss zones and the scenario's
-        gnss_no_corrections (or gnss_outage) faults."""
-        if self.route.in_zone(s, "rtk_loss"):
-            return False
-        return not any(
-            f.kind in ("gnss_no_corrections", "gnss_outage") and f.active(t if t is not None else 0.0, s)
-            for f in self.faults
+    def fix_kind(self, s: float, t: float) -> FixKind:
+        """What the receiver's fix is at t: by its corrections' age, and no RTK where the sky is
+        blocked (an `rtk_loss` zone) or in a gnss_outage."""
+        kind = self.receiver.kind(t)
+        blocked = self.route.in_zone(s, "rtk_loss") or any(
+            f.kind == "gnss_outage" and f.active(t, s) for f in self.faults
         )
+        if blocked and kind.quality in (4, 5):
+            return FixKind("single", self.no_rtk_quality, kind.age_s)
+        return kind
+
+    def rtk_available(self, s: float, t: float | None = None) -> bool:
+        """The receiver is RTK fixed at t: its corrections fresh, the sky open."""
+        return self.fix_kind(s, t if t is not None else 0.0).quality == 4
+
+    def take_corrections(self, s: float, t: float) -> None:
+        """Plain simulation: a correction arrives over the 4G link when one is due and it is up."""
+        if self.link is None:
+            return
+        self.link.faults = self.faults
+        if self.link.due(s, t):
+            self.receiver.received(t)
 
     def fix_available(self, s: float, t: float) -> bool:
         """The receiver has a fix at all (not inside a scenario's gnss_outage)."""
@@ -134,35 +154,46 @@ class GnssSensor:
             self._bias = phi * self._bias + math.sqrt(1.0 - phi * phi) * self.rng.standard_normal(3)
         self._t_last = t
 
-    def error(self, state: VehicleState) -> tuple[np.ndarray, bool]:
-        """Position error (east, north, up) in metres for this fix, and whether RTK is fixed."""
+    def sigmas(self, kind: FixKind) -> tuple[float, float]:
+        """(horizontal, vertical) 1-sigma error of a fix of this kind."""
+        if kind.quality == 4:
+            return self.rtk_sigma, self.rtk_sigma_alt
+        horizontal = {5: self.corrections.rtk_float_sigma_m, 2: self.corrections.dgps_sigma_m}.get(
+            kind.quality, self.float_sigma
+        )
+        return horizontal, self.float_sigma_alt * horizontal / self.float_sigma
+
+    def error(self, state: VehicleState) -> tuple[np.ndarray, FixKind]:
+        """Position error (east, north, up) in metres for this fix, and the fix's kind."""
         self._advance_bias(state.t)
-        rtk = self.rtk_available(state.s, state.t)
+        self.take_corrections(state.s, state.t)
+        kind = self.fix_kind(state.s, state.t)
         if not self.noise:
-            return np.zeros(3), rtk
-        if rtk:
-            sig = np.array([self.rtk_sigma, self.rtk_sigma, self.rtk_sigma_alt])
-            return sig * self.rng.standard_normal(3), rtk
-        sig = np.array([self.float_sigma, self.float_sigma, self.float_sigma_alt])
-        return sig * (self.bias_share * self._bias + self.white_share * self.rng.standard_normal(3)), rtk
+            return np.zeros(3), kind
+        horizontal, vertical = self.sigmas(kind)
+        sig = np.array([horizontal, horizontal, vertical])
+        if kind.quality == 4:
+            return sig * self.rng.standard_normal(3), kind
+        return sig * (self.bias_share * self._bias + self.white_share * self.rng.standard_normal(3)), kind
 
     def measure(self, state: VehicleState) -> dict:
-        err, rtk = self.error(state)
+        err, fix = self.error(state)
         lat, lon = self.local_to_latlon(state.x + err[0], state.y + err[1])
         alt = self.altitude0 + state.z + err[2]
+        rtk = fix.quality == 4
         kind = "rtk" if rtk else "float"
-        quality = 4 if rtk else self.no_rtk_quality
+        quality = fix.quality
         hhmmss = _nmea_time(self.time_of_day0 + state.t)
         lat_txt, north = _nmea_angle(lat, 2)
         lon_txt, east = _nmea_angle(lon, 3)
-        age, station = ("1.0", "0001") if rtk else ("", "")
+        corrected = quality in (2, 4, 5) and fix.age_s is not None
+        age, station = (f"{min(fix.age_s or 0.0, 999.0):.1f}", "0001") if corrected else ("", "")
         gga = (
             f"GPGGA,{hhmmss},{lat_txt},{'N' if north else 'S'},{lon_txt},{'E' if east else 'W'},"
             f"{quality},{int(self.satellites[kind]):02d},{float(self.hdop[kind]):.1f},"
             f"{alt:.3f},M,0.000,M,{age},{station}"
         )
-        sig_h = self.rtk_sigma if rtk else self.float_sigma
-        sig_v = self.rtk_sigma_alt if rtk else self.float_sigma_alt
+        sig_h, sig_v = self.sigmas(fix)
         # GST: RMS of range residuals, error ellipse (semi-major, semi-minor, orientation),
         # then the 1-sigma errors of latitude, longitude and altitude in metres.
         gst = f"GPGST,{hhmmss},{sig_h:.3f},{sig_h:.3f},{sig_h:.3f},0.0,{sig_h:.3f},{sig_h:.3f},{sig_v:.3f}"

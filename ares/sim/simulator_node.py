@@ -22,6 +22,7 @@ from ares.core.messages import (
     BodyCommand,
     BodyState,
     CanFrame,
+    CorrectionsStatus,
     DriverCommand,
     EventLevel,
     GnssSentences,
@@ -72,6 +73,9 @@ class Simulator(Node):
     rate = "physics_hz"
     actuators = Input("dbw/actuators", max_age="actuator_timeout_s", doc="efforts from the bridge's inner loops")
     gnss = Output("sensors/gnss", rate="gnss_hz", doc="NMEA GGA + GST")
+    corrections = Output(
+        "gnss/corrections", rate=1.0, doc="the receiver's RTK corrections over the simulated 4G link (no NTRIP)"
+    )
     imu = Output("sensors/imu", rate="imu_hz")
     can = Output("sensors/can", rate="can_hz")
     truth = Output("sim/truth", rate="truth_hz", doc="ground truth, for evaluation only")
@@ -105,6 +109,7 @@ class Simulator(Node):
             "can": 1.0 / sim.can_hz,
             "truth": 1.0 / sim.truth_hz,
             "body": 1.0 / sim.body.rate_hz,
+            "corrections": 1.0,
         }
         self.body = BodySim(
             sim.body.door_travel_s,
@@ -258,6 +263,8 @@ class Simulator(Node):
             self._send("imu", Imu(t=t, **self.sensors.imu.measure(st)))
         if self._due("gnss") and self.sensors.gnss.fix_available(st.s, t):  # an outage: the receiver is silent
             self._send("gnss", GnssSentences(t=t, **self.sensors.gnss.measure(st)))
+        if self._due("corrections") and self.corrections is not None:
+            self.corrections.put(self._corrections_status(st.s, t))
         if self._due("truth"):
             self.truth.put(
                 VehicleTruth(
@@ -293,6 +300,22 @@ class Simulator(Node):
                     passengers=b.passengers,
                 ),
             )
+
+    def _corrections_status(self, s: float, t: float) -> CorrectionsStatus:
+        """The simulated 4G link's corrections, as the NTRIP client reports a real one's."""
+        gnss = self.sensors.gnss
+        up = gnss.link is not None and gnss.link.up(s, t)
+        age = gnss.receiver.age(t)
+        why = "" if up else ("no 4G here" if self.route.in_zone(s, "no_4g") else "corrections stopped (a fault)")
+        return CorrectionsStatus(
+            t=t,
+            source="simulated 4G link",
+            link="streaming" if up else "down",
+            age_s=round(age, 3) if age is not None else None,
+            frames=gnss.receiver.frames,
+            station_id=1,
+            detail=why or f"fix {gnss.fix_kind(s, t).name}",
+        )
 
     # ---- --speed max: this process drives the clock ------------------------------------------
     def loop(self) -> None:

@@ -31,6 +31,7 @@ from ares.core.clock import Clock
 from ares.core.messages import DriveMode, MissionStatus
 from ares.core.route import Route
 from ares.tools.evaluation.control_eval import ControlTracker
+from ares.tools.evaluation.corrections_eval import CorrectionsTracker
 from ares.tools.evaluation.lap_eval import LapTracker, LocalizationTracker
 from ares.tools.evaluation.perception_eval import PerceptionTracker
 from ares.tools.evaluation.safety_eval import SafetyTracker
@@ -56,6 +57,7 @@ class Measurements:
         self.control = ControlTracker()
         self.safety = SafetyTracker(vehicle.length_m, vehicle.width_m, vehicle.front_bumper_m)
         self.perception = PerceptionTracker(route, front_bumper_x_m=(vehicle.length_m + vehicle.wheelbase_m) / 2)
+        self.corrections = CorrectionsTracker()
         scenario = config.load_scenario(cfg["scenario"]) if cfg["scenario"] else None
         self.scenario = ScenarioDriver(scenario, bus, inject, self.safety)
         self.truth = bus.subscribe("sim/truth", queue=QUEUE)
@@ -86,6 +88,8 @@ class Measurements:
             (bus.subscribe("control/candidate/mpc", queue=QUEUE), lambda c: self.control.add_mpc(c.solve_ms, c.fresh)),
             (bus.subscribe("events", queue=QUEUE), self._on_event),
             (bus.subscribe("drivers/status", queue=1024), self._on_driver),
+            (bus.subscribe("gnss/corrections", queue=1024), self.corrections.add_status),
+            (bus.subscribe("gnss/fix", queue=QUEUE), self.corrections.add_fix),
             (bus.subscribe("obstacle/state", queue=1024), self._on_obstacle),
         ]
         self.drivers: dict[str, Any] = {}  # device -> its driver's latest counts (--wire, a vehicle)
@@ -202,6 +206,7 @@ class Measurements:
             **self.safety.summary(),
             **self.scenario.summary(),
             "mission": mission_summary(self.mission.latest),
+            **self.corrections.summary(),
             **({"drivers": self.driver_figures()} if self.drivers else {}),
         }
 

@@ -32,7 +32,9 @@ from ares.core.messages import (
     BodyState,
     CarState,
     ControllerStatus,
+    CorrectionsStatus,
     Event,
+    GnssFix,
     MissionStatus,
     MovementStatus,
     ObstacleState,
@@ -63,8 +65,11 @@ GATEWAY_TOPICS: dict[str, type] = {
     "body/state": BodyState,
     "speed/limits": SpeedLimits,
     "perception/grid": OccupancyGrid,
+    "gnss/corrections": CorrectionsStatus,
+    "gnss/fix": GnssFix,
     "events": Event,
 }
+FIX_NAMES = {0: "no fix", 1: "single", 2: "DGPS", 4: "RTK fixed", 5: "RTK float", 6: "dead reckoning"}
 
 
 class LiveSettings(Params):
@@ -349,6 +354,20 @@ class LiveHub:
                 self.streams.pop(user, None)
 
 
+def _gnss(fix: GnssFix | None, corrections: CorrectionsStatus | None, odometry: OdometryScore | None) -> dict | None:
+    """The receiver's fix and its corrections, as the operator reads them (DBW §3.10: satellites, DGNSS)."""
+    if fix is None and corrections is None:
+        return None
+    return {
+        "fix": None if fix is None else FIX_NAMES.get(fix.quality, f"quality {fix.quality}"),
+        "satellites": None if fix is None else fix.satellites,
+        "corrections_link": None if corrections is None else corrections.link,
+        "corrections_age_s": None if corrections is None or corrections.age_s is None else round(corrections.age_s, 1),
+        "corrections_source": None if corrections is None else corrections.source,
+        "why_no_rtk": None if odometry is None else odometry.cause,
+    }
+
+
 def _summary(vehicle_id: str, get: dict, legs: LegTimer, now_wall: float, s: LiveSettings) -> dict:
     pose: Pose | None = get["localization/pose"]
     car: CarState | None = get["dbw/car_state"]
@@ -386,6 +405,7 @@ def _summary(vehicle_id: str, get: dict, legs: LegTimer, now_wall: float, s: Liv
         },
         "controller": None if control is None else control.controller,
         "controller_reason": None if control is None else control.reason,
+        "gnss": _gnss(get["gnss/fix"], get["gnss/corrections"], odometry),
         "speed_limit_mps": None if limits is None else limits.limit_mps,
         "awareness": None if awareness is None else {"level": awareness.level, "causes": list(awareness.causes)},
         "mission": None

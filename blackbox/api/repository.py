@@ -300,8 +300,9 @@ CSV_SCALARS = (
 CSV_POSITION = tuple(
     f"position.{k}" for k in ("x", "y", "z", "easting", "northing", "zone", "hemisphere", "lat", "lon")
 )
+CSV_CORRECTIONS = tuple(f"corrections.{k}" for k in ("link", "age_s", "fix_quality"))
 CSV_MAPPINGS = ("scores", "sensors", "processes")  # keys vary per record: one JSON cell each
-CSV_COLUMNS = (*CSV_SCALARS, *CSV_POSITION, *CSV_MAPPINGS)
+CSV_COLUMNS = (*CSV_SCALARS, *CSV_POSITION, *CSV_CORRECTIONS, *CSV_MAPPINGS)
 
 
 def _cell(value: Any) -> Any:
@@ -316,9 +317,11 @@ def _cell(value: Any) -> Any:
 
 def csv_row(record: dict) -> list:
     position = record.get("position") or {}
+    corrections = record.get("corrections") or {}
     return (
         [_cell(record.get(k)) for k in CSV_SCALARS]
         + [_cell(position.get(k.split(".", 1)[1])) for k in CSV_POSITION]
+        + [_cell(corrections.get(k.split(".", 1)[1])) for k in CSV_CORRECTIONS]
         + [_cell(record.get(k) or {}) for k in CSV_MAPPINGS]
     )
 

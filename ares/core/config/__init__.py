@@ -96,11 +96,12 @@ from ares.core.config.vehicle import (
     VehicleProfile,
     load_vehicle,
 )
-from ares.core.config.vehicle_io import CanDevice, GnssDevice, VehicleIo, VelodyneDevice
+from ares.core.config.vehicle_io import CanDevice, GnssDevice, NtripCaster, VehicleIo, VelodyneDevice
 
 __all__ = [
     "CanDevice",
     "GnssDevice",
+    "NtripCaster",
     "VehicleIo",
     "VelodyneDevice",
     "model_in",

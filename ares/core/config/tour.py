@@ -42,7 +42,10 @@ class TourPoi(Params):
 
 
 class TourZone(Params):
-    kind: Literal["rtk_loss", "intersection", "road_opening", "narrow"]
+    kind: Literal["rtk_loss", "no_4g", "intersection", "road_opening", "narrow"] = param(
+        doc="rtk_loss: the sky blocked, no RTK whatever the corrections; no_4g: no corrections arrive "
+        "(the fix degrades as they age); intersection, road_opening: no road to follow; narrow"
+    )
     s_start: float = param(unit="m", ge=0)
     s_end: float = param(unit="m", ge=0)
 

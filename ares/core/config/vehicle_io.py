@@ -98,6 +98,24 @@ class CanDevice(Params):
     dbc: str | None = param(None, "the frames' DBC file; null: the project's (ares/core/wire/ares.dbc)")
 
 
+class NtripCaster(Params):
+    """The NTRIP caster the RTK corrections come from (ARES §3.1: over the vehicle's 4G link)."""
+
+    host: str = param(doc="the caster's host name or address")
+    port: int = param(2101, "its port (NTRIP's default: 2101)", gt=0, lt=65536)
+    mountpoint: str = param(doc="the mount point (a base station, or a network's VRS stream)", min_length=1)
+    user: str | None = param(None, "basic authentication's user (null: none)")
+    password: str | None = param(None, "... and password")
+    version: Literal[1, 2] = param(2, "NTRIP revision of the request (a rev 1 caster's answer is taken either way)")
+    gga_interval_s: float = param(
+        10.0, "the receiver's GGA sent upstream this often, for VRS mount points (0: never)", unit="s", ge=0
+    )
+    connect_timeout_s: float = param(5.0, "connecting and the caster's answer may take this long", unit="s", gt=0)
+    silent_after_s: float = param(5.0, "streaming, no byte for this long: the link is gone, reconnect", unit="s", gt=0)
+    backoff_min_s: float = param(1.0, "after a failure, wait this long before trying again ...", unit="s", gt=0)
+    backoff_max_s: float = param(30.0, "... doubling up to this", unit="s", gt=0)
+
+
 class VehicleIo(Params):
     """The vehicle's devices, read by the drivers (`ares run --vehicle-io FILE`)."""
 
@@ -106,3 +124,6 @@ class VehicleIo(Params):
         doc="each LiDAR by its name on the vehicle (roof, front_left, front_right)", factory=dict
     )
     can: CanDevice | None = param(None, "the CAN bus of the drive-by-wire board and the body (null: none)")
+    ntrip: NtripCaster | None = param(
+        None, "the RTK corrections' caster; its RTCM goes to the receiver through the GNSS driver's port (null: none)"
+    )

@@ -83,6 +83,15 @@ class TcpStream:
         self.sock.sendall(data)  # a few bytes on a fresh connection: never blocks
         return True
 
+    def send_some(self, data: bytes) -> int:
+        """Sends what the socket takes now, without waiting; how much that was (0 while connecting)."""
+        if not self._ready():
+            return 0
+        try:
+            return self.sock.send(data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+
     def close(self) -> None:
         self.sock.close()
 

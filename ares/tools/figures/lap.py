@@ -15,7 +15,13 @@ import numpy as np
 from ares.core.route import Route
 
 ROUTE_COLOUR, DRIVEN_COLOUR, ERROR_COLOUR = "#bbbbbb", "#1f6fd1", "#c0392b"
-ZONE_COLOURS = {"rtk_loss": "#e8a33d", "intersection": "#c0392b", "road_opening": "#8e44ad", "narrow": "#16a085"}
+ZONE_COLOURS = {
+    "rtk_loss": "#e8a33d",
+    "no_4g": "#d35400",
+    "intersection": "#c0392b",
+    "road_opening": "#8e44ad",
+    "narrow": "#16a085",
+}
 
 
 def write_lap_svg(

@@ -85,10 +85,10 @@ def gnss_source(
         return via_nmea
 
     def direct(state: VehicleState) -> GnssFix:
-        err, rtk = sensor.error(state)
+        err, fix = sensor.error(state)
+        rtk = fix.quality == 4
         kind = "rtk" if rtk else "float"
-        sig_h = sensor.rtk_sigma if rtk else sensor.float_sigma
-        sig_v = sensor.rtk_sigma_alt if rtk else sensor.float_sigma_alt
+        sig_h, sig_v = sensor.sigmas(fix)
         x, y = state.x + err[0], state.y + err[1]
         lat, lon = sensor.local_to_latlon(x, y)
         easting, northing = sensor.frame.utm_of(x, y)
@@ -103,7 +103,7 @@ def gnss_source(
             northing=northing,
             zone=sensor.frame.zone,
             hemisphere="N" if sensor.frame.northern else "S",
-            quality=4 if rtk else sensor.no_rtk_quality,
+            quality=fix.quality,
             rtk=rtk,
             satellites=int(sensor.satellites[kind]),
             hdop=float(sensor.hdop[kind]),
