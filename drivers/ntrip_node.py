@@ -69,7 +69,7 @@ class NtripClientNode(DriverNode):
         self.source = f"ntrip {self.client.where}"
         self._last_frame_t: float | None = None  # stack time of the newest frame
         self._station: int | None = None
-        self._status_due = -float("inf")
+        self._corrections_due = -float("inf")
 
     def teardown(self) -> None:
         self.client.close()
@@ -97,8 +97,8 @@ class NtripClientNode(DriverNode):
             self._station = next((f.station_id for f in reversed(frames) if f.station_id is not None), self._station)
         self.counters.connected = self.client.state == STREAMING
         self.counters.detail = self._detail()
-        if now >= self._status_due:
-            self._status_due = now + 1.0
+        if now >= self._corrections_due:
+            self._corrections_due = now + 1.0
             self.corrections.put(self.status(now))
         self.report(now)
 

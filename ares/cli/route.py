@@ -79,6 +79,22 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     prof.add_argument(
         "--out", metavar="FILE", help="picture to write, .png or .svg (default: ROUTE's name + .profile.png, here)"
     )
+    cov = route_sub.add_parser(
+        "coverage",
+        help="where along the route the RTK corrections and an RTK fix are to be had, and the share covered",
+        description="Drives the run configuration's route (simulated: at its speed profile, the simulated "
+        "receiver and its 4G link, the tour's no_4g and rtk_loss zones) or reads a run's black box "
+        "(--store), and draws the route coloured by the receiver's fix, with where the corrections "
+        "arrived, after the ARES paper's Figure 3 (there: 95 %% of the route with RTK). Prints one "
+        "JSON line: the shares of the route with RTK fixed and with corrections.",
+    )
+    cov.add_argument("--store", metavar="URI", help="a run's black box (its SQLite file or a MongoDB URI): recorded")
+    cov.add_argument("--vehicle-id", metavar="ID", help="with --store: that vehicle's records (default: all)")
+    cov.add_argument("--config", action="append", metavar="FILE", help="configuration overrides, as for ares run")
+    cov.add_argument(
+        "--route", dest="route_name", metavar="ROUTE", help="a built-in tour's name or a route CSV (default: the run's)"
+    )
+    cov.add_argument("--out", metavar="PNG", help="picture to write (default: ROUTE's name + .coverage.png, here)")
     return {"route": cmd_route}
 
 
@@ -89,8 +105,11 @@ def cmd_route(args: argparse.Namespace) -> int:
         return _route_record(args)
     if args.route == "profile":
         return _route_profile(args)
+    if args.route == "coverage":
+        return _route_coverage(args)
     raise CliError(
-        "which action? try `ares route import FILE -o ROUTE`, `ares route record FILE` or `ares route profile ROUTE`"
+        "which action? try `ares route import FILE -o ROUTE`, `ares route record FILE`, `ares route profile ROUTE` "
+        "or `ares route coverage`"
     )
 
 
@@ -111,6 +130,33 @@ def _route_import(args: argparse.Namespace) -> int:
     except RouteError as exc:
         raise CliError(str(exc)) from None
     print(f"imported {result.summary()}")
+    return 0
+
+
+def _route_coverage(args: argparse.Namespace) -> int:
+    import json
+
+    from ares.app import run_config
+    from ares.core import config
+    from ares.core.route import RouteError, load_route
+    from ares.tools.coverage import coverage_recorded, coverage_simulated, write_coverage_png
+
+    overrides = {}
+    if args.route_name:
+        key = "route_file" if args.route_name.lower().endswith(".csv") else "tour"
+        overrides = {key: args.route_name}
+    try:
+        cfg = run_config.build(tuple(args.config or ()), overrides)
+        route = load_route(config.core(cfg))
+        result = coverage_recorded(cfg, args.store, args.vehicle_id) if args.store else coverage_simulated(cfg)
+    except (config.ConfigError, RouteError, OSError, ValueError) as exc:
+        raise CliError(str(exc)) from None
+    out = Path(args.out) if args.out else Path(f"{route.name}.coverage.png")
+    title = f"{route.name}, {result.source}: RTK fixed on {result.rtk_fixed_share:.1%} of the route" + (
+        f", corrections on {result.corrections_share:.1%}" if result.corrections_share is not None else ""
+    )
+    picture = write_coverage_png(out, route, result, title)
+    print(json.dumps({**result.summary(), "picture": str(picture)}))
     return 0
 
 
