@@ -314,3 +314,52 @@ def test_the_frames_reach_the_receivers_port_and_the_corrections_state_is_publis
         client.teardown()
         driver.teardown()
         pty.close()
+
+
+def test_behind_the_wire_a_4g_outage_degrades_the_simulated_fix_and_it_recovers():
+    """The corrections' path of `ares run --wire` without the rest of the stack: the base station
+    (str2str fed the F9T log, an epoch a simulated second) behind the simulated 4G relay, the NTRIP
+    client, and the simulated receiver taking the frames. Once fixed, the relay is cut for 20
+    simulated seconds: the fix goes RTK fixed -> float -> DGPS; back in coverage the client
+    reconnects and the fix is RTK fixed again. Simulated time runs about 20x the wall's."""
+    from ares.sim.base_station import BaseStation, ModemRelay
+    from ares.sim.corrections import ReceiverCorrections
+    from ares.sim.params import SimCorrectionsParams
+
+    caster_port, relay_port = free_port(), free_port()
+    base = BaseStation(caster_port, MOUNT, USER, PASSWORD)
+    assert base.ready()
+    modem = ModemRelay(relay_port, ("127.0.0.1", caster_port))
+    client = NtripClient(settings_for(relay_port, silent_after_s=0.3, connect_timeout_s=0.3))
+    receiver = ReceiverCorrections(SimCorrectionsParams())
+    t = 0.0
+    cut: float | None = None  # when the 4G is lost
+
+    def run(until, what: str) -> None:
+        nonlocal t
+        deadline = time.monotonic() + 3 * WAIT_S
+        while not until():
+            assert time.monotonic() < deadline, f"{what}: {client.state} {client.events[-3:]}"
+            modem.set_up(cut is None or not cut <= t < cut + 20.0)
+            if abs(t - round(t)) < 1e-6:
+                base.send()  # the base's second
+            modem.poll()
+            frames = client.poll()
+            if frames:
+                receiver.received(t, len(frames))
+            t = round(t + 0.1, 3)
+            time.sleep(0.005)
+
+    try:
+        run(lambda: receiver.kind(t).name == "fixed" and t >= 3.0, "the first corrections")
+        cut = t
+        run(lambda: t >= cut + 8.0, "8 s without 4G")
+        assert receiver.kind(t).name == "float"  # the newest 7-8 s old
+        run(lambda: t >= cut + 19.0, "19 s without 4G")
+        assert receiver.kind(t).name == "dgps"
+        run(lambda: t >= cut + 20.0 and receiver.kind(t).name == "fixed", "back in coverage: fixed again")
+        assert modem.cuts == 1 and client.connects >= 2 and client.outages >= 1
+    finally:
+        client.close()
+        modem.close()
+        base.close()
