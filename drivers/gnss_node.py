@@ -15,8 +15,9 @@ Each message is stamped with the epoch's time of day mapped to stack time (the d
 rule, nmea_stream.stamp). An epoch older than `max_fix_age_s` when it is read (a stream held up,
 then a burst of old epochs) is dropped and counted as stale, never stamped as new: a localization
 fed an old position as now is a safety defect. Ages are judged against the stack clock; a receiver
-clock that disagrees with it for good (a computer without time sync) is reported, and ages are
-then judged from the freshest epochs of the last `clock_window_s`. A receiver absent, gone (a read
+clock that disagrees with it for good (a computer without time sync: the smallest age of the last
+`clock_window_s` beyond `max_fix_age_s`) is reported, and its fixes are still judged by the stack
+clock: behind it, every one is dropped (a stream late for good looks the same). A receiver absent, gone (a read
 error, the connection closed) or silent for `silent_after_s` is closed and reopened every
 `reopen_s`, each cause logged once.
 """
@@ -56,7 +57,7 @@ class GnssDriverParams(Params):
     )
     clock_window_s: float = param(
         10.0,
-        "a receiver clock off from the stack clock's: ages are judged from the freshest epoch of this long",
+        "the receiver's clock is judged off from the stack clock's by the freshest epoch of this long",
         unit="s",
         gt=0,
     )
@@ -255,8 +256,11 @@ class GnssDriver(DriverNode):
         self.ages.observe(now, [self.ages.raw_age(now, utc_epoch, e.tod) for e in epochs if e.tod is not None])
         offset = self.ages.clock_offset_s
         if offset is not None:
+            consequence = "every fix looks stale and is dropped" if offset > 0 else "fixes are stamped as read"
             self.wire_counts.problem(
-                "receiver clock", f"its time is {offset:+.2f} s from the stack clock's: ages judged from its freshest"
+                "receiver clock",
+                f"its time is {-offset:+.2f} s from the stack clock's: {consequence}; set the computer's clock "
+                "(NTP, or chrony or gpsd from this receiver)",
             )
         for epoch in epochs:
             age = self.ages.age(now, utc_epoch, epoch.tod)

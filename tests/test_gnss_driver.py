@@ -177,21 +177,27 @@ def test_a_burst_of_old_epochs_is_dropped_never_stamped_as_new(tmp_path):
         pty.close()
 
 
-def test_a_receiver_clock_off_from_ours_is_reported_not_dropped(tmp_path, caplog):
-    """A computer whose clock is 3 s behind the receiver's: every fix would look 3 s from the future;
-    the driver reports the offset and judges ages from the freshest epochs instead."""
+@pytest.mark.parametrize(("ahead_s", "published"), [(3.0, True), (-3.0, False)])
+def test_a_receiver_clock_off_from_ours_is_reported(tmp_path, caplog, ahead_s, published):
+    """A computer whose clock is 3 s from the receiver's. Behind it, every fix looks 3 s from the
+    future: stamped as read. Ahead of it, every fix looks 3 s old: dropped (a stream 3 s late for good
+    looks the same), never stamped as new. Either way the offset is reported, with what to do."""
     link = tmp_path / "gnss"
     pty = NmeaPty(link)
     rig = Rig(make_cfg({"source": "serial", "device": str(link)}))
     try:
         rig.step(0.9)
-        epochs = drive(10, 1.0, rig.clock.utc_epoch + 3.0)  # the receiver's time of day 3 s ahead
+        epochs = drive(10, 1.0, rig.clock.utc_epoch + ahead_s)
         for k, (t, lines, _) in enumerate(epochs):
             rig.clock.set(t)
             assert pty.write(lines) == 0
-            rig.step_until(lambda k=k: len(rig.messages) == k + 1, f"epoch {k}", t)
-        assert not rig.counts.skipped and [m.t for m in rig.messages] == pytest.approx([t for t, _, _ in epochs])
-        assert any("receiver clock" in r.message and "-3.00 s" in r.message for r in caplog.records)
+            rig.step_until(lambda k=k: len(rig.messages) + rig.counts.skipped.get("stale", 0) == k + 1, f"epoch {k}", t)
+        if published:
+            assert not rig.counts.skipped and [m.t for m in rig.messages] == pytest.approx([t for t, _, _ in epochs])
+        else:
+            assert rig.messages == [] and rig.counts.skipped == {"stale": 10}
+        said = f"its time is {ahead_s:+.2f} s from the stack clock's"
+        assert any("receiver clock" in r.message and said in r.message for r in caplog.records)
     finally:
         rig.close()
         pty.close()

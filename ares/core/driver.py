@@ -42,7 +42,9 @@ class DeviceAges:
     """How old a device's data is when read, from the time it carries (`period_s`: a day for an
     NMEA time of day): its calendar time against the stack clock's. A device clock that disagrees
     for good (the smallest age over the last `window_s` beyond `tolerance_s` either way: a computer
-    without time sync) is an offset: ages are then taken from the freshest data of the window."""
+    without time sync) is reported as an offset, but ages stay the stack clock's: a stream that is
+    late for good looks exactly like a clock that is off, and an old position taken as new is the
+    worse mistake. Data from the future (a device clock ahead) is not old: it counts as read now."""
 
     def __init__(self, period_s: float, tolerance_s: float, window_s: float):
         self.period_s = period_s
@@ -72,9 +74,7 @@ class DeviceAges:
     def age(self, now: float, utc_epoch: float, device_time: float | None) -> float | None:
         if device_time is None:
             return None
-        raw = self.raw_age(now, utc_epoch, device_time)
-        offset = self.clock_offset_s
-        return raw - offset if offset is not None else raw
+        return self.raw_age(now, utc_epoch, device_time)
 
 
 class WireCounters:
