@@ -25,6 +25,7 @@ error, the connection closed) or silent for `silent_after_s` is closed and reope
 from __future__ import annotations
 
 import os
+import select
 import time
 from typing import Protocol
 
@@ -72,7 +73,7 @@ class _SerialPort:
     """A serial port or pseudo-terminal, read without waiting."""
 
     def __init__(self, device: str, baud: int):
-        self.port = serial.Serial(device, baud, timeout=0, write_timeout=0)  # neither way waits
+        self.port = serial.Serial(device, baud, timeout=0)
         self.port.reset_input_buffer()  # what waited in the port before we opened it is stale
         self.device = device
         self.path = os.path.realpath(device)
@@ -89,10 +90,16 @@ class _SerialPort:
         return b"".join(chunks)
 
     def write(self, data: bytes) -> int:
-        """What fits in the port's buffer now (write_timeout 0: never waits); how much that was."""
+        """What fits in the port's buffer now, without waiting; how much that was. (pyserial's own
+        write spins until everything is written, whatever its write_timeout: a stalled receiver or
+        flow control would hold the driver's step.)"""
+        fd = self.port.fileno()
+        _, writable, _ = select.select([], [fd], [], 0)
+        if not writable:
+            return 0
         try:
-            return int(self.port.write(data) or 0)
-        except serial.SerialTimeoutException:
+            return os.write(fd, data)
+        except (BlockingIOError, InterruptedError):
             return 0
 
     def close(self) -> None:
@@ -160,6 +167,7 @@ class GnssDriver(DriverNode):
             return
         self.stream = self._framer()
         self.ages = DeviceAges(DAY_S, self.params.max_fix_age_s, self.params.clock_window_s)  # a new device's clock
+        self._rtcm_backlog.clear()  # what waited for the last device is no good to this one
         self._ubx_seen = 0
         self._last_byte = time.monotonic()
         self.log.info("reading the GNSS receiver: %s", self._where())
@@ -219,8 +227,8 @@ class GnssDriver(DriverNode):
             self._rtcm_backlog.clear()
             return
         del self._rtcm_backlog[:sent]  # the rest goes at the next step, never waited for
-        counts.put(n=frames)
-        counts.connected = True
+        counts.put(n=frames)  # handed to the port (the bytes it had no room for yet are `waiting`)
+        counts.connected = sent > 0 or not self._rtcm_backlog
         counts.detail = f"RTCM to {self._where()}: {counts.published} frames, {len(self._rtcm_backlog)} bytes waiting"
 
     def _read(self, now: float) -> None:
@@ -248,8 +256,8 @@ class GnssDriver(DriverNode):
         self._publish(done, now)
 
     def _publish(self, epochs: list[Epoch], now: float) -> None:
-        """The epochs completed by one read, in order; their ages are judged once all are seen, so
-        that a burst's newest epoch tells how old the others are."""
+        """The epochs completed by one read, in order, each judged by its own age on the stack
+        clock; the read's freshest also tells whether the receiver's clock is off (reported)."""
         if not epochs:
             return
         utc_epoch = self.clock.utc_epoch

@@ -73,6 +73,7 @@ class _Sensor:
         )
         self.sock: socket.socket | None = None
         self.player: CapturePlayer | None = None  # a capture in place of the socket (device.pcap)
+        self.last_player: CapturePlayer | None = None  # ... kept for its counts once closed
         self.played_from = 0.0  # the stack time the capture started playing at
         self.capture_epoch = 0.0  # the capture's stamp rule: its first packet's µs past the hour at played_from
         self.retry_at = 0.0  # wall
@@ -152,16 +153,14 @@ class VelodyneDriver(DriverNode):
         counters = self.wire(f"lidar/{sensor.name}")
         device = sensor.device
         assert device.pcap is not None  # only for a capture
-        try:
+        try:  # the player opens the file at once: a missing or bad one fails here, not mid-run
             sensor.player = CapturePlayer(device.pcap, port=device.port, source=device.source, loop=device.pcap_loop)
-            first = sensor.player.due(0.0, limit=0)  # opens the file: a bad one fails here, not mid-run
         except ValueError as exc:
             counters.connected = False
             counters.problem("cannot open", str(exc))
             sensor.player = None
             sensor.retry_at = wall + self.params.reopen_s
             return
-        del first
         sensor.played_from = self.clock.now()
         sensor.opened_wall = wall
         sensor.silent = False
@@ -171,6 +170,8 @@ class VelodyneDriver(DriverNode):
         if sensor.sock is not None:
             sensor.sock.close()
             sensor.sock = None
+        if sensor.player is not None:
+            sensor.last_player = sensor.player
         sensor.player = None
 
     def _drain(self, sensor: _Sensor) -> list[Rotation]:
@@ -207,7 +208,13 @@ class VelodyneDriver(DriverNode):
         assert player is not None
         done: list[Rotation] = []
         wall = time.time()
-        datagrams = player.due(now - sensor.played_from, limit=self.params.max_packets_per_step)
+        try:
+            datagrams = player.due(now - sensor.played_from, limit=self.params.max_packets_per_step)
+        except ValueError as exc:  # the file gone or broken under a loop's restart
+            self.wire(f"lidar/{sensor.name}").problem("cannot read", str(exc))
+            self._close(sensor)
+            sensor.retry_at = wall + self.params.reopen_s
+            return []
         for datagram in datagrams:
             if player.loops != sensor.loops_seen or sensor.assembler.packets == 0:
                 # the capture's hour on the stack clock, anew at each pass: a packet's own time
@@ -297,9 +304,9 @@ class VelodyneDriver(DriverNode):
                 self._publish(sensor, rotation, self.clock.now())
         sensor.silent = silent
         counters.connected = sensor.is_open and sensor.last_packet_wall >= sensor.opened_wall and not silent
-        if silent and wall - heard > self.params.reopen_s + self.params.silent_after_s:
+        if silent and sensor.player is None and wall - heard > self.params.reopen_s + self.params.silent_after_s:
             self._close(sensor)  # a fresh socket: an interface that came back, a rebound address
-            sensor.retry_at = wall
+            sensor.retry_at = wall  # (a capture plays on the stack clock: a pause in it is no dead socket)
         counters.detail = self._summary(sensor)
 
     def _summary(self, sensor: _Sensor) -> str:
@@ -310,6 +317,11 @@ class VelodyneDriver(DriverNode):
             f"{sensor.device.model} {where}: {asm.rotations} rotations, {asm.truncated} truncated, "
             f"{rate} (set {sensor.device.rate_hz:g} Hz)"
         )
+        player = sensor.player or sensor.last_player
+        if player is not None and (player.other or player.counts.skipped):
+            others = sum(player.other.values())
+            text += f"; the capture's other datagrams: {others} not to port {sensor.device.port} or not from the source"
+            text += "".join(f", {n} {cause}" for cause, n in player.counts.skipped.items())
         for product, n in asm.factory_bytes.items():
             text += f"; factory byte 0x{product:02x} in {n} packets: decoded as the configured {sensor.device.model}"
         if asm.azimuth_stalls:

@@ -35,6 +35,7 @@ from ares.core.config import Params, param
 from ares.core.messages import CorrectionsStatus, GnssFix, Imu, LidarStatus, ProcessState, SupervisorState
 
 NOMINAL, CRITICAL, LOW = 0, 1, 2
+CORRECTIONS_STATUS_STALE_S = 3.0  # the corrections' state comes once a second
 
 
 class AwarenessParams(Params):
@@ -157,8 +158,10 @@ class AwarenessChecks:
         if self._gnss_var is not None and self._gnss_var > p.gnss_max_var_m2:
             problems.append(f"variance {self._gnss_var:.2f} m² > {p.gnss_max_var_m2:.2f}")
         corrections = self._corrections
-        outage = corrections.outage() if corrections is not None and now - corrections.t <= 3.0 else None
+        outage = None
         if corrections is not None:
+            stale = now - corrections.t > CORRECTIONS_STATUS_STALE_S
+            outage = "state unknown (no word from its source for a while)" if stale else corrections.outage()
             out.sensors["corrections"] = "ok" if outage is None else outage
         if warm and now - self._rtk_last_seen > p.rtk_recent_s:
             problems.append("no RTK corrections" + (f" ({outage})" if outage else ""))

@@ -154,36 +154,49 @@ def read_capture(
         raise ScanFileError(str(exc)) from None
     # the rate only bounds the cut of a stalled azimuth: the slowest a Velodyne turns (5 Hz)
     assembler = RotationAssembler(cal, rate_hz=5.0, fov_deg=fov_deg)
-    rotations = [r for datagram in datagrams for r in assembler.add(datagram.payload, datagram.time)]
-    rotations += assembler.flush()
-    whole = [r for r in rotations if not r.truncated]
+    # only the rotation asked for keeps its points: a long capture's others are counted, not held
+    sizes: list[int] = []
+    rates: list[float] = []
+    modes: set[str] = set()
+    total = 0
+    chosen = None
+    for datagram in [*datagrams, None]:
+        done = assembler.flush() if datagram is None else assembler.add(datagram.payload, datagram.time)
+        for rotation in done:
+            total += rotation.points.size
+            if rotation.truncated:
+                continue
+            if len(sizes) == frame:
+                chosen = rotation.points
+            sizes.append(rotation.points.size)
+            modes.add(rotation.return_mode)
+            if rotation.rate_hz:
+                rates.append(rotation.rate_hz)
     summary = CaptureSummary(
         model=model,
         model_from=model_from,
         packets=len(datagrams),
-        rotations=len(whole),
+        rotations=len(sizes),
         truncated=assembler.truncated,
-        points_per_rotation=[r.points.size for r in whole],
-        points_total=sum(r.points.size for r in rotations),
-        rate_hz=round(float(np.median([r.rate_hz for r in whole if r.rate_hz])), 3)
-        if any(r.rate_hz for r in whole)
-        else None,
-        return_modes=sorted({r.return_mode for r in whole}),
+        points_per_rotation=sizes,
+        points_total=total,
+        rate_hz=round(float(np.median(rates)), 3) if rates else None,
+        return_modes=sorted(modes),
         factory_bytes={f"0x{b:02x}": n for b, n in assembler.factory_bytes.items()},
         malformed=dict(assembler.malformed),
         lost=assembler.lost,
         skipped_frames=dict(counts.skipped),
         frame=frame,
     )
-    if not whole:
+    if not sizes:
         raise ScanFileError(
             f"{path}: no whole rotation in {len(datagrams)} packets ({summary.malformed or 'none refused'})"
         )
-    if not 0 <= frame < len(whole):
+    if chosen is None:
         raise ScanFileError(
-            f"{path}: frame {frame} asked, the capture has {len(whole)} whole rotations (0..{len(whole) - 1})"
+            f"{path}: frame {frame} asked, the capture has {len(sizes)} whole rotations (0..{len(sizes) - 1})"
         )
-    points = whole[frame].points
+    points = chosen
     xyz = np.stack([points.x, points.y, points.z], axis=1).astype(np.float32)
     scan = Scan(np.ascontiguousarray(xyz), points.intensity, points.ring.astype(np.int64), 0)
     return scan, summary

@@ -363,3 +363,38 @@ def test_behind_the_wire_a_4g_outage_degrades_the_simulated_fix_and_it_recovers(
         client.close()
         modem.close()
         base.close()
+
+
+def test_a_source_table_with_odd_fields_parses():
+    odd = "STR;M1;x;RTCM 3.2;1004;²;GPS;N;DEU;nan;inf;1;9;sNTRIP;none;B;N;nan;\r\nSTR;M2\r\nENDSOURCETABLE\r\n"
+    mounts = parse_sourcetable(odd)
+    assert [m.name for m in mounts] == ["M1", "M2"]
+    assert mounts[0].carrier == 0 and mounts[0].lat is None and mounts[0].lon is None and mounts[0].bitrate is None
+
+
+def test_a_broken_chunked_body_ends_the_stream():
+    """A rev 2 answer that says chunked and is not: the link is failed (and tried again), not left
+    "streaming" with its bytes piling up."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+
+    def caster() -> None:
+        conn, _ = server.accept()
+        conn.recv(4096)
+        conn.sendall(b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\n" + b"".join(FRAMES[:5]))
+        time.sleep(1.0)
+        conn.close()
+
+    thread = threading.Thread(target=caster, daemon=True)
+    thread.start()
+    client = NtripClient(settings_for(port, silent_after_s=5.0))
+    try:
+        poll_until(client, lambda _: bool(client.events), "the answer")
+        assert client.events[0][0] == "bad answer" and "chunk size" in client.events[0][1]
+        assert client.state == "idle" and client.outages == 1
+    finally:
+        client.close()
+        thread.join(2.0)
+        server.close()

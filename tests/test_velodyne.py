@@ -310,3 +310,13 @@ def test_a_field_of_view_cuts_at_its_start_and_hides_no_loss():
     plain = v.RotationAssembler(cal, 10.0)  # the same packets, no field of view set: the hidden half lost
     [plain.add(p, 0.0) for p in np.array(packets, dtype=object)[shown]]
     assert plain.lost > 100
+
+
+def test_a_sensor_turning_slower_than_configured_is_not_cut():
+    """Configured 20 Hz, turning at 5 Hz in dual mode: four times the packets a rotation was thought
+    to have, but the azimuth turns: whole rotations, no stall, and the true rate measured."""
+    cal, pattern, packets = stream("VLP-16", "dual", 3, rate_hz=5.0)
+    asm = v.RotationAssembler(cal, 20.0)
+    finished = [r for i, p in enumerate(packets) for r in asm.add(p, float(i))]
+    assert [r.truncated for r in finished] == [False, False, False] and asm.azimuth_stalls == 0
+    assert asm.measured_rate_hz == pytest.approx(5.0, rel=1e-3)

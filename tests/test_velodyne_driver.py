@@ -205,6 +205,19 @@ def test_a_capture_plays_in_place_of_the_socket(driver):
     assert counters.received == 1902  # its 367 position packets (port 8308) are not the LiDAR's
 
 
+def test_a_capture_that_cannot_be_read_is_reported_and_tried_again(driver, tmp_path):
+    d = driver({"roof": "VLP-16"}, pcap=str(tmp_path / "no_such.pcap"))
+    for _ in range(5):
+        d.step(0.02)
+    counters = d.node.wires["lidar/roof"]
+    assert not counters.connected and counters._problems["cannot open"] >= 1
+    text = tmp_path / "not_a_capture.pcap"
+    text.write_text("hello\n")
+    d2 = driver({"roof": "VLP-16"}, pcap=str(text))
+    d2.step(0.02)
+    assert d2.node.wires["lidar/roof"]._problems["cannot open"] == 1
+
+
 def test_truncated_rotation_not_published(driver):
     d = driver({"roof": "VLP-16"})
     first, _ = sweep_packets("VLP-16", 100.0)

@@ -12,8 +12,8 @@ receiver takes them (ares/sim/corrections.py: its fix follows their age).
   test log `test/daemon/ublox-zed-f9t-rtcm3.log`, BSD-2-Clause, its UBX frames taken out).
 - `ModemRelay`: the vehicle's 4G modem, a TCP relay between the client and the caster. Where the
   tour has no 4G (a `no_4g` zone) or a fault stops the corrections, it passes nothing either way
-  and answers no new connection: the client sees its stream go silent, reconnects, and waits,
-  as over a real dead link. Back in coverage, the stale connections are closed.
+  and closes every new connection at once: the client sees its stream go silent, then each try
+  closed, and backs off, as over a dead link. Back in coverage, the stale connections are closed.
 """
 
 from __future__ import annotations
@@ -166,7 +166,7 @@ class ModemRelay:
                 return
             client.setblocking(False)
             if not self.up:
-                client.close()  # no coverage: nobody answers (the client's connect times out or fails)
+                client.close()  # no coverage: the try ends at once (the client backs off)
                 continue
             upstream = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             upstream.setblocking(False)

@@ -153,8 +153,10 @@ def coverage_recorded(cfg: dict, store_uri: str, vehicle_id: str | None = None) 
     ]
     if not kept:
         raise ValueError(f"{store_uri}: no record with a position and its fix ({len(rows)} records)")
+    from scipy.spatial import cKDTree
+
     xy = np.array([(r.position.x, r.position.y) for r in kept])
-    nearest = np.argmin((route.x[None, :] - xy[:, :1]) ** 2 + (route.y[None, :] - xy[:, 1:]) ** 2, axis=1)
+    _, nearest = cKDTree(np.column_stack([route.x, route.y])).query(xy)
     s = route.s[nearest]
     quality = np.array([r.corrections.fix_quality for r in kept])
     links = [r.corrections.link for r in kept]

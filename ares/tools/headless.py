@@ -342,6 +342,14 @@ def drive(args, cfg, route: Route, bus: BaseBus, clock: Clock, stop, run_dir: Pa
             f"wire->bus p50 {fig['latency_p50_ms']} ms  p99 {fig['latency_p99_ms']} ms",
             file=sys.stderr,
         )
+    corrections = result.get("corrections")
+    if corrections:
+        print(
+            f"corrections {corrections['source']}: RTK fixed {corrections['rtk_fixed_share']}, "
+            f"age p50 {corrections['age_s_p50']} s max {corrections['age_s_max']} s, "
+            f"{corrections['outages']} outages",
+            file=sys.stderr,
+        )
     title = f"{route.name}: {result['distance_m']:.0f} m in {lap_time:.0f} s, {cfg['vehicle']}"
     result["plot"] = str(m.picture(run_dir / "lap.svg", title))
     m.save_trace(run_dir)

@@ -24,18 +24,23 @@ from __future__ import annotations
 
 import base64
 import errno
+import math
 import select
 import socket
 import time
 from collections import Counter
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 from ares.core.wire.rtcm import RtcmFrame, RtcmStream
 
 USER_AGENT = "NTRIP ARES/1.0"
 MAX_HEADER = 16384  # a caster's answer header; a source table may run long (its body is kept apart)
 MAX_SOURCETABLE = 1 << 20
+
+_RESOLVER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ntrip-dns")  # a lookup may take seconds
 
 # link states
 IDLE, CONNECTING, REQUESTED, STREAMING, FAILED = "idle", "connecting", "requested", "streaming", "failed"
@@ -88,9 +93,14 @@ class MountPoint:
 
 def _number(text: str) -> float | None:
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
         return None
+    return value if math.isfinite(value) else None
+
+
+def _count(text: str) -> int | None:
+    return int(text) if text.isascii() and text.isdigit() else None
 
 
 def parse_sourcetable(text: str) -> list[MountPoint]:
@@ -101,24 +111,23 @@ def parse_sourcetable(text: str) -> list[MountPoint]:
             continue
         f = line.split(";")
         f += [""] * (19 - len(f))
-        bitrate = _number(f[17])
         found.append(
             MountPoint(
                 name=f[1],
                 identifier=f[2],
                 format=f[3],
                 format_details=f[4],
-                carrier=int(f[5]) if f[5].isdigit() else 0,
+                carrier=_count(f[5]) or 0,
                 nav_system=f[6],
                 network=f[7],
                 country=f[8],
                 lat=_number(f[9]),
                 lon=_number(f[10]),
                 nmea=f[11] == "1",
-                solution=int(f[12]) if f[12].isdigit() else 0,
+                solution=_count(f[12]) or 0,
                 authentication=f[15] or "N",
                 fee=f[16] == "Y",
-                bitrate=int(bitrate) if bitrate is not None else None,
+                bitrate=_count(f[17]),
             )
         )
     return found
@@ -135,6 +144,8 @@ class Dechunker:
         self.error: str | None = None
 
     def feed(self, data: bytes) -> bytes:
+        if self.done or self.error is not None:
+            return b""  # nothing more is taken: the caller ends the stream
         self._buf += data
         out = bytearray()
         buf = self._buf
@@ -239,6 +250,9 @@ class NtripClient:
         self.last_frame_wall: float | None = None
         self.gga_sent = 0
         self._sock: socket.socket | None = None
+        self._lookup: Future[list[Any]] | None = None
+        self._addresses: list[tuple[Any, ...]] | None = None  # (family, kind, proto, address) of the caster
+        self._next_address = 0  # the next failure tries the next address
         self._retry_at = 0.0
         self._deadline = 0.0
         self._head = bytearray()
@@ -247,6 +261,7 @@ class NtripClient:
         self._table = bytearray()
         self._heard_at = 0.0
         self._gga_due = 0.0
+        self._wall = 0.0
 
     @property
     def frames(self) -> int:
@@ -276,6 +291,7 @@ class NtripClient:
 
     def poll(self, wall: float | None = None) -> list[RtcmFrame]:
         wall = time.monotonic() if wall is None else wall
+        self._wall = wall
         if self.state == IDLE and wall >= self._retry_at:
             self._connect(wall)
         if self.state == CONNECTING:
@@ -288,22 +304,42 @@ class NtripClient:
     def _connect(self, wall: float) -> None:
         s = self.settings
         self._head, self._answer, self._dechunk, self._table = bytearray(), None, None, bytearray()
-        try:
-            infos = socket.getaddrinfo(s.host, s.port, type=socket.SOCK_STREAM)
-        except OSError as exc:
-            self._fail(wall, "cannot resolve", f"{s.host}: {exc}")
-            return
-        family, kind, proto, _, address = infos[0]
-        sock = socket.socket(family, kind, proto)
-        sock.setblocking(False)
-        code = sock.connect_ex(address)
-        if code not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK):
+        if self._addresses is None:  # the caster's name, looked up on a thread of its own: DNS may hang
+            if self._lookup is None:
+                self._lookup = _RESOLVER.submit(socket.getaddrinfo, s.host, s.port, type=socket.SOCK_STREAM)
+                self._deadline = wall + s.connect_timeout_s
+            if not self._lookup.done():
+                if wall > self._deadline:
+                    self._lookup = None
+                    self._fail(wall, "cannot resolve", f"{s.host}: no answer in {s.connect_timeout_s:g} s")
+                return
+            try:
+                self._addresses = [info[:3] + (info[4],) for info in self._lookup.result()]
+            except OSError as exc:
+                self._fail(wall, "cannot resolve", f"{s.host}: {exc}")
+                return
+            finally:
+                self._lookup = None
+        for family, kind, proto, address in (
+            self._addresses[self._next_address :] + self._addresses[: self._next_address]
+        ):
+            self._next_address = (self._next_address + 1) % len(self._addresses)
+            try:
+                sock = socket.socket(family, kind, proto)
+            except OSError as exc:  # out of descriptors, an address family this host has not
+                self._fail(wall, "cannot connect", f"{self.where}: {exc}")
+                return
+            sock.setblocking(False)
+            code = sock.connect_ex(address)
+            if code in (0, errno.EINPROGRESS, errno.EWOULDBLOCK):
+                self._sock = sock
+                self.state = CONNECTING
+                self._deadline = wall + s.connect_timeout_s
+                return
             sock.close()
-            self._fail(wall, "cannot connect", f"{self.where}: {errno.errorcode.get(code, code)}")
-            return
-        self._sock = sock
-        self.state = CONNECTING
-        self._deadline = wall + s.connect_timeout_s
+            error = errno.errorcode.get(code, str(code))
+        self._addresses = None  # looked up again next time: the caster may have moved
+        self._fail(wall, "cannot connect", f"{self.where}: {error}")
 
     def _finish_connect(self, wall: float) -> None:
         assert self._sock is not None  # connecting
@@ -373,6 +409,9 @@ class NtripClient:
                     self.last_frame_wall = wall
                     self.failures = 0  # corrections flow: the next failure starts the back-off afresh
                 frames += got
+                if self._dechunk is not None and (self._dechunk.error or self._dechunk.done):
+                    self._lost(wall, "bad answer", f"{self.where}: {self._dechunk.error or 'the stream ended'}")
+                    break
             elif self.state == REQUESTED and self._answer is not None and self._answer.kind == "sourcetable":
                 self._take_sourcetable(data, wall)
         return frames
@@ -467,4 +506,5 @@ class NtripClient:
 
     @property
     def retry_in_s(self) -> float:
-        return max(self._retry_at - time.monotonic(), 0.0) if self.state == IDLE else 0.0
+        """Seconds to the next try, on the clock `poll` is given."""
+        return max(self._retry_at - self._wall, 0.0) if self.state == IDLE else 0.0

@@ -140,6 +140,9 @@ class CapturePlayer:
         self._given_this_pass = 0
         self._new_pass = False
         self._stream = udp_datagrams(self.path, self.counts)
+        self._next = self._pull()  # opens the file now: a missing or bad one raises ValueError here
+        if self._next is not None:
+            self.first_time = self._next.time
 
     def _pull(self) -> Datagram | None:
         for datagram in self._stream:

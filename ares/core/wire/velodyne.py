@@ -647,8 +647,10 @@ class RotationAssembler:
     of the azimuth, a change of return mode or a stall of the stream. Lost packets are told by
     gaps in the timestamps or the azimuths beyond 1.5 packets' worth. A sensor whose azimuth
     stops advancing (a stuck motor, an encoder fault) never crosses 0°: a rotation is also cut
-    once it holds `stall_factor` times the packets a rotation at `rate_hz` has in dual mode, so
-    memory stays bounded; such a cut is counted in `azimuth_stalls` (and comes out truncated).
+    once it holds `stall_factor` times the packets a rotation at `rate_hz` has in dual mode and has
+    swept less than half a turn (or four times that many packets, whatever it swept), so memory
+    stays bounded; such a cut is counted in `azimuth_stalls` (and comes out truncated). A sensor
+    turning slower than configured is not cut: its rate is reported.
 
     `notices` holds (cause, text) the driver should report once: a factory byte that names another
     model than the configured one (counted per byte in `factory_bytes`), an azimuth stall."""
@@ -755,7 +757,9 @@ class RotationAssembler:
             pending.swept += (header.first_azimuth - pending.last.first_azimuth) % 36000
         pending.payloads.append(payload)
         pending.last, pending.last_wall, pending.step = header, received_wall, step
-        if len(pending.payloads) >= self.max_packets:  # the azimuth is not turning: cut, bounded
+        held = len(pending.payloads)
+        if (held >= self.max_packets and pending.swept < 18000) or held >= 4 * self.max_packets:
+            # the azimuth is not turning (not half a turn in 2.5 rotations' packets): cut, bounded
             self.azimuth_stalls += 1
             if not self._stalled:
                 self.notices.append(("azimuth stalled", f"azimuth stalled: {self.max_packets} packets without a turn"))
@@ -765,7 +769,11 @@ class RotationAssembler:
         self._previous, self._previous_step = header, step
         end = self._relative(header.first_azimuth) + step * (lay.firings_per_packet - 1)  # unwrapped
         wrapped_inside = end >= 36000
-        if (wrapped_inside and len(pending.payloads) > 1) or (not wrapped_inside and end + span >= 36000):
+        if self.hidden:  # a field of view: the last packet is the last to start inside it
+            closes = self._relative(header.first_azimuth) + span >= 36000 - self.hidden
+        else:  # all round: the next packet would cross the cut
+            closes = end + span >= 36000
+        if (wrapped_inside and len(pending.payloads) > 1) or (not wrapped_inside and closes):
             done += self._finish()
         return done
 
