@@ -53,6 +53,9 @@ def simulator_wires(cfg: dict[str, Any], wire_dir: Path) -> dict[str, Any]:
             "user": "shuttle",
             "password": f"{rng.getrandbits(64):016x}",
             "version": 2,
+            # the link's silence is judged on the wall clock: a simulation slower than real time
+            # sends its base station's second less often than a second of the wall
+            "silent_after_s": 10.0,
         },
         "gnss": {"source": "serial", "device": str((wire_dir / "gnss.tty").resolve()), "baud": 115200},
         "can": {
