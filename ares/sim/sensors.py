@@ -123,6 +123,8 @@ class GnssSensor:
     def fix_kind(self, s: float, t: float) -> FixKind:
         """What the receiver's fix is at t: by its corrections' age, and no RTK where the sky is
         blocked (an `rtk_loss` zone) or in a gnss_outage."""
+        if self.receiver.last is None and self.link is not None and self.link.up(s, t):
+            self.receiver.received(t)  # asked before any fix was measured: the shuttle starts with them
         kind = self.receiver.kind(t)
         blocked = self.route.in_zone(s, "rtk_loss") or any(
             f.kind == "gnss_outage" and f.active(t, s) for f in self.faults

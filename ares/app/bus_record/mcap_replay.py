@@ -30,6 +30,7 @@ import copy
 import json
 import logging
 import threading
+import struct
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -112,7 +113,7 @@ class Recording:
                     elif isinstance(record, Metadata):
                         self.metadata[record.name] = dict(record.metadata)
                 self.complete = True
-            except (McapError, EOFError, ValueError, OSError) as exc:  # a file cut short by a crash
+            except (McapError, EOFError, ValueError, OSError, struct.error) as exc:  # a file cut short by a crash
                 self.cut_short = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
                 log.warning("%s: cut short (%s): read up to its last complete record", self.path, self.cut_short)
 
