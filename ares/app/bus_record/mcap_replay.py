@@ -29,8 +29,8 @@ import collections
 import copy
 import json
 import logging
-import threading
 import struct
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
