@@ -63,7 +63,7 @@ def test_a_runs_black_box_read_back(cfg, tmp_path):
     store.insert_records(records)
     store.close()
     result = coverage_recorded(cfg, str(tmp_path / "bb.sqlite"))
-    assert result.samples == len(records) and result.driven_share > 0.99
+    assert result.samples >= len(records) and result.driven_share > 0.99
     assert result.rtk_fixed_share == pytest.approx(0.5, abs=0.01)
     assert result.corrections_share == pytest.approx(0.75, abs=0.01)
     with pytest.raises(ValueError, match="no vehicle's records"):

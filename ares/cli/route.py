@@ -152,7 +152,7 @@ def _route_coverage(args: argparse.Namespace) -> int:
     except (config.ConfigError, RouteError, OSError, ValueError) as exc:
         raise CliError(str(exc)) from None
     out = Path(args.out) if args.out else Path(f"{route.name}.coverage.png")
-    title = f"{route.name}, {result.source}: RTK fixed on {result.rtk_fixed_share:.1%} of the route" + (
+    title = f"{route.name}, {result.source}: RTK fixed on {result.rtk_fixed_share:.1%} of the route driven" + (
         f", corrections on {result.corrections_share:.1%}" if result.corrections_share is not None else ""
     )
     picture = write_coverage_png(out, route, result, title)

@@ -161,7 +161,28 @@ def coverage_recorded(cfg: dict, store_uri: str, vehicle_id: str | None = None) 
     quality = np.array([r.corrections.fix_quality for r in kept])
     links = [r.corrections.link for r in kept]
     link = None if any(x is None for x in links) else np.array([x == "streaming" for x in links])
+    s, quality, link = _between_records(route, s, quality, link)
     return _result(route, str(store_uri), s, quality, link)
+
+
+def _between_records(
+    route: Route, s: np.ndarray, quality: np.ndarray, link: np.ndarray | None, max_gap_m: float = 10.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A record a second, a few metres apart: the stretches between two records (up to `max_gap_m`
+    on, in the direction of travel) take the earlier one's fix, so that a route driven is covered."""
+    out_s, out_q, out_l = [s], [quality], [link] if link is not None else None
+    step = np.mod(np.diff(s), route.length) if route.closed else np.diff(s)
+    for i in np.flatnonzero((step > STRETCH_M / 2) & (step <= max_gap_m)):
+        between = s[i] + np.arange(STRETCH_M / 2, step[i], STRETCH_M / 2)
+        out_s.append(np.mod(between, route.length) if route.closed else between)
+        out_q.append(np.full(len(between), quality[i]))
+        if out_l is not None and link is not None:
+            out_l.append(np.full(len(between), link[i]))
+    return (
+        np.concatenate(out_s),
+        np.concatenate(out_q),
+        np.concatenate(out_l) if out_l is not None else None,
+    )
 
 
 def write_coverage_png(path: str | Path, route: Route, result: CoverageResult, title: str) -> Path:
