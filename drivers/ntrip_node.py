@@ -50,22 +50,8 @@ class NtripClientNode(DriverNode):
         self.caster: NtripCaster = caster
         self.counters = self.wire(DEVICE)
         self._gga: str | None = None
-        self.client = NtripClient(
-            NtripSettings(
-                host=caster.host,
-                port=caster.port,
-                mountpoint=caster.mountpoint,
-                user=caster.user,
-                password=caster.password,
-                version=caster.version,
-                gga_interval_s=caster.gga_interval_s,
-                connect_timeout_s=caster.connect_timeout_s,
-                silent_after_s=caster.silent_after_s,
-                backoff_min_s=caster.backoff_min_s,
-                backoff_max_s=caster.backoff_max_s,
-            ),
-            gga=lambda: self._gga,
-        )
+        # the section's fields are the client's settings, one for one
+        self.client = NtripClient(NtripSettings(**caster.model_dump()), gga=lambda: self._gga)
         self.source = f"ntrip {self.client.where}"
         self._last_frame_t: float | None = None  # stack time of the newest frame
         self._station: int | None = None

@@ -35,7 +35,6 @@ from ares.core.config import Params, param
 from ares.core.messages import CorrectionsStatus, GnssFix, Imu, LidarStatus, ProcessState, SupervisorState
 
 NOMINAL, CRITICAL, LOW = 0, 1, 2
-CORRECTIONS_STATUS_STALE_S = 3.0  # the corrections' state comes once a second
 
 
 class AwarenessParams(Params):
@@ -160,7 +159,7 @@ class AwarenessChecks:
         corrections = self._corrections
         outage = None
         if corrections is not None:
-            stale = now - corrections.t > CORRECTIONS_STATUS_STALE_S
+            stale = corrections.stale(now)
             outage = "state unknown (no word from its source for a while)" if stale else corrections.outage()
             out.sensors["corrections"] = "ok" if outage is None else outage
         if warm and now - self._rtk_last_seen > p.rtk_recent_s:

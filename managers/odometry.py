@@ -80,12 +80,9 @@ class OdometryScorer:
         return self(cov), cov
 
 
-CORRECTIONS_STATUS_STALE_S = 3.0  # the corrections' state comes once a second
-
-
 def no_rtk_cause(corrections: CorrectionsStatus | None, now: float) -> str:
     """Why a pose has no RTK, from the corrections' state: the papers' main cause is a 4G link lost."""
-    if corrections is None or now - corrections.t > CORRECTIONS_STATUS_STALE_S:
+    if corrections is None or corrections.stale(now):
         return "no RTK (the corrections' state unknown)"
     outage = corrections.outage()
     if outage is not None:

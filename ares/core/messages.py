@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from datetime import datetime
 from enum import Enum
-from typing import Annotated, Literal, Self
+from typing import Annotated, ClassVar, Literal, Self
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -219,9 +219,15 @@ class GnssFix(Msg):
     var_z: float | None
 
 
+# GGA fix quality -> its name, for people
+FIX_QUALITY_NAMES = {0: "no fix", 1: "single", 2: "DGPS", 4: "RTK fixed", 5: "RTK float", 6: "dead reckoning"}
+
+
 class CorrectionsStatus(Msg):
     """Where the receiver's RTK corrections stand, once a second (gnss/corrections): their link (an
     NTRIP caster over 4G, or the simulator's model of one) and how old the newest is."""
+
+    STALE_S: ClassVar[float] = 3.0  # it comes once a second: older than this, its source is not heard
 
     source: str  # "ntrip HOST:PORT/MOUNT", "simulated"
     link: Literal["streaming", "connecting", "down", "unauthorized", "no mount point", "none"]
@@ -231,6 +237,9 @@ class CorrectionsStatus(Msg):
     outages: int = Field(0, ge=0)  # streams that were flowing and stopped
     station_id: int | None = None  # the reference station the corrections come from
     detail: str = ""  # the last failure, or what the link is doing
+
+    def stale(self, now: float) -> bool:
+        return now - self.t > self.STALE_S
 
     def outage(self, fresh_s: float = 5.0) -> str | None:
         """What keeps the corrections from the receiver, in a few words ("link down (no 4G here),

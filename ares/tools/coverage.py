@@ -25,12 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from ares.core.messages import VehicleRecord
+from ares.core.messages import FIX_QUALITY_NAMES, VehicleRecord
 from ares.core.route import Route
 
 FIELDS = set(VehicleRecord.model_fields)
 
-FIX_NAMES = {4: "RTK fixed", 5: "RTK float", 2: "DGPS", 1: "single", 0: "none"}
 FIX_COLOURS = {4: "#15803d", 5: "#eab308", 2: "#f97316", 1: "#dc2626", 0: "#6b7280"}
 STRETCH_M = 1.0
 
@@ -78,7 +77,9 @@ def _result(route: Route, source: str, s: np.ndarray, quality: np.ndarray, link:
     fix, up = _stretches(route, s, quality, link)
     driven = fix >= 0
     total = max(int(driven.sum()), 1)
-    shares = {FIX_NAMES.get(q, f"quality {q}"): float(np.sum(fix == q)) / total for q in sorted(set(fix[driven]))}
+    shares = {
+        FIX_QUALITY_NAMES.get(q, f"quality {q}"): float(np.sum(fix == q)) / total for q in sorted(set(fix[driven]))
+    }
     return CoverageResult(
         route=route.name,
         source=source,
@@ -211,7 +212,7 @@ def write_coverage_png(path: str | Path, route: Route, result: CoverageResult, t
     top.set_ylabel("y (m)")
     shown = sorted({int(q) for q in result.stretch_fix if q >= 0}, reverse=True)
     top.legend(
-        handles=[Patch(color=FIX_COLOURS.get(q, "#d1d5db"), label=FIX_NAMES.get(q, str(q))) for q in shown],
+        handles=[Patch(color=FIX_COLOURS.get(q, "#d1d5db"), label=FIX_QUALITY_NAMES.get(q, str(q))) for q in shown],
         loc="best",
         fontsize=8,
     )

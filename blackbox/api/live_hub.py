@@ -28,6 +28,7 @@ import numpy as np
 from ares.core.config import Params, param
 from ares.core.geometry import vehicle_to_local
 from ares.core.messages import (
+    FIX_QUALITY_NAMES,
     AwarenessState,
     BodyState,
     CarState,
@@ -69,7 +70,6 @@ GATEWAY_TOPICS: dict[str, type] = {
     "gnss/fix": GnssFix,
     "events": Event,
 }
-FIX_NAMES = {0: "no fix", 1: "single", 2: "DGPS", 4: "RTK fixed", 5: "RTK float", 6: "dead reckoning"}
 
 
 class LiveSettings(Params):
@@ -359,7 +359,7 @@ def _gnss(fix: GnssFix | None, corrections: CorrectionsStatus | None, odometry: 
     if fix is None and corrections is None:
         return None
     return {
-        "fix": None if fix is None else FIX_NAMES.get(fix.quality, f"quality {fix.quality}"),
+        "fix": None if fix is None else FIX_QUALITY_NAMES.get(fix.quality, f"quality {fix.quality}"),
         "satellites": None if fix is None else fix.satellites,
         "corrections_link": None if corrections is None else corrections.link,
         "corrections_age_s": None if corrections is None or corrections.age_s is None else round(corrections.age_s, 1),

@@ -12,7 +12,12 @@ from typing import Any
 
 import numpy as np
 
-QUALITY_NAMES = {0: "none", 1: "single", 2: "dgps", 4: "rtk_fixed", 5: "rtk_float", 6: "dead_reckoning"}
+from ares.core.messages import FIX_QUALITY_NAMES
+
+
+def _key(quality: int) -> str:
+    """A fix quality's name as a JSON key: "RTK fixed" -> "rtk_fixed"."""
+    return FIX_QUALITY_NAMES.get(quality, str(quality)).lower().replace(" ", "_")
 
 
 class CorrectionsTracker:
@@ -49,9 +54,7 @@ class CorrectionsTracker:
             "corrections": {
                 "source": self.source or "none",
                 "rtk_fixed_share": round(self.qualities[4] / fixes, 4) if fixes else None,
-                "fix_shares": {
-                    QUALITY_NAMES.get(q, str(q)): round(n / fixes, 4) for q, n in sorted(self.qualities.items())
-                },
+                "fix_shares": {_key(q): round(n / fixes, 4) for q, n in sorted(self.qualities.items())},
                 "age_s_p50": round(float(np.percentile(ages, 50)), 2) if ages is not None else None,
                 "age_s_max": round(float(ages.max()), 2) if ages is not None else None,
                 "outages": max(self.outages, reported),
