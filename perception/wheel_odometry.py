@@ -12,7 +12,7 @@ k_cg·w_b ahead of the rear axle (k_cg = 0: the rear axle, no slip; k_cg = 1: th
 axle, β = δ); the paper's prose names the ends the other way round, and the shuttle's 0.5
 (vehicle profile) reads the same both ways.
 
-What the CAN bus reports is the REAR-AXLE speed v_r (ares.sim.sensors.CanSensor: the driven
+What the CAN bus reports is the REAR-AXLE speed v_r (simulator.sensors.CanSensor: the driven
 front wheel's speed times r·cos δ, DBW eq. 14). A rigid body turning about the rear-axle
 line moves its point at k_cg with v = v_r / cos β, so eq. 5 gives ψ̇ = v_r·tan δ / w_b — the
 yaw rate is the same whichever point one follows, as it must be. This module therefore

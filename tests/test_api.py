@@ -19,7 +19,7 @@ from ares.core.config import VEHICLE_ID_PATTERN
 from ares.core.messages import EventLevel, StoredEvent, VehicleRecord
 from blackbox.api import CSV_COLUMNS, RECORD_FIELDS, create_app
 from blackbox.api.credentials import ROLES
-from blackbox.store.record_store import RETENTION, StoreUnavailable
+from blackbox.register.store.record_store import RETENTION, StoreUnavailable
 from tests.helpers.api import (
     FAULT_AT,
     N_RECORDS,
@@ -617,7 +617,7 @@ def test_cli_users(tmp_path, monkeypatch, capsys):
     users = json.loads(capsys.readouterr().out)["users"]
     assert [(u["name"], u["role"]) for u in users] == [("alice", "auditor"), ("bob", "fleet")]
     # the hash is a real argon2id hash that the API accepts
-    from blackbox.store.sqlite_store import SqliteStore
+    from blackbox.register.store.sqlite_store import SqliteStore
 
     s = SqliteStore(db)
     app = create_app(s, api_settings(), VEHICLE_ID)

@@ -221,7 +221,7 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
     from ares.core.membus import MemoryNetwork
     from blackbox.api import create_app
     from blackbox.api.api_node import route_view
-    from blackbox.api.live_hub import LiveHub, LiveSettings
+    from blackbox.console.live_hub import LiveHub, LiveSettings
     from managers.mission_node import MissionManager
     from managers.movement_node import MovementManager
     from tests.helpers.api import add_role_users, api_settings
@@ -315,7 +315,7 @@ def test_the_fleet_servers_api_as_its_schema_says(tmp_path, seeded):
     commands and no route. The event streams are left out as in the vehicle's run."""
     from ares.core.messages import CarState, DriveMode
     from blackbox.api import create_app
-    from blackbox.api.live_hub import LiveHub, LiveSettings
+    from blackbox.console.live_hub import LiveHub, LiveSettings
     from tests.helpers.api import add_role_users, api_settings
 
     db = tmp_path / "blackbox.sqlite"

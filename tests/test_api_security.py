@@ -400,8 +400,8 @@ def test_the_signing_key_from_a_secret_file(tmp_path):
 
 
 def test_mongo_credentials_from_a_secret_file(tmp_path):
-    from blackbox.store.mongo_store import MongoStore
-    from blackbox.store.record_store import StoreSettings
+    from blackbox.register.store.mongo_store import MongoStore
+    from blackbox.register.store.record_store import StoreSettings
 
     with pytest.raises(pydantic.ValidationError, match="mongo_user and mongo_password_file"):
         StoreSettings(mongo_user="ares")

@@ -32,7 +32,7 @@ import pytest
 from ares.core.bus import Bus
 from ares.core.clock import WallClock
 from ares.core.localhost import free_port, stop_process
-from blackbox.store.sqlite_store import SqliteStore
+from blackbox.register.store.sqlite_store import SqliteStore
 from tests.helpers.records import assert_every_second_once, stored
 from tests.helpers.stack import NO_LIDARS, REPO, make_run_config, wait_until
 

@@ -1,4 +1,4 @@
-"""The CAN driver (drivers/can_node.py) against the simulator's side of the wire (ares/sim/can_wire.py),
+"""The CAN driver (drivers/can_node.py) against the simulator's side of the wire (simulator/can_wire.py),
 over a real python-can udp_multicast group in this process: the simulated board, body and IMU send
 their frames, the driver node (in-memory bus, manual clock, stepped by hand) publishes them; the
 driver sends the bridge's efforts and the body commands, and the simulator's poll() returns them.
@@ -33,8 +33,8 @@ from ares.core.messages import (
     PanelInput,
 )
 from ares.core.wire.can_frames import checksum
-from ares.sim.can_wire import SimCanPort
 from drivers.can_node import CanDriver
+from simulator.can_wire import SimCanPort
 
 PERIOD = 0.02  # the driver's 50 Hz
 WAIT_S = 2.0  # wall: the longest a loopback datagram may take before a test gives up

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from ares.tools.deploy import check, pki
+from ares.deploy import check, pki
 
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
@@ -224,7 +224,7 @@ def test_a_fleet_server_without_its_api(tmp_path, fleet_ca):
 
 
 def test_a_fleet_router_admitting_a_vehicle_without_a_user(tmp_path, fleet_ca):
-    from ares.tools.deploy import router_config
+    from ares.deploy import router_config
 
     folder = fleet_copy(tmp_path, fleet_ca)
     (folder / "zenoh-router.json5").write_text(

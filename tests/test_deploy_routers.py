@@ -1,6 +1,6 @@
 """The deployment's router files, run by eclipse-zenoh in router mode as zenohd would run them:
 the link between a vehicle's router and the fleet router is mutual TLS, Zenoh user/password and
-access control (ares/tools/deploy/router_config.py). Every negative case is paired with a positive
+access control (ares/deploy/router_config.py). Every negative case is paired with a positive
 one sent after it over the same link, so "nothing arrived" is never judged by a timeout alone."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import pytest
 import zenoh
 
 from ares.core.localhost import free_port
-from ares.tools.deploy import pki, router_config
-from ares.tools.deploy.router import localize, open_router
+from ares.deploy import pki, router_config
+from ares.deploy.router import localize, open_router
 
 REPO = Path(__file__).resolve().parents[1]
 FLEET_FILE = REPO / "deploy" / "fleet" / "zenoh-router.json5"

@@ -1,4 +1,4 @@
-"""The fleet's black box (blackbox/fleet_sync.py, blackbox/fleet_sync_node.py): two vehicles'
+"""The fleet's black box (blackbox/fleet/sync.py, blackbox/fleet/sync_node.py): two vehicles'
 real recorders and the fleet's sync node on one in-memory network and a manual clock, each with
 a store of its own; a link cut for 60 s; every second each vehicle stored reaches the fleet's
 store, none twice. The ledger alone: every state of a gap, and a hypothesis property."""
@@ -14,10 +14,10 @@ from hypothesis import strategies as st
 from ares.app import run_config
 from ares.core.clock import ManualClock
 from ares.core.membus import MemoryNetwork
-from blackbox.fleet_sync import FleetLedger, FleetSyncParams, epoch_of
-from blackbox.fleet_sync_node import FleetSync
-from blackbox.recorder_node import Recorder
-from blackbox.store.sqlite_store import SqliteStore
+from blackbox.fleet.sync import FleetLedger, FleetSyncParams, epoch_of
+from blackbox.fleet.sync_node import FleetSync
+from blackbox.register.recorder_node import Recorder
+from blackbox.register.store.sqlite_store import SqliteStore
 from tests.helpers.stack import NO_LIDARS, wait_until
 
 UTC_EPOCH = float(int(time.time()) // 3600 * 3600)  # within the stores' 7-day retention

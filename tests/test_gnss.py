@@ -18,12 +18,12 @@ from ares.core.membus import MemoryNetwork
 from ares.core.messages import GnssSentences
 from ares.core.nmea_framing import sentence as nmea_sentence
 from ares.core.route import Route
-from ares.sim.params import SimGnssParams
-from ares.sim.sensors import GnssSensor
-from ares.sim.vehicle import VehicleState
 from perception.gnss import GnssError, GnssParams, GnssProjector, pair_epochs
 from perception.gnss_node import GnssNode
 from perception.nmea_parser import NmeaError, parse_sentence
+from simulator.params import SimGnssParams
+from simulator.sensors import GnssSensor
+from simulator.vehicle import VehicleState
 
 SIM_GNSS = SimGnssParams()
 ROUTE = Route.from_tour("default")

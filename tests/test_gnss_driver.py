@@ -1,5 +1,5 @@
 """The GNSS driver (drivers/gnss_node.py) reading real wires: a pseudo-terminal written by the
-simulator's side (ares.sim.nmea_wire), a receiver's TCP stream, and gpsd serving a receiver log
+simulator's side (simulator.nmea_wire), a receiver's TCP stream, and gpsd serving a receiver log
 replayed by gpsfake (gpsd's own test harness). The driver and the perception gnss node run on one
 in-memory bus with a manual clock, stepped by hand; the fixes that come out are compared with
 the positions written into the wire. A device that goes away and comes back is reopened."""
@@ -27,11 +27,11 @@ from ares.core.localhost import free_port
 from ares.core.membus import MemoryNetwork
 from ares.core.nmea_framing import sentence
 from ares.core.wire.nmea_stream import time_of_day
-from ares.sim.nmea_wire import NmeaPty
 from drivers.gnss_node import GnssDriver, GnssDriverParams
 from perception.gnss import GnssParams
 from perception.gnss_node import GnssNode
 from perception.nmea_parser import Gga, NmeaError, parse_sentence
+from simulator.nmea_wire import NmeaPty
 from tests.helpers.gnss import PLACES, short_road
 from tests.helpers.receiver_logs import UBLOX_F9P, write_log
 

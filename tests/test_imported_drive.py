@@ -24,8 +24,8 @@ import pytest
 from ares.app import route_import
 from ares.core.config import load_vehicle
 from ares.core.route import Route
-from ares.sim import world as world_mod
-from ares.sim.world import World
+from simulator import world as world_mod
+from simulator.world import World
 
 LOG = "tests/data/munich_town_drive.nmea"
 XTE_ALLOWANCE_M = 0.6  # the cross-track error the whole drive may show (issue 25 saw 0.59 m)
@@ -179,10 +179,10 @@ def test_trees_and_poles_keep_off_every_stretch(world):
 
 
 def test_the_obstacle_manager_sees_the_sharpest_corners_clear(flat_route, world):
-    from ares.sim.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
     from ares.tools.bench.obstacle_zone import path_ahead
     from managers.obstacle import ObstacleParams, judge, occupied_cells, zone_for
     from perception.lidar_perception import LidarPipeline, SensorSweep
+    from simulator.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
 
     route = flat_route
     vehicle = load_vehicle("ares_shuttle")
@@ -218,10 +218,10 @@ def test_a_headless_run_that_ends_held_says_by_what_why_and_where(route):
     """`ares run --headless` ending held: its JSON's `stopped` names what holds it (a manager, an emergency
     stop), why and where."""
     from ares.app import run_config
+    from ares.app.headless import Measurements
     from ares.core.clock import ManualClock
     from ares.core.membus import MemoryNetwork
     from ares.core.messages import MovementStatus, ObstacleState, VehicleTruth
-    from ares.tools.headless import Measurements
 
     cfg = run_config.build(overrides={"lidars": False})
     net, clock = MemoryNetwork(), ManualClock()

@@ -1,4 +1,4 @@
-"""The whole stack in one process (ares.tools.harness.in_process_stack): every node of the process
+"""The whole stack in one process (tests.helpers.in_process_stack): every node of the process
 table on the in-memory bus, stepped in lockstep on a manual clock, measured as `ares run
 --headless` measures. Deterministic: the same configuration drives the same drive.
 
@@ -20,8 +20,8 @@ import pytest
 from ares.app.stack import prepare
 from ares.core.messages import ProcessState
 from ares.core.route import Route
-from ares.tools.harness.in_process_stack import InProcessStack
 from tests.helpers.gnss import PLACES, short_road
+from tests.helpers.in_process_stack import InProcessStack
 from tests.helpers.receiver_logs import MARINE_LOGGER, log_bytes, write_log
 from tests.helpers.records import assert_drive_recorded
 from tests.helpers.stack import LIGHT_LIDARS, NO_LIDARS, REPO
@@ -135,7 +135,7 @@ def test_the_same_configuration_drives_the_same_drive(tmp_path):
     for seed in ("0", "1"):
         store = tmp_path / f"blackbox_{seed}.sqlite"
         done = subprocess.run(
-            [sys.executable, "-m", "ares.tools.harness.in_process_stack", "--seconds", "15", "--store", str(store),
+            [sys.executable, "-m", "tests.helpers.in_process_stack", "--seconds", "15", "--store", str(store),
              "--config", str(NO_LIDARS), "--config", str(IN_PROCESS)],
             cwd=REPO, capture_output=True, text=True, timeout=180, env={**os.environ, "PYTHONHASHSEED": seed},
         )  # fmt: skip

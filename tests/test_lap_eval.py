@@ -2,7 +2,7 @@ import math
 
 import pytest
 
-from ares.tools.evaluation.lap_eval import SETTLE_S, LocalizationTracker
+from ares.app.evaluation.lap_eval import SETTLE_S, LocalizationTracker
 
 
 def feed(tracker, t_end, rtk_at, estimate_offset=0.0, score_at=lambda t, rtk: 0.95 if rtk else 0.1):

@@ -1,4 +1,4 @@
-"""A headless run's picture (ares/tools/figures/lap.py, `lap.svg` in the run's folder), read back as
+"""A headless run's picture (ares/app/lap_figure.py, `lap.svg` in the run's folder), read back as
 SVG: the route and the path driven on one map, the cross-track error along the distance driven."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from ares.app.lap_figure import write_lap_svg
 from ares.core.route import Route
-from ares.tools.figures.lap import write_lap_svg
 
 SVG = "{http://www.w3.org/2000/svg}"
 PERIODS = 20  # of the error's sine round the lap

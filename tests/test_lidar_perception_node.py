@@ -13,11 +13,11 @@ from ares.core.config import load_vehicle
 from ares.core.membus import MemoryNetwork
 from ares.core.messages import CarState, DriveMode, PointCloud
 from ares.core.route import Route
-from ares.sim.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
-from ares.sim.params import SimParams
-from ares.sim.road import grade_at, roughness_for
-from ares.sim.world import World
 from perception.lidar_perception_node import LidarPerception
+from simulator.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
+from simulator.params import SimParams
+from simulator.road import grade_at, roughness_for
+from simulator.world import World
 
 PERIOD = 0.1
 

@@ -1,4 +1,4 @@
-"""The simulated world and LiDARs (ares/sim/world.py, lidar.py, obstacles.py) and scenarios."""
+"""The simulated world and LiDARs (simulator/world.py, lidar.py, obstacles.py) and scenarios."""
 
 from __future__ import annotations
 
@@ -7,15 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from ares.core import config
-from ares.core.config import ConfigError, LidarMount, load_scenario, load_vehicle
+from ares.core.config import ConfigError, LidarMount, load_vehicle
 from ares.core.route import Route
-from ares.sim.lidar import LidarSimParams, SimulatedLidar, mount_pose, vehicle_pose
-from ares.sim.obstacles import ObstacleField
-from ares.sim.params import SimParams
-from ares.sim.road import grade_at, roughness_for
-from ares.sim.vehicle import VehiclePlant
-from ares.sim.world import World
+from simulator.lidar import LidarSimParams, SimulatedLidar, mount_pose, vehicle_pose
+from simulator.obstacles import ObstacleField
+from simulator.params import SimParams
+from simulator.road import grade_at, roughness_for
+from simulator.scenario import Scenario, ScenarioObstacle, ScenarioPlace, load_scenario
+from simulator.vehicle import VehiclePlant
+from simulator.world import World
 
 LIGHT = LidarSimParams(azimuth_decimation=4, ghosts_per_sweep=0.0, dropout=0.0)
 
@@ -162,11 +162,9 @@ def test_the_crossing_pedestrian_stands_in_the_middle_as_long_as_the_scenario_sa
 
 
 def test_an_obstacle_is_seen_by_the_roof_lidar(tour, world, shuttle):
-    scenario = config.Scenario(
+    scenario = Scenario(
         name="one",
-        obstacles=[
-            config.ScenarioObstacle(name="crate", kind="crate", path=[config.ScenarioPlace(s=1012.0, offset_m=0.0)])
-        ],
+        obstacles=[ScenarioObstacle(name="crate", kind="crate", path=[ScenarioPlace(s=1012.0, offset_m=0.0)])],
     )
     field = ObstacleField(scenario, tour, world.centre_height)
     import open3d as o3d

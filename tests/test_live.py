@@ -1,4 +1,4 @@
-"""The live gateway (blackbox/api/live_hub.py, blackbox/api/routes/live.py) and the pages' serving
+"""The live gateway (blackbox/console/live_hub.py, blackbox/api/routes/live.py) and the pages' serving
 (blackbox/api/routes/pages.py): what a frame holds, staleness, events, the fleet's legs and
 lateness, the thinned grid; the streams' roles, limits and refusals; the pages' security headers."""
 
@@ -24,8 +24,8 @@ from ares.core.messages import (
     Pose,
 )
 from blackbox.api import create_app
-from blackbox.api.live_hub import LegTimer, LiveHub, LiveSettings
 from blackbox.api.routes.pages import MAP, PLOTS, WEB, vendor_missing
+from blackbox.console.live_hub import LegTimer, LiveHub, LiveSettings
 from tests.helpers.api import VEHICLE_ID, add_role_users, api_settings, auth, token_for
 
 OTHER = "shuttle02"

@@ -1,5 +1,5 @@
 """The mission manager as a node (managers/mission_node.py) on the in-memory bus with a manual clock, in a
-closed loop with the simulated body (ares/sim/body.py) and a shuttle that drives at the mission's
+closed loop with the simulated body (simulator/body.py) and a shuttle that drives at the mission's
 limit along the built-in tour: goals, each POI's actions in order, passengers holding the doors,
 pause / resume / cancel, pre-emption, and a restart that goes on where the last process was."""
 
@@ -11,10 +11,10 @@ import math
 import pytest
 
 from ares.core import config
-from ares.core.config import ScenarioPassengers
 from ares.core.messages import BodyRequest, MissionGoal, MissionRequest
 from ares.core.recording import INCARNATION_ENV
 from managers.mission import Body, MissionState, body_request_refusal
+from simulator.scenario import ScenarioPassengers
 from tests.helpers.mission import Tour
 
 DT = 0.1

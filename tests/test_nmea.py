@@ -18,10 +18,10 @@ from ares.core.geodesy import LocalFrame
 from ares.core.nmea_framing import checksum
 from ares.core.nmea_framing import sentence as nmea_sentence
 from ares.core.route import Route
-from ares.sim.params import SimGnssParams
-from ares.sim.sensors import GnssSensor
-from ares.sim.vehicle import VehicleState
 from perception.nmea_parser import Gga, Gll, Gst, NmeaError, NmeaReader, Other, Rmc, parse_sentence
+from simulator.params import SimGnssParams
+from simulator.sensors import GnssSensor
+from simulator.vehicle import VehicleState
 
 ROUTE = Route.from_tour("default")
 FRAME = LocalFrame(UtmOrigin())

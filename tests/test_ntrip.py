@@ -253,9 +253,9 @@ def test_the_frames_reach_the_receivers_port_and_the_corrections_state_is_publis
     from ares.core.clock import ManualClock
     from ares.core.config import CoreConfig
     from ares.core.membus import MemoryNetwork
-    from ares.sim.nmea_wire import NmeaPty
     from drivers.gnss_node import GnssDriver, GnssDriverParams
     from drivers.ntrip_node import NtripClientNode, NtripClientParams
+    from simulator.nmea_wire import NmeaPty
 
     c = caster()
     link = tmp_path / "gnss.tty"
@@ -322,9 +322,9 @@ def test_behind_the_wire_a_4g_outage_degrades_the_simulated_fix_and_it_recovers(
     client, and the simulated receiver taking the frames. Once fixed, the relay is cut for 20
     simulated seconds: the fix goes RTK fixed -> float -> DGPS; back in coverage the client
     reconnects and the fix is RTK fixed again. Simulated time runs about 20x the wall's."""
-    from ares.sim.base_station import BaseStation, ModemRelay
-    from ares.sim.corrections import ReceiverCorrections
-    from ares.sim.params import SimCorrectionsParams
+    from simulator.base_station import BaseStation, ModemRelay
+    from simulator.corrections import ReceiverCorrections
+    from simulator.params import SimCorrectionsParams
 
     caster_port, relay_port = free_port(), free_port()
     base = BaseStation(caster_port, MOUNT, USER, PASSWORD)

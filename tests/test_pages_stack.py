@@ -30,7 +30,7 @@ from ares.core.localhost import free_port, stop_process
 from ares.core.messages import LidarFault
 from ares.tools.bench.live import BrowserCalmer, chromium_path
 from blackbox.api.credentials import Argon2Settings, Passwords, add_user
-from blackbox.store.sqlite_store import SqliteStore
+from blackbox.register.store.sqlite_store import SqliteStore
 from tests.helpers.stack import LIGHT_LIDARS, REPO, make_run_config, wait_until
 
 pytestmark = [pytest.mark.stack, pytest.mark.whole_stack]

@@ -21,9 +21,13 @@ from ares.core import config
 from ares.core.config import ConfigError, VehicleProfile
 from ares.core.messages import CanFrame
 from ares.core.route import SAMPLE_SPACING_M, Route
-from ares.sim.actuators import GRAVITY, TractionActuator
-from ares.sim.params import SimParams
-from ares.sim.vehicle import (
+from ares.tools.harness.step_response import PID_PERIOD_S, measure_step, step_response
+from control.dbw_bridge import BridgeLoop, DbwBridgeParams
+from control.dbw_bridge import Event as BridgeEvent
+from control.pid import PID
+from simulator.actuators import GRAVITY, TractionActuator
+from simulator.params import SimParams
+from simulator.vehicle import (
     BLEND_HIGH_MPS,
     BLEND_LOW_MPS,
     PHYSICS_DT,
@@ -33,10 +37,6 @@ from ares.sim.vehicle import (
     lateral_step,
     start_pose,
 )
-from ares.tools.harness.step_response import PID_PERIOD_S, measure_step, step_response
-from control.dbw_bridge import BridgeLoop, DbwBridgeParams
-from control.dbw_bridge import Event as BridgeEvent
-from control.pid import PID
 
 VEHICLES = ["techs4agecar", "ares_shuttle"]
 TICKS = round(PID_PERIOD_S / PHYSICS_DT)
@@ -565,7 +565,7 @@ def test_grade_is_felt_along_the_heading():
 def test_a_profile_without_tyre_figures_drives_the_kinematic_bicycle():
     """A profile (or a recorded run) from before the tyre figures: the kinematic bicycle at any speed."""
     from ares.core.config import load_vehicle
-    from ares.sim.vehicle import LateralParams, lateral_step
+    from simulator.vehicle import LateralParams, lateral_step
 
     bare = load_vehicle(
         "ares_shuttle",

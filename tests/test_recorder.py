@@ -1,4 +1,4 @@
-"""The event register (blackbox/recorder.py), without processes.
+"""The event register (blackbox/register/recorder.py), without processes.
 
 The Recorder node runs on the in-memory bus (ares.core.membus) with a ManualClock: a feeder bus of
 the same network publishes its inputs at their rates, stamped with the manual time, and the
@@ -41,13 +41,21 @@ from ares.core.messages import (
     SupervisorState,
     VehicleRecord,
 )
-from blackbox import recorder as recorder_module
-from blackbox import spool as spool_mod
-from blackbox.recorder import RecorderParams, Snapshot, StoreWriter, build_record, position_of, spool_path, store_uri
-from blackbox.recorder_node import Recorder
-from blackbox.spool import Spool
-from blackbox.store.record_store import StoreSettings, StoreUnavailable
-from blackbox.store.sqlite_store import SqliteStore
+from blackbox.register import recorder as recorder_module
+from blackbox.register import spool as spool_mod
+from blackbox.register.recorder import (
+    RecorderParams,
+    Snapshot,
+    StoreWriter,
+    build_record,
+    position_of,
+    spool_path,
+    store_uri,
+)
+from blackbox.register.recorder_node import Recorder
+from blackbox.register.spool import Spool
+from blackbox.register.store.record_store import StoreSettings, StoreUnavailable
+from blackbox.register.store.sqlite_store import SqliteStore
 from tests.helpers.records import assert_every_second_once
 from tests.helpers.stack import wait_until
 
@@ -351,7 +359,7 @@ def test_a_record_keeps_the_corrections_age_and_the_fix_type():
 )
 def test_the_record_keeps_the_mission_state_or_the_poi_action_running(state, action, recorded):
     from ares.core.messages import MissionStatus
-    from blackbox.recorder import mission_state
+    from blackbox.register.recorder import mission_state
 
     status = MissionStatus(
         t=1.0,

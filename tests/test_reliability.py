@@ -7,7 +7,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from blackbox import reliability as rel
+from blackbox.register import reliability as rel
 
 T0 = datetime(2025, 6, 1, 8, 0, 0, tzinfo=UTC)
 

@@ -41,9 +41,9 @@ from ares.core.localhost import free_port
 from ares.core.messages import GnssSentences
 from ares.core.nmea_framing import sentence as nmea_sentence
 from ares.core.route import Route, RouteError
-from ares.sim.params import SimParams
-from ares.sim.sensors import GnssSensor
-from ares.sim.vehicle import VehicleState
+from simulator.params import SimParams
+from simulator.sensors import GnssSensor
+from simulator.vehicle import VehicleState
 from tests.helpers.receiver_logs import drive_times
 from tests.helpers.roads import deviations, road
 from tests.helpers.stack import REPO

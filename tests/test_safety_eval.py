@@ -1,5 +1,5 @@
-"""The safety figures of a headless run (ares/tools/evaluation/safety_eval.py) and the scenario's outside actions
-(ares/tools/scenario_driver.py): collisions and clearance from the footprints, each invariant violation
+"""The safety figures of a headless run (ares/app/evaluation/safety_eval.py) and the scenario's outside actions
+(ares/app/scenario_driver.py): collisions and clearance from the footprints, each invariant violation
 caught, the times of a fault's response, and faults and operator actions fired at their times."""
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ares.app.evaluation.safety_eval import SafetyTracker
+from ares.app.scenario_driver import ScenarioDriver
 from ares.core.clock import ManualClock
-from ares.core.config import Scenario
 from ares.core.geometry import convex_gap, rectangle_corners
 from ares.core.membus import MemoryNetwork
 from ares.core.messages import (
@@ -27,8 +28,7 @@ from ares.core.messages import (
     RearmReply,
     WorldTruth,
 )
-from ares.tools.evaluation.safety_eval import SafetyTracker
-from ares.tools.scenario_driver import ScenarioDriver
+from simulator.scenario import Scenario
 
 SHUTTLE = dict(length_m=3.93, width_m=1.99, front_bumper_m=3.365)
 

@@ -1,4 +1,4 @@
-"""A scenario's sensor errors (ares.core.config.ScenarioFault; ares/sim/sensors.py): each fault kind
+"""A scenario's sensor errors (simulator.scenario.ScenarioFault; simulator/sensors.py): each fault kind
 takes the fields it needs and refuses the others; the sensors read them while they hold; and
 the built-in dead_reckoning_drift makes dead reckoning drift, in the closed-loop harness."""
 
@@ -11,13 +11,13 @@ import pytest
 from pydantic import ValidationError
 
 from ares.core import config
-from ares.core.config import ScenarioFault, load_scenario
 from ares.core.geodesy import LocalFrame
 from ares.core.route import Route
-from ares.sim.params import SimParams
-from ares.sim.sensors import SensorSuite
-from ares.sim.vehicle import VehicleState
 from ares.tools.harness import closed_loop
+from simulator.params import SimParams
+from simulator.scenario import ScenarioFault, load_scenario
+from simulator.sensors import SensorSuite
+from simulator.vehicle import VehicleState
 
 
 @pytest.mark.parametrize(

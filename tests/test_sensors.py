@@ -15,10 +15,10 @@ from ares.core.config import UtmOrigin
 from ares.core.geodesy import LocalFrame
 from ares.core.nmea_framing import checksum
 from ares.core.route import Route
-from ares.sim.actuators import GRAVITY
-from ares.sim.params import SimParams
-from ares.sim.sensors import CanSensor, GnssSensor, ImuSensor, SensorSuite
-from ares.sim.vehicle import VehicleState
+from simulator.actuators import GRAVITY
+from simulator.params import SimParams
+from simulator.sensors import CanSensor, GnssSensor, ImuSensor, SensorSuite
+from simulator.vehicle import VehicleState
 
 SIM = SimParams()
 FRAME = LocalFrame(UtmOrigin())
@@ -218,7 +218,7 @@ def test_imu_feels_gravity_along_the_pitch():
 
 def test_imu_feels_the_road_roughness_while_driving():
     """Through the plant: a moving vehicle shakes the accelerometer's z axis."""
-    from ares.sim.vehicle import VehiclePlant
+    from simulator.vehicle import VehiclePlant
 
     plant = VehiclePlant(ROUTE, "ares_shuttle", SIM, s0=20.0)
     imu = ImuSensor(SIM.imu, noise=False)

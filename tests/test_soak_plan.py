@@ -1,5 +1,5 @@
 """The soak's fault plan (ares.tools.soak.plan), the measurements it is judged by
-(ares.tools.soak.measure) and the obstacles that appear ahead of the shuttle (ares.sim.obstacles):
+(ares.tools.soak.measure) and the obstacles that appear ahead of the shuttle (simulator.obstacles):
 pure functions; and the simulator's run-time sensor faults, on the whole stack in one process."""
 
 from __future__ import annotations
@@ -9,13 +9,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ares.core.config import Scenario, ScenarioObstacle
 from ares.core.messages import ProcessState
 from ares.core.route import Route
-from ares.sim.obstacles import ObstacleField
 from ares.tools.soak.measure import FaultOutcome, SoakTracker, summarise
 from ares.tools.soak.plan import KINDS, MIN_SLOT_S, PlannedFault, fault_plan, kinds_for
 from ares.tools.soak.runner import obstacle_scenario
+from simulator.obstacles import ObstacleField
+from simulator.scenario import Scenario, ScenarioObstacle
 
 PROCESSES = ["mpc", "movement_manager", "blackbox", "gnss"]
 LIDARS = ["front_left", "front_right", "roof"]
@@ -167,7 +167,7 @@ def test_a_frozen_imu_injected_at_run_time_stops_the_shuttle_until_it_is_back(tm
     then nominal again; a GNSS outage silences the receiver for its duration."""
     from ares.app.stack import prepare
     from ares.core.messages import SensorFault
-    from ares.tools.harness.in_process_stack import InProcessStack
+    from tests.helpers.in_process_stack import InProcessStack
     from tests.helpers.stack import NO_LIDARS, REPO
 
     cfg = prepare(

@@ -7,7 +7,7 @@ from __future__ import annotations
 from ares.app.processes import by_name
 from ares.core.messages import ProcessState, VehicleRecord
 from ares.tools.bench.blackbox_store import realistic_records, run_store_bench
-from blackbox.recorder import SENSOR_TOPICS, SensorMinimums
+from blackbox.register.recorder import SENSOR_TOPICS, SensorMinimums
 
 
 def test_store_bench_small_run(tmp_path):

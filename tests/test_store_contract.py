@@ -1,4 +1,4 @@
-"""One contract for every black-box store engine (blackbox.store.record_store.RecordStore).
+"""One contract for every black-box store engine (blackbox.register.store.record_store.RecordStore).
 
 "sqlite" always runs, on a file in tmp_path. "mongo" runs only when ARES_TEST_MONGO_URI points
 at a MongoDB server (>= 7.0), each test in a throw-away database that is dropped afterwards;
@@ -38,8 +38,8 @@ from ares.core.messages import (
     VehicleRecord,
 )
 from ares.tools.bench.blackbox_store import T0, realistic_records
-from blackbox.store.record_store import RETENTION, StoreSettings, StoreUnavailable, User
-from blackbox.store.sqlite_store import SqliteStore
+from blackbox.register.store.record_store import RETENTION, StoreSettings, StoreUnavailable, User
+from blackbox.register.store.sqlite_store import SqliteStore
 
 MONGO_URI = os.environ.get("ARES_TEST_MONGO_URI")
 MONGO_SKIP = "ARES_TEST_MONGO_URI not set: no MongoDB server to test against"
@@ -78,7 +78,7 @@ def store(engine, clock, tmp_path):
         yield s
         s.close()
     else:
-        from blackbox.store.mongo_store import MongoStore
+        from blackbox.register.store.mongo_store import MongoStore
 
         throwaway = StoreSettings(mongo_db=f"ares_test_{RUN_ID}_{next(_databases)}")
         s = MongoStore(MONGO_URI, now=clock, settings=throwaway)
@@ -322,7 +322,7 @@ def test_ping_of_a_store_that_cannot_answer_raises_unavailable(tmp_path, clock):
     """RecordStore.ping: "Raise StoreUnavailable unless the store answers" (the error callers
     retry on, and /health reports): a closed SQLite store, and a MongoDB URI where nothing listens
     (no server needed). Every MongoDB call is bounded by the configured timeouts, all 0.3 s here."""
-    from blackbox.store.mongo_store import MongoStore
+    from blackbox.register.store.mongo_store import MongoStore
 
     closed = SqliteStore(str(tmp_path / "closed.sqlite"), now=clock, settings=SQLITE_SETTINGS)
     closed.ping()

@@ -36,9 +36,9 @@ def test_each_kind_of_run_starts_its_own_processes():
         processes.for_run(False, True, False),
     )
     assert not DRIVERS & set(names(plain))
-    assert {p.node for p in plain if p.name == "sim"} == {"ares.sim.simulator_node:Simulator"}
+    assert {p.node for p in plain if p.name == "sim"} == {"simulator.simulator_node:Simulator"}
     assert DRIVERS <= set(names(wire))
-    assert {p.node for p in wire if p.name == "sim"} == {"ares.sim.wire_simulator_node:WireSimulator"}
+    assert {p.node for p in wire if p.name == "sim"} == {"simulator.wire_simulator_node:WireSimulator"}
     assert DRIVERS <= set(names(vehicle)) and "sim" not in names(vehicle) and "lidar_sim" not in names(vehicle)
     assert "lidar_driver" not in names(processes.for_run(False, False, False))
     for specs in (plain, wire, vehicle):

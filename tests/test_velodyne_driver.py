@@ -243,14 +243,14 @@ def test_stamp_rule():
 
 @pytest.mark.parametrize("model", v.MODELS)
 def test_simulated_sweep_through_the_wire(driver, model):
-    """A simulated sensor (ares/sim/velodyne_wire.py) of each model in a small scene sends its sweep
+    """A simulated sensor (simulator/velodyne_wire.py) of each model in a small scene sends its sweep
     as packets by UDP; the driver's cloud is the sweep (the ghosts moved to a free slot of their ring)."""
     from ares.core.config import load_vehicle
     from ares.core.config.vehicle_io import VelodyneDevice
-    from ares.sim.lidar import LidarSimParams, vehicle_pose
-    from ares.sim.velodyne_wire import WireLidar
-    from ares.sim.wire_lidar_node import WireLidarSimulator
-    from ares.sim.world import Mesh, box_mesh, cylinder_mesh, open3d
+    from simulator.lidar import LidarSimParams, vehicle_pose
+    from simulator.velodyne_wire import WireLidar
+    from simulator.wire_lidar_node import WireLidarSimulator
+    from simulator.world import Mesh, box_mesh, cylinder_mesh, open3d
 
     # the simulator's contract: no clouds on the bus, packets on the wire instead
     assert not {o.topic for o in WireLidarSimulator.outputs()} & {"lidar/roof/points", "lidar/front_left/points"}
@@ -309,7 +309,7 @@ def test_the_simulated_sensor_spins_on_its_own_steady_clock():
     from types import SimpleNamespace
 
     from ares.core.messages import VehicleTruth
-    from ares.sim.wire_lidar_node import WireLidarSimulator
+    from simulator.wire_lidar_node import WireLidarSimulator
 
     sensor = SimpleNamespace(_spin_start=None, params=SimpleNamespace(rate_hz=10.0))
     fields = dict(z=0.0, pitch=0.0, v=4.0, yaw_rate=0.2, accel=0.0, steering_wheel_deg=0.0, wheel_angle_rad=0.0)

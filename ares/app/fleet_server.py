@@ -16,8 +16,8 @@ from ares.app import processes, run_config
 from ares.app.supervisor import Supervisor, serve_until_stopped
 from ares.core import config
 from ares.core.clock import WallClock
-from blackbox.recorder import store_uri
-from blackbox.store.record_store import StoreSettings
+from blackbox.register.recorder import store_uri
+from blackbox.register.store.record_store import StoreSettings
 
 FLEET_ID = "fleet"
 

@@ -40,12 +40,12 @@ class Process:
 
 
 PROCESSES: list[Process] = [
-    Process("sim", "ares.sim.simulator_node:Simulator", safety_relevant=True, sim_only=True, wire=False),
-    Process("sim", "ares.sim.wire_simulator_node:WireSimulator", safety_relevant=True, sim_only=True, wire=True),
+    Process("sim", "simulator.simulator_node:Simulator", safety_relevant=True, sim_only=True, wire=False),
+    Process("sim", "simulator.wire_simulator_node:WireSimulator", safety_relevant=True, sim_only=True, wire=True),
     # the simulated LiDARs stand for hardware, whose work is not the vehicle computer's: they yield
     Process(
         "lidar_sim",
-        "ares.sim.lidar_node:LidarSimulator",
+        "simulator.lidar_node:LidarSimulator",
         safety_relevant=True,
         sim_only=True,
         lidars=True,
@@ -54,7 +54,7 @@ PROCESSES: list[Process] = [
     ),
     Process(
         "lidar_sim",
-        "ares.sim.wire_lidar_node:WireLidarSimulator",
+        "simulator.wire_lidar_node:WireLidarSimulator",
         safety_relevant=True,
         sim_only=True,
         lidars=True,
@@ -84,8 +84,8 @@ PROCESSES: list[Process] = [
     Process("mission_manager", "managers.mission_node:MissionManager", safety_relevant=True),
     Process("awareness_manager", "managers.awareness_node:AwarenessManager", safety_relevant=True),
     Process("movement_manager", "managers.movement_node:MovementManager", safety_relevant=True),
-    # the black box: losing it never stops the vehicle (the recorder spools; see blackbox/recorder.py)
-    Process("blackbox", "blackbox.recorder_node:Recorder", safety_relevant=False, nice=5),
+    # the black box: losing it never stops the vehicle (the recorder spools; see blackbox/register/recorder.py)
+    Process("blackbox", "blackbox.register.recorder_node:Recorder", safety_relevant=False, nice=5),
     Process("api", "blackbox.api.api_node:ApiServer", safety_relevant=False, nice=5),
 ]
 
@@ -94,7 +94,7 @@ PROCESSES: list[Process] = [
 # and the API over it with the fleet's live view. Nothing here is safety relevant: a vehicle never
 # waits on the fleet.
 FLEET_SERVER: list[Process] = [
-    Process("fleet_sync", "blackbox.fleet_sync_node:FleetSync", safety_relevant=False),
+    Process("fleet_sync", "blackbox.fleet.sync_node:FleetSync", safety_relevant=False),
     Process("fleet_api", "blackbox.api.api_node:FleetApiServer", safety_relevant=False),
 ]
 

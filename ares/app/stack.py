@@ -3,7 +3,7 @@
 Interactive, it engages Automatic mode (the Auto/Manual button on the simulated panel, then the
 `set_automatic_mode` service, as a safety driver and the navigation system would) and prints the
 vehicle's state every second until Ctrl-C. Headless, the drive and its figures are
-ares.tools.headless's (the CLI passes its `drive` in); this module prints them as one JSON object,
+ares.app.headless's (the CLI passes its `drive` in); this module prints them as one JSON object,
 the last line, once the stack has stopped: its `blackbox_records` is read back from the black-box
 store after the recorder's final flush.
 
@@ -44,8 +44,9 @@ from blackbox.api import ApiSettings
 from blackbox.api.api_node import api_url, pages_url
 from blackbox.api.first_logins import ensure_first_logins
 from blackbox.api.settings import state_dir
-from blackbox.recorder import open_configured_store, store_uri
-from blackbox.store.record_store import StoreSettings
+from blackbox.register.recorder import open_configured_store, store_uri
+from blackbox.register.store.record_store import StoreSettings
+from simulator.scenario import PROCESS_FAULTS, load_scenario, scenario_file
 
 log = logging.getLogger("ares.run")
 
@@ -108,7 +109,7 @@ def default_run_dir() -> Path:
 
 def run(args, headless_drive: HeadlessDrive | None = None) -> int:
     """`ares run`: the whole stack under one supervisor until Ctrl-C, or, given `headless_drive`
-    (ares.tools.headless.drive, for `--headless`), until that drive is done; its figures are
+    (ares.app.headless.drive, for `--headless`), until that drive is done; its figures are
     printed as one JSON line."""
     headless = headless_drive is not None
     logging.basicConfig(
@@ -194,12 +195,12 @@ def prepare(files: tuple[str, ...], overrides: dict, speed: float | str, wire_di
         if origin is not None:  # a recorded route brings its frame: the configured origin is for the others
             cfg["origin_utm"] = {**origin.model_dump(), "reach_km": cfg["origin_utm"]["reach_km"]}
     if cfg["scenario"]:
-        scenario = config.named_file("scenarios", cfg["scenario"])
-        loaded = config.load_scenario(str(scenario))  # a bad scenario stops the run here, with its error
+        scenario = scenario_file(cfg["scenario"])
+        loaded = load_scenario(str(scenario))  # a bad scenario stops the run here, with its error
         cfg["scenario"] = str(scenario.resolve()) if scenario.suffix else cfg["scenario"]
         # the simulator and its LiDARs stand for the vehicle and its sensors: not theirs to kill
         running = {p.name for p in processes.for_config(cfg) if not p.sim_only}
-        unknown = sorted({f.process for f in loaded.faults if f.kind in config.PROCESS_FAULTS} - running)
+        unknown = sorted({f.process for f in loaded.faults if f.kind in PROCESS_FAULTS} - running)
         if unknown:
             raise config.ConfigError(
                 f"{scenario}: process faults name {', '.join(unknown)}, which this run does not "

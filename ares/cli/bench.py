@@ -244,8 +244,8 @@ def _run(args: argparse.Namespace, progress):
         from ares.tools.bench.stack import format_stack_result, run_stack_bench
 
         try:
+            from ares.app.headless import drive
             from ares.cli import build_parser
-            from ares.tools.headless import drive
 
             return run_stack_bench(
                 build_parser().parse_args,

@@ -24,7 +24,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         "--store",
         metavar="URI",
         help="mongodb:// URI or the embedded store's file "
-        "(default: blackbox.store.record_store, else the embedded store)",
+        "(default: blackbox.register.store.record_store, else the embedded store)",
     )
     api.add_argument(
         "--insecure-http",
@@ -57,7 +57,7 @@ def _api_context(args: argparse.Namespace):
     """(configuration, ApiSettings, StoreSettings, store URI) of `ares api` / `ares users`."""
     from ares.core import config
     from blackbox.api import ApiSettings
-    from blackbox.store.record_store import StoreSettings
+    from blackbox.register.store.record_store import StoreSettings
 
     try:
         cfg = config.current()
@@ -70,8 +70,8 @@ def _api_context(args: argparse.Namespace):
 
 
 def _open_store(uri: str, settings):
-    from blackbox.store.open_store import open_store
-    from blackbox.store.record_store import StoreUnavailable
+    from blackbox.register.store.open_store import open_store
+    from blackbox.register.store.record_store import StoreUnavailable
 
     try:
         store = open_store(uri, settings=settings)
@@ -123,7 +123,7 @@ def cmd_users(args: argparse.Namespace) -> int:
         raise CliError("which action? try `ares users add NAME --role ROLE` or `ares users list`")
     _, settings, store_settings, uri = _api_context(args)
     from blackbox.api.credentials import Passwords, UserError, add_user, check_new_user
-    from blackbox.store.record_store import StoreUnavailable
+    from blackbox.register.store.record_store import StoreUnavailable
 
     if args.users == "add":
         password = _read_new_password()

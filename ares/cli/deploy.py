@@ -120,7 +120,7 @@ def _rehearse(args: argparse.Namespace) -> int:
     import json
     import tempfile
 
-    from ares.tools.deploy.rehearse import rehearse
+    from ares.deploy.rehearse import rehearse
 
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="ares-rehearsal-"))
     figures = rehearse(work, light=args.light, partition_s=args.partition_s)
@@ -133,7 +133,7 @@ def _rehearse(args: argparse.Namespace) -> int:
 
 
 def _certs(args: argparse.Namespace) -> int:
-    from ares.tools.deploy import pki, router_config
+    from ares.deploy import pki, router_config
 
     try:
         issued = pki.issue_vehicle(Path(args.fleet_ca), args.vehicle, args.fleet_host, args.api_host)
@@ -158,7 +158,7 @@ def _certs(args: argparse.Namespace) -> int:
 
 
 def _router_config(args: argparse.Namespace) -> int:
-    from ares.tools.deploy import pki, router_config
+    from ares.deploy import pki, router_config
 
     try:
         if args.kind == "fleet":
@@ -179,7 +179,7 @@ def _router_config(args: argparse.Namespace) -> int:
 def _router(args: argparse.Namespace) -> int:
     import zenoh
 
-    from ares.tools.deploy import router, router_config
+    from ares.deploy import router, router_config
 
     try:
         cfg = router_config.load(Path(args.config))
@@ -196,7 +196,7 @@ def _router(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    from ares.tools.deploy import check
+    from ares.deploy import check
 
     try:
         report = check.check(Path(args.folder))

@@ -59,7 +59,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     run.add_argument(
         "--scenario",
         metavar="NAME|FILE",
-        help="simulated obstacles and faults: a built-in scenario (ares/core/config/scenarios/) or a YAML file",
+        help="simulated obstacles and faults: a built-in scenario (simulator/scenarios/) or a YAML file",
     )
     run.add_argument(
         "--mission",

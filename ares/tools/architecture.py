@@ -38,7 +38,7 @@ LAYERS = (
     Layer(("ares.tools",), "tools: benches, harnesses, evaluations, figures", "import the application and below"),
     Layer(("ares.app",), "the application: process table, supervisor, stack runner", "imports nodes and core"),
     Layer(
-        ("perception", "control", "managers", "blackbox", "drivers", "ares.sim"),
+        ("perception", "control", "managers", "blackbox", "drivers", "simulator"),
         "nodes: one process each, talking over the bus (drivers: the devices' wire formats)",
         "import core only, never each other",
     ),
@@ -112,7 +112,7 @@ EQUATIONS = (
         DBW,
         "eqs. 21-25",
         "MTBF, λ, R(t), MTTR, availability from the black box's records",
-        "blackbox.reliability:figures",
+        "blackbox.register.reliability:figures",
     ),
 )
 
@@ -167,7 +167,7 @@ _PLUMBING = ("events", "heartbeat/*", "clock/done", "sim/clock", "sim/clock/*")
 
 def _package_of(spec: Process) -> str:
     module = spec.node.partition(":")[0]
-    return "ares.sim" if module.startswith("ares.sim") else module.split(".")[0]
+    return "simulator" if module.startswith("simulator") else module.split(".")[0]
 
 
 def _id(name: str, kind: str = "p") -> str:

@@ -4,7 +4,7 @@ with RTK), and the share of the route covered.
 
 Two sources:
 - **simulated** (`coverage_simulated`): the route driven at the speed manager's profile, the
-  simulated receiver and its 4G link along it (ares/sim/corrections.py: the tour's `no_4g` zones,
+  simulated receiver and its 4G link along it (simulator/corrections.py: the tour's `no_4g` zones,
   where the corrections stop and the fix degrades as they age, and its `rtk_loss` zones, where the
   sky is blocked), a fix every 0.2 s;
 - **recorded** (`coverage_recorded`): a black box's records of a run (each second's position, and
@@ -99,9 +99,9 @@ def coverage_simulated(cfg: dict) -> CoverageResult:
     from ares.core import config
     from ares.core.geodesy import LocalFrame
     from ares.core.route import load_route
-    from ares.sim.params import SimParams
-    from ares.sim.sensors import GnssSensor
     from managers.speed import SpeedProfileParams, SpeedTable
+    from simulator.params import SimParams
+    from simulator.sensors import GnssSensor
 
     core = config.core(cfg)
     route = load_route(core)
@@ -127,7 +127,7 @@ def coverage_recorded(cfg: dict, store_uri: str, vehicle_id: str | None = None) 
     """A black box's records of the run configuration's route: each second's fix, where it was."""
     from ares.core import config
     from ares.core.route import load_route
-    from blackbox.store.open_store import open_store
+    from blackbox.register.store.open_store import open_store
 
     route = load_route(config.core(cfg))
     store = open_store(store_uri)

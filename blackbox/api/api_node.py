@@ -32,9 +32,9 @@ from ares.core.messages import EventLevel
 from ares.core.node import AsyncNode
 from ares.core.route import RouteError, load_route
 from blackbox.api import PREFIX, ApiSettings, create_app, uvicorn_config
-from blackbox.api.live_hub import GATEWAY_TOPICS, LiveHub
-from blackbox.recorder import open_configured_store, store_uri
-from blackbox.store.record_store import StoreSettings
+from blackbox.console.live_hub import GATEWAY_TOPICS, LiveHub
+from blackbox.register.recorder import open_configured_store, store_uri
+from blackbox.register.store.record_store import StoreSettings
 
 GRACEFUL_SHUTDOWN_S = 1.5  # open connections (streamed exports) get this long on SIGTERM
 PORT_RETRY_S = 5.0  # port in use: try binding again this often (wall seconds)
@@ -103,7 +103,7 @@ class ApiServer(AsyncNode):
     sections = {"blackbox_store": StoreSettings}
     # an operator's re-arm, mission and body commands (blackbox/api/routes/commands.py)
     calls = ("movement/rearm", "mission/goal", "mission/pause", "mission/resume", "mission/cancel", "mission/body")
-    # the live gateway's view of every vehicle on the router (blackbox/api/live_hub.py), for the pages
+    # the live gateway's view of every vehicle on the router (blackbox/console/live_hub.py), for the pages
     fleet_inputs = tuple(GATEWAY_TOPICS)
 
     def setup(self) -> None:

@@ -16,14 +16,14 @@ from starlette.concurrency import run_in_threadpool
 from ares.core.clock import Clock
 from blackbox.api.credentials import Passwords, Tokens, load_secret
 from blackbox.api.dependencies import Services
-from blackbox.api.live_hub import LiveHub
 from blackbox.api.models import STORE_RETRY_AFTER_S
 from blackbox.api.repository import Repository
 from blackbox.api.routes import auth, commands, events, health, pages, records, users, vehicles
 from blackbox.api.routes import live as live_routes
 from blackbox.api.security import Guard, SecurityMiddleware, security_headers
 from blackbox.api.settings import PREFIX, TOKEN_PATH, ApiSettings, state_dir
-from blackbox.store.record_store import RecordStore, StoreUnavailable
+from blackbox.console.live_hub import LiveHub
+from blackbox.register.store.record_store import RecordStore, StoreUnavailable
 
 log = logging.getLogger(__name__)
 

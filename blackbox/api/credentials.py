@@ -31,7 +31,7 @@ import argon2
 import jwt
 
 from ares.core.config import Params, param, read_secret
-from blackbox.store.record_store import RecordStore, User, utc_now
+from blackbox.register.store.record_store import RecordStore, User, utc_now
 
 ROLES = ("auditor", "operator", "fleet", "admin")
 USERNAME_RE = re.compile(r"^[a-z][a-z0-9_.-]{1,31}$")

@@ -13,10 +13,10 @@ from pydantic import AwareDatetime, BeforeValidator
 
 from ares.core.config import VEHICLE_ID_PATTERN  # what a stack's vehicle id may be: the ids of its records
 from blackbox.api.credentials import AuthError, Claims, Passwords, Tokens
-from blackbox.api.live_hub import LiveHub
 from blackbox.api.repository import Repository
 from blackbox.api.security import Guard
 from blackbox.api.settings import TOKEN_PATH, ApiSettings, LimitSettings
+from blackbox.console.live_hub import LiveHub
 
 # who may call what (the roles of ARES §3.9's three GUIs, plus user administration)
 ROLES_LIVE = ("fleet", "auditor", "operator")  # vehicles and their latest state

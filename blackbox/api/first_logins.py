@@ -13,7 +13,7 @@ import secrets
 from pathlib import Path
 
 from blackbox.api.credentials import AuthSettings, Passwords, add_user
-from blackbox.store.record_store import RecordStore
+from blackbox.register.store.record_store import RecordStore
 
 FIRST_USERS = ("operator", "auditor", "fleet")  # a user per page, named after its role
 FILE = "first_logins.txt"

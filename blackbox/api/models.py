@@ -12,8 +12,8 @@ from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from ares.core.messages import DriveMode, StoredEvent, VehicleRecord
-from blackbox import reliability as rel
 from blackbox.api.credentials import MAX_PASSWORD_CHARS, ROLES, USERNAME_RE
+from blackbox.register import reliability as rel
 
 JSON_OPTIONS = orjson.OPT_NAIVE_UTC | orjson.OPT_UTC_Z
 

@@ -17,12 +17,12 @@ from typing import Any, NamedTuple
 from fastapi import HTTPException
 
 from ares.core.messages import EventLevel, StoredEvent, VehicleRecord
-from blackbox import reliability as rel
 from blackbox.api.credentials import Passwords, UserError, add_user
 from blackbox.api.models import json_bytes
 from blackbox.api.security import blacklist_event
 from blackbox.api.settings import LimitSettings
-from blackbox.store.record_store import RETENTION, RecordStore, StoreUnavailable, User
+from blackbox.register import reliability as rel
+from blackbox.register.store.record_store import RETENTION, RecordStore, StoreUnavailable, User
 
 log = logging.getLogger(__name__)
 

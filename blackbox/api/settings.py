@@ -9,9 +9,9 @@ from pydantic import model_validator
 
 from ares.core.config import Params, param
 from blackbox.api.credentials import AuthSettings
-from blackbox.api.live_hub import LiveSettings
 from blackbox.api.security import BlacklistSettings, HeaderSettings, RateLimitSettings
 from blackbox.api.tls import TlsSettings
+from blackbox.console.live_hub import LiveSettings
 
 # fixed, not configurable: clients, the supervisor (api_url) and the token scheme rely on it
 PREFIX = "/api/v1"

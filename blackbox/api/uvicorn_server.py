@@ -6,8 +6,8 @@ from fastapi import FastAPI
 
 from blackbox.api.app import create_app
 from blackbox.api.settings import PREFIX, ApiSettings
-from blackbox.store.open_store import open_store
-from blackbox.store.record_store import StoreSettings
+from blackbox.register.store.open_store import open_store
+from blackbox.register.store.record_store import StoreSettings
 
 log = logging.getLogger(__name__)
 

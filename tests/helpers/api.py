@@ -25,7 +25,7 @@ from ares.core.messages import (
 )
 from blackbox.api import ApiSettings
 from blackbox.api.credentials import ROLES, add_user
-from blackbox.store.record_store import StoreSettings
+from blackbox.register.store.record_store import StoreSettings
 from tests.helpers.stack import REPO
 
 FAST_ARGON2 = {"time_cost": 1, "memory_kib": 64, "parallelism": 1}
@@ -142,7 +142,7 @@ def auth(token: str) -> dict:
 
 
 def open_test_store(path: Path):
-    from blackbox.store.sqlite_store import SqliteStore
+    from blackbox.register.store.sqlite_store import SqliteStore
 
     # no fsync per commit: durability across power cuts is the store's own tests' business
     return SqliteStore(str(path), settings=StoreSettings(synchronous="OFF"))

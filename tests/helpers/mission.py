@@ -12,8 +12,8 @@ from ares.core.messages import (
     PathMatch,
     SpeedLimits,
 )
-from ares.sim.body import BodySim
 from managers.mission_node import MissionManager
+from simulator.body import BodySim
 
 DT = 0.1
 CRUISE = 3.0

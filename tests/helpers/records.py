@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from datetime import UTC, datetime
 
-from blackbox.store.sqlite_store import SqliteStore
+from blackbox.register.store.sqlite_store import SqliteStore
 
 PAST, FUTURE = datetime(2000, 1, 1, tzinfo=UTC), datetime(2100, 1, 1, tzinfo=UTC)
 VEHICLE = "shuttle01"

@@ -13,7 +13,7 @@ def simulated_street(sensor_height=1.73):
     import open3d as o3d
 
     from ares.core.config import LIDAR_MODELS
-    from ares.sim.world import Mesh, box_mesh
+    from simulator.world import Mesh, box_mesh
 
     parts = [
         box_mesh((0.0, 0.0, -1.0), (160.0, 14.0, 1.0), 0.0, "asphalt"),

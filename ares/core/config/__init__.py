@@ -12,7 +12,6 @@ defaults: no YAML file of defaults, no `dict.get(key, default)` in code.
     vehicle.py    vehicle profiles (vehicles/*.yaml), their actuators, gains and LiDARs
     tour.py       tours (tours/*.yaml): corners, widths, verges, POIs, zones
     vehicle_io.py the vehicle's devices that the drivers read (GNSS, Velodyne LiDARs, CAN)
-    scenario.py   scenarios (scenarios/*.yaml): obstacles, faults, passengers, operator actions
 
 A user's run configuration is a YAML file of overrides (`ares run --config FILE`). Each file is
 validated on its own, so an error names the file, the key and what is allowed; `ConfigError`
@@ -56,19 +55,6 @@ from ares.core.config.run import (
     current,
     section,
     write_run_config,
-)
-from ares.core.config.scenario import (
-    FAULT_FIELDS,
-    OBSTACLE_SIZES,
-    PROCESS_FAULTS,
-    Scenario,
-    ScenarioAlongTour,
-    ScenarioFault,
-    ScenarioObstacle,
-    ScenarioOperatorAction,
-    ScenarioPassengers,
-    ScenarioPlace,
-    load_scenario,
 )
 from ares.core.config.tour import (
     VERGE_KINDS,
@@ -140,17 +126,6 @@ __all__ = [
     "TourVerge",
     "TourDescription",
     "load_tour",
-    "ScenarioPlace",
-    "OBSTACLE_SIZES",
-    "ScenarioObstacle",
-    "ScenarioAlongTour",
-    "ScenarioPassengers",
-    "FAULT_FIELDS",
-    "PROCESS_FAULTS",
-    "ScenarioFault",
-    "ScenarioOperatorAction",
-    "Scenario",
-    "load_scenario",
     "RUN_CONFIG_ENV",
     "VEHICLE_ID_PATTERN",
     "BusSettings",

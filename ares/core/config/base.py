@@ -1,6 +1,6 @@
 """The machinery every configuration section uses: `Params` (unknown keys refused, values
 validated, read-only), `param` (a field with its default, unit, range and meaning), YAML files,
-the packaged files of this folder (vehicles/, tours/, scenarios/), merging, and validation errors
+the packaged files of this folder (vehicles/, tours/), merging, and validation errors
 as one sentence that names the file, the key and what is allowed (`ConfigError`).
 """
 
@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from pydantic.config import JsonDict
 from pydantic_core import ErrorDetails
 
-CONFIG_DIR = Path(__file__).parent  # the packaged files: vehicles/, tours/, scenarios/
+CONFIG_DIR = Path(__file__).parent  # the packaged files: vehicles/, tours/
 
 Model = TypeVar("Model", bound=BaseModel)
 
@@ -68,19 +68,20 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def packaged_file(kind: str, name: str) -> Path:
-    """Where a packaged file of config/<kind>/ by that name is (it may not exist)."""
-    return CONFIG_DIR / kind / f"{name}.yaml"
+def packaged_file(kind: str, name: str, folder: Path = CONFIG_DIR) -> Path:
+    """Where a packaged file of <folder>/<kind>/ by that name is (it may not exist); the folder is
+    this one's unless a package above keeps its own files (the simulator's scenarios)."""
+    return folder / kind / f"{name}.yaml"
 
 
-def named_file(kind: str, name: str) -> Path:
-    """A packaged file of config/<kind>/ by name, or a YAML file given by path."""
+def named_file(kind: str, name: str, folder: Path = CONFIG_DIR) -> Path:
+    """A packaged file of <folder>/<kind>/ by name, or a YAML file given by path."""
     candidate = Path(name)
     if candidate.suffix in (".yaml", ".yml") and candidate.exists():
         return candidate
-    path = packaged_file(kind, name)
+    path = packaged_file(kind, name, folder)
     if not path.exists():
-        known = sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml"))
+        known = sorted(p.stem for p in (folder / kind).glob("*.yaml"))
         raise ConfigError(f"unknown {kind[:-1]} {name!r}; known: {', '.join(known)} (or a path to a .yaml file)")
     return path
 

@@ -190,9 +190,7 @@ class CoreConfig(Params):
     vehicle: str = param("ares_shuttle", "vehicle profile: a name in ares/core/config/vehicles/ or a YAML file")
     tour: str = param("default", "built-in tour: a name in ares/core/config/tours/ or a YAML file")
     route_file: str | None = param(None, "an open route (CSV of x,y[,z] metres) driven instead of the tour")
-    scenario: str | None = param(
-        None, "simulated obstacles and faults: a name in ares/core/config/scenarios/ or a YAML file"
-    )
+    scenario: str | None = param(None, "simulated obstacles and faults: a name in simulator/scenarios/ or a YAML file")
     simulate: bool = param(True, "run the simulated shuttle (the `sim` process) with the stack")
     wire: bool = param(
         False,

@@ -137,7 +137,7 @@ class VehicleProfile(Params):
     empty_mass_kg: float = param(doc="mass without passengers", unit="kg", gt=0)
     passenger_mass_kg: float = param(doc="mass of one passenger", unit="kg", ge=0)
     seats: int = param(doc="passenger seats", ge=0)
-    # Lateral dynamics of the simulator's dynamic bicycle (ares/sim/vehicle.py). The centre of
+    # Lateral dynamics of the simulator's dynamic bicycle (simulator/vehicle.py). The centre of
     # gravity along the wheelbase is k_cg above; the figures are for the empty vehicle.
     # Without them (a profile, or a recorded run, from before they existed) the simulator drives the
     # kinematic bicycle.

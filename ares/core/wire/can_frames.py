@@ -1,7 +1,7 @@
 """The vehicle's CAN frames (ares/core/wire/ares.dbc) to and from ARES messages, and the bus they travel on.
 
 Shared by the CAN driver (drivers/can_node.py: reads the vehicle's frames, sends the computer's)
-and the simulator's side of the wire (ares/sim/can_wire.py: the other way round), so both speak
+and the simulator's side of the wire (simulator/can_wire.py: the other way round), so both speak
 exactly the DBC. The DBC's header comment says why each id, scale and rate.
 
 - `CanCodec`: the DBC loaded once (the packaged one or a given file): each frame's layout, its

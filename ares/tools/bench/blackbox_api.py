@@ -43,7 +43,7 @@ def _seed(path: Path, password: str, records: int = 3600) -> None:
     """An hour of a realistic vehicle's records, and a fleet user."""
     from ares.core.messages import Position, ProcessHealth, SensorHealth, VehicleRecord
     from blackbox.api.credentials import Argon2Settings, Passwords, add_user
-    from blackbox.store.sqlite_store import SqliteStore
+    from blackbox.register.store.sqlite_store import SqliteStore
 
     store = SqliteStore(str(path))
     now = datetime.now(UTC).replace(microsecond=0)

@@ -29,18 +29,18 @@ from pathlib import Path
 from ares.app.processes import for_run
 from ares.core.messages import DriveMode, Position, ProcessHealth, ProcessState, SensorHealth, VehicleRecord
 from ares.core.topics import TOPIC_TABLE
-from ares.sim.params import SimParams
 from ares.tools.bench.common import percentile
-from blackbox.recorder import SENSOR_TOPICS
-from blackbox.store.record_store import RETENTION
-from blackbox.store.sqlite_store import SqliteStore
+from blackbox.register.recorder import SENSOR_TOPICS
+from blackbox.register.store.record_store import RETENTION
+from blackbox.register.store.sqlite_store import SqliteStore
+from simulator.params import SimParams
 
 GOALS = {"ingest_records_per_s": 5000.0, "query_hour_p50_ms": 20.0}
 VEHICLE = "shuttle01"
 T0 = datetime(2026, 5, 1, tzinfo=UTC)  # first record of the bench's week
 
 # what a record of a simulated run with the LiDARs lists, from the tables the stack runs on: every
-# process (ares.app.processes), the sensors the recorder rates (blackbox.recorder.SENSOR_TOPICS) at
+# process (ares.app.processes), the sensors the recorder rates (blackbox.register.recorder.SENSOR_TOPICS) at
 # the simulator's rates, the managers' scores (the topics with a `score`, ares.core.topics)
 PROCESSES = [p.name for p in for_run(simulate=True, lidars=True)]
 SENSORS = {name: float(getattr(SimParams(), f"{name}_hz")) for name in SENSOR_TOPICS}

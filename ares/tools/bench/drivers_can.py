@@ -6,7 +6,7 @@ CAN driver node and out on the bus.
   state per ten) encoded once, then decoded again and again by a fresh decoder (its counters start
   afresh, so every batch decodes in full); frames/s of each batch, median over the batches. The
   encoder's rate is measured the same way (the simulator's side).
-- end to end: the simulator's port (ares.sim.can_wire) sends bursts of samples on a multicast group
+- end to end: the simulator's port (simulator.can_wire) sends bursts of samples on a multicast group
   of its own; the CanDriver node (in-memory bus, manual clock) reads, decodes and publishes them.
   Throughput of the whole (send + receive in one process) and of the driver's steps alone; the
   latency from each closing frame's kernel receive time to its put on the bus, measured one
@@ -29,9 +29,9 @@ from ares.core.config import CanDevice
 from ares.core.membus import MemoryNetwork
 from ares.core.messages import ActuatorCommand, BodyState, CanFrame, Imu
 from ares.core.wire.can_frames import CanCodec, CanDecoder, CanEncoder
-from ares.sim.can_wire import SimCanPort
 from ares.tools.bench.common import BenchError, percentile, versions
 from drivers.can_node import CanDriver
+from simulator.can_wire import SimCanPort
 
 BATCH_SAMPLES = 200  # CanFrame + Imu samples per codec batch (about 600 frames)
 BURST_SAMPLES = 30  # samples per end-to-end burst: 90 datagrams, well within a socket's receive buffer

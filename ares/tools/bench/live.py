@@ -26,7 +26,7 @@ from ares.core.clock import ScaledClock
 from ares.core.localhost import free_port
 from ares.tools.bench.common import BenchError, percentile, versions
 from blackbox.api.credentials import Argon2Settings, Passwords, add_user
-from blackbox.store.open_store import open_store
+from blackbox.register.store.open_store import open_store
 
 GOAL_MS = 500.0
 USER, PASSWORD = "bench-operator", "a bench password"

@@ -23,10 +23,10 @@ def run_obstacle_zone_bench(
     step_m: float = 2.0, speed_mps: float = 4.0, progress: Callable[[str], None] = lambda _m: None
 ) -> dict:
     from ares.core.config import load_vehicle
-    from ares.sim.lidar import LidarSimParams, SimulatedLidar
     from ares.tools.bench.perception import TourScene
     from managers.obstacle import ObstacleParams, judge, occupied_cells, zone_for
     from perception.lidar_perception import LidarPipeline, SensorSweep
+    from simulator.lidar import LidarSimParams, SimulatedLidar
 
     vehicle = load_vehicle("ares_shuttle")
     scene = TourScene(vehicle.wheelbase_m)

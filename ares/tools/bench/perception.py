@@ -4,7 +4,7 @@ places spread evenly along the built-in tour (so over its different verges); med
 At each place:
 
 - the stack's frame: the three LiDARs of the ARES shuttle (a roof HDL-64E, two front VLP-16s,
-  full resolution) simulated on the tour's World (ares/sim), then LidarPipeline.process on it.
+  full resolution) simulated on the tour's World (simulator), then LidarPipeline.process on it.
   Two frames 1 m apart (100 ms at 10 m/s): the first gives the road model the second is
   measured against, as in a drive; the second is processed `repeats` times from that same model.
   Wall times, and beside them the pipeline thread's CPU time (pipeline_cpu_ms_*), which other
@@ -58,17 +58,17 @@ class TourScene:
 
     def __init__(self, wheelbase_m: float):
         from ares.core.route import Route
-        from ares.sim.params import SimParams
-        from ares.sim.road import roughness_for
-        from ares.sim.world import World
+        from simulator.params import SimParams
+        from simulator.road import roughness_for
+        from simulator.world import World
 
         self.route = Route.from_tour("default")
         self.world = World(self.route, roughness_for(self.route, SimParams(), wheelbase_m))
 
     def pose(self, s: float):
         """(rotation, position) of the vehicle on the road's centre line at s, pitched with the grade."""
-        from ares.sim.lidar import vehicle_pose
-        from ares.sim.road import grade_at
+        from simulator.lidar import vehicle_pose
+        from simulator.road import grade_at
 
         x, y, _, yaw = self.route.point_at(s)
         return vehicle_pose(x, y, float(self.world.centre_height(s)), yaw, -math.atan(grade_at(self.route, s)))
@@ -77,7 +77,7 @@ class TourScene:
         """A raycasting scene of a street canyon around s: two façades along the heading there."""
         import open3d as o3d
 
-        from ares.sim.world import Mesh, box_mesh
+        from simulator.world import Mesh, box_mesh
 
         x, y, _, yaw = self.route.point_at(s)
         half = float(self.route.width[self.route.index_at(s)]) / 2
@@ -107,7 +107,7 @@ def street_roof_scan(scene: TourScene, s: float, seed: int = 0, height_m: float 
     """(sweep in the sensor frame, the car, its roof mount): the dense 64-layer scan of the module's
     docstring at s."""
     from ares.core.config import load_vehicle
-    from ares.sim.lidar import LidarSimParams, SimulatedLidar
+    from simulator.lidar import LidarSimParams, SimulatedLidar
 
     car = load_vehicle("techs4agecar")
     roof = car.lidars["roof"]
@@ -154,7 +154,7 @@ def _places(route_length: float, frames: int) -> list[float]:
 
 def _shuttle_lidars(seed: int):
     from ares.core.config import load_vehicle
-    from ares.sim.lidar import LidarSimParams, SimulatedLidar
+    from simulator.lidar import LidarSimParams, SimulatedLidar
 
     shuttle = load_vehicle("ares_shuttle")
     return shuttle, {

@@ -158,9 +158,9 @@ def compare(case: ScanCase, repeats: int = 5) -> dict:
 def simulated_cases(frames: int, seed: int, progress: Callable[[str], None]) -> list[ScanCase]:
     """Two simulated HDL-64E scans at each of `frames` places along the tour (the module's docstring)."""
     from ares.core.config import load_vehicle
-    from ares.sim.lidar import LidarSimParams, SimulatedLidar
     from ares.tools.bench.perception import TourScene, street_roof_scan
     from perception.lidar_perception import LidarPipeline, SensorSweep
+    from simulator.lidar import LidarSimParams, SimulatedLidar
 
     shuttle = load_vehicle("ares_shuttle")
     roof = shuttle.lidars["roof"]

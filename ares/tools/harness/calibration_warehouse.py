@@ -26,9 +26,9 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from ares.core.config import VehicleProfile, load_vehicle, load_yaml, named_file
-from ares.sim.lidar import LidarSimParams, SimulatedLidar
-from ares.sim.world import Mesh, box_mesh, cylinder_mesh
 from perception import extrinsic_calibration as ext
+from simulator.lidar import LidarSimParams, SimulatedLidar
+from simulator.world import Mesh, box_mesh, cylinder_mesh
 
 REFERENCE = "roof"
 

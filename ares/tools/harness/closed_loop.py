@@ -38,14 +38,11 @@ import yaml
 
 from ares.app import run_config
 from ares.core import config
-from ares.core.config import CoreConfig, load_scenario
+from ares.core.config import CoreConfig
 from ares.core.geodesy import LocalFrame
 from ares.core.geometry import wrap_angle
 from ares.core.messages import CanFrame, GnssFix, Imu
 from ares.core.route import Route, load_route
-from ares.sim.params import SimParams
-from ares.sim.sensors import GnssSensor, SensorSuite
-from ares.sim.vehicle import VehiclePlant, VehicleState
 from ares.tools.bench.common import percentile
 from control.dbw_bridge import BridgeLoop, DbwBridgeParams, Event
 from control.mpc import Mpc, MpcParams
@@ -58,6 +55,10 @@ from managers.speed import SpeedProfileParams, speed_limits
 from perception.gnss import GnssParams, GnssProjector, pair_epochs
 from perception.localization import LocalizationParams, Localizer
 from perception.nmea_parser import NmeaReader
+from simulator.params import SimParams
+from simulator.scenario import load_scenario
+from simulator.sensors import GnssSensor, SensorSuite
+from simulator.vehicle import VehiclePlant, VehicleState
 
 SETTLE_S = 2.0  # as the headless run's metrics: after the start and after RTK comes or goes
 

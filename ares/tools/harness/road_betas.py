@@ -11,7 +11,7 @@ chose them "individually based on slopes, curves and smooth paths".
    with the grade. The three simulated LiDARs at full resolution (noise, dropouts, ghosts, trees
    and poles as in a run), then the pipeline's transform and filters (LidarPipeline.road_frame):
    the frames road detection reads, made once and cached.
-2. Truth. For each frame, where the lap's evaluation (ares/tools/evaluation/perception_eval.py) looks: the true
+2. Truth. For each frame, where the lap's evaluation (ares/app/evaluation/perception_eval.py) looks: the true
    edges (±width/2 from the route) and the centre line at x = 2, 4, 6, 8, 10 m ahead, in the
    vehicle frame, with d(cross-track)/dy there, so that a boundary y = f(x) is judged as the lap
    judges it (its distance across the road from the true edge) without projecting it each time.
@@ -32,16 +32,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ares.app.evaluation.perception_eval import AHEAD_M, EDGE_WITHIN_M
 from ares.core.config import load_vehicle
 from ares.core.route import Route
-from ares.sim.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
-from ares.sim.params import SimParams
-from ares.sim.road import grade_at, roughness_for
-from ares.sim.world import BOUNDARY_VERGES, CROSSFALL, World
 from ares.tools.bench.common import percentile
-from ares.tools.evaluation.perception_eval import AHEAD_M, EDGE_WITHIN_M
 from perception.lidar_perception import LidarPipeline, SensorSweep
 from perception.road_detection import LidarFrame, RoadDetectionParams, detect_road
+from simulator.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
+from simulator.params import SimParams
+from simulator.road import grade_at, roughness_for
+from simulator.world import BOUNDARY_VERGES, CROSSFALL, World
 
 poly = np.polynomial.polynomial
 

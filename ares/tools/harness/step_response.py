@@ -1,6 +1,6 @@
 """Closed-loop step responses of the drive-by-wire board, as the DBW paper measures them (§5.1).
 
-A raw actuator of the simulator (ares/sim/actuators.py) under the board's 10 Hz PID
+A raw actuator of the simulator (simulator/actuators.py) under the board's 10 Hz PID
 (control/pid.py): the check that the actuator parameters of a vehicle profile reproduce the
 paper's measured steps (the figures are reported in ares/core/config/vehicles/*.yaml). It joins
 the simulator and the controller in one process, which is why it lives in the composition
@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ares.core.config import PidGains, SteeringActuatorParams, TractionActuatorParams, VehicleProfile
-from ares.sim.actuators import SteeringActuator, TractionActuator
-from ares.sim.vehicle import PHYSICS_DT, loaded_profile
 from control.pid import PID
+from simulator.actuators import SteeringActuator, TractionActuator
+from simulator.vehicle import PHYSICS_DT, loaded_profile
 
 PID_PERIOD_S = 0.1  # the DBW board's loop period (paper §4.5)
 

@@ -13,7 +13,7 @@
 | bad_api_burst          | requests with no, forged or expired-looking tokens, to unknown routes, with |
 |                        | malformed bodies and ranges: each must get a 4xx, none a 5xx or no answer |
 | obstacles in the path  | in the soak's scenario file, appearing ahead of the shuttle at their time  |
-|                        | (the LiDAR simulator places them: ares.sim.obstacles): nothing to do here  |
+|                        | (the LiDAR simulator places them: simulator.obstacles): nothing to do here  |
 
 The injections that last (the lock, the router's absence, the burst) run on threads of their own,
 so that the soak goes on measuring meanwhile; `wait` joins them at the end.

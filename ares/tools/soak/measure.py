@@ -15,7 +15,7 @@
 |                       | for its actions (the mission AT_POI)                                         |
 | lost time per fault   | the time it was not available, given to the fault injected last before      |
 
-Collisions and the movement gate's invariants are ares.tools.evaluation.safety_eval's (the runner
+Collisions and the movement gate's invariants are ares.app.evaluation.safety_eval's (the runner
 feeds a SafetyTracker beside this one).
 """
 

@@ -3,7 +3,7 @@ that a soak still running, or stopped early, is summarised the same way as a fin
 
 Black-box seconds lost: every whole second of the soak, from its start to the last second the store
 holds, that has no record. The reliability figures of the drive-by-wire paper (§5.4: MTBF, MTTR,
-availability) come from the same records and FAULT events (blackbox.reliability), beside the
+availability) come from the same records and FAULT events (blackbox.register.reliability), beside the
 paper's own: 812 h of tests, 788 h in operation, 29 failures, MTBF 27.17 h, MTTR 0.8275 h,
 availability 97.04 %.
 """
@@ -63,8 +63,8 @@ def blackbox_figures(out: Path, vehicle_id: str, t_from: float, t_to: float | No
     while the recorder itself was down (killed, hung or busy by a fault: no process is left to
     record them, and they are counted on their own); the paper's reliability figures from the
     records and FAULT events of that span."""
-    from blackbox import reliability as rel
-    from blackbox.store.sqlite_store import SqliteStore
+    from blackbox.register import reliability as rel
+    from blackbox.register.store.sqlite_store import SqliteStore
 
     path = out / "blackbox.sqlite"
     if not path.exists():

@@ -171,7 +171,7 @@ def merged_summary(root: Path, segments: list[Segment] | None = None) -> dict:
         default=None,
     )
     last = segments[-1]
-    from blackbox import reliability as rel
+    from blackbox.register import reliability as rel
 
     def total(key: str) -> int | None:
         values = [p.get(key) for p in parts]

@@ -35,6 +35,7 @@ from types import SimpleNamespace
 import yaml
 
 from ares.app import processes
+from ares.app.evaluation.safety_eval import SafetyTracker
 from ares.app.stack import (
     STARTUP_TIMEOUT_S,
     RunFailed,
@@ -49,7 +50,6 @@ from ares.core import config
 from ares.core.bus import ServiceError
 from ares.core.launch import FAULT_INJECTION_ENV
 from ares.core.messages import DriveMode, MissionGoal, ProcessState, RearmRequest
-from ares.tools.evaluation.safety_eval import SafetyTracker
 from ares.tools.soak import report
 from ares.tools.soak.injectors import LASTING, LIDAR_PROCESS, SIGNAL_OF, Injectors, RouterProcess
 from ares.tools.soak.measure import GIVE_UP_S, FaultOutcome, SoakTracker

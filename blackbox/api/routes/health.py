@@ -5,7 +5,7 @@ from fastapi.responses import Response
 
 from blackbox.api.dependencies import Services
 from blackbox.api.models import ERROR_HEADERS, STORE_RETRY_AFTER_S, Health, error_responses, json_response
-from blackbox.store.record_store import StoreUnavailable
+from blackbox.register.store.record_store import StoreUnavailable
 
 
 def build_router(services: Services) -> APIRouter:

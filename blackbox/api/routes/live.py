@@ -25,8 +25,8 @@ from fastapi.responses import StreamingResponse
 
 from blackbox.api.credentials import Claims
 from blackbox.api.dependencies import ROLES_LIVE, ROLES_RECORDS, Services, allow, vehicle_id_path
-from blackbox.api.live_hub import LiveHub
 from blackbox.api.models import error_responses, json_response
+from blackbox.console.live_hub import LiveHub
 
 SSE_HEADERS = {"X-Accel-Buffering": "no", "Cache-Control": "no-store"}
 

@@ -1,0 +1,73 @@
+"""What a scenario does to a headless run from outside the simulator, at its stack times: process
+faults through the supervisor (kill, stop, hang) and the operator's actions through the vehicle's
+services (re-arm, pause, resume, cancel). The simulator injects the sensor faults itself; they are
+noted here when their time comes, so that the safety figures can time the response to each."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from ares.app.evaluation.safety_eval import SafetyTracker
+from ares.core.bus import BaseBus, ServiceError
+from ares.core.messages import MissionRequest, RearmRequest
+from simulator.scenario import PROCESS_FAULTS, Scenario
+
+OPERATOR = "scenario"
+SENSOR_OF = {
+    "block_lidar": None,
+    "freeze_imu": "imu",
+    "gyro_bias": "imu",
+    "gnss_outage": "gnss",
+    "gnss_no_corrections": "gnss",
+    "wheel_speed_scale": "can",
+}  # None: the fault names its sensor
+
+
+class ScenarioDriver:
+    def __init__(
+        self, scenario: Scenario | None, bus: BaseBus, inject: Callable[[str, str], str], tracker: SafetyTracker
+    ):
+        self.bus, self.inject, self.tracker = bus, inject, tracker
+        self.timed: list[tuple[float, str, object]] = []
+        if scenario is not None:
+            self.timed = sorted(
+                [(f.at_t_s, "fault", f) for f in scenario.faults if f.at_t_s is not None]
+                + [(a.at_t_s, "operator", a) for a in scenario.operator],
+                key=lambda item: item[0],
+            )
+        self.done: list[list] = []  # [t, what, ok, detail]
+
+    def step(self, now: float) -> None:
+        while self.timed and self.timed[0][0] <= now:
+            at, kind, item = self.timed.pop(0)
+            if kind == "fault":
+                self._fault(at, item)
+            else:
+                self._operator(now, item.action)
+
+    def _fault(self, at: float, fault) -> None:
+        if fault.kind in PROCESS_FAULTS:
+            target = fault.process
+            try:
+                detail, ok = self.inject(target, fault.kind.removesuffix("_process")), True
+            except KeyError as exc:
+                detail, ok = str(exc), False
+        else:
+            target = fault.sensor or SENSOR_OF[fault.kind]
+            detail, ok = "injected by the simulator", True
+        self.tracker.add_fault(at, fault.kind, target)
+        self.done.append([round(at, 2), f"{fault.kind} {target}".strip(), ok, detail])
+
+    def _operator(self, now: float, action: str) -> None:
+        try:
+            if action == "rearm":
+                reply = self.bus.call("movement/rearm", RearmRequest(operator=OPERATOR))
+            else:
+                reply = self.bus.call(f"mission/{action}", MissionRequest(operator=OPERATOR))
+            ok, detail = reply.accepted, reply.reason
+        except ServiceError as exc:
+            ok, detail = False, str(exc)
+        self.done.append([round(now, 2), action, ok, detail])
+
+    def summary(self) -> dict:
+        return {"scenario_actions": self.done}

@@ -1,0 +1,166 @@
+"""What the fleet's store still lacks of each vehicle, and whether each vehicle is heard.
+
+The fleet server keeps every vehicle's black box in its own store (blackbox/fleet/sync_node.py).
+Records arrive live, one per second of each vehicle (`blackbox/record`); a link that is cut, or
+a fleet server that is down, leaves a gap. `FleetLedger` keeps, per vehicle, the newest second
+stored and the gaps behind it, and says which range to ask the vehicle's recorder for
+(`blackbox/records`); an answer fills what it holds. A second the vehicle's recorder no longer
+holds in memory (older than its `fleet_memory_s`) is not lost: it is in the vehicle's own store,
+and the ledger counts it as `left_on_vehicle`. A second the recorder never wrote (it was not
+running) is counted as `never_recorded`.
+
+Reachability is judged on the wall clock: a vehicle from which nothing arrived for
+`unreachable_after_s` is unreachable until the next message. Nothing here does I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+
+from ares.core.config import param
+from blackbox.register.recorder import StoreWriterParams
+
+
+class FleetSyncParams(StoreWriterParams):
+    """The fleet's black box: its store writer, and how it fills gaps and judges reachability."""
+
+    rate_hz: float = param(5.0, "loop: store what arrived, ask for gaps, judge reachability", unit="Hz", gt=0)
+    unreachable_after_s: float = param(
+        3.0, "a vehicle silent this long (wall) is marked unreachable (an event in its black box)", unit="s", gt=0
+    )
+    backfill_retry_s: float = param(2.0, "a gap still open is asked for again after this (wall)", unit="s", gt=0)
+    backfill_timeout_s: float = param(3.0, "a gap's request waits this long for the recorder's answer", unit="s", gt=0)
+    backfill_max_s: int = param(600, "seconds asked for in one request", ge=1)
+
+
+@dataclass
+class VehicleLedger:
+    newest: int | None = None  # the newest second stored (UTC epoch s)
+    gaps: list[list[int]] = field(default_factory=list)  # [start, end) ranges, oldest first
+    heard_wall: float = 0.0
+    reachable: bool = False
+    asked_wall: float = -1e18  # when a gap was last asked for
+    in_flight: tuple[int, int] | None = None
+    utc_offset_s: float | None = None  # epoch s - stack s of the vehicle's clock (its records say)
+    filled: int = 0
+    left_on_vehicle: int = 0
+    never_recorded: int = 0
+
+
+@dataclass
+class Reachability:
+    vehicle_id: str
+    reachable: bool
+    silent_s: float
+
+
+class FleetLedger:
+    def __init__(self, params: FleetSyncParams):
+        self.p = params
+        self.vehicles: dict[str, VehicleLedger] = {}
+
+    def vehicle(self, vehicle_id: str) -> VehicleLedger:
+        return self.vehicles.setdefault(vehicle_id, VehicleLedger())
+
+    def known(self, vehicle_id: str, newest_stored: int | None) -> None:
+        """What the store already held of a vehicle when the fleet server started."""
+        self.vehicle(vehicle_id).newest = newest_stored
+
+    def heard(self, vehicle_id: str, wall: float) -> Reachability | None:
+        """Anything arrived from the vehicle; a Reachability if it was unreachable (or new)."""
+        ledger = self.vehicle(vehicle_id)
+        ledger.heard_wall = wall
+        if ledger.reachable:
+            return None
+        ledger.reachable = True
+        return Reachability(vehicle_id, True, 0.0)
+
+    def record(self, vehicle_id: str, epoch_s: int, stack_t: float) -> None:
+        """A live record: a jump past the newest second opens a gap."""
+        ledger = self.vehicle(vehicle_id)
+        ledger.utc_offset_s = epoch_s - stack_t
+        if ledger.newest is not None and epoch_s > ledger.newest + 1:
+            ledger.gaps.append([ledger.newest + 1, epoch_s])
+        if ledger.newest is None or epoch_s > ledger.newest:
+            ledger.newest = epoch_s
+        else:  # an older second live (a gap's second, or one stored again): it closes what it covers
+            self._fill(ledger, {epoch_s})
+
+    def silent(self, wall: float) -> list[Reachability]:
+        """The vehicles that have just become unreachable."""
+        out = []
+        for vehicle_id, ledger in self.vehicles.items():
+            silent_s = wall - ledger.heard_wall
+            if ledger.reachable and silent_s > self.p.unreachable_after_s:
+                ledger.reachable = False
+                out.append(Reachability(vehicle_id, False, silent_s))
+        return out
+
+    def requests(self, wall: float) -> list[tuple[str, int, int]]:
+        """(vehicle, start, end) to ask for now: the oldest open gap of each reachable vehicle with
+        none in flight, at most backfill_max_s of it, once per backfill_retry_s."""
+        out = []
+        for vehicle_id, ledger in self.vehicles.items():
+            if not ledger.gaps or not ledger.reachable or ledger.in_flight is not None:
+                continue
+            if wall - ledger.asked_wall < self.p.backfill_retry_s:
+                continue
+            start, end = ledger.gaps[0]
+            end = min(end, start + self.p.backfill_max_s)
+            ledger.in_flight, ledger.asked_wall = (start, end), wall
+            out.append((vehicle_id, start, end))
+        return out
+
+    def answered(self, vehicle_id: str, seconds: set[int], oldest_held: int | None) -> None:
+        """The recorder's answer to the request in flight: the seconds it sent are stored; of the
+        rest of the range, those older than what it holds stay on the vehicle, the others it
+        never recorded."""
+        ledger = self.vehicle(vehicle_id)
+        if ledger.in_flight is None:
+            return
+        start, end = ledger.in_flight
+        ledger.in_flight = None
+        self._fill(ledger, seconds)
+        rest = {k for k in range(start, end) if k not in seconds}
+        before_memory = {k for k in rest if oldest_held is None or k < oldest_held}
+        ledger.left_on_vehicle += len(before_memory)
+        ledger.never_recorded += len(rest - before_memory)
+        self._fill(ledger, rest, count=False)
+        ledger.asked_wall = -1e18  # the next gap at once
+
+    def failed(self, vehicle_id: str) -> None:
+        """The request in flight went unanswered: asked again after backfill_retry_s."""
+        self.vehicle(vehicle_id).in_flight = None
+
+    def open_seconds(self, vehicle_id: str) -> int:
+        return sum(end - start for start, end in self.vehicle(vehicle_id).gaps)
+
+    @staticmethod
+    def _fill(ledger: VehicleLedger, seconds: set[int], count: bool = True) -> None:
+        if not seconds:
+            return
+        kept: list[list[int]] = []
+        for start, end in ledger.gaps:
+            run_start = None
+            for k in range(start, end):
+                if k in seconds:
+                    if count:
+                        ledger.filled += 1
+                    if run_start is not None:
+                        kept.append([run_start, k])
+                        run_start = None
+                elif run_start is None:
+                    run_start = k
+            if run_start is not None:
+                kept.append([run_start, end])
+        ledger.gaps = kept
+
+
+def epoch_of(value: datetime | str) -> float:
+    """A stored record's or event's time (a datetime, or RFC 3339 text) as UTC epoch seconds."""
+    if isinstance(value, str):
+        value = datetime.fromisoformat(value.replace("Z", "+00:00"))
+    if value.tzinfo is None:
+        value = value.replace(tzinfo=UTC)
+    return value.timestamp()

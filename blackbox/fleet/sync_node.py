@@ -1,0 +1,197 @@
+"""The fleet's black box as a process of the fleet server (fleet process table entry `fleet_sync`).
+
+Every vehicle's records (`blackbox/record`) and events arrive from the fleet router
+(bus.subscribe_fleet) and go to the fleet's store through the same writer as a vehicle's
+recorder (spooled to disk while the store is down). The store is idempotent per vehicle and
+second, so a record that arrives twice is stored once. After a lost link the ledger
+(blackbox/fleet/sync.py) asks the vehicle's recorder for the seconds it missed
+(`blackbox/records`, a call the fleet router allows); the calls run on a thread of their own, so
+the loop never waits on a vehicle. A vehicle silent for `unreachable_after_s` gets a
+`vehicle_unreachable` event in its black box, and `vehicle_reachable` when it is heard again.
+
+A vehicle's events carry its stack time; they are stored at the UTC time its records map that
+stack time to (before its first record, at the time they arrive). Events that a cut link kept
+from the fleet stay in the vehicle's own store: only records are filled in.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from datetime import UTC, datetime
+
+from ares.core.bus import ServiceError
+from ares.core.messages import BlackboxRecord, Event, EventLevel, RecordRange, StoredEvent, VehicleRecord
+from ares.core.node import Node
+from blackbox.fleet.sync import FleetLedger, FleetSyncParams, Reachability, epoch_of
+from blackbox.register.recorder import open_configured_store, store_uri, store_writer, stored_event
+from blackbox.register.spool import Item
+from blackbox.register.store.record_store import StoreSettings, StoreUnavailable
+
+
+class FleetSync(Node):
+    """Every vehicle's black box into the fleet's store: live, gaps filled after a lost link."""
+
+    name = "fleet_sync"
+    Params = FleetSyncParams
+    sections = {"blackbox_store": StoreSettings}
+    fleet_inputs = ("blackbox/record", "events")
+    calls = ("blackbox/records",)
+
+    def setup(self) -> None:
+        p = self.params
+        settings = self.shared["blackbox_store"]
+        self.wall = time.time  # reachability is the wall's (a test gives its own)
+        self.ledger = FleetLedger(p)
+        self.arrived: queue.SimpleQueue[tuple[str, float, object]] = queue.SimpleQueue()
+        self._known_from_store(settings)
+        self.writer = store_writer(p, settings, self.core.vehicle_id)
+        self.writer.start()
+        self.asks: queue.SimpleQueue[tuple[str, int, int] | None] = queue.SimpleQueue()
+        self.answers: queue.SimpleQueue[tuple[str, list[VehicleRecord] | None, int | None, str]] = queue.SimpleQueue()
+        self.asker = threading.Thread(target=self._ask_vehicles, name="fleet-backfill", daemon=True)
+        self.asker.start()
+        for topic in self.fleet_inputs:
+            self.bus.subscribe_fleet(
+                topic, lambda vehicle_id, _topic, msg: self.arrived.put((vehicle_id, self.wall(), msg))
+            )
+        self.lost = 0
+        self.log.info("fleet black box to %s", store_uri(settings))
+
+    def _arrived(self, vehicle_id: str, _topic: str, msg: object) -> None:
+        self.arrived.put((vehicle_id, self.wall(), msg))  # on the transport's thread: queued, nothing more
+
+    def _known_from_store(self, settings: StoreSettings) -> None:
+        """The newest second stored of each vehicle: a gap since then is filled too."""
+        try:
+            store = open_configured_store(settings)
+        except StoreUnavailable as exc:
+            self.log.warning("store unavailable at start (%s): gaps from before this start are not known", exc)
+            return
+        try:
+            for vehicle_id in store.vehicles():
+                latest = store.latest(vehicle_id)
+                if latest is not None:
+                    self.ledger.known(vehicle_id, int(epoch_of(latest["time"])))
+        except StoreUnavailable as exc:
+            self.log.warning("store unavailable at start (%s): gaps from before this start are not known", exc)
+        finally:
+            store.close()
+
+    def step(self, now: float) -> None:
+        wall = self.wall()
+        while True:
+            try:
+                vehicle_id, arrived_wall, msg = self.arrived.get_nowait()
+            except queue.Empty:
+                break
+            if vehicle_id != self.core.vehicle_id:  # the fleet server's own events: no vehicle's
+                self._reachability(self.ledger.heard(vehicle_id, arrived_wall))
+            if isinstance(msg, BlackboxRecord):
+                record = msg.record
+                if record.vehicle_id != vehicle_id:  # the key's id is the one access control checked
+                    self._refused(vehicle_id, f"a record for {record.vehicle_id!r} under ares/{vehicle_id}")
+                    continue
+                self.ledger.record(vehicle_id, int(epoch_of(record.time)), record.t)
+                self._submit(record)
+            elif isinstance(msg, Event):
+                offset = self.ledger.vehicle(vehicle_id).utc_offset_s
+                stamp = arrived_wall if offset is None else offset + msg.t
+                self._submit(stored_event(vehicle_id, datetime.fromtimestamp(stamp, UTC), msg))
+        while True:
+            try:
+                vehicle_id, records, oldest, error = self.answers.get_nowait()
+            except queue.Empty:
+                break
+            if records is None:
+                self.ledger.failed(vehicle_id)
+                self.log.info("gap of %s not filled yet: %s", vehicle_id, error)
+                continue
+            for record in records:
+                if record.vehicle_id == vehicle_id:
+                    self._submit(record)
+            self.ledger.answered(vehicle_id, {int(epoch_of(r.time)) for r in records}, oldest)
+            ledger = self.ledger.vehicle(vehicle_id)
+            self.log.info(
+                "gap of %s: %d seconds filled so far, %d open, %d left on the vehicle",
+                vehicle_id,
+                ledger.filled,
+                self.ledger.open_seconds(vehicle_id),
+                ledger.left_on_vehicle,
+            )
+        for change in self.ledger.silent(wall):
+            self._reachability(change)
+        for ask in self.ledger.requests(wall):
+            self.asks.put(ask)
+        self._publish_notices()
+
+    def _ask_vehicles(self) -> None:
+        """The backfill calls, one at a time, off the loop."""
+        while (ask := self.asks.get()) is not None:
+            vehicle_id, start, end = ask
+            try:
+                batch = self.bus.call(
+                    "blackbox/records",
+                    RecordRange(t=self.clock.now(), start_epoch_s=start, end_epoch_s=end),
+                    timeout_s=self.params.backfill_timeout_s,
+                    vehicle_id=vehicle_id,
+                )
+                self.answers.put((vehicle_id, list(batch.records), batch.oldest_epoch_s, ""))
+            except ServiceError as exc:
+                self.answers.put((vehicle_id, None, None, str(exc)))
+
+    def _reachability(self, change: Reachability | None) -> None:
+        if change is None:
+            return
+        ledger = self.ledger.vehicle(change.vehicle_id)
+        if change.reachable:
+            kind, level = "vehicle_reachable", EventLevel.INFO
+            message = f"{change.vehicle_id} heard on the fleet router"
+            if self.ledger.open_seconds(change.vehicle_id):
+                message += f"; {self.ledger.open_seconds(change.vehicle_id)} black-box seconds to fill"
+        else:
+            kind, level = "vehicle_unreachable", EventLevel.WARNING
+            message = f"{change.vehicle_id} unreachable: nothing heard for {change.silent_s:.1f} s"
+        self.log.log(20 if change.reachable else 30, "%s", message)
+        now_wall = self.wall()
+        stack_t = now_wall - ledger.utc_offset_s if ledger.utc_offset_s is not None else 0.0
+        self._submit(
+            StoredEvent(
+                vehicle_id=change.vehicle_id,
+                time=datetime.fromtimestamp(now_wall, UTC),
+                t=stack_t,
+                source=self.name,
+                kind=kind,
+                level=level,
+                message=message,
+                data={"silent_s": round(change.silent_s, 2)},
+            )
+        )
+
+    def _refused(self, vehicle_id: str, what: str) -> None:
+        self.event("fleet_record_refused", f"{what}: not stored", EventLevel.WARNING, vehicle=vehicle_id)
+
+    def _submit(self, item: Item) -> None:
+        if not self.writer.submit(item):
+            self.lost += 1
+            if self.lost == 1 or self.lost % 1000 == 0:
+                self.event(
+                    "blackbox_queue_overflow",
+                    f"fleet black-box writer queue full: {self.lost} items lost so far",
+                    EventLevel.FAULT,
+                    lost=self.lost,
+                )
+
+    def _publish_notices(self) -> None:
+        for n in self.writer.take_notices():
+            self.event(n.kind, n.message, n.level, **n.data)
+
+    def teardown(self) -> None:
+        asks = getattr(self, "asks", None)
+        if asks is not None:
+            asks.put(None)
+        writer = getattr(self, "writer", None)
+        if writer is not None:
+            writer.close(self.params.shutdown_flush_s)
+            self.log.info("%s", writer.stopped_summary(self.lost))

@@ -1,0 +1,157 @@
+"""The event register as a process (process table entry `blackbox`, ARES §3.8).
+
+What a record holds, when it is written and how the writer survives a store that is down are
+`blackbox.register.recorder`'s (its docstring says it all); this node latches the inputs, builds a record
+whenever stack time crosses a whole second, hands records and events to the writer thread and
+turns the writer's notices into events.
+
+For the fleet: each record is also published (`blackbox/record`) as it is handed to the writer,
+and the last `fleet_memory_s` of them are kept in memory, from which `blackbox/records` answers
+the fleet's store when it asks for the seconds a lost link kept from it (blackbox/fleet/sync.py).
+The answer never waits on the vehicle's own store.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+
+from ares.core import topics
+from ares.core.geodesy import LocalFrame
+from ares.core.messages import BlackboxRecord, EventLevel, RecordBatch, RecordRange, VehicleRecord
+from ares.core.node import Input, InputGroup, Node, Output, service
+from blackbox.register.recorder import (
+    SENSOR_TOPICS,
+    RecorderParams,
+    Snapshot,
+    build_record,
+    store_uri,
+    store_writer,
+    stored_event,
+)
+from blackbox.register.spool import Item
+from blackbox.register.store.record_store import StoreSettings
+
+
+class Recorder(Node):
+    """The event register: a record of the vehicle's state per second, every event as it happens."""
+
+    name = "blackbox"
+    Params = RecorderParams
+    sections = {"blackbox_store": StoreSettings}
+    pose = Input("localization/pose", max_age="max_age_s", doc="position")
+    car = Input("dbw/car_state", max_age="max_age_s", doc="speed, steering, drive mode")
+    controller = Input("control/status", max_age="max_age_s", doc="the active controller")
+    supervisor = Input("supervisor/state", max_age="max_age_s", doc="process health")
+    awareness = Input("awareness/state", max_age="max_age_s", doc="the self-awareness level")
+    mission = Input("mission/status", max_age="max_age_s", doc="the mission's state or the POI action running")
+    corrections = Input("gnss/corrections", max_age="max_age_s", doc="the RTK corrections' link and age")
+    fix = Input("gnss/fix", max_age="max_age_s", doc="the fix type (GGA quality) the corrections gave")
+    scores = InputGroup(topics.score_topics(), max_age="max_age_s", doc="every manager's score")
+    sensors = InputGroup(SENSOR_TOPICS, doc="message rates -> sensor health")
+    events = Input("events", queue="event_queue", doc="recorded as they arrive")
+    published = Output("blackbox/record", rate=1.0, doc="each record as it is written, for the fleet's store")
+
+    def setup(self) -> None:
+        p = self.params
+        self.store_settings = self.shared["blackbox_store"]
+        self.vehicle_id = self.core.vehicle_id
+        self.frame = LocalFrame(self.core.origin_utm)
+        self.sensor_min_hz = p.sensor_min_hz.model_dump()
+        self.writer = store_writer(p, self.store_settings, self.vehicle_id)
+        if self.writer.spool.pending:
+            self.log.info("%d items left in %s: flushing them first", len(self.writer.spool), self.writer.spool.path)
+        self.writer.start()
+
+        # the first second crossed from now on; a restart in the same run picks up from here
+        self.next_k = math.floor(self.clock.now()) + 1
+        self.event_counts: collections.Counter[int] = collections.Counter()
+        self.memory: collections.deque[VehicleRecord] = collections.deque(maxlen=max(p.fleet_memory_s, 1))
+        self.lost = 0
+        self._last_lost_event = -math.inf
+        self._events_overflowed = 0
+        self.log.info(
+            "recording %s to %s (spool %s)", self.vehicle_id, store_uri(self.store_settings), self.writer.spool.path
+        )
+
+    def step(self, now: float) -> None:
+        if self.events.overflowed > self._events_overflowed:
+            lost = self.events.overflowed - self._events_overflowed
+            self._events_overflowed = self.events.overflowed
+            self.event(
+                "blackbox_events_lost",
+                f"{lost} events arrived faster than they could be recorded "
+                f"(event_queue {self.params.event_queue}): not stored",
+                EventLevel.FAULT,
+                lost=lost,
+                lost_total=self._events_overflowed,
+            )
+        for _, ev in self.events.drain():
+            self._submit(stored_event(self.vehicle_id, self.clock.utc(ev.t), ev), now)
+            # the record of second k counts the events of [k - 1, k); one that comes after its
+            # record was written goes to the next one
+            self.event_counts[max(math.floor(ev.t) + 1, self.next_k)] += 1
+        while self.next_k <= now:
+            k = self.next_k
+            record = build_record(
+                self.vehicle_id,
+                self.clock.utc(k),
+                k,
+                self.snapshot(now),
+                self.frame,
+                self.sensor_min_hz,
+                self.event_counts.pop(k, 0),
+            )
+            self._submit(record, now)
+            if self.params.fleet_memory_s > 0:
+                self.memory.append(record)
+            self.published.put(BlackboxRecord(t=float(k), record=record))
+            self.next_k = k + 1
+        self._publish_notices()
+
+    @service("blackbox/records")
+    def _records(self, request: RecordRange) -> RecordBatch:
+        wanted = [r for r in self.memory if request.start_epoch_s <= int(r.time.timestamp()) < request.end_epoch_s]
+        oldest = int(self.memory[0].time.timestamp()) if self.memory else None
+        return RecordBatch(t=self.clock.now(), records=wanted, oldest_epoch_s=oldest)
+
+    def snapshot(self, now: float) -> Snapshot:
+        window = self.params.sensor_window_s
+        return Snapshot(
+            pose=self.pose.fresh(now),
+            car=self.car.fresh(now),
+            controller=self.controller.fresh(now),
+            supervisor=self.supervisor.fresh(now),
+            awareness=self.awareness.fresh(now),
+            mission=self.mission.fresh(now),
+            corrections=self.corrections.fresh(now),
+            fix=self.fix.fresh(now),
+            scores={name: float(msg.score) for name, sub in self.scores.items() if (msg := sub.fresh(now)) is not None},
+            sensor_rates={name: sub.rate_hz(window, now) for name, sub in self.sensors.items()},
+        )
+
+    def _submit(self, item: Item, now: float) -> None:
+        if self.writer.submit(item):
+            return
+        # the writer is stuck (a store call that does not return) and its queue is full
+        self.lost += 1
+        if now - self._last_lost_event >= 10.0:
+            self._last_lost_event = now
+            self.event(
+                "blackbox_queue_overflow",
+                f"black-box writer queue full: {self.lost} items lost so far",
+                EventLevel.FAULT,
+                lost=self.lost,
+            )
+
+    def _publish_notices(self) -> None:
+        for n in self.writer.take_notices():
+            self.event(n.kind, n.message, n.level, **n.data)
+
+    def teardown(self) -> None:
+        writer = getattr(self, "writer", None)
+        if writer is None:
+            return
+        writer.close(self.params.shutdown_flush_s)
+        self._publish_notices()
+        self.log.info("%s", writer.stopped_summary(self.lost))
