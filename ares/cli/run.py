@@ -161,7 +161,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     if not args.headless:
         return int(stack.run(args) or 0)
-    from ares.tools import headless
+    from ares.app import headless
 
     return int(stack.run(args, headless.drive) or 0)
 
