@@ -40,18 +40,7 @@ import math
 from dataclasses import dataclass, field
 from enum import Enum
 
-from ares.core.config import Params, param
-
-ACTIONS = (
-    "STOP",
-    "FULL_STOP",
-    "OPENING_DOORS",
-    "TAKEOFF_RAMP",
-    "PICKUP_RAMP",
-    "CLOSING_DOORS",
-    "START_MEDIA",
-    "NEXT_POI",
-)
+from ares.core.config import POI_ACTIONS, Params, param
 
 
 class MissionState(str, Enum):
@@ -124,9 +113,9 @@ class Mission:
             return False, "refused: a goal needs at least one POI (or to be a drive)"
         if pois and drive:
             return False, "refused: a drive goal has no POIs"
-        bad = [a for poi in pois for a in poi.actions if a not in ACTIONS]
+        bad = [a for poi in pois for a in poi.actions if a not in POI_ACTIONS]
         if bad:
-            return False, f"refused: unknown actions {sorted(set(bad))} (known: {', '.join(ACTIONS)})"
+            return False, f"refused: unknown actions {sorted(set(bad))} (known: {', '.join(POI_ACTIONS)})"
         if not ready_to_move(body):
             return False, "refused: the doors must be closed and the ramp stowed first"
         if self.state in ACTIVE:

@@ -57,7 +57,9 @@ from ares.core.config.run import (
     write_run_config,
 )
 from ares.core.config.tour import (
+    POI_ACTIONS,
     VERGE_KINDS,
+    PoiAction,
     TourCorner,
     TourDescription,
     TourElevation,
@@ -120,6 +122,8 @@ __all__ = [
     "TourElevation",
     "TourStretch",
     "TourPoi",
+    "PoiAction",
+    "POI_ACTIONS",
     "TourZone",
     "VergeKind",
     "VERGE_KINDS",

@@ -3,7 +3,7 @@ verges, POIs and their actions, RTK-loss zones, intersections, elevation)."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, get_args
 
 from ares.core.config.base import Params, load_yaml, named_file, param, validated
 
@@ -24,21 +24,25 @@ class TourStretch(Params):
     width_m: float = param(unit="m", gt=0)
 
 
+# A POI's actions, in the order the mission runs them (the paper's action state machine, Fig. 7):
+# stop, hold, open, ramp out, ramp in, close, media, set off. NEXT_POI comes last: it ends the POI.
+PoiAction = Literal[
+    "STOP",
+    "FULL_STOP",
+    "OPENING_DOORS",
+    "TAKEOFF_RAMP",
+    "PICKUP_RAMP",
+    "CLOSING_DOORS",
+    "START_MEDIA",
+    "NEXT_POI",
+]
+POI_ACTIONS: tuple[str, ...] = get_args(PoiAction)
+
+
 class TourPoi(Params):
     name: str
     s: float = param(unit="m", ge=0)
-    actions: list[
-        Literal[
-            "STOP",
-            "FULL_STOP",
-            "OPENING_DOORS",
-            "TAKEOFF_RAMP",
-            "PICKUP_RAMP",
-            "CLOSING_DOORS",
-            "NEXT_POI",
-            "START_MEDIA",
-        ]
-    ] = param(factory=list)
+    actions: list[PoiAction] = param(factory=list)
 
 
 class TourZone(Params):
