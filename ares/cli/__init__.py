@@ -1,73 +1,117 @@
 """The `ares` command line.
 
-    ares run [--headless] [--manual] [--laps N] [--speed X|max] [--config FILE] [--route FILE]
-             [--vehicle NAME] [--passengers N] [--vehicle-id ID] [--router ENDPOINT] [--run-dir DIR]
-             [--store URI] [--seconds S] [--controller auto|mpc|rrc|pure_pursuit] [--scenario NAME|FILE]
-             [--wire] [--vehicle-io FILE] [--record [FILE.mcap]] [--foxglove [[HOST:]PORT]]
-    ares compare [--controllers mpc,pure_pursuit] [--route R] [--vehicle V] [--scenario S] [--laps N|--seconds S]
-                                   the same headless run with each controller, figures side by side, and a picture
+    ares run [--headless] [--manual] [--laps N] [--speed X|max|paced] [--config FILE] [--route NAME|FILE]
+             [--scenario NAME|FILE] [--mission tour|drive|none] [--controller auto|mpc|rrc|pure_pursuit] [--wire]
+             [--vehicle-io FILE] [--vehicle NAME] [--passengers N] [--vehicle-id ID] [--router ENDPOINT]
+             [--listen ENDPOINT] [--vehicle-cpus LIST] [--run-dir DIR] [--api-port PORT] [--store URI]
+             [--fleet N] [--seconds S] [--record [FILE.mcap]] [--foxglove [[HOST:]PORT]]
+                                   the whole stack (simulated shuttle, embedded router), or a headless run
     ares node NAME                 run one process of the stack in the foreground
-    ares describe [NODE] [--json|--markdown]
-                                   each process's inputs, outputs, services, parameters; the topic graph
+    ares compare [--controllers LIST] [--route NAME|FILE] [--vehicle NAME] [--scenario NAME|FILE] [--laps N]
+                 [--mission tour|drive] [--seconds S] [--config FILE] [--out PNG] [--json]
+                                   the same headless run with each controller, figures side by side, and a picture
+    ares describe [NODE] [--json|--markdown|--architecture] [--config FILE]
+                                   each process's inputs, outputs, services, parameters; the topic graph;
+                                   docs/nodes.md (--markdown), docs/architecture.md (--architecture)
     ares config check FILE...      validate configuration files (exit 2 naming the file and the key)
-    ares config show [FILE...]     the merged, validated configuration, every key commented
+    ares config show [FILE...] [--json]
+                                   the merged, validated configuration, every key commented
     ares replay check|update FILE...
                                    process replay of recorded node inputs against their outputs
-    ares replay FILE.mcap [--node NAME] [--speed X|max] [--info] [--listen EP | --router EP]
+    ares replay FILE.mcap [--node NAME] [--speed X|max] [--info] [--json] [--listen ENDPOINT | --router ENDPOINT]
                                    an MCAP recording of the bus: played into a bus, one process replayed
                                    against its recorded outputs, or its channels listed
-    ares record [KEY ...] [--out FILE.mcap] [--seconds S]
-                                   the running stack's bus to MCAP (opens in Foxglove; docs/recording.md)
-    ares calibrate odometry        re-run the experiment that chose the odometry score's a, b, c
-    ares calibrate lidars [--vehicle NAME] [--seed S] [--offset-m M] [--offset-deg D] [--write PATH] [--json]
+    ares calibrate odometry [--laps N] [--seed S]
+                                   re-run the experiment that chose the odometry score's a, b, c
+    ares calibrate lidars [--vehicle NAME] [--seed S] [--offset-m M] [--offset-deg DEG] [--write PATH] [--json]
                                    find the LiDARs' extrinsics against each other in a simulated warehouse
-    ares topics [--seconds S]      keys seen under ares/<vehicle_id>/**, rates, schemas, live processes
-    ares echo KEY [--count N] [--seconds S]
+    ares calibrate road [--samples N] [--seed S] [--write PATH] [--json]
+                                   re-run the search that chose road detection's β (docs/road_detection.md)
+    ares calibrate rrc-view [--seed S] [--json]
+                                   where road reactive control reads the road at the vehicle (docs/control.md)
+    ares topics [--seconds S] [--json] [--router ENDPOINT] [--vehicle-id ID]
+                                   keys seen under ares/<vehicle_id>/**, rates, schemas, live processes
+    ares echo KEY [--count N] [--seconds S] [--router ENDPOINT] [--vehicle-id ID]
                                    print messages on a topic, one JSON object per line
-    ares driver button|throttle|brake|steer|release [VALUE] [--duration S]
+    ares driver button|throttle|brake|steer|release [VALUE] [--duration S] [--router ENDPOINT] [--vehicle-id ID]
                                    act as the simulated shuttle's driver
-    ares auto                      ask the drive-by-wire bridge for Automatic mode
-    ares mission start [POI ...] [--drive] | pause | resume | cancel | status [--operator NAME]
+    ares auto [--router ENDPOINT] [--vehicle-id ID]
+                                   ask the drive-by-wire bridge for Automatic mode
+    ares record [KEY ...] [--out FILE.mcap] [--seconds S] [--compression zstd|lz4|none] [--no-views]
+                [--router ENDPOINT] [--vehicle-id ID]
+                                   the running stack's bus to MCAP (opens in Foxglove; docs/recording.md)
+    ares mission start [POI ...] [--drive] [--repeat] | pause | resume | cancel | status [--operator NAME]
+                 [--seconds S] [--router ENDPOINT] [--vehicle-id ID]
                                    the mission manager's action: a goal of POIs (all of the route's if none
                                    named), a drive without stops, pause, resume, cancel, the feedback
     ares bench bus [--json] [--seconds S] [--mode peer|client]
+                                   publish -> subscribe latency and throughput between two processes
     ares bench supervisor [--json] [--rounds N]
+                                   how fast a killed, frozen or hung process is noticed and restarted
+    ares bench path [--json]       KD-tree build, path match and UKF step times (in-process)
+    ares bench perception [--json] [--frames N] [--repeats N] [--reference] [--scan FILE]
+                                   LiDAR pipeline stage times, the simulated LiDARs' ray casting (in-process);
+                                   --reference: the ground stage beside Patchwork++ on KITTI-like scans
+    ares bench mpc [--json] [--solves N] [--vehicle NAME]
+                                   the MPC's solve times in closed loop round the tour (in-process)
+    ares bench obstacle-zone [--json] [--step M] [--speed MPS]
+                                   the obstacle area's false stops in the narrow lane, trapezoid vs rectangle
+    ares bench blackbox [--json] [--seconds S]
+                                   store ingest and hour query, latest-state API req/s over HTTPS
+    ares bench live [--json] [--browsers N] [--seconds S] [--config FILE]
+                                   how far the operator page lags the bus, with N browsers (the whole stack)
+    ares bench drivers [--json] [--repeats N] [--seconds S]
+                                   Velodyne decode per rotation (every model), CAN frames per second
+    ares bench stack [--json] [--laps N] [--seconds S] [--config FILE] [--wire] [--vehicle-cpus LIST]
+                     [--speed max|paced|FACTOR] [--profile DIR]
+                                   a lap of the whole stack: speed-up, CPU per process, perception and MPC
+                                   times, bus load, LiDAR-to-command lag; py-spy flame graphs (--profile)
     ares route import FILE -o ROUTE [--format auto|csv|nmea] [--spacing M] [--strict]
                                    build a route file from a CSV of x,y[,z] or an NMEA log
-    ares route record FILE [--seconds S]
+    ares route record FILE [--seconds S] [--router ENDPOINT] [--vehicle-id ID]
                                    write the NMEA sentences of the running stack's receiver to FILE
     ares route profile ROUTE [--vehicle NAME] [--out FILE.png|svg]
                                    draw a route's speed profile and its single-speed sections
-    ares bench path [--json]       KD-tree build, path match and UKF step times (in-process)
-    ares bench perception [--json] [--frames N] [--repeats N]
-                                   LiDAR pipeline stage times, the simulated LiDARs' ray casting (in-process)
-    ares bench blackbox [--json]   store ingest and hour query, latest-state API req/s over HTTPS
-    ares bench drivers [--json] [--repeats N] [--seconds S]
-                                   Velodyne decode per rotation (VLP-16, HDL-64E), CAN frames per second
+    ares route coverage [--store URI] [--vehicle-id ID] [--config FILE] [--route ROUTE] [--out PNG]
+                                   where along the route RTK corrections and an RTK fix are to be had (the
+                                   simulated receiver, or a run's black box), and the share covered
     ares api [--host H] [--port P] [--store URI] [--insecure-http]
                                    serve the black box's REST API (HTTPS; self-signed certificate if none configured)
-    ares users add NAME --role ROLE [--store URI]
+    ares users add NAME --role auditor|operator|fleet|admin [--store URI]
                                    add an API user; the password is read from stdin (asked twice on a terminal)
     ares users list [--store URI] [--json]
-    ares perception scan FILE [--sensor-height M] [--vehicle NAME] [--out PNG]
-                                   one LiDAR scan (KITTI .bin, .pcd, .ply) through the perception pipeline:
-                                   one JSON line and a top view (exit 2 when the file gives no usable scan)
-    ares deploy certs --fleet-ca DIR --vehicle ID [--fleet-host NAME] [--fleet-endpoint ENDPOINT]
+                                   list the API's users and their roles
+    ares perception scan FILE [--sensor-height M] [--vehicle NAME] [--json] [--out PNG]
+                         [--model VLP-16|HDL-32E|VLP-32C|HDL-64E|VLS-128] [--frame N] [--calibration YAML]
+                         [--port PORT] [--fov START END]
+                                   one LiDAR scan (KITTI .bin, .pcd, .ply) or one rotation of a Velodyne
+                                   capture (.pcap, with --model) through the perception pipeline: one JSON
+                                   line and a top view (exit 2 when the file gives no usable scan)
+    ares deploy certs --fleet-ca DIR --vehicle ID [--fleet-host NAME] [--api-host NAME] [--fleet-endpoint ENDPOINT]
                                    the fleet CA (made if absent), a vehicle's certificate, credentials and router config
     ares deploy router-config fleet|vehicle [--vehicles ID,ID] [-o FILE]
                                    a router's config, as deploy/ holds it
-    ares deploy router --config FILE [--secrets DIR] [--listen EP] [--connect EP]
+    ares deploy router --config FILE [--secrets DIR] [--listen ENDPOINT] [--connect ENDPOINT]
+                       [--report-refusals-as ID]
                                    run a router from a deployment's JSON5 file (stands in for zenohd)
-    ares fleet serve [--config FILE] [--router EP] [--store URI] [--api-port P] [--run-dir DIR]
+    ares deploy rehearse [--json] [--light] [--partition-s S] [--work DIR]
+                                   as root: the fleet and two vehicles across network namespaces, a
+                                   partition, the refusals, a restart (docs/deploy.md)
+    ares deploy check DIR [--json] a deployment folder checked before `docker compose up` (compose file,
+                                   secrets, certificates, ARES configs)
+    ares fleet serve [--config FILE] [--router ENDPOINT] [--store URI] [--api-port PORT] [--run-dir DIR]
                                    the fleet server: every vehicle's black box in the fleet's store, its API
-    ares soak [--hours H] [--faults N] [--seed S] [--json] [--config FILE] [--out DIR] | --summarise DIR
-                                   the tour at --speed max with faults injected from a seeded plan (docs/reliability.md)
-    ares sim serve --wire-dir DIR [--config FILE] [--route R] [--listen EP] [--run-dir DIR]
+    ares sim serve --wire-dir DIR [--config FILE] [--route NAME|FILE] [--listen ENDPOINT] [--run-dir DIR]
                                    the simulated shuttle alone behind its wires, for a run with simulate: false
+    ares soak [--hours H] [--faults N] [--seed S] [--json] [--config FILE] [--route NAME|FILE] [--out DIR]
+              [--listen ENDPOINT] [--api-port PORT] [--lead S] [--kinds K,K] | --summarise DIR | --resume DIR
+                                   the tour at --speed max with faults injected from a seeded plan; a stopped
+                                   soak summarised or gone on with (docs/reliability.md)
 
 `topics` and `echo` connect in client mode to the running stack's router (the `bus.router`
 endpoint of the run configuration, or --router) and look under the configured vehicle id (or
 --vehicle-id). A client session fails at once when no router listens there.
+tests/test_cli_usage.py holds this text to the parsers: every command, its every option.
 """
 
 from __future__ import annotations
