@@ -107,32 +107,20 @@ class Ahead:
 
 
 class PathIndex:
-    """A route with a KD-tree over its (x, y) poses, answering reachable-nearest queries.
+    """A route with a KD-tree over its (x, y) poses, answering reachable-nearest queries, with the
+    search settings of the path_manager section (`PathManagerParams`; its defaults when none given)."""
 
-    The keyword defaults are the values of `path_manager:` in stack.yaml; from_config reads
-    them from there.
-    """
-
-    def __init__(
-        self,
-        route: Route,
-        speed_limit: np.ndarray | None = None,
-        *,
-        radius_m: float = 5.0,
-        fallback_radius_m: float = 50.0,
-        max_heading_error_rad: float = 1.0,
-        window_behind_m: float = 5.0,
-        window_ahead_m: float = 15.0,
-    ):
+    def __init__(self, route: Route, params: PathManagerParams | None = None, speed_limit: np.ndarray | None = None):
+        params = PathManagerParams() if params is None else params
         self.route = route
         self.closed = route.closed
         self.length = route.length
         self.n = len(route)
-        self.radius_m = float(radius_m)
-        self.fallback_radius_m = float(fallback_radius_m)
-        self.cos_heading_limit = math.cos(float(max_heading_error_rad))
-        self.window_behind_m = float(window_behind_m)
-        self.window_ahead_m = float(window_ahead_m)
+        self.radius_m = float(params.radius_m)
+        self.fallback_radius_m = float(params.fallback_radius_m)
+        self.cos_heading_limit = math.cos(float(params.max_heading_error_rad))
+        self.window_behind_m = float(params.window_behind_m)
+        self.window_ahead_m = float(params.window_ahead_m)
         self.tree = cKDTree(np.column_stack([route.x, route.y]))
         if speed_limit is None:
             speed_limit = np.zeros(self.n)  # no profile given: nothing ahead may be driven
@@ -157,18 +145,6 @@ class PathIndex:
         # poses: equally near poses are taken in that order, whichever search found them
         self._kd_order = np.empty(self.n, dtype=np.intp)
         self._kd_order[self.tree.indices] = np.arange(self.n)
-
-    @classmethod
-    def from_params(cls, route: Route, params: PathManagerParams, speed_limit: np.ndarray | None = None) -> PathIndex:
-        return cls(
-            route,
-            speed_limit,
-            radius_m=params.radius_m,
-            fallback_radius_m=params.fallback_radius_m,
-            max_heading_error_rad=params.max_heading_error_rad,
-            window_behind_m=params.window_behind_m,
-            window_ahead_m=params.window_ahead_m,
-        )
 
     # ---- matching ---------------------------------------------------------------------------
     def match(
@@ -341,7 +317,7 @@ class PathTracker:
 
     def __init__(self, route: Route, params: PathManagerParams, speed_limit: np.ndarray | None = None):
         self.route = route
-        self.index = PathIndex.from_params(route, params, speed_limit)
+        self.index = PathIndex(route, params, speed_limit)
         self.ahead_length_m = params.ahead_length_m
         self.ahead_step_m = params.ahead_step_m
         self.force_odometry_zones = frozenset(params.force_odometry_zones)

@@ -33,7 +33,7 @@ def tour():
 
 @pytest.fixture(scope="module")
 def index(tour):
-    return PathIndex.from_params(tour, PARAMS, speed_limits(tour, SpeedProfileParams(), VEHICLE))
+    return PathIndex(tour, PARAMS, speed_limits(tour, SpeedProfileParams(), VEHICLE))
 
 
 def offset_pose(route, s, offset=0.0, dyaw=0.0):
@@ -90,7 +90,7 @@ def test_at_the_crossing_the_hint_keeps_the_match_on_its_pass(index, tour, own, 
             assert m.search == "tracked" and m.lap == lap
             assert m.s == pytest.approx(own, abs=0.05) and m.xte == pytest.approx(offset, abs=1e-3)
     # the hint alone is enough: with no heading test at all, the window still picks the pass
-    blind = PathIndex.from_params(tour, PARAMS.model_copy(update={"max_heading_error_rad": math.pi}))
+    blind = PathIndex(tour, PARAMS.model_copy(update={"max_heading_error_rad": math.pi}))
     x, y, _ = offset_pose(tour, own, 0.3)
     other_yaw = tour.point_at(other)[3]
     m = blind.match(x, y, other_yaw, s_hint=own - 0.5)
@@ -126,7 +126,7 @@ def test_a_drive_round_the_tight_corners_is_continuous(index, tour):
 
 def test_on_a_hairpin_the_match_never_jumps_to_the_other_leg():
     route = hairpin_route(gap=5.0)
-    index = PathIndex.from_params(route, PARAMS)
+    index = PathIndex(route, PARAMS)
     leg_end = 40.0
     back_start = leg_end + math.pi * 2.5
     # 3.2 m inside the first leg is only 1.8 m from the second: still the first leg
@@ -247,7 +247,7 @@ def test_ahead_wraps_on_a_closed_route(index, tour):
 
 def test_ahead_stops_at_the_end_of_an_open_route(tmp_path):
     route = straight_route(tmp_path, 100.0)
-    index = PathIndex(route, np.linspace(3.0, 0.0, len(route)))
+    index = PathIndex(route, speed_limit=np.linspace(3.0, 0.0, len(route)))
     a = index.ahead(route.index_at(85.2), 30.0, 0.5, s=85.2)
     assert a.s[0] == pytest.approx(85.2) and a.s[-1] == pytest.approx(route.length)
     assert len(a.s) == 31 and np.all(np.diff(a.s) > 0)
@@ -326,7 +326,7 @@ def as_tuple(m):
 def test_match_returns_what_the_reference_returns(route, params, start, laps, on_grid, queries):
     """on_grid puts the vehicle on a 0.5 m grid: on a lattice route, at exactly equal distances
     from several poses, or exactly at the radius."""
-    index, reference = PathIndex(route, **params), ReferencePathIndex(route, **params)
+    index, reference = PathIndex(route, PARAMS.model_copy(update=params)), ReferencePathIndex(route, **params)
     s = start * route.length + (laps * route.length if route.closed else 0.0)
     progress = None  # the reference's last match, the hint as the path manager keeps it
     for step, offset, dyaw, heading, hint_kind, elsewhere, radius in queries:
@@ -360,7 +360,7 @@ def test_the_index_takes_the_sections_values():
             "max_heading_error_rad": 0.5,
         }
     )
-    index = PathIndex.from_params(straight_route_in_memory(), params)
+    index = PathIndex(straight_route_in_memory(), params)
     assert (index.radius_m, index.fallback_radius_m, index.window_behind_m, index.window_ahead_m) == (
         2.0,
         20.0,
@@ -370,11 +370,9 @@ def test_the_index_takes_the_sections_values():
     assert index.cos_heading_limit == pytest.approx(math.cos(0.5))
 
 
-def test_the_keyword_defaults_of_the_index_are_the_sections_defaults():
-    # PathIndex keeps its own keyword defaults for the benches and the reference comparison;
-    # they must not drift from the configuration's
+def test_an_index_built_without_params_takes_the_sections_defaults():
     built = PathIndex(straight_route_in_memory())
-    configured = PathIndex.from_params(straight_route_in_memory(), PARAMS)
+    configured = PathIndex(straight_route_in_memory(), PARAMS)
     for attr in ("radius_m", "fallback_radius_m", "cos_heading_limit", "window_behind_m", "window_ahead_m"):
         assert getattr(built, attr) == getattr(configured, attr), attr
 

@@ -31,7 +31,7 @@ def tour():
 
 @pytest.fixture(scope="module")
 def tour_index(tour):
-    return PathIndex.from_params(tour, PARAMS, speed_limits(tour, SPEED, VEHICLE))
+    return PathIndex(tour, PARAMS, speed_limits(tour, SPEED, VEHICLE))
 
 
 def pursue(pp, index, x, y, yaw, v, hint=None):
@@ -90,7 +90,7 @@ def test_on_a_circle_pure_pursuit_commands_its_curvature():
     r = 40.0
     a = np.linspace(0, 2 * math.pi, 2000, endpoint=False)
     route = Route("circle", r * np.cos(a), r * np.sin(a), np.zeros_like(a), True, np.full(a.shape, 6.0))
-    index = PathIndex.from_params(route, PARAMS, np.full(len(route), 2.0))
+    index = PathIndex(route, PARAMS, np.full(len(route), 2.0))
     pp = PurePursuit(CONTROLLER, VEHICLE)
     _, cmd = pursue(pp, index, r, 0.0, math.pi / 2, 2.0)
     assert cmd.kappa == pytest.approx(1 / r, rel=0.02)
@@ -152,7 +152,7 @@ def test_an_open_route_is_finished_half_a_metre_before_its_end(tmp_path):
     path = tmp_path / "line.csv"
     path.write_text("0,0\n50,0\n")
     route = Route.from_csv(path)
-    index = PathIndex.from_params(route, PARAMS, speed_limits(route, SPEED, VEHICLE))
+    index = PathIndex(route, PARAMS, speed_limits(route, SPEED, VEHICLE))
     pp = PurePursuit(CONTROLLER, VEHICLE)
     _, near = pursue(pp, index, 49.0, 0.1, 0.0, 0.5)
     assert not near.finished and near.kappa < 0  # still steering onto the line, aiming at the end
@@ -164,7 +164,7 @@ def test_the_finish_distance_is_a_parameter(tmp_path):
     path = tmp_path / "line.csv"
     path.write_text("0,0\n50,0\n")
     route = Route.from_csv(path)
-    index = PathIndex.from_params(route, PARAMS, speed_limits(route, SPEED, VEHICLE))
+    index = PathIndex(route, PARAMS, speed_limits(route, SPEED, VEHICLE))
     pp = PurePursuit(CONTROLLER.model_copy(update={"finish_distance_m": 2.0}), VEHICLE)
     _, done = pursue(pp, index, 48.5, 0.1, 0.0, 0.5)
     assert done.finished and done.v == 0.0
@@ -236,7 +236,7 @@ def test_controller_follows_the_path_manager_and_stops_without_fresh_input(run_c
     # the same command the geometry gives without the bus
     _, alone = pursue(
         PurePursuit(CONTROLLER, VEHICLE),
-        PathIndex.from_params(tour, PARAMS, speed_limits(tour, SPEED, VEHICLE)),
+        PathIndex(tour, PARAMS, speed_limits(tour, SPEED, VEHICLE)),
         ox,
         oy,
         yaw,
