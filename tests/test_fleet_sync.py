@@ -12,11 +12,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ares.app import run_config
+from ares.core import config
 from ares.core.clock import ManualClock
 from ares.core.membus import MemoryNetwork
+from ares.core.messages import EventLevel, StoredEvent
 from blackbox.fleet.sync import FleetLedger, FleetSyncParams, epoch_of
 from blackbox.fleet.sync_node import FleetSync
+from blackbox.register.recorder import spool_path
 from blackbox.register.recorder_node import Recorder
+from blackbox.register.spool import Spool
+from blackbox.register.store.record_store import StoreSettings
 from blackbox.register.store.sqlite_store import SqliteStore
 from tests.helpers.stack import NO_LIDARS, wait_until
 
@@ -61,8 +66,6 @@ class FleetNetwork(MemoryNetwork):
 
 
 def _cfg(vehicle_id: str, store) -> dict:
-    from ares.core import config
-
     return run_config.build(
         (str(NO_LIDARS),), config.deep_merge({"vehicle_id": vehicle_id}, {"blackbox_store": {"uri": str(store)}})
     )
@@ -138,6 +141,42 @@ def test_a_link_cut_for_60_s_loses_no_second_and_the_fleet_marks_the_vehicle_unr
     assert kinds.count("vehicle_unreachable") == 1 and kinds.count("vehicle_reachable") == 2  # first heard, back
 
 
+def test_the_fleets_teardown_publishes_what_its_writer_said_last(tmp_path):
+    """The writer's last notices (here: a spool left by an earlier run, flushed at start) reach
+    the events even when the node stops before another step would have published them."""
+    clock = ManualClock(utc_epoch=UTC_EPOCH)
+    network = MemoryNetwork("fleet")
+    cfg = _cfg("fleet", tmp_path / "fleet.sqlite")
+    left = Spool(spool_path(FleetSyncParams(), config.section(cfg, "blackbox_store", StoreSettings), "fleet"), 10)
+    left.append(
+        [
+            StoredEvent(
+                vehicle_id="shuttle01",
+                time=datetime.fromtimestamp(UTC_EPOCH, UTC),
+                t=0.0,
+                source="blackbox",
+                kind="left_over",
+                level=EventLevel.INFO,
+                message="from before",
+            )
+        ]
+    )
+    left.close()
+    listener = network.bus("test", clock, vehicle_id="fleet")
+    published = listener.subscribe("events", queue=10)
+    sync = FleetSync(cfg, clock=clock, bus=network.bus("fleet_sync", clock, vehicle_id="fleet"))
+    sync.setup()
+    try:
+        wait_until(lambda: not sync.writer.notices.empty(), 10, "the writer to flush the leftover spool")
+    finally:
+        sync.teardown()  # no step in between: only teardown can publish the notice
+        sync.bus.close()
+    assert [(e.source, e.kind, e.data["flushed"]) for _, e in published.drain()] == [
+        ("fleet_sync", "blackbox_spool_flushed", 1)
+    ]
+    assert [e["kind"] for e in _events(tmp_path / "fleet.sqlite", "shuttle01")] == ["left_over"]
+
+
 def test_the_answer_of_a_recorder_that_no_longer_holds_a_second_leaves_it_on_the_vehicle():
     ledger = FleetLedger(FleetSyncParams())
     ledger.heard("v", 0.0)
@@ -193,12 +232,15 @@ def test_every_second_up_to_the_newest_is_stored_left_on_the_vehicle_or_never_re
     ledger = FleetLedger(FleetSyncParams(backfill_max_s=7))
     ledger.heard("v", 0.0)
     live: set[int] = set()
+    first = arrivals[0]
     for k in arrivals:
-        before = set(live)
         ledger.record("v", k, float(k))
         live.add(k)
-        assert live >= before
-    first, newest = arrivals[0], max(arrivals)
+        # after each arrival the open gaps are the seconds from the first to the newest heard so
+        # far that have not arrived, nothing more (nothing asked for twice) and nothing less
+        open_seconds = {s for start, end in ledger.vehicle("v").gaps for s in range(start, end)}
+        assert open_seconds == set(range(first, max(live) + 1)) - live
+    newest = max(arrivals)
     stored = {k for k in live if k >= first}
     wall = 0.0
     while ledger.open_seconds("v"):

@@ -2,7 +2,8 @@
 
 Every vehicle's records (`blackbox/record`) and events arrive from the fleet router
 (bus.subscribe_fleet) and go to the fleet's store through the same writer as a vehicle's
-recorder (spooled to disk while the store is down). The store is idempotent per vehicle and
+recorder (spooled to disk while the store is down; blackbox.register.blackbox_node: what every black box does
+with its writer, down to publishing its last notices at teardown). The store is idempotent per vehicle and
 second, so a record that arrives twice is stored once. After a lost link the ledger
 (blackbox/fleet/sync.py) asks the vehicle's recorder for the seconds it missed
 (`blackbox/records`, a call the fleet router allows); the calls run on a thread of their own, so
@@ -23,14 +24,13 @@ from datetime import UTC, datetime
 
 from ares.core.bus import ServiceError
 from ares.core.messages import BlackboxRecord, Event, EventLevel, RecordRange, StoredEvent, VehicleRecord
-from ares.core.node import Node
 from blackbox.fleet.sync import FleetLedger, FleetSyncParams, Reachability, epoch_of
-from blackbox.register.recorder import open_configured_store, store_uri, store_writer, stored_event
-from blackbox.register.spool import Item
+from blackbox.register.blackbox_node import BlackboxNode
+from blackbox.register.recorder import open_configured_store, store_uri, stored_event
 from blackbox.register.store.record_store import StoreSettings, StoreUnavailable
 
 
-class FleetSync(Node):
+class FleetSync(BlackboxNode):
     """Every vehicle's black box into the fleet's store: live, gaps filled after a lost link."""
 
     name = "fleet_sync"
@@ -46,17 +46,13 @@ class FleetSync(Node):
         self.ledger = FleetLedger(p)
         self.arrived: queue.SimpleQueue[tuple[str, float, object]] = queue.SimpleQueue()
         self._known_from_store(settings)
-        self.writer = store_writer(p, settings, self.core.vehicle_id)
-        self.writer.start()
+        self.start_writer(settings, self.core.vehicle_id)
         self.asks: queue.SimpleQueue[tuple[str, int, int] | None] = queue.SimpleQueue()
         self.answers: queue.SimpleQueue[tuple[str, list[VehicleRecord] | None, int | None, str]] = queue.SimpleQueue()
         self.asker = threading.Thread(target=self._ask_vehicles, name="fleet-backfill", daemon=True)
         self.asker.start()
         for topic in self.fleet_inputs:
-            self.bus.subscribe_fleet(
-                topic, lambda vehicle_id, _topic, msg: self.arrived.put((vehicle_id, self.wall(), msg))
-            )
-        self.lost = 0
+            self.bus.subscribe_fleet(topic, self._arrived)
         self.log.info("fleet black box to %s", store_uri(settings))
 
     def _arrived(self, vehicle_id: str, _topic: str, msg: object) -> None:
@@ -94,11 +90,11 @@ class FleetSync(Node):
                     self._refused(vehicle_id, f"a record for {record.vehicle_id!r} under ares/{vehicle_id}")
                     continue
                 self.ledger.record(vehicle_id, int(epoch_of(record.time)), record.t)
-                self._submit(record)
+                self.submit(record)
             elif isinstance(msg, Event):
                 offset = self.ledger.vehicle(vehicle_id).utc_offset_s
                 stamp = arrived_wall if offset is None else offset + msg.t
-                self._submit(stored_event(vehicle_id, datetime.fromtimestamp(stamp, UTC), msg))
+                self.submit(stored_event(vehicle_id, datetime.fromtimestamp(stamp, UTC), msg))
         while True:
             try:
                 vehicle_id, records, oldest, error = self.answers.get_nowait()
@@ -110,7 +106,7 @@ class FleetSync(Node):
                 continue
             for record in records:
                 if record.vehicle_id == vehicle_id:
-                    self._submit(record)
+                    self.submit(record)
             self.ledger.answered(vehicle_id, {int(epoch_of(r.time)) for r in records}, oldest)
             ledger = self.ledger.vehicle(vehicle_id)
             self.log.info(
@@ -124,7 +120,7 @@ class FleetSync(Node):
             self._reachability(change)
         for ask in self.ledger.requests(wall):
             self.asks.put(ask)
-        self._publish_notices()
+        self.publish_notices()
 
     def _ask_vehicles(self) -> None:
         """The backfill calls, one at a time, off the loop."""
@@ -156,7 +152,7 @@ class FleetSync(Node):
         self.log.log(20 if change.reachable else 30, "%s", message)
         now_wall = self.wall()
         stack_t = now_wall - ledger.utc_offset_s if ledger.utc_offset_s is not None else 0.0
-        self._submit(
+        self.submit(
             StoredEvent(
                 vehicle_id=change.vehicle_id,
                 time=datetime.fromtimestamp(now_wall, UTC),
@@ -172,26 +168,8 @@ class FleetSync(Node):
     def _refused(self, vehicle_id: str, what: str) -> None:
         self.event("fleet_record_refused", f"{what}: not stored", EventLevel.WARNING, vehicle=vehicle_id)
 
-    def _submit(self, item: Item) -> None:
-        if not self.writer.submit(item):
-            self.lost += 1
-            if self.lost == 1 or self.lost % 1000 == 0:
-                self.event(
-                    "blackbox_queue_overflow",
-                    f"fleet black-box writer queue full: {self.lost} items lost so far",
-                    EventLevel.FAULT,
-                    lost=self.lost,
-                )
-
-    def _publish_notices(self) -> None:
-        for n in self.writer.take_notices():
-            self.event(n.kind, n.message, n.level, **n.data)
-
     def teardown(self) -> None:
         asks = getattr(self, "asks", None)
         if asks is not None:
             asks.put(None)
-        writer = getattr(self, "writer", None)
-        if writer is not None:
-            writer.close(self.params.shutdown_flush_s)
-            self.log.info("%s", writer.stopped_summary(self.lost))
+        super().teardown()

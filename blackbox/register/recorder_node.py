@@ -3,7 +3,7 @@
 What a record holds, when it is written and how the writer survives a store that is down are
 `blackbox.register.recorder`'s (its docstring says it all); this node latches the inputs, builds a record
 whenever stack time crosses a whole second, hands records and events to the writer thread and
-turns the writer's notices into events.
+turns the writer's notices into events (both as every black box does: blackbox.register.blackbox_node).
 
 For the fleet: each record is also published (`blackbox/record`) as it is handed to the writer,
 and the last `fleet_memory_s` of them are kept in memory, from which `blackbox/records` answers
@@ -19,21 +19,20 @@ import math
 from ares.core import topics
 from ares.core.geodesy import LocalFrame
 from ares.core.messages import BlackboxRecord, EventLevel, RecordBatch, RecordRange, VehicleRecord
-from ares.core.node import Input, InputGroup, Node, Output, service
+from ares.core.node import Input, InputGroup, Output, service
+from blackbox.register.blackbox_node import BlackboxNode
 from blackbox.register.recorder import (
     SENSOR_TOPICS,
     RecorderParams,
     Snapshot,
     build_record,
     store_uri,
-    store_writer,
     stored_event,
 )
-from blackbox.register.spool import Item
 from blackbox.register.store.record_store import StoreSettings
 
 
-class Recorder(Node):
+class Recorder(BlackboxNode):
     """The event register: a record of the vehicle's state per second, every event as it happens."""
 
     name = "blackbox"
@@ -58,17 +57,12 @@ class Recorder(Node):
         self.vehicle_id = self.core.vehicle_id
         self.frame = LocalFrame(self.core.origin_utm)
         self.sensor_min_hz = p.sensor_min_hz.model_dump()
-        self.writer = store_writer(p, self.store_settings, self.vehicle_id)
-        if self.writer.spool.pending:
-            self.log.info("%d items left in %s: flushing them first", len(self.writer.spool), self.writer.spool.path)
-        self.writer.start()
+        self.start_writer(self.store_settings, self.vehicle_id)
 
         # the first second crossed from now on; a restart in the same run picks up from here
         self.next_k = math.floor(self.clock.now()) + 1
         self.event_counts: collections.Counter[int] = collections.Counter()
         self.memory: collections.deque[VehicleRecord] = collections.deque(maxlen=max(p.fleet_memory_s, 1))
-        self.lost = 0
-        self._last_lost_event = -math.inf
         self._events_overflowed = 0
         self.log.info(
             "recording %s to %s (spool %s)", self.vehicle_id, store_uri(self.store_settings), self.writer.spool.path
@@ -87,7 +81,7 @@ class Recorder(Node):
                 lost_total=self._events_overflowed,
             )
         for _, ev in self.events.drain():
-            self._submit(stored_event(self.vehicle_id, self.clock.utc(ev.t), ev), now)
+            self.submit(stored_event(self.vehicle_id, self.clock.utc(ev.t), ev))
             # the record of second k counts the events of [k - 1, k); one that comes after its
             # record was written goes to the next one
             self.event_counts[max(math.floor(ev.t) + 1, self.next_k)] += 1
@@ -102,12 +96,12 @@ class Recorder(Node):
                 self.sensor_min_hz,
                 self.event_counts.pop(k, 0),
             )
-            self._submit(record, now)
+            self.submit(record)
             if self.params.fleet_memory_s > 0:
                 self.memory.append(record)
             self.published.put(BlackboxRecord(t=float(k), record=record))
             self.next_k = k + 1
-        self._publish_notices()
+        self.publish_notices()
 
     @service("blackbox/records")
     def _records(self, request: RecordRange) -> RecordBatch:
@@ -129,29 +123,3 @@ class Recorder(Node):
             scores={name: float(msg.score) for name, sub in self.scores.items() if (msg := sub.fresh(now)) is not None},
             sensor_rates={name: sub.rate_hz(window, now) for name, sub in self.sensors.items()},
         )
-
-    def _submit(self, item: Item, now: float) -> None:
-        if self.writer.submit(item):
-            return
-        # the writer is stuck (a store call that does not return) and its queue is full
-        self.lost += 1
-        if now - self._last_lost_event >= 10.0:
-            self._last_lost_event = now
-            self.event(
-                "blackbox_queue_overflow",
-                f"black-box writer queue full: {self.lost} items lost so far",
-                EventLevel.FAULT,
-                lost=self.lost,
-            )
-
-    def _publish_notices(self) -> None:
-        for n in self.writer.take_notices():
-            self.event(n.kind, n.message, n.level, **n.data)
-
-    def teardown(self) -> None:
-        writer = getattr(self, "writer", None)
-        if writer is None:
-            return
-        writer.close(self.params.shutdown_flush_s)
-        self._publish_notices()
-        self.log.info("%s", writer.stopped_summary(self.lost))
