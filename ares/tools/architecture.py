@@ -35,8 +35,16 @@ class Layer:
 # from the top down, as import-linter's layers contract lists them
 LAYERS = (
     Layer(("ares.cli",), "the command line", "imports anything below"),
-    Layer(("ares.tools",), "tools: benches, harnesses, evaluations, figures", "import the application and below"),
-    Layer(("ares.app",), "the application: process table, supervisor, stack runner", "imports nodes and core"),
+    Layer(
+        ("ares.tools", "ares.deploy"),
+        "tools (benches, experiments, the soak, figures) and deployment (PKI, routers, rehearsals)",
+        "import the application and below, never each other",
+    ),
+    Layer(
+        ("ares.app",),
+        "the application: process table, supervisor, the run (interactive, headless) and its evaluations",
+        "imports nodes and core",
+    ),
     Layer(
         ("perception", "control", "managers", "blackbox", "drivers", "simulator"),
         "nodes: one process each, talking over the bus (drivers: the devices' wire formats)",
