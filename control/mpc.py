@@ -194,7 +194,7 @@ class Mpc:
         self.max_speed = vehicle.max_speed_mps
         self.max_kappa = vehicle.max_curvature
         steering = vehicle.actuators.steering
-        self.wheel_rate = wheel_rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio  # rad/s
+        self.wheel_rate = wheel_rate = vehicle.max_wheel_rate_rad_s
         self.max_delta_step = wheel_rate * p.step_s
         # between two solves the wheels turn only a cycle's worth: a first step asking for more would
         # be cut short by the actuator, and the next solve would

@@ -112,7 +112,7 @@ class MpcNode(Node):
                 )
             )
             return
-        delta = math.radians(car.steering_wheel_deg) / self.vehicle.steering_ratio if car is not None else 0.0
+        delta = self.vehicle.road_wheel_angle(car.steering_wheel_deg) if car is not None else 0.0
         state = VehicleState(pose.x, pose.y, pose.yaw, pose.v, delta, self._accel)
         cmd = self.mpc.solve(
             state,

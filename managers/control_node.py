@@ -18,9 +18,10 @@ The forwarded speed never exceeds the speed manager's limit where the vehicle is
 Every switch is an event (kind `controller_switch`, with from, to and cause), which the black box
 keeps; control/status says who is in charge and why, every cycle.
 
-Thresholds (docs/control_manager.md): the odometry score is ~1 with RTK and falls below 0.3
-within 1.4 s of losing it (docs/odometry_score.md), so odometry is trusted from 0.8 and kept down
-to 0.5; road detection's confidence is trusted from 0.6 and kept down to 0.4.
+Thresholds (docs/control.md, "The thresholds, from simulated laps"): the odometry score is ~1 with
+RTK and falls below 0.3 within 1.4 s of losing it (docs/odometry_score.md), so odometry is trusted
+from 0.8 and kept down to 0.5; right road detections on grass verges score only 0.07 (p05) to 0.16
+(p50), so road detection's confidence is trusted from 0.15 and kept down to 0.04.
 """
 
 from __future__ import annotations

@@ -63,9 +63,7 @@ class ObstacleManager(Node):
         v = self.vehicle
         allowed = limits.limit_mps if limits is not None else v.max_speed_mps
         speed = 0.0 if car is None else car.speed_mps
-        kappa = (
-            0.0 if car is None else math.tan(math.radians(car.steering_wheel_deg) / v.steering_ratio) / v.wheelbase_m
-        )
+        kappa = 0.0 if car is None else v.curvature_of(car.steering_wheel_deg)
         zone = zone_for(self.params, max(speed, allowed), kappa, v.width_m, self.bumper_m, centre=self._path_ahead(now))
         outline = zone.outline()
         xs, ys = [round(p[0], 3) for p in outline], [round(p[1], 3) for p in outline]

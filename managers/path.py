@@ -77,7 +77,8 @@ class PathManagerParams(Params):
     ahead_length_m: float = param(30.0, "path sent ahead of the match", unit="m", gt=0)
     ahead_step_m: float = param(0.5, "spacing of the poses ahead", unit="m", gt=0)
     force_odometry_zones: list[str] = param(
-        doc="DESIGN §3: odometry control is forced in these zones", factory=lambda: ["intersection", "road_opening"]
+        doc="docs/design.md §3: odometry control is forced in these zones",
+        factory=lambda: ["intersection", "road_opening"],
     )
 
 

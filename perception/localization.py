@@ -151,7 +151,7 @@ class Localizer:
         self._yaw_guess_pending = False  # initialised before any IMU message: heading unknown
         self.yaw_poses = YawFromPoses.from_params(params.yaw_from_poses)
         self.use_float_yaw = params.yaw_from_poses.use_without_rtk
-        self.wheels = WheelOdometry.from_profile(vehicle_profile)
+        self.wheels = WheelOdometry(vehicle_profile)
         self.gyro_var = params.sensors.gyro_var
         self.wheel_speed_var = params.sensors.wheel_speed_var
         self.wheel_yaw_rate_var = params.sensors.wheel_yaw_rate_var

@@ -6,7 +6,7 @@ output, not an error.
 
 Why not pynmea2 alone: it checks the checksum but parses fields lazily, so a sentence with a
 valid checksum and garbage fields "parses" and fails later, or worse yields a plausible number
-(DESIGN §5). Here every field is checked before a sentence is returned, and a line is either a
+(docs/design.md §5). Here every field is checked before a sentence is returned, and a line is either a
 fully valid, frozen sentence or an `NmeaError` whose `reason` is a short machine-readable word
 ("checksum", "framing", "field count", "latitude", "no fix", ...) and whose message names the
 field. Nothing else escapes `parse_sentence`.

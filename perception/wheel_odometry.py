@@ -63,21 +63,13 @@ class WheelReading:
 
 
 class WheelOdometry:
-    def __init__(self, wheelbase_m: float, k_cg: float = 0.5, steering_ratio: float = 40.0):
-        self.wheelbase_m = float(wheelbase_m)
-        self.k_cg = float(k_cg)
-        self.steering_ratio = float(steering_ratio)
+    def __init__(self, profile: VehicleProfile):
+        self.profile = profile
+        self.wheelbase_m = float(profile.wheelbase_m)
+        self.k_cg = float(profile.k_cg)
         # dead-reckoned pose of the reference point (at k_cg), from integrate()
         self.x = self.y = self.yaw = 0.0
         self._t: float | None = None
-
-    @classmethod
-    def from_profile(cls, profile: VehicleProfile) -> WheelOdometry:
-        return cls(profile.wheelbase_m, profile.k_cg, profile.steering_ratio)
-
-    def wheel_angle(self, steering_wheel_deg: float) -> float:
-        """δ = α / steering_ratio."""
-        return math.radians(steering_wheel_deg) / self.steering_ratio
 
     def reference_speed(self, rear_axle_speed: float, delta: float) -> float:
         """Speed of the point at k_cg from the rear-axle speed: v_r / cos β."""
@@ -85,7 +77,7 @@ class WheelOdometry:
 
     def reading(self, t: float, speed_mps: float, steering_wheel_deg: float, pitch: float = 0.0) -> WheelReading:
         """Speed and yaw rate from one CAN frame (and the IMU's pitch for the slope)."""
-        delta = self.wheel_angle(steering_wheel_deg)
+        delta = self.profile.road_wheel_angle(steering_wheel_deg)
         v_rear = speed_mps * math.cos(pitch)
         v_ref = self.reference_speed(v_rear, delta)
         _, _, dyaw = increments(v_ref, 0.0, delta, 1.0, self.k_cg, self.wheelbase_m)  # Δψ per second

@@ -75,12 +75,12 @@ class SteeringActuator:
     error (±0.1° at the wheels).
     """
 
-    def __init__(self, params: SteeringActuatorParams, steering_ratio: float, max_wheel_angle_rad: float):
+    def __init__(self, params: SteeringActuatorParams, limit_deg: float):
         self.dead_time_s = params.dead_time_s
         self.max_rate_deg_s = params.max_rate_deg_s
         self.time_constant_s = params.time_constant_s
         self.stiction_effort = params.stiction_effort
-        self.limit_deg = steering_ratio * math.degrees(max_wheel_angle_rad)
+        self.limit_deg = float(limit_deg)
         self._delay = _TransportDelay(self.dead_time_s)
         self.angle_deg = 0.0
         self.rate_deg_s = 0.0

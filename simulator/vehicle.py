@@ -126,7 +126,7 @@ class VehicleState:
     vertical_accel: float = 0.0  # body bounce over the road (m/s^2), without gravity
     grade: float = 0.0  # slope of the road along the heading, dz/dx (positive uphill)
     steering_wheel_deg: float = 0.0
-    wheel_angle_rad: float = 0.0  # front wheel angle δ = α / steering_ratio
+    wheel_angle_rad: float = 0.0  # front wheel angle δ = α / steering_ratio (VehicleProfile.road_wheel_angle)
     wheel_speed_rad_s: float = 0.0  # driven front wheels: v / (cos δ · r), DBW eq. 14
     s: float = 0.0  # progress along the route (m)
     odometer: float = 0.0  # distance travelled (m)
@@ -168,8 +168,7 @@ class VehiclePlant:
         self.sim = sim
         self.wheelbase_m = profile.wheelbase_m
         self.wheel_radius_m = profile.wheel_radius_m
-        self.steering_ratio = profile.steering_ratio
-        self.steering = SteeringActuator(profile.actuators.steering, self.steering_ratio, profile.max_wheel_angle_rad)
+        self.steering = SteeringActuator(profile.actuators.steering, profile.max_steering_wheel_deg)
         self.traction = TractionActuator(
             profile.actuators.traction,
             profile.empty_mass_kg,
@@ -254,7 +253,7 @@ class VehiclePlant:
         st = self.state
         v_prev = st.v
         v = self.traction.v
-        delta = math.radians(st.steering_wheel_deg) / self.steering_ratio
+        delta = self.profile.road_wheel_angle(st.steering_wheel_deg)
         v_mid = 0.5 * (v_prev + v)
         v_h = v_mid * math.cos(math.atan(st.grade))  # s and x, y are horizontal distances
         lateral = self._lateral

@@ -1,4 +1,4 @@
-"""DESIGN §1: the layers hold and there is no import cycle (import-linter's contracts in
+"""docs/design.md §1: the layers hold and there is no import cycle (import-linter's contracts in
 pyproject.toml); `ares` is its layers, one folder each, with no module beside them but its
 package marker; every module of the project sits in a layer of the contract."""
 

@@ -134,7 +134,7 @@ def test_increments_hand_computed():
 
 
 def test_wheel_odometry_on_a_straight():
-    wo = WheelOdometry.from_profile(PROFILE)
+    wo = WheelOdometry(PROFILE)
     wo.reset(0.0, 0.0, math.radians(30))
     for k in range(101):
         wo.integrate(k * 0.05, 2.0, 0.0)
@@ -144,7 +144,7 @@ def test_wheel_odometry_on_a_straight():
 
 
 def test_wheel_odometry_closes_a_circle_and_reports_the_rear_axle_yaw_rate():
-    wo = WheelOdometry.from_profile(PROFILE)
+    wo = WheelOdometry(PROFILE)
     wb, k = PROFILE.wheelbase_m, PROFILE.k_cg
     steer_deg = 400.0  # 10 degrees at the wheels
     delta = math.radians(steer_deg) / PROFILE.steering_ratio
@@ -168,7 +168,7 @@ def test_wheel_odometry_closes_a_circle_and_reports_the_rear_axle_yaw_rate():
 
 
 def test_wheel_speed_is_made_horizontal_with_the_pitch():
-    wo = WheelOdometry.from_profile(PROFILE)
+    wo = WheelOdometry(PROFILE)
     assert wo.reading(0.0, 3.0, 0.0, pitch=-math.atan(0.12)).v == pytest.approx(3.0 / math.hypot(1, 0.12))
 
 

@@ -1,5 +1,5 @@
 """Route files from a recorded drive (`ares route import`): the ARES path manager's global path
-is "recorded from the real vehicle" (DESIGN §3) — this turns such a recording into a route.
+is "recorded from the real vehicle" (docs/design.md §3) — this turns such a recording into a route.
 
 Input: a CSV of x,y[,z] metres in the local frame, or an NMEA log as a receiver or logger writes
 it (the format is told from the content). In a log, comment and header lines (any text, any

@@ -10,7 +10,7 @@ latest value of each input: time = clock.utc(k), i.e. the vehicle's time of stac
 A value older than max_age_s is left out (null) rather than passed off as current. Position:
 the fused pose's local x, y plus the origin give UTM easting/northing, and the `utm` package
 gives latitude/longitude. Sensor health: each sensor's message rate over the last
-sensor_window_s against its minimum (DESIGN §3 awareness figures: GNSS ≥ 4 Hz, IMU ≥ 30 Hz).
+sensor_window_s against its minimum (docs/design.md §3 awareness figures: GNSS ≥ 4 Hz, IMU ≥ 30 Hz).
 `events` counts the events of the second that ended at k (event t in [k − 1, k)); an event that
 arrives after its record was written is counted in the next record, so each event is counted
 once. If the loop falls behind and several seconds are crossed at once, each of them gets its
@@ -82,7 +82,7 @@ SENSOR_TOPICS = {"gnss": "sensors/gnss", "imu": "sensors/imu", "can": "sensors/c
 
 
 class SensorMinimums(Params):
-    """The slowest rate at which each sensor still counts as working (DESIGN §3: GNSS > 4 Hz,
+    """The slowest rate at which each sensor still counts as working (docs/design.md §3: GNSS > 4 Hz,
     IMU > 30 Hz)."""
 
     gnss: float = param(4.0, "GNSS receiver (sensors/gnss)", unit="Hz", ge=0)

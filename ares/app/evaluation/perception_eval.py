@@ -226,7 +226,7 @@ class PerceptionTracker:
             "road_edge_err_p50_m": percentile(self.edge_err, 50, 4),
             "road_edge_err_p95_m": percentile(self.edge_err, 95, 4),
             "road_centre_err_p50_m": percentile(self.centre_err, 50, 4),
-            # what the control manager's road thresholds are chosen from (docs/control_manager.md)
+            # what the control manager's road thresholds are chosen from (docs/control.md, "The thresholds")
             "road_confidence_right_p05": percentile(self.confidence_right, 5, 4),
             "road_confidence_right_p50": percentile(self.confidence_right, 50, 4),
             "road_confidence_wrong_p50": percentile(self.confidence_wrong, 50, 4),

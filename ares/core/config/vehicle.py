@@ -74,7 +74,7 @@ class LidarModel(Params):
         return sorted(out)
 
 
-# The two sensor classes of the ARES shuttle (DESIGN §3): the HDL-64E's two blocks of 32 lasers
+# The two sensor classes of the ARES shuttle (docs/design.md §3): the HDL-64E's two blocks of 32 lasers
 # (+2° to −8.33° in 1/3° steps, −8.83° to −24.33° in 1/2° steps) and the VLP-16's ±15° in 2° steps.
 LIDAR_MODELS: dict[str, LidarModel] = {
     "hdl64e": LidarModel(
@@ -157,6 +157,17 @@ class VehicleProfile(Params):
         factory=dict, doc="the LiDARs and their extrinsics (ARES §3.4.1); `ares calibrate lidars` writes them"
     )
 
+    # ---- the steering ratio (DBW eq. 13): the one place it converts ------------------------------
+    def road_wheel_angle(self, steering_wheel_deg: float) -> float:
+        """rad: the front (road) wheel angle δ = α / steering_ratio of a steering-wheel angle α in
+        degrees, the unit the CAN bus reports. The ratio is linear: a rate in deg/s converts the same
+        way, to rad/s."""
+        return math.radians(steering_wheel_deg) / self.steering_ratio
+
+    def steering_wheel_angle(self, road_wheel_rad: float) -> float:
+        """deg: the steering-wheel angle α = steering_ratio · δ that turns the front wheels by δ rad."""
+        return self.steering_ratio * math.degrees(road_wheel_rad)
+
     # ---- figures that follow from the above ------------------------------------------------------
     @property
     def max_curvature(self) -> float:
@@ -164,13 +175,23 @@ class VehicleProfile(Params):
         return math.tan(self.max_wheel_angle_rad) / self.wheelbase_m
 
     @property
+    def max_steering_wheel_deg(self) -> float:
+        """deg: the steering wheel at the rack's end (the largest wheel angle)."""
+        return self.steering_wheel_angle(self.max_wheel_angle_rad)
+
+    @property
+    def max_wheel_rate_rad_s(self) -> float:
+        """rad/s: how fast the steering motor at full effort turns the front wheels."""
+        return self.road_wheel_angle(self.actuators.steering.max_rate_deg_s)
+
+    @property
     def max_curvature_rate(self) -> float:
         """1/m/s, at least: the steering motor's wheel rate over the wheelbase (d tan δ / dt >= dδ/dt)."""
-        return math.radians(self.actuators.steering.max_rate_deg_s) / self.steering_ratio / self.wheelbase_m
+        return self.max_wheel_rate_rad_s / self.wheelbase_m
 
     def curvature_of(self, steering_wheel_deg: float) -> float:
         """1/m: the curvature a steering-wheel angle drives (kinematic: tan(wheel angle) / wheelbase)."""
-        return math.tan(math.radians(steering_wheel_deg) / self.steering_ratio) / self.wheelbase_m
+        return math.tan(self.road_wheel_angle(steering_wheel_deg)) / self.wheelbase_m
 
     @property
     def front_bumper_m(self) -> float:

@@ -10,7 +10,6 @@ times, so that a faster solver that tracks worse shows.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 

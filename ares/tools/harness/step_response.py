@@ -114,9 +114,7 @@ def step_response(
     r = profile.wheel_radius_m
     if kind == "steering":
         loop_gains = gains if gains is not None else profile.dbw_pid.steering
-        plant = SteeringActuator(
-            actuator_params or profile.actuators.steering, profile.steering_ratio, profile.max_wheel_angle_rad
-        )
+        plant = SteeringActuator(actuator_params or profile.actuators.steering, profile.max_steering_wheel_deg)
         reference = 200.0 if step is None else float(step)
         duration_s = 3.0 if duration_s is None else duration_s
         unit = "deg"
