@@ -45,7 +45,14 @@ from pymongo.errors import (
 
 from ares.core.config import read_secret
 from ares.core.messages import StoredEvent, VehicleRecord
-from blackbox.register.store.record_store import RETENTION, StoreSettings, StoreUnavailable, User, utc_now
+from blackbox.register.store.record_store import (
+    RETENTION,
+    RecordStore,
+    StoreSettings,
+    StoreUnavailable,
+    User,
+    utc_now,
+)
 
 # the server cannot be reached, or did not answer in time
 UNAVAILABLE = (ServerSelectionTimeoutError, AutoReconnect, NetworkTimeout, ExecutionTimeout, ConnectionFailure)
@@ -60,7 +67,7 @@ def _utc(dt: datetime) -> datetime:
     return dt.replace(tzinfo=UTC) if dt.tzinfo is None else dt.astimezone(UTC)
 
 
-class MongoStore:
+class MongoStore(RecordStore):
     """RecordStore on MongoDB; `settings`: the `blackbox_store` section (tests: a throw-away
     database name)."""
 
@@ -218,27 +225,18 @@ class MongoStore:
                     raise
                 return int(exc.details.get("nInserted", 0))
 
-    def events(
-        self,
-        vehicle_id: str,
-        start: datetime,
-        end: datetime,
-        *,
-        kinds: Sequence[str] | None = None,
-        skip: int = 0,
-        limit: int = 1000,
+    def _query_events(
+        self, vehicle_id: str, start: datetime, end: datetime, kinds: list[str] | None, skip: int, limit: int
     ) -> list[dict]:
-        if limit <= 0 or (kinds is not None and not kinds):
-            return []
         query = _range(vehicle_id, start, end)
         if kinds is not None:
-            query["kind"] = {"$in": list(kinds)}
+            query["kind"] = {"$in": kinds}
         with self._call():
             # _id (an ObjectId, increasing per client) keeps events of one instant in arrival order
             cursor = (
                 self._events.find(query, _PROJECTION)
                 .sort([("time", ASCENDING), ("_id", ASCENDING)])
-                .skip(max(skip, 0))
+                .skip(skip)
                 .limit(limit)
             )
             return list(cursor)

@@ -13,10 +13,11 @@ queries return thousands of them and validating each again would cost more than 
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Literal, Protocol
+from typing import Literal
 
 from pydantic import model_validator
 
@@ -108,28 +109,38 @@ def utc_now() -> datetime:
     return datetime.now(UTC)
 
 
-class RecordStore(Protocol):
+class RecordStore(ABC):
+    """What every engine offers. The engines subclass it; what is the same for all of them (the
+    arguments' checks of a query) is here once, each engine keeping only its query."""
+
     now: Callable[[], datetime]  # the store's clock (replaceable in tests for retention)
 
+    @abstractmethod
     def insert_records(self, records: Sequence[VehicleRecord]) -> int:
         """Store records; one per (vehicle_id, time): a second already stored is skipped, so a
         retried batch never duplicates. Returns how many were new."""
 
-    def insert_events(self, events: Sequence[StoredEvent]) -> int: ...
+    @abstractmethod
+    def insert_events(self, events: Sequence[StoredEvent]) -> int:
+        """Store events; the same event twice (a retried batch) is stored once. Returns how many were new."""
 
+    @abstractmethod
     def latest(self, vehicle_id: str) -> dict | None: ...
 
+    @abstractmethod
     def records(
         self, vehicle_id: str, start: datetime, end: datetime, *, skip: int = 0, limit: int = 1000
     ) -> list[dict]:
         """Records with start <= time < end, oldest first."""
 
+    @abstractmethod
     def records_json(
         self, vehicle_id: str, start: datetime, end: datetime, *, skip: int = 0, limit: int = 1000
     ) -> bytes:
         """records() as one JSON array (UTF-8), `time` as RFC 3339 with Z: what a handler
         sends on, without building and encoding the dicts again."""
 
+    @abstractmethod
     def count_records(self, vehicle_id: str, start: datetime, end: datetime) -> int: ...
 
     def events(
@@ -141,20 +152,41 @@ class RecordStore(Protocol):
         kinds: Sequence[str] | None = None,
         skip: int = 0,
         limit: int = 1000,
-    ) -> list[dict]: ...
+    ) -> list[dict]:
+        """Events with start <= time < end, of `kinds` when given, oldest first (those of one
+        instant in the order they arrived), from the skip-th on, at most `limit`. A limit below 1
+        or an empty `kinds` selects nothing (to MongoDB, limit 0 would mean no limit); a negative
+        skip counts as 0."""
+        if limit <= 0 or (kinds is not None and not kinds):
+            return []
+        return self._query_events(vehicle_id, start, end, None if kinds is None else list(kinds), max(skip, 0), limit)
 
+    @abstractmethod
+    def _query_events(
+        self, vehicle_id: str, start: datetime, end: datetime, kinds: list[str] | None, skip: int, limit: int
+    ) -> list[dict]:
+        """The engine's query behind events(), on checked arguments: limit >= 1, skip >= 0, kinds
+        None (any) or not empty."""
+
+    @abstractmethod
     def vehicles(self) -> list[str]: ...
 
+    @abstractmethod
     def purge_expired(self) -> int:
         """Remove what is older than RETENTION by the store's clock; returns how many."""
 
+    @abstractmethod
     def get_user(self, name: str) -> User | None: ...
 
+    @abstractmethod
     def put_user(self, user: User) -> None: ...
 
+    @abstractmethod
     def list_users(self) -> list[User]: ...
 
+    @abstractmethod
     def ping(self) -> None:
         """Raise StoreUnavailable unless the store answers."""
 
+    @abstractmethod
     def close(self) -> None: ...

@@ -36,7 +36,14 @@ from pathlib import Path
 import orjson
 
 from ares.core.messages import StoredEvent, VehicleRecord
-from blackbox.register.store.record_store import RETENTION, StoreSettings, StoreUnavailable, User, utc_now
+from blackbox.register.store.record_store import (
+    RETENTION,
+    RecordStore,
+    StoreSettings,
+    StoreUnavailable,
+    User,
+    utc_now,
+)
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +96,7 @@ class _Connection(sqlite3.Connection):
     deadline = math.inf
 
 
-class SqliteStore:
+class SqliteStore(RecordStore):
     """RecordStore on a SQLite file. `path` None: settings.path.
     `settings`: the `blackbox_store` section (its defaults when not given)."""
 
@@ -289,25 +296,16 @@ class SqliteStore:
             [_event_row(e) for e in events],
         )
 
-    def events(
-        self,
-        vehicle_id: str,
-        start: datetime,
-        end: datetime,
-        *,
-        kinds: Sequence[str] | None = None,
-        skip: int = 0,
-        limit: int = 1000,
+    def _query_events(
+        self, vehicle_id: str, start: datetime, end: datetime, kinds: list[str] | None, skip: int, limit: int
     ) -> list[dict]:
-        if limit <= 0 or (kinds is not None and not kinds):
-            return []
         sql = "SELECT doc FROM events WHERE vehicle_id = ? AND ts >= ? AND ts < ?"
         params: list = [vehicle_id, as_utc(start).timestamp(), as_utc(end).timestamp()]
         if kinds is not None:
             sql += f" AND kind IN ({', '.join('?' * len(kinds))})"
-            params += list(kinds)
+            params += kinds
         sql += " ORDER BY ts, rowid LIMIT ? OFFSET ?"  # rowid: events of one instant in arrival order
-        params += [limit, max(skip, 0)]
+        params += [limit, skip]
         with self._connection() as conn:
             rows = conn.execute(sql, params).fetchall()
         loads, parse_time = orjson.loads, datetime.fromisoformat
