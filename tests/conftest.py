@@ -37,6 +37,32 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             raise pytest.UsageError(f"{item.nodeid} is marked whole_stack but not stack")
 
 
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """Which black-box stores the store contract (tests/test_store_contract.py) ran on, and which it
+    could not, and why: a skipped engine is said in the summary, not only counted among the skips."""
+    tested: set[str] = set()
+    skipped: dict[str, str] = {}
+    for reports in terminalreporter.stats.values():
+        for report in reports:
+            # user_properties come back from pytest-xdist's workers as lists: dict() takes both
+            engine = dict(getattr(report, "user_properties", ())).get("store_engine")
+            if engine is None or not isinstance(report, pytest.TestReport):
+                continue
+            if report.skipped:
+                longrepr = report.longrepr
+                reason = longrepr[2] if isinstance(longrepr, tuple) else str(longrepr)
+                skipped[engine] = reason.removeprefix("Skipped: ")
+            elif report.when == "call":
+                tested.add(engine)
+    not_tested = {engine: reason for engine, reason in skipped.items() if engine not in tested}
+    if not tested and not not_tested:
+        return
+    line = "stores tested: " + (", ".join(sorted(tested)) or "none")
+    if not_tested:
+        line += "; not tested: " + ", ".join(f"{engine} ({reason})" for engine, reason in sorted(not_tested.items()))
+    terminalreporter.write_line(line, yellow=bool(not_tested), bold=True)
+
+
 @pytest.fixture
 def port() -> int:
     return free_port()

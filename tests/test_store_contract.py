@@ -1,8 +1,12 @@
 """One contract for every black-box store engine (blackbox.register.store.record_store.RecordStore).
 
-"sqlite" always runs, on a file in tmp_path. "mongo" runs only when ARES_TEST_MONGO_URI points
-at a MongoDB server (>= 7.0), each test in a throw-away database that is dropped afterwards;
-without it those cases are reported as skipped, so nobody mistakes them for passed.
+"sqlite" always runs, on a file in tmp_path. "mongodb", the store both deployments use, runs
+wherever ARES_TEST_MONGO_URI points at a MongoDB server (>= 7.0), each test in a throw-away
+database that is dropped afterwards; a server it cannot reach fails those tests. Without the
+variable they are skipped with the reason, and the test command's summary says which stores it
+tested and which not, and why (tests/conftest.py), so nobody mistakes them for passed. No
+MongoDB server, nor a wire-compatible one, is installable on the development machine: the PyPI
+"in-memory" servers download mongod at run time, and the embedded look-alikes are mocks.
 
 The tests' clock is set about 30 days ahead of the real one: MongoDB's TTL monitor deletes by
 the server's real clock, so data a week older than the test clock is still in the future for it
@@ -42,7 +46,7 @@ from blackbox.register.store.record_store import RETENTION, StoreSettings, Store
 from blackbox.register.store.sqlite_store import SqliteStore
 
 MONGO_URI = os.environ.get("ARES_TEST_MONGO_URI")
-MONGO_SKIP = "ARES_TEST_MONGO_URI not set: no MongoDB server to test against"
+MONGO_SKIP = "ARES_TEST_MONGO_URI unset: no MongoDB server to test against; point it at a MongoDB >= 7.0"
 RUN_ID = uuid.uuid4().hex[:8]
 _databases = itertools.count()
 
@@ -61,8 +65,12 @@ class Clock:
         return self.t
 
 
-@pytest.fixture(params=["sqlite", pytest.param("mongo", marks=pytest.mark.skipif(not MONGO_URI, reason=MONGO_SKIP))])
+@pytest.fixture(params=["sqlite", "mongodb"])
 def engine(request):
+    # the engine a test ran on, or was skipped for: the summary of tests/conftest.py reads it
+    request.node.user_properties.append(("store_engine", request.param))
+    if request.param == "mongodb" and not MONGO_URI:
+        pytest.skip(MONGO_SKIP)
     return request.param
 
 
@@ -256,6 +264,18 @@ def test_events_range_kinds_and_paging(store):
     assert store.events("v", at(0), at(10), kinds=[]) == []
     assert seconds_of(store.events("v", at(0), at(10), skip=1, limit=2)) == [0.5, 1.25]
     assert seconds_of(store.events("w", at(0), at(10))) == [1.0]
+
+
+def test_a_query_that_selects_nothing_and_a_negative_skip(store):
+    store.insert_events([event("v", 1.0), event("v", 2.0)])
+    store.insert_records([record("v", 1), record("v", 2)])
+    assert store.events("v", at(0), at(10), limit=0) == [] and store.events("v", at(0), at(10), limit=-1) == []
+    assert seconds_of(store.events("v", at(0), at(10), skip=-5)) == [1.0, 2.0]
+    assert (
+        store.records("v", at(0), at(10), limit=0) == []
+        and orjson.loads(store.records_json("v", at(0), at(10), limit=0)) == []
+    )
+    assert seconds_of(store.records("v", at(0), at(10), skip=-5)) == [1, 2]
 
 
 def test_a_retried_event_batch_adds_nothing(store):
