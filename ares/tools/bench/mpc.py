@@ -41,7 +41,7 @@ def run_mpc_bench(
     params = params or MpcParams()
     mpc = Mpc(vehicle, params)
     steering = vehicle.actuators.steering
-    rate = math.radians(steering.max_rate_deg_s) / vehicle.steering_ratio * PLANT_DT
+    rate = vehicle.max_wheel_rate_rad_s * PLANT_DT
     every = round(1.0 / params.rate_hz / PLANT_DT)
     x, y, yaw, v, delta, accel = float(route.x[0]), float(route.y[0]), float(route.yaw[0]), 0.0, 0.0, 0.0
     pending: list[tuple[float, float]] = []
