@@ -62,11 +62,33 @@ def test_a_node_that_stalls_holds_only_what_its_next_step_can_use(setup):
     for k in range(1000):
         clock.set(k * 0.01)
         pub.publish("sensors/gnss", GnssSentences(t=clock.now(), sentences=[str(k)]))
-    assert len(latest._staged) == 1 and len(queued._staged) == 3 and queued.overflowed == 997
+    assert latest.waiting == 1 and queued.waiting == 3 and queued.overflowed == 997
     assert latest.latch() == 1000 and queued.latch() == 1000
     assert latest.latest.sentences == ["999"] and latest.count == 1000
     assert latest.rate_hz(window_s=2.0) == pytest.approx(100.0)
     assert [m.sentences[0] for _, m in queued.drain()] == ["997", "998", "999"]
+
+
+def test_a_subscription_put_back_holds_again_what_it_held(setup):
+    """Process replay tries a step latching different inputs and puts the node's subscriptions
+    back between tries: latest value, counts, rate, queue and what waits for the next latch."""
+    clock, pub, sub_bus = setup
+    sub = sub_bus.subscribe("sensors/gnss", queue=5, latched=True)
+    for k in range(3):
+        clock.set(k * 0.1)
+        pub.publish("sensors/gnss", GnssSentences(t=clock.now(), sentences=[str(k)]))
+    sub.latch()
+    pub.publish("sensors/gnss", GnssSentences(t=0.3, sentences=["3"]))
+    held = sub.copy_state()
+    for _ in range(2):  # a state is put back as often as the tries need
+        pub.publish("sensors/gnss", GnssSentences(t=0.4, sentences=["4"]))
+        assert sub.latch() == 2 and sub.latest.sentences == ["4"] and sub.count == 5
+        assert [m.sentences[0] for _, m in sub.drain()] == ["0", "1", "2", "3", "4"]
+        sub.restore_state(held)
+        assert sub.latest.sentences == ["2"] and sub.count == 3 and sub.waiting == 1
+    clock.set(0.3)
+    assert sub.latch() == 1 and [m.sentences[0] for _, m in sub.drain()] == ["0", "1", "2", "3"]
+    assert sub.rate_hz(window_s=1.0) == pytest.approx(10.0)
 
 
 def test_unknown_topics_and_wrong_schemas_are_refused_at_once(setup):

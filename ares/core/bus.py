@@ -29,6 +29,7 @@ import re
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Generic, TypeVar, cast
 
 import orjson
@@ -48,6 +49,7 @@ VEHICLE_ID = re.compile(VEHICLE_ID_PATTERN)  # what subscribe_fleet takes from a
 log = logging.getLogger("ares.core.bus")
 
 M = TypeVar("M", bound=Msg)
+Item = TypeVar("Item")  # what a deque holds
 
 ALIVE = "alive"
 SERVICE_PREFIX = "srv"
@@ -157,6 +159,26 @@ def decode(payload: Payload, encoding: str, expected: type[M] | None, topic: str
     return None
 
 
+@dataclass(frozen=True)
+class SubscriptionState(Generic[M]):
+    """What a subscription holds, copied (Subscription.copy_state): its latest message, its counts,
+    the stamps its rate is measured from, its queue and what waits for the next latch."""
+
+    latest: M | None
+    latest_topic: str
+    count: int
+    overflowed: int
+    first_stamp: float | None
+    stamps: collections.deque[float]
+    queue: collections.deque[tuple[str, M]] | None
+    staged: collections.deque[tuple[str, M, bytes | None]]
+    staged_stamps: list[float]
+
+
+def _copied(queue: collections.deque[Item]) -> collections.deque[Item]:
+    return collections.deque(queue, maxlen=queue.maxlen)
+
+
 class Subscription(Generic[M]):
     """The latest value of a topic (or a `/*` family), how fresh it is, and optionally a bounded
     queue of every value. Ages and rates come from the messages' own stamps."""
@@ -222,6 +244,33 @@ class Subscription(Generic[M]):
             for topic, msg, payload in staged:
                 self._apply(topic, msg, payload)
         return len(stamps)
+
+    @property
+    def waiting(self) -> int:
+        """How many messages wait for the next latch: no more than one step can use (the latest
+        value, or as many as the queue holds), however many arrived."""
+        return len(self._staged)
+
+    def copy_state(self) -> SubscriptionState[M]:
+        """What the subscription holds now, copied: `restore_state` puts it back. Process replay
+        from a recording of the bus tries a step latching different inputs, and puts the node and
+        its subscriptions back between tries (Node.copy_state)."""
+        with self._lock:
+            return SubscriptionState(
+                self.latest, self.latest_topic, self.count, self.overflowed, self._first_stamp, _copied(self._stamps),
+                None if self._queue is None else _copied(self._queue), _copied(self._staged),
+                list(self._staged_stamps),
+            )  # fmt: skip
+
+    def restore_state(self, state: SubscriptionState[M]) -> None:
+        """Hold again what `state` was copied from (copied once more: a state can be put back many times)."""
+        with self._lock:
+            self.latest, self.latest_topic, self.count = state.latest, state.latest_topic, state.count
+            self.overflowed, self._first_stamp = state.overflowed, state.first_stamp
+            self._stamps = _copied(state.stamps)
+            self._queue = None if state.queue is None else _copied(state.queue)
+            self._staged = _copied(state.staged)
+            self._staged_stamps = list(state.staged_stamps)
 
     def _count(self, t: float) -> None:
         self.count += 1
@@ -315,6 +364,18 @@ class PublisherFamily:
         self._bus = bus
         self._tap = tap
         self._made: dict[str, Publisher[Msg]] = {}
+
+    @property
+    def tap(self) -> Callable[[str, Payload], None] | None:
+        """What every publisher of the family hands what it publishes to, as Publisher.tap (process
+        replay's recorder, or a replay's capture): given to those made so far and those made later."""
+        return self._tap
+
+    @tap.setter
+    def tap(self, tap: Callable[[str, Payload], None] | None) -> None:
+        self._tap = tap
+        for pub in self._made.values():
+            pub.tap = tap
 
     def __getitem__(self, name: str) -> Publisher[Msg]:
         pub = self._made.get(name)

@@ -38,6 +38,7 @@ API): heartbeat and parent watch are tasks on that loop, so a stuck loop stops t
 from __future__ import annotations
 
 import asyncio
+import copy
 import logging
 import math
 import os
@@ -46,16 +47,17 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Generic, Self, TypeVar, cast, overload
 
 from ares.core import config, topics
-from ares.core.bus import BaseBus, Bus, Publisher, PublisherFamily, RejectCounter, Subscription
+from ares.core.bus import BaseBus, Bus, Publisher, PublisherFamily, RejectCounter, Subscription, SubscriptionState
 from ares.core.clock import Clock, DrivenClock
 from ares.core.config import Params
 from ares.core.messages import ClockDone, Event, EventLevel, Heartbeat
 from ares.core.recording import INCARNATION_ENV, StepRecorder, recording_path
-from ares.core.schema import Msg
+from ares.core.schema import Msg, Payload
 
 PROCESS_ENV = "ARES_PROCESS_NAME"
 NICE_ENV = "ARES_NICE"
@@ -177,6 +179,15 @@ def service(name: str) -> Callable[[Handler], Handler]:
 # ---- the node -----------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class NodeState:
+    """A node's own state and what its subscriptions hold, copied (Node.copy_state)."""
+
+    attributes: dict[str, Any]
+    shared: dict[int, Any]  # id -> object: its runtime, which a copy shares instead of copying
+    subscriptions: list[tuple[Subscription[Msg], SubscriptionState[Msg]]]
+
+
 class Node:
     name: str = "node"  # the class's; an instance has its process's name
     Params: ClassVar[type[config.Params]] = NoParams
@@ -189,6 +200,12 @@ class Node:
     # reads what the simulator writes with --wire, so the lockstep waits for it as for a subscriber
     wire_inputs: ClassVar[tuple[str, ...]] = ()
     wire_outputs: ClassVar[tuple[str, ...]] = ()
+    # what a node is made of but does not change by stepping: its runtime, which a copy of its
+    # state shares instead of copying (copy_state); anything else a subclass sets is its state
+    RUNTIME: ClassVar[tuple[str, ...]] = (
+        "bus", "clock", "log", "_stop", "cfg", "core", "params", "shared", "vehicle", "_ports", "_events",
+        "_heartbeats", "_rated", "_done", "_recorder",
+    )  # fmt: skip
 
     # ---- the contract, as data --------------------------------------------------------------
     @classmethod
@@ -355,6 +372,38 @@ class Node:
         finally:
             if self._recorder is not None:
                 self._recorder.end()
+
+    # ---- for process replay (ares.core.replay) ---------------------------------------------
+    def tap_outputs(self, tap: Callable[[str, Payload], None]) -> None:
+        """Hand `tap` (topic, payload) everything the node publishes from now on, on its declared
+        outputs and on `events`: a replay compares it with what the node published in the run. It
+        takes the place of the step recorder's tap (a replayed node records nothing)."""
+        for port in self._ports.values():
+            if isinstance(port, (Publisher, PublisherFamily)):
+                port.tap = tap
+        self._events.tap = tap
+
+    def copy_state(self) -> NodeState:
+        """The node's own state (what its steps change: every attribute but its RUNTIME, a
+        subclass's included) and what its subscriptions hold, copied: `restore_state` puts it
+        back. A replay from a recording of the bus, which does not say which inputs a step
+        latched, tries the step latching different ones and puts the node back between tries.
+        Raises what copy.deepcopy raises for a state that cannot be copied (a solver's handle)."""
+        shared = {id(value): value for name, value in vars(self).items() if name in self.RUNTIME}
+        shared.update({id(port): port for port in self._ports.values()})
+        return NodeState(
+            copy.deepcopy(vars(self), dict(shared)),
+            shared,
+            [(port, port.copy_state()) for port in self._ports.values() if isinstance(port, Subscription)],
+        )
+
+    def restore_state(self, state: NodeState) -> None:
+        """Be again what `state` was copied from (copied once more: a state can be put back many times)."""
+        attributes = copy.deepcopy(state.attributes, dict(state.shared))
+        vars(self).clear()
+        vars(self).update(attributes)
+        for subscription, held in state.subscriptions:
+            subscription.restore_state(held)
 
     def heartbeat(self, force: bool = False) -> None:
         elapsed = time.monotonic()
