@@ -662,6 +662,30 @@ def write_route_csv(path: Path, xyz: np.ndarray, yaw: np.ndarray, comments: list
 # ---- the whole import -----------------------------------------------------------------------
 
 
+@dataclass
+class Recording:
+    """What a recording gave: its points in the local frame and, from an NMEA log, the log itself
+    and the frame's origin."""
+
+    fmt: str
+    points: np.ndarray
+    log: NmeaLog | None = None
+    origin: UtmOrigin | None = None
+    origin_source: str = ""
+
+
+@dataclass
+class Fitted:
+    """The route fitted through a recording's points, with what the fitting did."""
+
+    kept: np.ndarray  # the points left after the standstills
+    xyz: np.ndarray
+    yaw: np.ndarray
+    window_m: float
+    noise_m: float  # 0 for RTK (or no quality given)
+    notes: list[str]
+
+
 def import_route(
     source: str | Path,
     output: str | Path | None = None,
@@ -675,11 +699,46 @@ def import_route(
     if fmt not in FORMATS:
         raise RouteImportError(f"unknown format {fmt!r}; one of {', '.join(FORMATS)}")
     cfg = cfg if cfg is not None else config.current()
+    settings = import_settings(cfg, spacing_m)
+    recording = read_recording(source, fmt, strict, config.core(cfg).origin_utm)
+    vehicle = config.load_vehicle(config.core(cfg).vehicle)
+    fitted = fit_recording(recording, source.name, settings, vehicle.max_curvature)
+    gap, closed = loop_closure(fitted.xyz, settings.loop_close_m)
+    result = ImportResult(
+        source=source.name,
+        fmt=recording.fmt,
+        points_in=len(recording.points),
+        kept=len(fitted.kept),
+        xyz=fitted.xyz,
+        yaw=fitted.yaw,
+        spacing_m=settings.spacing_m,
+        closed_loop=closed,
+        loop_gap_m=gap,
+        log=recording.log,
+        origin=recording.origin,
+        origin_source=recording.origin_source,
+        window_m=fitted.window_m,
+        noise_m=fitted.noise_m,
+        notes=fitted.notes,
+    )
+    if output is not None:
+        write_result(result, Path(output), settings.road_width_m)
+    return result
+
+
+def import_settings(cfg: Mapping, spacing_m: float | None) -> RouteImportSettings:
+    """The route_import section, with the spacing asked on the command line."""
     settings = config.section(cfg, "route_import", RouteImportSettings)
-    if spacing_m is not None:
-        if not (spacing_m > 0 and math.isfinite(spacing_m)):
-            raise RouteImportError(f"spacing must be a positive number of metres, got {spacing_m}")
-        settings = settings.model_copy(update={"spacing_m": float(spacing_m)})
+    if spacing_m is None:
+        return settings
+    if not (spacing_m > 0 and math.isfinite(spacing_m)):
+        raise RouteImportError(f"spacing must be a positive number of metres, got {spacing_m}")
+    return settings.model_copy(update={"spacing_m": float(spacing_m)})
+
+
+def read_recording(source: Path, fmt: str, strict: bool, configured_origin: UtmOrigin) -> Recording:
+    """The recording's points: an NMEA log's fixes (u-blox binary frames and a binary log's
+    noise left out) projected in the route's frame, or a CSV's rows."""
     try:
         data = source.read_bytes()
     except OSError as exc:
@@ -693,30 +752,36 @@ def import_route(
         if not data:
             raise RouteImportError(f"{name}: not a text file (byte {nul} is NUL), and no NMEA sentence in it")
     if fmt == "auto":
-        fmt = detect_format(data)
-        if fmt is None:
+        detected = detect_format(data)
+        if detected is None:
             raise RouteImportError(
                 f"{name}: no points: neither NMEA sentences nor rows of x,y[,z] metres "
                 f"in its first {DETECT_LINES} lines"
             )
-    log = origin = None
-    origin_source = ""
-    if fmt == "nmea":
-        log = read_nmea_log(data, name, strict)
-        log.ubx_frames = ubx_frames
-        log.broken_binary = broken
-        if not log.fixes:
-            detail = f" ({_counts(log.no_fix)} without a fix)" if log.no_fix else ""
-            raise RouteImportError(f"{name}: no usable position (GGA, RMC or GLL) in the log{detail}")
-        origin, origin_source = frame_for(log, config.core(cfg).origin_utm)
-        points = project_fixes(log, LocalFrame(origin), name, strict)
-        if len(points) == 0:
-            raise RouteImportError(f"{name}: no fix within {origin.reach_km:g} km of the route's origin")
-    else:
+        fmt = detected
+    if fmt != "nmea":
         points = read_csv_points(data, name)
         if len(points) == 0:
             raise RouteImportError(f"{name}: no points (expected lines of x,y[,z] metres)")
-    radii = wander_radii(log, len(points), settings)
+        return Recording(fmt, points)
+    log = read_nmea_log(data, name, strict)
+    log.ubx_frames = ubx_frames
+    log.broken_binary = broken
+    if not log.fixes:
+        detail = f" ({_counts(log.no_fix)} without a fix)" if log.no_fix else ""
+        raise RouteImportError(f"{name}: no usable position (GGA, RMC or GLL) in the log{detail}")
+    origin, origin_source = frame_for(log, configured_origin)
+    points = project_fixes(log, LocalFrame(origin), name, strict)
+    if len(points) == 0:
+        raise RouteImportError(f"{name}: no fix within {origin.reach_km:g} km of the route's origin")
+    return Recording(fmt, points, log, origin, origin_source)
+
+
+def fit_recording(recording: Recording, name: str, settings: RouteImportSettings, max_curvature: float) -> Fitted:
+    """Standstills dropped (RTK) or collapsed (wandering fixes), the route fitted through what is
+    left, its grade limited."""
+    points = recording.points
+    radii = wander_radii(recording.log, len(points), settings)
     noise = float(np.median(radii))
     noisy = noise > settings.min_step_m
     kept = collapse_standstill(points, radii) if noisy else drop_standstill(points, settings.min_step_m)
@@ -726,47 +791,36 @@ def import_route(
             f"{settings.min_step_m:g} m of the first"
         )
     stood_still(points, drop_standstill(points, settings.min_step_m), name, settings.stood_still_m)
-    vehicle = config.load_vehicle(config.core(cfg).vehicle)
-    xyz, yaw, window, notes = fit_route(kept, noise if noisy else 0.0, settings, vehicle.max_curvature)
+    noise_m = noise if noisy else 0.0
+    xyz, yaw, window, notes = fit_route(kept, noise_m, settings, max_curvature)
     s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(xyz[:, 0]), np.diff(xyz[:, 1])))])
     xyz[:, 2], clipped_m = limit_grade(s, xyz[:, 2], settings.max_grade)
     if clipped_m > 0:
         notes.append(f"grade limited to {settings.max_grade:.0%} over {clipped_m:.0f} m of the route")
     notes.append(f"road width {settings.road_width_m:g} m (route_import.road_width_m)")
+    return Fitted(kept, xyz, yaw, window, noise_m, notes)
+
+
+def loop_closure(xyz: np.ndarray, loop_close_m: float) -> tuple[float, bool]:
+    """(the gap from the last point to the first, whether the drive was a loop)."""
     gap = float(math.hypot(xyz[-1, 0] - xyz[0, 0], xyz[-1, 1] - xyz[0, 1]))
     length = float(np.sum(np.hypot(np.diff(xyz[:, 0]), np.diff(xyz[:, 1]))))
     # a loop must be long compared with the gap, or a short back-and-forth would count
-    closed = gap <= settings.loop_close_m and length > 10 * settings.loop_close_m
-    result = ImportResult(
-        source=name,
-        fmt=fmt,
-        points_in=len(points),
-        kept=len(kept),
-        xyz=xyz,
-        yaw=yaw,
-        spacing_m=settings.spacing_m,
-        closed_loop=closed,
-        loop_gap_m=gap,
-        log=log,
-        origin=origin,
-        origin_source=origin_source,
-        window_m=window,
-        noise_m=noise if noisy else 0.0,
-        notes=notes,
-    )
-    if output is not None:
-        output = Path(output)
-        comments = [
-            f"ares route: source={name}, points={len(xyz)}, length_m={result.length_m:.2f}",
-            f"format={fmt}, points_in={len(points)}, kept={len(kept)}, spacing_m={settings.spacing_m:g}, "
-            f"closed_loop={'yes (written as an open route)' if closed else 'no'}",
-        ]
-        comments.append(width_comment(settings.road_width_m))
-        if origin is not None:
-            comments.append(origin_comment(origin))
-        try:
-            write_route_csv(output, xyz, yaw, comments)
-        except OSError as exc:
-            raise RouteImportError(f"{output}: cannot write: {exc.strerror}") from None
-        result.output = str(output)
-    return result
+    return gap, gap <= loop_close_m and length > 10 * loop_close_m
+
+
+def write_result(result: ImportResult, output: Path, road_width_m: float) -> None:
+    """The route file, its header saying where it came from; `result.output` then names it."""
+    comments = [
+        f"ares route: source={result.source}, points={len(result.xyz)}, length_m={result.length_m:.2f}",
+        f"format={result.fmt}, points_in={result.points_in}, kept={result.kept}, spacing_m={result.spacing_m:g}, "
+        f"closed_loop={'yes (written as an open route)' if result.closed_loop else 'no'}",
+        width_comment(road_width_m),
+    ]
+    if result.origin is not None:
+        comments.append(origin_comment(result.origin))
+    try:
+        write_route_csv(output, result.xyz, result.yaw, comments)
+    except OSError as exc:
+        raise RouteImportError(f"{output}: cannot write: {exc.strerror}") from None
+    result.output = str(output)
