@@ -128,9 +128,7 @@ def floor_ground_mask(
     np.minimum.at(lowest, cells, z)
     cell_floor = np.take(lowest, cells)  # take: 3x faster than lowest[cells]
 
-    by_block = lowest.reshape(blocks, per, blocks, per).transpose(0, 2, 1, 3).reshape(blocks, blocks, per * per)
-    rank = min(floor_rank, per * per) - 1
-    block_floor = np.partition(by_block, rank, axis=2)[:, :, rank]  # inf: fewer cells hold points
+    block_floor = block_floors(lowest, blocks, per, floor_rank)
     # a cell's floor must lie below `highest` and above `-plane` of its block: the far floor's bound
     # and the plane's, whose distance is the block centre's (within 0.7 m × max_grade of the cell's)
     centres = (np.arange(blocks) - blocks / 2 + 0.5) * (per * cell_m)
@@ -138,18 +136,7 @@ def floor_ground_mask(
     highest = np.minimum(window_min(block_floor, far_blocks) + rise_m, plane)
     block = (i // per) * blocks + j // per
 
-    # the near floor, on the square near_extent_m wide around the centre (plus the window): where
-    # the occupancy grid reads the labels; beyond it the far floor judges alone
-    reach = int(round(floor_window_m / cell_m))
-    half = min(side // 2, int(round(near_extent_m / cell_m / 2)))
-    lo, hi = side // 2 - half, side // 2 + half
-    span = np.arange(max(lo - reach, 0), min(hi + reach, side))
-    local = lowest.reshape(side, side)[np.ix_(span, span)]
-    sunk = local <= block_floor[np.ix_(span // per, span // per)] - step_m
-    near = np.full((side, side), np.inf, dtype=np.float32)  # no near floor: nothing stands above it
-    near[lo:hi, lo:hi] = window_min(np.where(sunk, np.inf, local), reach)[
-        lo - span[0] : hi - span[0], lo - span[0] : hi - span[0]
-    ]
+    near = near_floor(lowest, block_floor, per, int(round(floor_window_m / cell_m)), near_extent_m / cell_m, step_m)
     stands = z - np.take(near, cells) >= step_m  # above the near floor by step_m or more
     ground[inside] = (
         (z - cell_floor < threshold_m)
@@ -158,6 +145,35 @@ def floor_ground_mask(
         & (cell_floor > -np.take(plane, block))
     )
     return ground
+
+
+def block_floors(lowest: np.ndarray, blocks: int, per: int, floor_rank: int) -> np.ndarray:
+    """Each block's floor (blocks × blocks): the floor_rank-th lowest of its per × per cells' lowest
+    points, +inf where fewer of its cells hold points."""
+    by_block = lowest.reshape(blocks, per, blocks, per).transpose(0, 2, 1, 3).reshape(blocks, blocks, per * per)
+    rank = min(floor_rank, per * per) - 1
+    return np.partition(by_block, rank, axis=2)[:, :, rank]
+
+
+def near_floor(
+    lowest: np.ndarray, block_floor: np.ndarray, per: int, reach: int, near_extent_cells: float, step_m: float
+) -> np.ndarray:
+    """The near floor of each cell (side × side): the lowest cell within `reach` cells, leaving out
+    the cells sunk step_m or more below their block's floor (stray returns under the road). Only on
+    the square near_extent_cells wide around the centre (plus the window), where the occupancy grid
+    reads the labels; elsewhere +inf: no near floor, nothing stands above it, the far floor judges
+    alone."""
+    side = block_floor.shape[0] * per
+    half = min(side // 2, int(round(near_extent_cells / 2)))
+    lo, hi = side // 2 - half, side // 2 + half
+    span = np.arange(max(lo - reach, 0), min(hi + reach, side))
+    local = lowest.reshape(side, side)[np.ix_(span, span)]
+    sunk = local <= block_floor[np.ix_(span // per, span // per)] - step_m
+    near = np.full((side, side), np.inf, dtype=np.float32)
+    near[lo:hi, lo:hi] = window_min(np.where(sunk, np.inf, local), reach)[
+        lo - span[0] : hi - span[0], lo - span[0] : hi - span[0]
+    ]
+    return near
 
 
 def window_min(grid: np.ndarray, k: int) -> np.ndarray:
