@@ -29,13 +29,13 @@ from pathlib import Path
 from ares.app.processes import for_run
 from ares.core.messages import DriveMode, Position, ProcessHealth, ProcessState, SensorHealth, VehicleRecord
 from ares.core.topics import TOPIC_TABLE
-from ares.tools.bench.common import percentile
+from ares.tools.bench.common import Goal, judge, percentile
 from blackbox.register.recorder import SENSOR_TOPICS
 from blackbox.register.store.record_store import RETENTION
 from blackbox.register.store.sqlite_store import SqliteStore
 from simulator.params import SimParams
 
-GOALS = {"ingest_records_per_s": 5000.0, "query_hour_p50_ms": 20.0}
+GOALS = {"ingest_records_per_s": Goal(5000.0, at_least=True), "query_hour_p50_ms": Goal(20.0)}
 VEHICLE = "shuttle01"
 T0 = datetime(2026, 5, 1, tzinfo=UTC)  # first record of the bench's week
 
@@ -160,7 +160,7 @@ def run_store_bench(
             file_mb = sum(p.stat().st_size for p in Path(tmp).iterdir()) / 2**20
         finally:
             store.close()
-    return {
+    result = {
         "ingest_records_per_s": round(ingest_rate, 1),
         "query_hour_p50_ms": percentile(json_times_ms, 50, 3),
         "query_hour_p95_ms": percentile(json_times_ms, 95, 3),
@@ -173,8 +173,8 @@ def run_store_bench(
         "batch": batch,
         "ingest_records": ingest_records,
         "queries": queries,
-        "goals": GOALS,
     }
+    return judge(result, GOALS)
 
 
 def main() -> None:

@@ -15,9 +15,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ares.tools.bench.common import percentile, versions
+from ares.tools.bench.common import Goal, judge, percentile, versions
 
-MPC_GOALS = {"solve_p50_ms": 1.0, "solve_p99_ms": 3.0}
+MPC_GOALS = {"solve_p50_ms": Goal(1.0), "solve_p99_ms": Goal(3.0), "deadline_misses": Goal(0)}
 PLANT_DT = 0.01
 
 
@@ -73,7 +73,8 @@ def run_mpc_bench(
         k += 1
     period_ms = 1e3 / params.rate_hz
     err = np.abs(np.array(xte[20:]))  # after the start from standstill
-    return {
+    result = {
+        "bench": "mpc",
         "solve_p50_ms": percentile(times, 50, 3),
         "solve_p99_ms": percentile(times, 99, 3),
         "solve_max_ms": round(max(times), 3),
@@ -88,6 +89,6 @@ def run_mpc_bench(
         "distance_m": round(float(s_hint), 1),
         "vehicle": vehicle_name,
         "tour": tour,
-        "goals": MPC_GOALS,
         **versions("casadi", "numpy"),
     }
+    return judge(result, MPC_GOALS)

@@ -19,9 +19,9 @@ from collections.abc import Callable
 from importlib import metadata
 from typing import TextIO
 
-from ares.tools.bench.common import percentile
+from ares.tools.bench.common import Goal, judge, percentile
 
-PATH_GOALS = {"kdtree_build_ms": 100.0, "query_p50_us": 30.0}
+PATH_GOALS = {"kdtree_build_ms": Goal(100.0), "query_p50_us": Goal(30.0)}
 
 
 def bench_route(poses: int = 100_000, spacing_m: float = 0.5):
@@ -137,6 +137,7 @@ def run_path_bench(
     say("UKF step")
     ukf_p50 = _ukf_step_p50_ms(ukf_steps)
     result = {
+        "bench": "path",
         "poses": poses,
         "route_length_m": round(route.length, 1),
         "spacing_m": round(route.length / poses, 3),
@@ -162,10 +163,8 @@ def run_path_bench(
         "python": platform.python_version(),
         "numpy": np.__version__,
         "scipy": metadata.version("scipy"),
-        "goals": PATH_GOALS,
     }
-    result["goals_met"] = {key: result[key] <= goal for key, goal in PATH_GOALS.items()}
-    return result
+    return judge(result, PATH_GOALS)
 
 
 def format_path_result(result: dict, out: TextIO) -> None:
@@ -177,11 +176,11 @@ def format_path_result(result: dict, out: TextIO) -> None:
     )
     out.write(
         f"  KD-tree build {result['kdtree_build_ms']:.1f} ms (median of {result['kdtree_builds']})  "
-        f"[goal <= {PATH_GOALS['kdtree_build_ms']:g} ms: {mark('kdtree_build_ms')}]; "
+        f"[goal <= {PATH_GOALS['kdtree_build_ms'].limit:g} ms: {mark('kdtree_build_ms')}]; "
         f"PathIndex {result['path_index_build_ms']:.1f} ms\n"
     )
     out.write(
-        f"  match p50 {result['query_p50_us']:.1f} us  [goal <= {PATH_GOALS['query_p50_us']:g} us: "
+        f"  match p50 {result['query_p50_us']:.1f} us  [goal <= {PATH_GOALS['query_p50_us'].limit:g} us: "
         f"{mark('query_p50_us')}], p90 {result['query_p90_us']:.1f} us, p99 {result['query_p99_us']:.1f} us, "
         f"{result['queries']} matches, {result['matches_not_tracked']} not tracked, "
         f"max xte error {result['max_xte_error_m']:.4f} m\n"
