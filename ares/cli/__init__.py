@@ -10,9 +10,11 @@
     ares compare [--controllers LIST] [--route NAME|FILE] [--vehicle NAME] [--scenario NAME|FILE] [--laps N]
                  [--mission tour|drive] [--seconds S] [--config FILE] [--out PNG] [--json]
                                    the same headless run with each controller, figures side by side, and a picture
-    ares describe [NODE] [--json|--markdown|--architecture] [--config FILE]
+    ares describe [NODE | --package NAME [--write]] [--json|--markdown|--architecture] [--config FILE]
                                    each process's inputs, outputs, services, parameters; the topic graph;
-                                   docs/nodes.md (--markdown), docs/architecture.md (--architecture)
+                                   docs/nodes.md (--markdown), docs/architecture.md (--architecture); a node
+                                   package's (managers, perception, control, drivers, blackbox, simulator)
+                                   README part (--package NAME --markdown; --write puts it in place)
     ares config check FILE...      validate configuration files (exit 2 naming the file and the key)
     ares config show [FILE...] [--json]
                                    the merged, validated configuration, every key commented
@@ -44,28 +46,31 @@
                  [--seconds S] [--router ENDPOINT] [--vehicle-id ID]
                                    the mission manager's action: a goal of POIs (all of the route's if none
                                    named), a drive without stops, pause, resume, cancel, the feedback
-    ares bench bus [--json] [--seconds S] [--mode peer|client]
+    ares bench bus [--json] [--check] [--seconds S] [--mode peer|client]
                                    publish -> subscribe latency and throughput between two processes
-    ares bench supervisor [--json] [--rounds N]
+    ares bench supervisor [--json] [--check] [--rounds N]
                                    how fast a killed, frozen or hung process is noticed and restarted
-    ares bench path [--json]       KD-tree build, path match and UKF step times (in-process)
-    ares bench perception [--json] [--frames N] [--repeats N] [--reference] [--scan FILE]
+    ares bench path [--json] [--check]
+                                   KD-tree build, path match and UKF step times (in-process)
+    ares bench perception [--json] [--check] [--frames N] [--repeats N] [--reference] [--scan FILE]
                                    LiDAR pipeline stage times, the simulated LiDARs' ray casting (in-process);
                                    --reference: the ground stage beside Patchwork++ on KITTI-like scans
-    ares bench mpc [--json] [--solves N] [--vehicle NAME]
+    ares bench mpc [--json] [--check] [--solves N] [--vehicle NAME]
                                    the MPC's solve times in closed loop round the tour (in-process)
-    ares bench obstacle-zone [--json] [--step M] [--speed MPS]
+    ares bench obstacle-zone [--json] [--check] [--step M] [--speed MPS]
                                    the obstacle area's false stops in the narrow lane, trapezoid vs rectangle
-    ares bench blackbox [--json] [--seconds S]
+    ares bench blackbox [--json] [--check] [--seconds S]
                                    store ingest and hour query, latest-state API req/s over HTTPS
-    ares bench live [--json] [--browsers N] [--seconds S] [--config FILE]
+    ares bench live [--json] [--check] [--browsers N] [--seconds S] [--config FILE]
                                    how far the operator page lags the bus, with N browsers (the whole stack)
-    ares bench drivers [--json] [--repeats N] [--seconds S]
+    ares bench drivers [--json] [--check] [--repeats N] [--seconds S]
                                    Velodyne decode per rotation (every model), CAN frames per second
-    ares bench stack [--json] [--laps N] [--seconds S] [--config FILE] [--wire] [--vehicle-cpus LIST]
+    ares bench stack [--json] [--check] [--laps N] [--seconds S] [--config FILE] [--wire] [--vehicle-cpus LIST]
                      [--speed max|paced|FACTOR] [--profile DIR]
                                    a lap of the whole stack: speed-up, CPU per process, perception and MPC
                                    times, bus load, LiDAR-to-command lag; py-spy flame graphs (--profile)
+    ares bench report FILE... [--out FILE.md]
+                                   the benches' --json results as one Markdown table (figure, value, goal, met)
     ares route import FILE -o ROUTE [--format auto|csv|nmea] [--spacing M] [--strict]
                                    build a route file from a CSV of x,y[,z] or an NMEA log
     ares route record FILE [--seconds S] [--router ENDPOINT] [--vehicle-id ID]
@@ -107,6 +112,9 @@
               [--listen ENDPOINT] [--api-port PORT] [--lead S] [--kinds K,K] | --summarise DIR | --resume DIR
                                    the tour at --speed max with faults injected from a seeded plan; a stopped
                                    soak summarised or gone on with (docs/reliability.md)
+
+A bench's --json prints its result as one JSON line (its goals and `goals_met` in it); --check
+exits 1 when it missed a goal, naming each on stderr (without it a bench that ran exits 0).
 
 `topics` and `echo` connect in client mode to the running stack's router (the `bus.router`
 endpoint of the run configuration, or --router) and look under the configured vehicle id (or
