@@ -84,6 +84,46 @@ def test_a_node_records_what_it_latched_and_published(tmp_path):
     assert again.ok and again.steps == 5
 
 
+def test_a_node_put_back_steps_again_as_it_did():
+    """A replay from a recording of the bus tries a step latching different inputs, the node's
+    state copied before and put back between tries: put back, it steps again as it did."""
+    from managers.odometry_node import OdometryManager
+
+    clock = ManualClock(0.0)
+    network = MemoryNetwork()
+    node = OdometryManager(run_config.build(), clock=clock, bus=network.bus("odometry_manager", clock))
+    published = []
+    node.tap_outputs(lambda topic, payload: published.append((topic, payload)))
+    node.setup()
+    feeder = network.bus("localization", clock)
+
+    def step(k: int, position_std_m: float) -> list:
+        t = round(k * 0.05, 9)
+        feeder.publish("localization/pose", _pose(t - 0.01, x=k, position_std_m=position_std_m))
+        clock.set(t)
+        node.step_once(t)
+        stepped = list(published)
+        published.clear()
+        return stepped
+
+    for k in range(1, 4):
+        step(k, 0.01)
+    state = node.copy_state()
+    trusted = step(4, 0.01)
+    node.restore_state(state)
+    doubted = step(4, 3.0)
+    assert doubted != trusted and [topic for topic, _ in doubted] == ["odometry/score"]
+    node.restore_state(state)
+    assert step(4, 0.01) == trusted and node.pose.count == 4
+
+
+def _pose(t: float, x: float, position_std_m: float) -> Pose:
+    return Pose(
+        t=t, x=x, y=0.0, z=0.0, yaw=0.0, v=1.0, yaw_rate=0.0, cov_xx=position_std_m**2, cov_xy=0.0,
+        cov_yy=position_std_m**2, var_yaw=1e-4, var_v=1e-2, position_std_m=position_std_m, rtk=True, gnss_age_s=0.1,
+    )  # fmt: skip
+
+
 def test_a_restarted_process_records_to_a_file_of_its_own(tmp_path, monkeypatch):
     from ares.core.recording import INCARNATION_ENV
     from managers.odometry_node import OdometryManager

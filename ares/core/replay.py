@@ -1,14 +1,20 @@
 """Process replay (after openpilot's): a node's recorded inputs, fed back through the node, must
 give the outputs it gave.
 
-A run records a node when its name is in `replay.record` (ares.core.recording writes the file): the
-node class, its configuration and the time of its set-up; then, per step, its time, the inputs it
-latched (in order) and the outputs it published. `replay()` builds
-the same node on an in-memory bus with a manual clock, delivers each step's inputs, steps it at
+`NodeReplay` is the one engine, whatever the recording: it builds the node from the recorded run's
+configuration on an in-memory bus with a manual clock, delivers each step's inputs, steps it at
 the recorded time and compares what it publishes with what it published in the run (numbers
-within `rel_tol`). A change of behaviour shows as a mismatch; when the change is intended,
-`update()` rewrites the expected outputs from the current code (the inputs stay those of the
-run).
+within `REL_TOL`). Two kinds of recording feed it:
+
+- a node's own (`replay()`, `ares replay check`): a run records a node when its name is in
+  `replay.record` (ares.core.recording writes the file): the node class, its configuration and
+  the time of its set-up; then, per step, its time, the inputs it latched (in order) and the
+  outputs it published. A change of behaviour shows as a mismatch; when the change is intended,
+  `update()` rewrites the expected outputs from the current code (the inputs stay those of the
+  run);
+- a recording of the whole bus (ares.core.bus_replay, from the MCAP files of ares.app.bus_record):
+  it says what reached the recorder, not what the node latched, so the steps are rebuilt from it
+  and a step's latched inputs searched for (`NodeReplay.step_latching_a_prefix`).
 
     ares run --headless --speed max --config tests/replay/record.yaml    # records
     ares replay check tests/replay/*.jsonl.gz                             # replays
@@ -20,13 +26,13 @@ import gzip
 import logging
 import math
 import zlib
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import orjson
 
-from ares.core.bus import Publisher, PublisherFamily
 from ares.core.clock import ManualClock
 from ares.core.launch import load
 from ares.core.membus import MemoryNetwork
@@ -38,6 +44,8 @@ log = logging.getLogger("ares.core.replay")
 
 REL_TOL = 1e-9
 ABS_TOL = 1e-12
+
+Published = list[list[Any]]  # [topic, record] in order: what a node published, or a recording holds
 
 
 @dataclass
@@ -58,7 +66,7 @@ class ReplayResult:
     steps: int
     outputs: int
     mismatches: list[Mismatch] = field(default_factory=list)
-    replayed: list[list[list[Any]]] = field(default_factory=list)  # per step: what the node published now
+    replayed: list[Published] = field(default_factory=list)  # per step: what the node published now
 
     @property
     def ok(self) -> bool:
@@ -83,51 +91,157 @@ def read(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     return lines[0], lines[1:]
 
 
-def capture_outputs(node: Node) -> list[list[Any]]:
-    """What `node` publishes from now on, as [topic, record] in order (its events included): the
-    outputs a replay compares with the recorded ones."""
-    published: list[list[Any]] = []
+class RecordedInput(Protocol):
+    """An input as a recording holds it: its topic, its payload as it travelled, its encoding
+    ("": the topic's own)."""
 
-    def capture(topic: str, payload: Payload) -> None:
-        published.append([topic, as_record(payload)])
+    @property
+    def topic(self) -> str: ...
+    @property
+    def payload(self) -> bytes: ...
+    @property
+    def encoding(self) -> str: ...
 
-    for port in node._ports.values():
-        if isinstance(port, Publisher):
-            port.tap = capture
-        elif isinstance(port, PublisherFamily):  # made as used: each gets the tap when made
-            port._tap = capture
-    node._events.tap = capture
-    return published
+
+@dataclass(frozen=True)
+class LatchedInput:
+    """An input of a node's own recording: what a step latched."""
+
+    topic: str
+    payload: bytes
+    encoding: str = ""
+
+
+@dataclass(frozen=True)
+class SearchedStep:
+    """A step replayed not knowing which of its candidate inputs it latched (NodeReplay.step_latching_a_prefix)."""
+
+    outputs: Published
+    latched: int  # how many of the candidates (a prefix) the kept try latched
+    undecided: bool  # the node's state could not be copied: only the likely prefix was tried
+
+
+class NodeReplay:
+    """The replay engine: one node driven through recorded steps, whatever they were read from (a
+    node's own recording here, a recording of the bus in ares.core.bus_replay). The node is built
+    from the recorded run's configuration (recording nothing itself) on an in-memory bus with a
+    manual clock; each step's inputs are delivered, the node stepped at the step's recorded time,
+    and what it published is compared with what it published in the run (`compare`, into `result`)."""
+
+    def __init__(
+        self,
+        node_class: type[Node],
+        cfg: dict[str, Any],
+        name: str,
+        result: ReplayResult,
+        *,
+        start: float = 0.0,
+        max_mismatches: int = 20,
+    ):
+        cfg = {**cfg, "replay": {**cfg.get("replay", {}), "record": []}}
+        self.clock = ManualClock(start)
+        network = MemoryNetwork(cfg["vehicle_id"])
+        self.node = node_class(cfg, clock=self.clock, bus=network.bus(name, self.clock), name=name)
+        self._published: Published = []
+        self.node.tap_outputs(self._capture)
+        self._feeder = network.bus("replay", self.clock)
+        self.result = result
+        self.max_mismatches = max_mismatches
+        self._compared = 0  # steps compared so far: a mismatch names its step by this count
+
+    def _capture(self, topic: str, payload: Payload) -> None:
+        self._published.append([topic, as_record(payload)])
+
+    def set_up(self) -> None:
+        self.node.setup()
+
+    def tear_down(self) -> None:
+        self.node.teardown()
+
+    def published(self) -> Published:
+        """What the node published since this was last asked (or a step returned it), as
+        [topic, record] in order, its events included."""
+        found, self._published = self._published, []
+        return found
+
+    def deliver(self, inputs: Iterable[RecordedInput]) -> None:
+        """Recorded inputs on the bus, in order: the node latches them at its next step."""
+        for message in inputs:
+            self._feeder.inject(message.topic, message.payload, message.encoding or None)
+
+    def step(self, t: float, inputs: Iterable[RecordedInput] = ()) -> Published:
+        """One step at `t` (the clock never goes back) latching `inputs` and what was delivered
+        before them; returns what the node published since last asked."""
+        outputs = self._step(t, inputs)
+        self.result.steps += 1
+        return outputs
+
+    def step_latching_a_prefix(
+        self, t: float, candidates: Sequence[RecordedInput], likely: int, expected: Published
+    ) -> SearchedStep:
+        """One step at `t` of a recording that does not say what it latched (one of the bus): a
+        prefix of `candidates` (the inputs since the previous step, in order of arrival), most
+        likely the first `likely`. Tried latching those, then all, then fewer, then more, the
+        node's state put back between tries; the first try that publishes `expected` is kept, or,
+        if none does, the likely one (whose mismatches `compare` then reports). What the kept try
+        did not latch is the caller's: the next step's, most likely."""
+        if not candidates:
+            return SearchedStep(self.step(t), 0, undecided=False)
+        try:
+            state = self.node.copy_state()
+        except Exception:  # a state that cannot be copied (a solver's handle): the likely ones
+            self.deliver(candidates[:likely])
+            return SearchedStep(self.step(t), likely, undecided=True)
+        tries = dict.fromkeys(
+            [likely, len(candidates), *range(likely - 1, -1, -1), *range(likely + 1, len(candidates))]
+        )
+        for latched in tries:
+            self.deliver(candidates[:latched])
+            outputs = self._step(t)
+            if not _mismatches(0, t, expected, outputs):
+                self.result.steps += 1
+                return SearchedStep(outputs, latched, undecided=False)
+            self.node.restore_state(state)
+        self.deliver(candidates[:likely])
+        return SearchedStep(self.step(t), likely, undecided=False)
+
+    def compare(self, t: float | None, expected: Published, got: Published) -> None:
+        """A recorded step's outputs against the replayed ones (t None: the set-up's), into the
+        result; the steps are numbered in the order they are compared."""
+        self.result.outputs += len(got)
+        if len(self.result.mismatches) < self.max_mismatches:
+            self.result.mismatches += _mismatches(self._compared, t, expected, got)
+        self.result.replayed.append(got)
+        self._compared += 1
+
+    def _step(self, t: float, inputs: Iterable[RecordedInput] = ()) -> Published:
+        self.clock.set(max(t, self.clock.now()))
+        self.deliver(inputs)
+        self.node.step_once(t)
+        return self.published()
 
 
 def replay(
     path: str | Path, config_overrides: dict[str, dict[str, Any]] | None = None, max_mismatches: int = 20
 ) -> ReplayResult:
+    """Replay a node's own recording: each step latching what the recording says it latched."""
     header, frames = read(path)
     cfg = dict(header["config"])
-    cfg["replay"] = {**cfg.get("replay", {}), "record": []}
     for section, values in (config_overrides or {}).items():
         cfg[section] = {**cfg.get(section, {}), **values}
-    clock = ManualClock(header["start"])
-    network = MemoryNetwork(cfg["vehicle_id"])
-    node = load(header["class"])(cfg, clock=clock, bus=network.bus(header["node"], clock), name=header["node"])
-    published = capture_outputs(node)
-    feeder = network.bus("replay", clock)
     result = ReplayResult(node=header["node"], steps=0, outputs=0)
-    node.setup()
-    for index, frame in enumerate(frames):
-        if frame["t"] is not None:
-            clock.set(max(frame["t"], clock.now()))
-            for topic, message in frame["in"]:
-                feeder.inject(topic, as_payload(message))
-            node.step_once(frame["t"])
-            result.steps += 1
-        result.outputs += len(published)
-        if len(result.mismatches) < max_mismatches:
-            result.mismatches += _compare(index, frame["t"], frame["out"], published)
-        result.replayed.append(list(published))
-        published.clear()
-    node.teardown()
+    engine = NodeReplay(
+        load(header["class"]), cfg, header["node"], result, start=header["start"], max_mismatches=max_mismatches
+    )
+    engine.set_up()
+    for frame in frames:
+        t = frame["t"]
+        if t is None:  # what it published while setting up
+            outputs = engine.published()
+        else:
+            outputs = engine.step(t, [LatchedInput(topic, as_payload(message)) for topic, message in frame["in"]])
+        engine.compare(t, frame["out"], outputs)
+    engine.tear_down()
     return result
 
 
@@ -142,7 +256,7 @@ def update(path: str | Path) -> ReplayResult:
     return result
 
 
-def _compare(step: int, t: float | None, expected: list[list[Any]], got: list[list[Any]]) -> list[Mismatch]:
+def _mismatches(step: int, t: float | None, expected: Published, got: Published) -> list[Mismatch]:
     if len(expected) != len(got):
         return [Mismatch(step, t, "number of messages", [e[0] for e in expected], [g[0] for g in got])]
     found = []
