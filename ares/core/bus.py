@@ -105,6 +105,12 @@ class ServiceInbox:
             self._queue.append((time.monotonic(), query))
             return True
 
+    @property
+    def waiting(self) -> int:
+        """How many requests wait for the owning node's loop."""
+        with self._lock:
+            return len(self._queue)
+
     def take(self) -> Query | None:
         """The oldest query still worth answering, or None."""
         while True:
