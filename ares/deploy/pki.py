@@ -25,13 +25,12 @@ Layout of the CA folder (`ares deploy certs --fleet-ca DIR`):
         api_signing_key                the key that signs the API's tokens
         mongo_password                 the password of MongoDB's user `ares`
 
-Keys are written owner-only, each file atomically (a reader never sees half a key).
+Keys are written owner-only, each file atomically (a reader never sees half a key). The certificates
+are made by ares.core.certificates (the black box's self-signed one too).
 """
 
 from __future__ import annotations
 
-import datetime as dt
-import ipaddress
 import os
 import re
 import secrets
@@ -40,9 +39,12 @@ from pathlib import Path
 
 from cryptography import x509
 from cryptography.exceptions import InvalidSignature
-from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+from ares.core import certificates
+from ares.core.certificates import matches_key  # also the deployment check's (pki.matches_key)
 
 VEHICLE_ID_RE = re.compile(r"^[a-z0-9][a-z0-9_-]{0,62}$")  # a key-expression chunk, a CN, a user name
 CA_DAYS = 3650
@@ -89,58 +91,11 @@ def write_private(path: Path, text: str) -> None:
     _write(path, text.encode(), private=True)
 
 
-def _key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:
-    return key.private_bytes(
-        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
-    )
-
-
-def _cert_pem(cert: x509.Certificate) -> bytes:
-    return cert.public_bytes(serialization.Encoding.PEM)
-
-
-def _san(name: str) -> x509.GeneralName:
-    try:
-        return x509.IPAddress(ipaddress.ip_address(name))
-    except ValueError:
-        return x509.DNSName(name)
-
-
-def _key_usage(ca: bool) -> x509.KeyUsage:
-    return x509.KeyUsage(
-        digital_signature=True,
-        content_commitment=False,
-        key_encipherment=False,
-        data_encipherment=False,
-        key_agreement=False,
-        key_cert_sign=ca,
-        crl_sign=ca,
-        encipher_only=False,
-        decipher_only=False,
-    )
-
-
 def make_ca(
     common_name: str = "ARES fleet CA", days: int = CA_DAYS
 ) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
-    key = ec.generate_private_key(ec.SECP256R1())
-    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
-    now = dt.datetime.now(dt.UTC)
-    ski = x509.SubjectKeyIdentifier.from_public_key(key.public_key())
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(name)
-        .issuer_name(name)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - dt.timedelta(minutes=5))
-        .not_valid_after(now + dt.timedelta(days=days))
-        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(_key_usage(ca=True), critical=True)
-        .add_extension(ski, critical=False)
-        .sign(key, hashes.SHA256())
-    )
-    return key, cert
+    key = certificates.new_key()
+    return key, certificates.build(certificates.subject_name(common_name), key, days, ca=True)
 
 
 def make_leaf(
@@ -151,25 +106,14 @@ def make_leaf(
     days: int = LEAF_DAYS,
 ) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
     """A router's certificate: it both listens and connects, so it serves as server and client."""
-    key = ec.generate_private_key(ec.SECP256R1())
-    now = dt.datetime.now(dt.UTC)
-    ca_ski = ca_cert.extensions.get_extension_for_class(x509.SubjectKeyIdentifier).value
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)]))
-        .issuer_name(ca_cert.subject)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - dt.timedelta(minutes=5))
-        .not_valid_after(min(now + dt.timedelta(days=days), ca_cert.not_valid_after_utc))
-        .add_extension(x509.SubjectAlternativeName([_san(n) for n in names]), critical=False)
-        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(_key_usage(ca=False), critical=True)
-        .add_extension(
-            x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False
-        )
-        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_subject_key_identifier(ca_ski), critical=False)
-        .sign(ca_key, hashes.SHA256())
+    key = certificates.new_key()
+    cert = certificates.build(
+        certificates.subject_name(common_name),
+        key,
+        days,
+        issuer=certificates.Issuer(ca_key, ca_cert),
+        hosts=names,
+        usages=[ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH],
     )
     return key, cert
 
@@ -208,12 +152,6 @@ def signed_by(cert: x509.Certificate, ca: x509.Certificate) -> bool:
         return False
 
 
-def matches_key(cert: x509.Certificate, key: ec.EllipticCurvePrivateKey) -> bool:
-    spki = serialization.PublicFormat.SubjectPublicKeyInfo
-    der = serialization.Encoding.DER
-    return cert.public_key().public_bytes(der, spki) == key.public_key().public_bytes(der, spki)
-
-
 def read_users(path: Path) -> dict[str, str]:
     """The router's dictionary, as zenoh reads it: `user:password`, one per line."""
     users: dict[str, str] = {}
@@ -242,8 +180,8 @@ def ensure_ca(ca_dir: Path, fleet_hosts: list[str]) -> tuple[ec.EllipticCurvePri
     created = not ca_pem.exists()
     if created:
         key, cert = make_ca()
-        _write(ca_key, _key_pem(key), private=True)
-        _write(ca_pem, _cert_pem(cert), private=False)
+        _write(ca_key, certificates.private_key_pem(key), private=True)
+        _write(ca_pem, certificates.certificate_pem(cert), private=False)
     key, cert = load_key(ca_key), load_cert(ca_pem)
     if not matches_key(cert, key):
         raise PkiError(f"{ca_pem} and {ca_key} are not a pair")
@@ -265,9 +203,9 @@ def issue_router(
     ca_key: ec.EllipticCurvePrivateKey, ca_cert: x509.Certificate, out: Path, name: str, hosts: list[str]
 ) -> None:
     key, cert = make_leaf(ca_key, ca_cert, name, [name, *hosts])
-    _write(out / "zenoh_router_key", _key_pem(key), private=True)
-    _write(out / "zenoh_router_cert", _cert_pem(cert), private=False)
-    _write(out / "zenoh_ca", _cert_pem(ca_cert), private=False)
+    _write(out / "zenoh_router_key", certificates.private_key_pem(key), private=True)
+    _write(out / "zenoh_router_cert", certificates.certificate_pem(cert), private=False)
+    _write(out / "zenoh_ca", certificates.certificate_pem(ca_cert), private=False)
 
 
 def issue_blackbox(
@@ -275,8 +213,8 @@ def issue_blackbox(
 ) -> None:
     """The API's HTTPS certificate (renewed), its token-signing key and the store's password (made once)."""
     key, cert = make_leaf(ca_key, ca_cert, name, [name, *hosts, "localhost", "127.0.0.1"])
-    _write(out / "api_tls_key", _key_pem(key), private=True)
-    _write(out / "api_tls_cert", _cert_pem(cert), private=False)
+    _write(out / "api_tls_key", certificates.private_key_pem(key), private=True)
+    _write(out / "api_tls_cert", certificates.certificate_pem(cert), private=False)
     # kept when present: MongoDB sets its user's password once, at its first start (docs/deploy.md: rotation)
     if not (out / "api_signing_key").exists():
         _write(out / "api_signing_key", secrets.token_hex(32).encode(), private=True)

@@ -3,7 +3,7 @@
 ARES §3.8: the API is the vehicle's only service reachable from outside, over HTTPS. A
 deployment configures its own certificate (`tls.certfile`/`tls.keyfile`). Without one, a
 self-signed certificate for the configured host names (localhost, 127.0.0.1, ::1 by default)
-is generated with `cryptography` into `tls.cert_dir` and reused on later starts while it stays
+is made (ares.core.certificates) into `tls.cert_dir` and reused on later starts while it stays
 valid and covers those names; clients trust it by pinning that file (httpx `verify=<cert>`).
 """
 
@@ -15,10 +15,10 @@ import os
 from pathlib import Path
 
 from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+from cryptography.hazmat.primitives import serialization
+from cryptography.x509.oid import ExtendedKeyUsageOID
 
+from ares.core import certificates
 from ares.core.config import Params, param
 
 CERT_NAME = "api_cert.pem"
@@ -36,13 +36,6 @@ class TlsSettings(Params):
         doc="names of the self-signed certificate", factory=lambda: ["localhost", "127.0.0.1", "::1"]
     )
     days: int = param(365, "validity of the self-signed certificate", unit="d", ge=1, le=3650)
-
-
-def _san(host: str) -> x509.GeneralName:
-    try:
-        return x509.IPAddress(ipaddress.ip_address(host))
-    except ValueError:
-        return x509.DNSName(host)
 
 
 def _covers(cert: x509.Certificate, hosts: list[str]) -> bool:
@@ -71,9 +64,7 @@ def _reusable(cert_path: Path, key_path: Path, hosts: list[str]) -> bool:
         key = serialization.load_pem_private_key(key_path.read_bytes(), password=None)
     except (ValueError, TypeError, OSError):
         return False
-    if cert.public_key().public_bytes(
-        serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo
-    ) != key.public_key().public_bytes(serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo):
+    if not certificates.matches_key(cert, key):
         return False
     now = dt.datetime.now(dt.UTC)
     return cert.not_valid_before_utc <= now and cert.not_valid_after_utc - RENEW_BEFORE > now and _covers(cert, hosts)
@@ -86,56 +77,22 @@ def self_signed(cert_dir: Path, hosts: list[str], days: int = 365) -> tuple[Path
     if _reusable(cert_path, key_path, hosts):
         return cert_path, key_path
     cert_dir.mkdir(parents=True, exist_ok=True)
-    key = ec.generate_private_key(ec.SECP256R1())  # P-256: fast handshakes, fast to generate
-    name = x509.Name(
-        [
-            x509.NameAttribute(NameOID.COMMON_NAME, hosts[0] if hosts else "localhost"),
-            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "ARES black box (self-signed)"),
-        ]
-    )
-    now = dt.datetime.now(dt.UTC)
-    ski = x509.SubjectKeyIdentifier.from_public_key(key.public_key())
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(name)
-        .issuer_name(name)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - dt.timedelta(minutes=5))  # tolerate small clock offsets
-        .not_valid_after(now + dt.timedelta(days=days))
-        .add_extension(x509.SubjectAlternativeName([_san(h) for h in hosts]), critical=False)
-        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=True,
-                content_commitment=False,
-                key_encipherment=False,
-                data_encipherment=False,
-                key_agreement=False,
-                key_cert_sign=False,
-                crl_sign=False,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
-        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
-        .add_extension(ski, critical=False)
-        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_subject_key_identifier(ski), critical=False)
-        .sign(key, hashes.SHA256())
+    key = certificates.new_key()
+    cert = certificates.build(
+        certificates.subject_name(hosts[0] if hosts else "localhost", "ARES black box (self-signed)"),
+        key,
+        days,
+        hosts=hosts,
+        usages=[ExtendedKeyUsageOID.SERVER_AUTH],
     )
     # write the key first, owner-only, then the certificate; a reader never sees a cert without its key
     tmp_key = key_path.with_suffix(".tmp")
     fd = os.open(tmp_key, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "wb") as f:
-        f.write(
-            key.private_bytes(
-                serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
-            )
-        )
+        f.write(certificates.private_key_pem(key))
     os.replace(tmp_key, key_path)
     tmp_cert = cert_path.with_suffix(".tmp")
-    tmp_cert.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    tmp_cert.write_bytes(certificates.certificate_pem(cert))
     os.replace(tmp_cert, cert_path)
     return cert_path, key_path
 
