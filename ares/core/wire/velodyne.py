@@ -691,72 +691,14 @@ class RotationAssembler:
     def add(self, payload: bytes, received_wall: float) -> list[Rotation]:
         """One packet as received (its bytes and the wall time it arrived): the rotations it finishes."""
         self.packets += 1
-        header, cause, detail = check_packet(self.model, payload)
+        header = self._checked(payload)
         if header is None:
-            self.malformed[cause] += 1
-            self.refused.append((cause, detail))
             return []
-        mismatch = factory_mismatch(self.model, header.product)
-        if mismatch is not None:
-            if header.product not in self.factory_bytes:
-                self.notices.append((f"factory byte 0x{header.product:02x}", mismatch))
-            self.factory_bytes[header.product] += 1
-        done: list[Rotation] = []
         lay = layout(self.model, header.dual)
-        previous, pending = self._previous, self._pending
-        if lay.last_block_firing > 0:
-            step = ((header.last_azimuth - header.first_azimuth) % 36000) / lay.last_block_firing
-            if step > 2 * self._previous_step + 1 > 1:  # a jump inside: a field of view's end
-                a, b, between = lay.step_pairs
-                az = header.azimuths
-                step = float(np.median([(az[j] - az[i]) % 36000 / n for i, j, n in zip(a, b, between, strict=True)]))
-        elif previous is not None and previous.dual == header.dual:  # one firing a packet: from the last
-            step = ((header.first_azimuth - previous.first_azimuth) % 36000) / lay.firings_per_packet
-            if step > 2 * self._previous_step > 0:  # a lost packet's gap: keep the rate we had
-                step = self._previous_step
-        else:
-            step = self._previous_step
-        span = step * lay.firings_per_packet  # this packet's azimuth advance to the next
-        gap_azimuth = 0.0
-        if previous is not None:
-            dt: float = (header.timestamp_us - previous.timestamp_us) % HOUR_US
-            if dt >= STALL_US:
-                self.stalls += 1
-                done += self._finish()
-            else:
-                period = packet_period_us(self.model, header.dual)
-                gap_azimuth = (header.first_azimuth - previous.first_azimuth) % 36000
-                if self.hidden and self._relative(header.first_azimuth) < self._relative(previous.first_azimuth):
-                    # across the hidden arc: the time and azimuth it takes are no loss, nor is the
-                    # packet's worth its edges can fall short by (the view ends and starts mid-packet)
-                    previous_lay = layout(self.model, previous.dual)
-                    per_us = self._previous_step / previous_lay.cycle_us
-                    span_before = self._previous_step * previous_lay.firings_per_packet
-                    gap_azimuth = max(gap_azimuth - self.hidden - span_before, 0)
-                    dt = max(dt - (self.hidden / per_us if per_us > 0 else dt) - period, 0)
-                lost_time = round(dt / period) - 1 if dt > GAP_PERIODS * period else 0
-                expected = self._previous_step * layout(self.model, previous.dual).firings_per_packet
-                lost_azimuth = (
-                    round(gap_azimuth / expected) - 1 if expected > 0 and gap_azimuth > GAP_PERIODS * expected else 0
-                )
-                self.lost += max(lost_time, lost_azimuth, 0)
+        step = self._azimuth_step(header, lay)
+        done = self._count_gap(header)
+        done += self._hold(payload, header, received_wall, step)
         pending = self._pending
-        if pending.last is not None:
-            last = pending.last
-            end_of_last = (
-                self._relative(last.first_azimuth)
-                + pending.step * (layout(self.model, last.dual).firings_per_packet - 1)
-            ) % 36000
-            if header.dual != last.dual or self._relative(header.first_azimuth) < end_of_last:
-                done += self._finish()  # the azimuth wrapped between packets, or the mode changed
-                pending = self._pending
-        if pending.first is None:
-            pending.first, pending.first_wall = header, received_wall
-        else:
-            assert pending.last is not None  # set with `first`
-            pending.swept += (header.first_azimuth - pending.last.first_azimuth) % 36000
-        pending.payloads.append(payload)
-        pending.last, pending.last_wall, pending.step = header, received_wall, step
         held = len(pending.payloads)
         if (held >= self.max_packets and pending.swept < 18000) or held >= 4 * self.max_packets:
             # the azimuth is not turning (not half a turn in 2.5 rotations' packets): cut, bounded
@@ -767,15 +709,102 @@ class RotationAssembler:
             self._previous, self._previous_step = header, step
             return done + self._finish()
         self._previous, self._previous_step = header, step
+        if self._closes_rotation(header, lay, step, held):
+            done += self._finish()
+        return done
+
+    def _checked(self, payload: bytes) -> PacketHeader | None:
+        """The packet's header, or None (counted and kept for the driver) for a malformed packet; a
+        factory byte that disagrees with the model is noted once and counted."""
+        header, cause, detail = check_packet(self.model, payload)
+        if header is None:
+            self.malformed[cause] += 1
+            self.refused.append((cause, detail))
+            return None
+        mismatch = factory_mismatch(self.model, header.product)
+        if mismatch is not None:
+            if header.product not in self.factory_bytes:
+                self.notices.append((f"factory byte 0x{header.product:02x}", mismatch))
+            self.factory_bytes[header.product] += 1
+        return header
+
+    def _azimuth_step(self, header: PacketHeader, lay: Layout) -> float:
+        """The azimuth advance per firing (0.01°), from inside the packet or from the last one."""
+        previous = self._previous
+        if lay.last_block_firing > 0:
+            step = ((header.last_azimuth - header.first_azimuth) % 36000) / lay.last_block_firing
+            if step > 2 * self._previous_step + 1 > 1:  # a jump inside: a field of view's end
+                a, b, between = lay.step_pairs
+                az = header.azimuths
+                step = float(np.median([(az[j] - az[i]) % 36000 / n for i, j, n in zip(a, b, between, strict=True)]))
+            return step
+        if previous is not None and previous.dual == header.dual:  # one firing a packet: from the last
+            step = ((header.first_azimuth - previous.first_azimuth) % 36000) / lay.firings_per_packet
+            if step > 2 * self._previous_step > 0:  # a lost packet's gap: keep the rate we had
+                step = self._previous_step
+            return step
+        return self._previous_step
+
+    def _count_gap(self, header: PacketHeader) -> list[Rotation]:
+        """Since the last packet: a stall (the rotation under way finished, returned) or the packets
+        lost, by time and by azimuth, whichever says more."""
+        previous = self._previous
+        if previous is None:
+            return []
+        dt: float = (header.timestamp_us - previous.timestamp_us) % HOUR_US
+        if dt >= STALL_US:
+            self.stalls += 1
+            return self._finish()
+        period = packet_period_us(self.model, header.dual)
+        gap_azimuth: float = (header.first_azimuth - previous.first_azimuth) % 36000
+        if self.hidden and self._relative(header.first_azimuth) < self._relative(previous.first_azimuth):
+            # across the hidden arc: the time and azimuth it takes are no loss, nor is the
+            # packet's worth its edges can fall short by (the view ends and starts mid-packet)
+            previous_lay = layout(self.model, previous.dual)
+            per_us = self._previous_step / previous_lay.cycle_us
+            span_before = self._previous_step * previous_lay.firings_per_packet
+            gap_azimuth = max(gap_azimuth - self.hidden - span_before, 0)
+            dt = max(dt - (self.hidden / per_us if per_us > 0 else dt) - period, 0)
+        lost_time = round(dt / period) - 1 if dt > GAP_PERIODS * period else 0
+        expected = self._previous_step * layout(self.model, previous.dual).firings_per_packet
+        lost_azimuth = round(gap_azimuth / expected) - 1 if expected > 0 and gap_azimuth > GAP_PERIODS * expected else 0
+        self.lost += max(lost_time, lost_azimuth, 0)
+        return []
+
+    def _hold(self, payload: bytes, header: PacketHeader, received_wall: float, step: float) -> list[Rotation]:
+        """The packet added to the rotation under way, after finishing that one (returned) if the
+        azimuth wrapped between packets or the mode changed."""
+        done: list[Rotation] = []
+        pending = self._pending
+        if pending.last is not None:
+            last = pending.last
+            end_of_last = (
+                self._relative(last.first_azimuth)
+                + pending.step * (layout(self.model, last.dual).firings_per_packet - 1)
+            ) % 36000
+            if header.dual != last.dual or self._relative(header.first_azimuth) < end_of_last:
+                done += self._finish()
+                pending = self._pending
+        if pending.first is None:
+            pending.first, pending.first_wall = header, received_wall
+        else:
+            assert pending.last is not None  # set with `first`
+            pending.swept += (header.first_azimuth - pending.last.first_azimuth) % 36000
+        pending.payloads.append(payload)
+        pending.last, pending.last_wall, pending.step = header, received_wall, step
+        return done
+
+    def _closes_rotation(self, header: PacketHeader, lay: Layout, step: float, held: int) -> bool:
+        """Whether this packet ends the rotation: its own firings wrap past the cut (and it is not
+        alone), or the next packet would start past the cut (or past the field of view's end)."""
+        span = step * lay.firings_per_packet  # this packet's azimuth advance to the next
         end = self._relative(header.first_azimuth) + step * (lay.firings_per_packet - 1)  # unwrapped
         wrapped_inside = end >= 36000
         if self.hidden:  # a field of view: the last packet is the last to start inside it
             closes = self._relative(header.first_azimuth) + span >= 36000 - self.hidden
         else:  # all round: the next packet would cross the cut
             closes = end + span >= 36000
-        if (wrapped_inside and len(pending.payloads) > 1) or (not wrapped_inside and closes):
-            done += self._finish()
-        return done
+        return (wrapped_inside and held > 1) or (not wrapped_inside and closes)
 
     def _relative(self, azimuth: int) -> int:
         """An azimuth from the cut (0°, or the start of the field of view), 0.01°."""
