@@ -47,15 +47,17 @@ def test_the_tour_through_its_first_rtk_loss_zone(tmp_path):
     result = drive(tmp_path, seconds=150, control_manager={"pinned": "mpc"}, sim={"start_s_m": 400.0})
     assert result["ok"] and result["controller_time_share"]["mpc"] >= 0.99 and result["mpc_solves"] > 1400
     assert result["distance_m"] > 400
-    assert result["xte_rmse_m"] <= 0.35  # the DBW paper's real vehicle: 0.347 m
-    assert result["xte_max_m"] <= 0.85  # ... and 0.863 m
-    # localization: the UKF estimate drives the controller (ARES paper §3.1); README's lap: 0.0086 m,
-    # 0.063°, 0.035 m in the zone, scores 0.996 with RTK and 0.010 without
-    assert result["loc_rmse_rtk_m"] <= 0.05
-    assert result["yaw_rmse_deg"] <= 1.0
-    assert result["loc_max_deadzone_m"] <= 0.5
-    assert result["score_min_rtk"] >= 0.9
-    assert result["score_max_deadzone"] <= 0.3
+    # a deterministic drive: each bound is about three times what it measures (xte 0.015 m rms,
+    # 0.069 m at most), so that a regression shows; the DBW paper's real vehicle did 0.347 / 0.863 m
+    assert result["xte_rmse_m"] <= 0.05
+    assert result["xte_max_m"] <= 0.2
+    # localization: the UKF estimate drives the controller (ARES paper §3.1); this drive measures
+    # 0.0088 m, 0.062°, 0.067 m at most in the zone, scores 0.996 with RTK and 0.013 without
+    assert result["loc_rmse_rtk_m"] <= 0.03
+    assert result["yaw_rmse_deg"] <= 0.2
+    assert result["loc_max_deadzone_m"] <= 0.2
+    assert result["score_min_rtk"] >= 0.95
+    assert result["score_max_deadzone"] <= 0.05
     assert result["loc_samples_rtk"] > 1000 and result["loc_samples_deadzone"] > 500
     assert "road_detect_rate" not in result  # the LiDARs were left out (tests/no_lidars.yaml)
     assert result["collisions"] == 0 and result["invariant_violations"] == 0
@@ -68,7 +70,8 @@ def test_perception_sees_the_road_and_the_obstacles(tmp_path):
     the path and two pedestrians crossing; the LiDARs light (tests/light_lidars.yaml). The figures
     of the full-resolution lap are the README's."""
     result = drive(tmp_path, (LIGHT_LIDARS,), seconds=50, scenario="obstacles_along_tour")
-    assert result["xte_max_m"] <= 0.85 and result["loc_rmse_rtk_m"] <= 0.05
+    # measured: xte 0.031 m at most, localization 0.0088 m rms (bounds at about three times)
+    assert result["xte_max_m"] <= 0.1 and result["loc_rmse_rtk_m"] <= 0.03
     assert result["collisions"] == 0 and result["invariant_violations"] == 0
     # the lap's goals (README): detect 0.95, edge p50 0.15 m, centre p50 0.10 m; with obstacles on
     # the road's edge every 40 m the edge p95 is the README's 0.80 m, not the open road's 0.40 m
@@ -122,15 +125,18 @@ def test_a_receivers_log_from_the_south_across_a_zone_boundary_is_driven_to_its_
     result = drive(tmp_path, route_file=str(route_file))
     route = Route.from_csv(route_file)
     assert result["ok"] and result["distance_m"] == pytest.approx(route.length, rel=0.02)
-    assert result["xte_rmse_m"] <= 0.35 and result["xte_max_m"] <= 0.85
-    assert result["loc_rmse_rtk_m"] <= 0.05 and result["yaw_rmse_deg"] <= 1.0
-    assert result["score_min_rtk"] >= 0.9
+    # measured: xte 0.008 m rms and 0.034 m at most, localization 0.0088 m and 0.10° rms, score
+    # 0.996 (bounds at about three times)
+    assert result["xte_rmse_m"] <= 0.025 and result["xte_max_m"] <= 0.1
+    assert result["loc_rmse_rtk_m"] <= 0.03 and result["yaw_rmse_deg"] <= 0.3
+    assert result["score_min_rtk"] >= 0.95
 
 
 def test_the_same_configuration_drives_the_same_drive(tmp_path):
     """Nothing in a drive depends on the wall clock, an unseeded random number or the order of a
     set: two drives of the same configuration, in two processes with different hash seeds, give
-    the same figures to the last digit (but the solve times, which are the computer's)."""
+    the same figures to the last digit, but the computer's: the solve times and the deadline misses
+    counted from them (a solve over its period in wall time; a loaded machine has some)."""
     results = []
     for seed in ("0", "1"):
         store = tmp_path / f"blackbox_{seed}.sqlite"
@@ -143,7 +149,7 @@ def test_the_same_configuration_drives_the_same_drive(tmp_path):
         results.append(json.loads(done.stdout.strip().splitlines()[-1]))
     first, second = results
     assert first["distance_m"] > 20 and not math.isnan(first["xte_rmse_m"])
-    timing = {"mpc_solve_p50_ms", "mpc_solve_p99_ms"}
+    timing = {"mpc_solve_p50_ms", "mpc_solve_p99_ms", "mpc_deadline_misses"}
     assert {k: v for k, v in first.items() if k not in timing} == {k: v for k, v in second.items() if k not in timing}
 
 
