@@ -21,6 +21,7 @@ from typing import cast
 import can
 
 from ares.core.bus import Publisher
+from ares.core.clock import Clock, WallClock
 from ares.core.config import Params, param
 from ares.core.driver import DriverNode
 from ares.core.messages import BodyState, CanFrame, Imu, PanelEvent
@@ -73,6 +74,12 @@ class CanDriver(DriverNode):
     panel_out = Output("vehicle/panel", doc="the driver's actions the board reports (PanelEvent frames)")
     body_out = Output("body/state", rate="body_hz", doc="the body's Body_State frames")
 
+    def __init__(self, *args, wall: Clock | None = None, **kwargs) -> None:  # type: ignore[no-untyped-def]
+        """`wall`: the computer's clock, by which the bus's health is judged (silence, reopening: real
+        seconds, whatever the stack's clock does); a test gives a manual one."""
+        super().__init__(*args, **kwargs)
+        self.wall: Clock = wall if wall is not None else WallClock()
+
     def setup(self) -> None:
         device = self.core.vehicle_io.can
         if device is None:
@@ -91,16 +98,16 @@ class CanDriver(DriverNode):
             BodyState: cast(Publisher[Msg], self.body_out),
         }
         self._bus: can.BusABC | None = None
-        self._retry_at = -float("inf")  # monotonic wall times: the next open attempt,
+        self._retry_at = -float("inf")  # times of self.wall: the next open attempt,
         self._opened_at = -float("inf")  # the bus's last opening,
         self._heard_at = -float("inf")  # the last frame from the vehicle
-        self._open(time.monotonic())
+        self._open(self.wall.now())
 
     def teardown(self) -> None:
         self._close()
 
     def step(self, now: float) -> None:
-        wall = time.monotonic()
+        wall = self.wall.now()
         if self._bus is None and wall >= self._retry_at:
             self._open(wall)
         self._send_commands()
@@ -113,7 +120,7 @@ class CanDriver(DriverNode):
             self.counters.problem("silent", f"no frame from the vehicle for {silence:g} s: reopened")
             self._close()
             self._open(wall)
-        self.counters.connected = self._bus is not None and time.monotonic() - self._heard_at <= silence
+        self.counters.connected = self._bus is not None and self.wall.now() - self._heard_at <= silence
         sent = ", ".join(f"{name} {n}" for name, n in sorted(self.sent.items()))
         self.counters.detail = f"{self.device.interface} {self.device.channel}" + (f"; sent {sent}" if sent else "")
         self.report(now)
@@ -140,7 +147,7 @@ class CanDriver(DriverNode):
     def _lost_bus(self, exc: Exception) -> None:
         self.counters.problem("bus failed", f"{type(exc).__name__}: {exc}")
         self._close()
-        self._retry_at = time.monotonic() + self.params.reopen_s
+        self._retry_at = self.wall.now() + self.params.reopen_s
 
     # ---- to the vehicle ---------------------------------------------------------------------------
     def _send_commands(self) -> None:
@@ -196,7 +203,7 @@ class CanDriver(DriverNode):
             counters.refuse(decoded.refused, decoded.detail)
             return  # garbage is not the vehicle speaking: a bus of only garbage goes silent
         if decoded.skipped != OWN_DIRECTION:
-            self._heard_at = time.monotonic()
+            self._heard_at = self.wall.now()
         if decoded.skipped is not None:
             counters.skip(decoded.skipped)
             return
