@@ -1,19 +1,23 @@
 """The deployment's router files, run by eclipse-zenoh in router mode as zenohd would run them:
 the link between a vehicle's router and the fleet router is mutual TLS, Zenoh user/password and
 access control (ares/deploy/router_config.py). Every negative case is paired with a positive
-one sent after it over the same link, so "nothing arrived" is never judged by a timeout alone."""
+one sent after it over the same link, so "nothing arrived" is never judged by a timeout alone; a
+refused link is judged by the fleet router's own word, the refusal it logs (a slow link logs none)."""
 
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
 import zenoh
 
-from ares.core.localhost import free_port
+from ares.core.localhost import free_port, stop_process
 from ares.deploy import pki, router_config
 from ares.deploy.router import localize, open_router
 
@@ -21,6 +25,11 @@ REPO = Path(__file__).resolve().parents[1]
 FLEET_FILE = REPO / "deploy" / "fleet" / "zenoh-router.json5"
 VEHICLE_FILE = REPO / "deploy" / "vehicle" / "zenoh-router.json5"
 LINK_WAIT_S = 10.0
+# what the fleet router logs as it refuses a link: the password (Zenoh's user/password extension,
+# at debug level of its target) and the certificate (TLS, a warning)
+REFUSAL_LOG = "warn,zenoh_transport::unicast::establishment::accept=debug"
+WRONG_PASSWORD = "UsrPwd extension - Recv OpenSyn. Invalid password."
+FOREIGN_CERTIFICATE = "invalid peer certificate: BadSignature"
 
 
 def test_files_in_deploy_are_the_generators_output():
@@ -59,6 +68,16 @@ def _linked(session: zenoh.Session, timeout_s: float) -> bool:
     return False
 
 
+def _refusals(log: Path, text: str, at_least: int, timeout_s: float = LINK_WAIT_S) -> int:
+    """How many times the router's log says `text`, once it says it `at_least` times (or the timeout)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        count = log.read_text(errors="replace").count(text)
+        if count >= at_least or time.monotonic() > deadline:
+            return count
+        time.sleep(0.05)
+
+
 def _wait_for(items: list, wanted, timeout_s: float = 5.0) -> bool:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -69,10 +88,14 @@ def _wait_for(items: list, wanted, timeout_s: float = 5.0) -> bool:
 
 
 class Deployment:
-    """A fleet router and vehicle routers from deploy/'s files, the secrets from a CA made here."""
+    """A fleet router and vehicle routers from deploy/'s files, the secrets from a CA made here.
+    `fleet_log`: the fleet router in a process of its own, as zenohd runs it (`ares deploy
+    router`), what it logs in that file; else a session in this process."""
 
-    def __init__(self, tmp: Path):
+    def __init__(self, tmp: Path, fleet_log: Path | None = None):
         self.tmp = tmp
+        self.fleet_log = fleet_log
+        self.fleet_process: subprocess.Popen | None = None
         self.ca = tmp / "ca"
         for vehicle_id in ("shuttle01", "shuttle02"):
             pki.issue_vehicle(self.ca, vehicle_id, ["localhost", "127.0.0.1"])
@@ -83,9 +106,26 @@ class Deployment:
             self.ca / "fleet",
             listen=[f"tls/127.0.0.1:{self.tls_port}", f"tcp/127.0.0.1:{self.local_port}"],
         )
-        self.fleet_router = self.keep(open_router(self.fleet_cfg))
+        if fleet_log is None:
+            self.fleet_router = self.keep(open_router(self.fleet_cfg))
+        else:
+            self._start_fleet_process(fleet_log)
         password = (self.ca / "fleet" / "zenoh_fleet_password").read_text()
         self.fleet = self.keep(_client(f"tcp/127.0.0.1:{self.local_port}", "fleet", password))
+
+    def _start_fleet_process(self, log: Path) -> None:
+        listen = [a for e in self.fleet_cfg["listen"]["endpoints"] for a in ("--listen", e)]
+        with log.open("w") as out:
+            self.fleet_process = subprocess.Popen(
+                [sys.executable, "-m", "ares.cli", "deploy", "router", "--config", str(FLEET_FILE),
+                 "--secrets", str(self.ca / "fleet"), *listen],
+                cwd=REPO, stdout=out, stderr=subprocess.STDOUT, env={**os.environ, "RUST_LOG": REFUSAL_LOG},
+            )  # fmt: skip
+        deadline = time.monotonic() + 60.0  # an interpreter's start on a loaded machine
+        while '"router"' not in log.read_text(errors="replace"):  # its first line: listening
+            assert self.fleet_process.poll() is None, log.read_text(errors="replace")[-2000:]
+            assert time.monotonic() < deadline, "the fleet router did not start"
+            time.sleep(0.05)
 
     def keep(self, session: zenoh.Session) -> zenoh.Session:
         self.sessions.append(session)
@@ -107,6 +147,8 @@ class Deployment:
     def close(self) -> None:
         for session in reversed(self.sessions):
             session.close()
+        if self.fleet_process is not None:
+            stop_process(self.fleet_process)
 
 
 @pytest.fixture
@@ -157,14 +199,26 @@ def test_the_fleet_calls_only_its_services(deployment):
     assert received == []
 
 
-def test_a_wrong_password_is_refused(deployment):
-    good, _ = deployment.vehicle_router("shuttle01")
+@pytest.fixture
+def refusing(tmp_path):
+    """A deployment whose fleet router's refusals can be read in its log."""
+    d = Deployment(tmp_path, fleet_log=tmp_path / "fleet-router.log")
+    yield d
+    d.close()
+
+
+def test_a_wrong_password_is_refused(refusing):
+    good, _ = refusing.vehicle_router("shuttle01")
     assert _linked(good, LINK_WAIT_S)
-    bad, _ = deployment.vehicle_router("shuttle02", password="not-its-password")
-    assert not _linked(bad, 2.0)
+    assert _refusals(refusing.fleet_log, WRONG_PASSWORD, 0) == 0  # the right password: nothing refused
+    bad, _ = refusing.vehicle_router("shuttle02", password="not-its-password")
+    # refused, tried again and refused again: a link the fleet router turns away, not a slow one
+    assert _refusals(refusing.fleet_log, WRONG_PASSWORD, 2) >= 2
+    assert not list(bad.info.routers_zid()) and list(good.info.routers_zid())
 
 
-def test_a_certificate_of_another_ca_is_refused(deployment, tmp_path):
+def test_a_certificate_of_another_ca_is_refused(refusing, tmp_path):
+    deployment = refusing
     other = tmp_path / "other-ca"
     pki.issue_vehicle(other, "shuttle02")
     # the right password and the fleet's CA to check the fleet router: only the certificate is foreign
@@ -173,10 +227,12 @@ def test_a_certificate_of_another_ca_is_refused(deployment, tmp_path):
     shutil.copy(deployment.ca / "ca.pem", secrets / "zenoh_ca")
     for name in ("zenoh_user", "zenoh_password"):
         shutil.copy(deployment.ca / "vehicles" / "shuttle02" / name, secrets / name)
-    foreign, _ = deployment.vehicle_router("shuttle02", secrets=secrets)
     good, _ = deployment.vehicle_router("shuttle02")
     assert _linked(good, LINK_WAIT_S)
-    assert not _linked(foreign, 2.0)
+    assert _refusals(deployment.fleet_log, FOREIGN_CERTIFICATE, 0) == 0  # its own certificate: nothing refused
+    foreign, _ = deployment.vehicle_router("shuttle02", secrets=secrets)
+    assert _refusals(deployment.fleet_log, FOREIGN_CERTIFICATE, 2) >= 2  # refused, tried again, refused again
+    assert not list(foreign.info.routers_zid()) and list(good.info.routers_zid())
 
 
 def test_a_restarted_fleet_router_gets_its_vehicles_and_subscriptions_back(deployment):
