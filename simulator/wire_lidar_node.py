@@ -24,6 +24,33 @@ from simulator.velodyne_wire import WireLidar
 SEND_BUFFER = 4 * 1024 * 1024
 
 
+class SteadySpin:
+    """A sensor on the wire spins without pause: its rotations follow one another exactly a period
+    apart (on the grid of its first), whatever the loop's jitter and whichever truth message (at
+    most one truth period old) was the latest."""
+
+    def __init__(self, rate_hz: float):
+        self.period = 1.0 / rate_hz
+        self.start: float | None = None  # the first rotation's time
+
+    def pose(self, now: float, truth: VehicleTruth) -> VehicleTruth:
+        """The pose at the time of the rotation due at `now`, moved from the truth by its speed and
+        yaw rate."""
+        if self.start is None:
+            self.start = now
+        t = self.start + round((now - self.start) / self.period) * self.period
+        dt = t - truth.t
+        yaw = truth.yaw + 0.5 * truth.yaw_rate * dt  # along the arc's mean heading
+        return truth.model_copy(
+            update={
+                "t": t,
+                "x": truth.x + truth.v * math.cos(yaw) * dt,
+                "y": truth.y + truth.v * math.sin(yaw) * dt,
+                "yaw": truth.yaw + truth.yaw_rate * dt,
+            }
+        )
+
+
 class WireLidarSimulator(LidarSimulator):
     """Three simulated LiDARs sending Velodyne data packets to the driver's UDP ports."""
 
@@ -46,7 +73,7 @@ class WireLidarSimulator(LidarSimulator):
 
     def setup(self) -> None:
         super().setup()
-        self._spin_start: float | None = None
+        self.spin = SteadySpin(self.params.rate_hz)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER)
         self.send_errors = 0
@@ -55,24 +82,8 @@ class WireLidarSimulator(LidarSimulator):
         self.sock.close()
 
     def sweep_pose(self, now: float, truth: VehicleTruth) -> VehicleTruth:
-        """The pose at the rotation's own time, moved from the latest truth by its speed and yaw
-        rate: a sensor on the wire spins without pause, so its rotations follow one another exactly
-        a period apart (on the grid of its first), whatever the loop's jitter and whichever truth
-        message (at most one truth period old) was the latest."""
-        if self._spin_start is None:
-            self._spin_start = now
-        period = 1.0 / self.params.rate_hz
-        t = self._spin_start + round((now - self._spin_start) / period) * period
-        dt = t - truth.t
-        yaw = truth.yaw + 0.5 * truth.yaw_rate * dt  # along the arc's mean heading
-        return truth.model_copy(
-            update={
-                "t": t,
-                "x": truth.x + truth.v * math.cos(yaw) * dt,
-                "y": truth.y + truth.v * math.sin(yaw) * dt,
-                "yaw": truth.yaw + truth.yaw_rate * dt,
-            }
-        )
+        """The pose at the rotation's own time (SteadySpin)."""
+        return self.spin.pose(now, truth)
 
     def send_sweeps(self, stamp: float, rotation: np.ndarray, position: np.ndarray, obstacle_scene) -> None:
         """Each sensor's sweep as the packets of one rotation, to its UDP port."""

