@@ -18,10 +18,12 @@ and back, so that the board's measurements can be reported as (v, κ):
 
     κ = tan(α / ratio) / S,    v = ω_w · r · cos(α / ratio).
 
-S is the wheelbase, L the track, r the wheel radius. Everything is a plain function of floats;
-the vehicle parameters are passed in (or held by `SetpointConversion`, built from a vehicle
-profile of ares/core/config/vehicles/). Angles are radians unless a name says `_deg`; the paper's
-board works in degrees (integer arithmetic on the STM32), hence the degree helpers.
+S is the wheelbase, L the track, r the wheel radius. Eqs. 9-12 and 14 are plain functions of
+floats, the vehicle parameters passed in; eq. 13, the steering ratio, is the vehicle's own
+(`VehicleProfile.steering_wheel_angle` and `.road_wheel_angle`: every part of the stack that turns
+one angle into the other does it there). `SetpointConversion` holds a vehicle profile of
+ares/core/config/vehicles/. Angles are radians unless a name says `_deg`; the paper's board works
+in degrees (integer arithmetic on the STM32), hence the degree helpers.
 """
 
 from __future__ import annotations
@@ -31,10 +33,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from ares.core.config import VehicleProfile
-
-# Steering-wheel turn per front-wheel turn, measured on the Techs4AgeCar (paper eq. 13).
-PAPER_STEERING_RATIO = 40.0
-
 
 # --- Equations (9)-(12): curvature, yaw rate, radius, wheel angles ---------------------------
 
@@ -106,42 +104,6 @@ def inner_outer_wheel_angles(kappa: float, wheelbase_m: float, track_m: float) -
     return right, left
 
 
-# --- Equation (13): steering-wheel angle ------------------------------------------------------
-
-
-def steering_wheel_angle(wheel_angle_rad: float, steering_ratio: float = PAPER_STEERING_RATIO) -> float:
-    """α = ratio · θ (rad), eq. (13)."""
-    return steering_ratio * wheel_angle_rad
-
-
-def steering_wheel_angle_deg(wheel_angle_rad: float, steering_ratio: float = PAPER_STEERING_RATIO) -> float:
-    """α in degrees, the unit of the paper's board."""
-    return math.degrees(steering_wheel_angle(wheel_angle_rad, steering_ratio))
-
-
-def steering_wheel_to_wheel_angle(
-    steering_wheel_angle_rad: float, steering_ratio: float = PAPER_STEERING_RATIO
-) -> float:
-    """θ = α / ratio (rad)."""
-    return steering_wheel_angle_rad / steering_ratio
-
-
-def curvature_to_steering_wheel_angle(
-    kappa: float, wheelbase_m: float, steering_ratio: float = PAPER_STEERING_RATIO
-) -> float:
-    """α = ratio · atan(κ·S) (rad), eq. (13) in one go (no limiting)."""
-    return steering_wheel_angle(curvature_to_wheel_angle(kappa, wheelbase_m), steering_ratio)
-
-
-def steering_wheel_angle_to_curvature(
-    steering_wheel_angle_rad: float, wheelbase_m: float, steering_ratio: float = PAPER_STEERING_RATIO
-) -> float:
-    """κ = tan(α / ratio) / S: a measured steering-wheel angle reported as a curvature."""
-    return wheel_angle_to_curvature(
-        steering_wheel_to_wheel_angle(steering_wheel_angle_rad, steering_ratio), wheelbase_m
-    )
-
-
 # --- Equation (14): drive-wheel speed ---------------------------------------------------------
 
 
@@ -179,7 +141,7 @@ class ActuatorSetpoint:
     """What the drive-by-wire board is asked for, in both units it may want."""
 
     wheel_angle_rad: float  # θ after limiting to ±max_wheel_angle
-    steering_wheel_angle_rad: float  # α = ratio · θ
+    steering_wheel_angle_rad: float  # α = ratio · θ (eq. 13, the vehicle's ratio)
     steering_wheel_angle_deg: float
     wheel_speed_rad_s: float  # ω_w = v / (cos θ · r), with the limited θ
     wheel_speed_deg_s: float
@@ -188,43 +150,16 @@ class ActuatorSetpoint:
 
 
 class SetpointConversion:
-    """(v, κ) <-> (steering-wheel angle, wheel speed) for one vehicle (DBW eqs. 9-14)."""
+    """(v, κ) <-> (steering-wheel angle, wheel speed) for one vehicle (DBW eqs. 9-14). Its geometry is
+    the profile's, validated there (positive and finite, the wheel angle below 1.5 rad: eq. 14
+    divides by cos θ)."""
 
-    def __init__(
-        self,
-        wheelbase_m: float,
-        track_m: float,
-        wheel_radius_m: float,
-        max_wheel_angle_rad: float,
-        steering_ratio: float = PAPER_STEERING_RATIO,
-    ):
-        for name, value in (
-            ("wheelbase_m", wheelbase_m),
-            ("track_m", track_m),
-            ("wheel_radius_m", wheel_radius_m),
-            ("max_wheel_angle_rad", max_wheel_angle_rad),
-            ("steering_ratio", steering_ratio),
-        ):
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        if max_wheel_angle_rad >= math.pi / 2:
-            # At 90° eq. (14) divides by zero and κ = tan θ / S is unbounded.
-            raise ValueError(f"max_wheel_angle_rad must be below pi/2, got {max_wheel_angle_rad}")
-        self.wheelbase_m = float(wheelbase_m)
-        self.track_m = float(track_m)
-        self.wheel_radius_m = float(wheel_radius_m)
-        self.steering_ratio = float(steering_ratio)
-        self.max_wheel_angle_rad = float(max_wheel_angle_rad)
-
-    @classmethod
-    def from_profile(cls, profile: VehicleProfile) -> SetpointConversion:
-        return cls(
-            profile.wheelbase_m,
-            profile.track_m,
-            profile.wheel_radius_m,
-            profile.max_wheel_angle_rad,
-            profile.steering_ratio,
-        )
+    def __init__(self, profile: VehicleProfile):
+        self.profile = profile
+        self.wheelbase_m = profile.wheelbase_m
+        self.track_m = profile.track_m
+        self.wheel_radius_m = profile.wheel_radius_m
+        self.max_wheel_angle_rad = profile.max_wheel_angle_rad
 
     @property
     def max_curvature(self) -> float:
@@ -234,29 +169,30 @@ class SetpointConversion:
         """Setpoint (v, κ) -> what the board should do, with the steering limit applied."""
         requested = curvature_to_wheel_angle(kappa, self.wheelbase_m)
         theta = limit_wheel_angle(requested, self.max_wheel_angle_rad)
-        alpha = steering_wheel_angle(theta, self.steering_ratio)
+        alpha_deg = self.profile.steering_wheel_angle(theta)
         omega_w = wheel_speed(v, theta, self.wheel_radius_m)
         return ActuatorSetpoint(
             wheel_angle_rad=theta,
-            steering_wheel_angle_rad=alpha,
-            steering_wheel_angle_deg=math.degrees(alpha),
+            steering_wheel_angle_rad=math.radians(alpha_deg),
+            steering_wheel_angle_deg=alpha_deg,
             wheel_speed_rad_s=omega_w,
             wheel_speed_deg_s=math.degrees(omega_w),
             angular_speed_rad_s=angular_speed(v, wheel_angle_to_curvature(theta, self.wheelbase_m)),
             wheel_angle_limited=theta != requested,
         )
 
-    def to_speed_curvature(self, steering_wheel_angle_rad: float, wheel_speed_rad_s: float) -> SpeedCurvature:
-        """The board's measurement -> (v, κ). Not limited: a measurement is reported as it is."""
-        theta = steering_wheel_to_wheel_angle(steering_wheel_angle_rad, self.steering_ratio)
+    def to_speed_curvature_deg(self, steering_wheel_angle_deg: float, wheel_speed_deg_s: float) -> SpeedCurvature:
+        """The board's measurement, in its degrees -> (v, κ). Not limited: a measurement is reported
+        as it is."""
+        theta = self.profile.road_wheel_angle(steering_wheel_angle_deg)
         return SpeedCurvature(
-            v=wheel_speed_to_linear_speed(wheel_speed_rad_s, theta, self.wheel_radius_m),
+            v=wheel_speed_to_linear_speed(math.radians(wheel_speed_deg_s), theta, self.wheel_radius_m),
             kappa=wheel_angle_to_curvature(theta, self.wheelbase_m),
         )
 
-    def to_speed_curvature_deg(self, steering_wheel_angle_deg: float, wheel_speed_deg_s: float) -> SpeedCurvature:
-        """Same as `to_speed_curvature` for a board reporting in degrees."""
-        return self.to_speed_curvature(math.radians(steering_wheel_angle_deg), math.radians(wheel_speed_deg_s))
+    def to_speed_curvature(self, steering_wheel_angle_rad: float, wheel_speed_rad_s: float) -> SpeedCurvature:
+        """Same as `to_speed_curvature_deg` for a measurement in radians."""
+        return self.to_speed_curvature_deg(math.degrees(steering_wheel_angle_rad), math.degrees(wheel_speed_rad_s))
 
     def wheel_angles(self, kappa: float) -> tuple[float, float]:
         """(inner, outer) front wheel angles for κ after limiting, signed like the turn."""

@@ -439,7 +439,7 @@ class BridgeLoop:
     def __init__(self, profile: VehicleProfile, params: DbwBridgeParams):
         self.params = params
         self.core = DbwCore.from_profile(profile, params.setpoint_timeout_s)
-        self.conversion = SetpointConversion.from_profile(profile)
+        self.conversion = SetpointConversion(profile)
         self.steering_pid = PID.from_gains(profile.dbw_pid.steering)
         self.wheel_speed_pid = PID.from_gains(profile.dbw_pid.throttle)
         self.dt = 1.0 / params.rate_hz

@@ -15,13 +15,7 @@ from ares.core.config import ConfigError, VehicleProfile
 from control import ackermann as ack
 
 S, L, R_WHEEL = 2.36, 1.315, 0.28
-TECHS4AGECAR = {
-    "wheelbase_m": S,
-    "track_m": L,
-    "wheel_radius_m": R_WHEEL,
-    "steering_ratio": 40,
-    "max_wheel_angle_rad": 0.349,
-}
+TECHS4AGECAR = config.load_vehicle("techs4agecar")  # Table 1's car: the geometry above
 
 # Turning radius 5 m (the car's figure in Table 1): κ = 1/5 = 0.2 1/m.
 #   θ  = atan(2.36 / 5)               = atan(0.472)   = 0.44100 rad = 25.267°
@@ -123,25 +117,39 @@ def test_wheel_angles_match_paper_radius_form(kappa):
 # --- eq. (13) --------------------------------------------------------------------------------
 
 
+def test_the_techs4agecar_profile_is_table_1s_car():
+    car = TECHS4AGECAR
+    assert (car.wheelbase_m, car.track_m, car.wheel_radius_m, car.steering_ratio, car.max_wheel_angle_rad) == (
+        S,
+        L,
+        R_WHEEL,
+        40,
+        0.349,
+    )
+
+
 def test_steering_wheel_angle_is_40_times_wheel_angle():
-    assert ack.steering_wheel_angle(THETA_5M) == pytest.approx(40 * THETA_5M)
-    assert ack.curvature_to_steering_wheel_angle(KAPPA_5M, S) == pytest.approx(ALPHA_5M, abs=1e-3)
-    assert ack.steering_wheel_angle_deg(ack.curvature_to_wheel_angle(KAPPA_5M, S)) == pytest.approx(1010.69, abs=1e-2)
-    assert ack.steering_wheel_angle(0.349, steering_ratio=16) == pytest.approx(5.584)
+    car = TECHS4AGECAR
+    assert car.steering_wheel_angle(THETA_5M) == pytest.approx(math.degrees(40 * THETA_5M))
+    alpha_deg = car.steering_wheel_angle(ack.curvature_to_wheel_angle(KAPPA_5M, S))
+    assert math.radians(alpha_deg) == pytest.approx(ALPHA_5M, abs=1e-3)
+    assert alpha_deg == pytest.approx(1010.69, abs=1e-2)
+    geared_16 = car.model_copy(update={"steering_ratio": 16.0})
+    assert math.radians(geared_16.steering_wheel_angle(0.349)) == pytest.approx(5.584)
 
 
 def test_paper_steering_range_to_curvature():
     # The rack allows α = ±9.25 rad: θ = 9.25/40 = 0.23125 rad, κ = tan(0.23125)/2.36 = 0.09977.
-    assert ack.steering_wheel_angle_to_curvature(9.25, S) == pytest.approx(0.09977, abs=1e-5)
-    assert ack.steering_wheel_angle_to_curvature(-9.25, S) == pytest.approx(-0.09977, abs=1e-5)
-    assert ack.steering_wheel_to_wheel_angle(9.25) == pytest.approx(0.23125)
+    car = TECHS4AGECAR
+    assert car.curvature_of(math.degrees(9.25)) == pytest.approx(0.09977, abs=1e-5)
+    assert car.curvature_of(math.degrees(-9.25)) == pytest.approx(-0.09977, abs=1e-5)
+    assert car.road_wheel_angle(math.degrees(9.25)) == pytest.approx(0.23125)
 
 
 @given(curvatures)
 def test_round_trip_curvature_steering_wheel_curvature(kappa):
-    alpha = ack.curvature_to_steering_wheel_angle(kappa, S)
-    back = ack.steering_wheel_angle_to_curvature(alpha, S)
-    assert back == pytest.approx(kappa, rel=1e-9, abs=1e-12)
+    alpha_deg = TECHS4AGECAR.steering_wheel_angle(ack.curvature_to_wheel_angle(kappa, S))
+    assert TECHS4AGECAR.curvature_of(alpha_deg) == pytest.approx(kappa, rel=1e-9, abs=1e-12)
 
 
 @given(wheel_angles)
@@ -216,7 +224,7 @@ def test_limit_wheel_angle_never_exceeds_and_keeps_sign(theta, limit):
 
 
 def techs4agecar() -> ack.SetpointConversion:
-    return ack.SetpointConversion(**TECHS4AGECAR)
+    return ack.SetpointConversion(TECHS4AGECAR)
 
 
 def test_conversion_within_limits_follows_equations():
@@ -300,35 +308,17 @@ def test_conversion_wheel_angles_for_a_feasible_turn():
 )
 def test_conversion_reads_the_shipped_vehicle_profiles(name):
     profile = config.load_vehicle(name)
-    conv = ack.SetpointConversion.from_profile(profile)
+    conv = ack.SetpointConversion(profile)
     assert conv.max_curvature == pytest.approx(math.tan(profile.max_wheel_angle_rad) / profile.wheelbase_m)
-    assert (conv.wheelbase_m, conv.track_m, conv.wheel_radius_m, conv.steering_ratio) == (
+    assert (conv.wheelbase_m, conv.track_m, conv.wheel_radius_m, conv.max_wheel_angle_rad) == (
         profile.wheelbase_m,
         profile.track_m,
         profile.wheel_radius_m,
-        profile.steering_ratio,
+        profile.max_wheel_angle_rad,
     )
-
-
-def test_conversion_steering_ratio_defaults_to_the_papers_40():
-    without_ratio = {k: v for k, v in TECHS4AGECAR.items() if k != "steering_ratio"}
-    assert ack.SetpointConversion(**without_ratio).steering_ratio == 40.0
-
-
-@pytest.mark.parametrize(
-    "change, message",
-    [
-        ({"track_m": -1.0}, "track_m"),
-        ({"wheel_radius_m": 0}, "wheel_radius_m"),
-        ({"wheelbase_m": math.inf}, "wheelbase_m"),
-        ({"steering_ratio": -40.0}, "steering_ratio"),
-        ({"max_wheel_angle_rad": math.nan}, "max_wheel_angle_rad"),
-        ({"max_wheel_angle_rad": 1.6}, "below pi/2"),
-    ],
-)
-def test_conversion_rejects_bad_geometry(change, message):
-    with pytest.raises(ValueError, match=message):
-        ack.SetpointConversion(**{**TECHS4AGECAR, **change})
+    assert conv.to_actuators(1.0, 0.01).steering_wheel_angle_deg == pytest.approx(
+        profile.steering_wheel_angle(math.atan(0.01 * profile.wheelbase_m))
+    )
 
 
 def shuttle_profile_data() -> dict:
@@ -342,6 +332,8 @@ def shuttle_profile_data() -> dict:
         ({"track_m": -1.0}, "track_m: Input should be greater than 0"),
         ({"wheel_radius_m": 0}, "wheel_radius_m: Input should be greater than 0"),
         ({"steering_ratio": "forty"}, "steering_ratio: Input should be a valid number"),
+        ({"steering_ratio": -40.0}, "steering_ratio: Input should be greater than 0"),
+        ({"wheelbase_m": math.inf}, "wheelbase_m: Input should be a finite number"),
         ({"max_wheel_angle_rad": math.nan}, "max_wheel_angle_rad: Input should be a finite number"),
         ({"max_wheel_angle_rad": 1.6}, "max_wheel_angle_rad: Input should be less than 1.5"),
     ],

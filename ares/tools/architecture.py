@@ -113,7 +113,12 @@ EQUATIONS = (
         "Ackermann: (v, κ) to steering-wheel angle and wheel speed",
         "control.ackermann:SetpointConversion",
     ),
-    Equation(DBW, "eq. 13", "steering-wheel angle = 40 · front wheel angle", "control.ackermann:steering_wheel_angle"),
+    Equation(
+        DBW,
+        "eq. 13",
+        "steering-wheel angle = 40 · front wheel angle",
+        "ares.core.config.vehicle:VehicleProfile.steering_wheel_angle",
+    ),
     Equation(DBW, "eq. 14", "wheel speed ω_w = v / (cos θ · r)", "control.ackermann:wheel_speed"),
     Equation(DBW, "Fig. 17", "the modes Manual, Ready, Automatic and their transitions", "control.dbw_bridge:DbwCore"),
     Equation(

@@ -165,7 +165,8 @@ class VehicleProfile(Params):
         return math.radians(steering_wheel_deg) / self.steering_ratio
 
     def steering_wheel_angle(self, road_wheel_rad: float) -> float:
-        """deg: the steering-wheel angle α = steering_ratio · δ that turns the front wheels by δ rad."""
+        """deg: the steering-wheel angle α = steering_ratio · δ that turns the front wheels by δ rad
+        (DBW eq. 13)."""
         return self.steering_ratio * math.degrees(road_wheel_rad)
 
     # ---- figures that follow from the above ------------------------------------------------------
