@@ -99,11 +99,11 @@ def test_the_cpu_sampler_names_each_child_by_the_node_it_runs():
     )
     try:
         sampler = CpuSampler({"managers.x:Busy": "busy_node", "managers.y:Idle": "idle_node"})
-        sampler._take(1.0)  # the baseline
+        sampler.sample(1.0)  # the baseline
         deadline = time.monotonic() + 60  # a loaded machine gives the busy child its CPU slowly
         while sampler.cpu_s["busy_node"] < 0.3 and time.monotonic() < deadline:
             time.sleep(0.2)
-            sampler._take(0.2)
+            sampler.sample(0.2)
         assert set(sampler.samples) >= {"busy_node", "idle_node"}
         assert sampler.cpu_s["busy_node"] > sampler.cpu_s["idle_node"]
         figures = sampler.figures()

@@ -75,7 +75,8 @@ class CpuSampler:
         cmd = proc.cmdline()
         return self.names_by_node.get(cmd[-1]) if len(cmd) >= 3 and cmd[-2] == "ares.core.launch" else None
 
-    def _take(self, elapsed: float) -> None:
+    def sample(self, elapsed: float) -> None:
+        """One sample: the CPU each process used since the last, over `elapsed` seconds (the first: a baseline)."""
         seen: dict[int, tuple[str, float]] = {}
         for proc in [self.me, *self.me.children(recursive=True)]:
             try:
@@ -123,11 +124,11 @@ class CpuSampler:
         )
 
     def _loop(self) -> None:
-        self._take(SAMPLE_S)  # the baseline
+        self.sample(SAMPLE_S)  # the baseline
         last = time.monotonic()
         while not self._stop.wait(SAMPLE_S):
             now = time.monotonic()
-            self._take(now - last)
+            self.sample(now - last)
             last = now
 
     def start(self) -> None:
