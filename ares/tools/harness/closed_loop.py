@@ -227,6 +227,27 @@ def summarize(r: dict) -> dict:
     }
 
 
+RECORDED = (
+    "t",
+    "x",
+    "y",
+    "yaw",
+    "v",
+    "s",
+    "progress",
+    "odometer",
+    "xte",
+    "rtk_available",
+    "has_pose",
+    "est_x",
+    "est_y",
+    "est_yaw",
+    "var_yaw",
+    "cov",
+    "score",
+)
+
+
 def run(
     route: Route | None = None,
     seconds: float | None = None,
@@ -252,177 +273,197 @@ def run(
     one period of the control manager, which forwards it; the bridge then takes it at its next
     period, a whole period later when the controller and the bridge step together).
     """
+    loop = _Loop(
+        loop_config(cfg, overrides, cruise_speed_mps, seed),
+        route,
+        s0=s0,
+        controller=controller,
+        use_truth_pose=use_truth_pose,
+        gnss_path=gnss_path,
+        setpoint_delay_s=setpoint_delay_s,
+        record_hz=record_hz,
+    )
+    if seconds is None and laps is None:
+        laps = 1.0
+    t_end = math.inf if seconds is None else float(seconds)
+    distance_goal = math.inf if laps is None else float(laps) * loop.route.length
+    # a lap that takes much longer than at walking pace is stuck: stop it there
+    t_limit = min(t_end, distance_goal / 0.3 + 60.0)
+    started = time.perf_counter()
+    while loop.st.t < t_limit - 1e-9 and loop.progress < distance_goal:
+        loop.step(record)
+    return _results(loop, time.perf_counter() - started)
+
+
+def loop_config(cfg: dict | None, overrides: dict | None, cruise_speed_mps: float | None, seed: int | None) -> dict:
+    """The run configuration (`cfg`, else the defaults) with `overrides`, the cruise speed and the seed."""
     extra: dict = dict(overrides or {})
     if cruise_speed_mps is not None:
         extra = config.deep_merge(extra, {"speed_profile": {"cruise_speed_mps": float(cruise_speed_mps)}})
     if seed is not None:
         extra = config.deep_merge(extra, {"sim": {"seed": int(seed)}})
-    cfg = (
-        run_config.build(overrides=extra) if cfg is None else run_config.build(overrides=config.deep_merge(cfg, extra))
-    )
-    core: CoreConfig = config.core(cfg)
-    sim = config.section(cfg, "sim", SimParams)
-    route = route or load_route(core)
-    profile = core.vehicle_profile
-    bridge_params = config.section(cfg, "dbw_bridge", DbwBridgeParams)
-    if seconds is None and laps is None:
-        laps = 1.0
-    t_end = math.inf if seconds is None else float(seconds)
-    distance_goal = math.inf if laps is None else float(laps) * route.length
-    # a lap that takes much longer than at walking pace is stuck: stop it there
-    t_limit = min(t_end, distance_goal / 0.3 + 60.0)
+    return run_config.build(overrides=extra if cfg is None else config.deep_merge(cfg, extra))
 
-    frame = LocalFrame(core.origin_utm)
-    plant = VehiclePlant(route, profile, sim, s0=s0)
-    faults = load_scenario(core.scenario).faults if core.scenario else ()  # the scenario's sensor errors
-    sensors = SensorSuite(route, sim, frame, profile.wheel_radius_m, faults=faults)
-    fix_of = gnss_source(GnssProjector(frame, config.section(cfg, "gnss", GnssParams)), sensors.gnss, gnss_path)
-    localizer = Localizer(config.section(cfg, "localization", LocalizationParams), profile)
-    navigator = _Navigator(cfg, route, controller)
-    scorer = OdometryScorer.from_params(config.section(cfg, "odometry_manager", OdometryParams))
-    board = BridgeLoop(profile, bridge_params)
-    if setpoint_delay_s is None:
-        setpoint_delay_s = 1.0 / float(cfg["control_manager"]["rate_hz"])
-    # the safety driver's button, then the software's request: Manual -> Ready -> Automatic
-    board.handle(Event.button(plant.state.t))
-    board.handle(Event.set_automatic(plant.state.t))
 
-    dt = 1.0 / sim.physics_hz
-    periods = {
-        "can": 1.0 / sim.can_hz,
-        "imu": 1.0 / sim.imu_hz,
-        "gnss": 1.0 / sim.gnss_hz,
-        "control": 1.0 / navigator.rate_hz,
-        "dbw": 1.0 / bridge_params.rate_hz,
-        "record": 1.0 / record_hz,
-    }
-    next_due = {k: 0.0 for k in periods}
-    st = plant.state
+class _Loop:
+    """The vehicle's loop (see the module's docstring), one physics step at a time (`step`)."""
 
-    def due(name: str) -> bool:
-        if st.t + 1e-9 < next_due[name]:
+    def __init__(
+        self,
+        cfg: dict,
+        route: Route | None,
+        s0: float,
+        controller: str,
+        use_truth_pose: bool,
+        gnss_path: str,
+        setpoint_delay_s: float | None,
+        record_hz: float,
+    ):
+        core: CoreConfig = config.core(cfg)
+        sim = config.section(cfg, "sim", SimParams)
+        self.route = route = route or load_route(core)
+        self.profile = core.vehicle_profile
+        bridge_params = config.section(cfg, "dbw_bridge", DbwBridgeParams)
+        frame = LocalFrame(core.origin_utm)
+        self.plant = VehiclePlant(route, self.profile, sim, s0=s0)
+        faults = load_scenario(core.scenario).faults if core.scenario else ()  # the scenario's sensor errors
+        self.sensors = SensorSuite(route, sim, frame, self.profile.wheel_radius_m, faults=faults)
+        self.fix_of = gnss_source(
+            GnssProjector(frame, config.section(cfg, "gnss", GnssParams)), self.sensors.gnss, gnss_path
+        )
+        self.localizer = Localizer(config.section(cfg, "localization", LocalizationParams), self.profile)
+        self.navigator = _Navigator(cfg, route, controller)
+        self.scorer = OdometryScorer.from_params(config.section(cfg, "odometry_manager", OdometryParams))
+        self.board = BridgeLoop(self.profile, bridge_params)
+        self.use_truth_pose = use_truth_pose
+        self.setpoint_delay_s = (
+            1.0 / float(cfg["control_manager"]["rate_hz"]) if setpoint_delay_s is None else setpoint_delay_s
+        )
+        # the safety driver's button, then the software's request: Manual -> Ready -> Automatic
+        self.board.handle(Event.button(self.plant.state.t))
+        self.board.handle(Event.set_automatic(self.plant.state.t))
+
+        self.dt = 1.0 / sim.physics_hz
+        self.periods = {
+            "can": 1.0 / sim.can_hz,
+            "imu": 1.0 / sim.imu_hz,
+            "gnss": 1.0 / sim.gnss_hz,
+            "control": 1.0 / self.navigator.rate_hz,
+            "dbw": 1.0 / bridge_params.rate_hz,
+            "record": 1.0 / record_hz,
+        }
+        self.next_due = {k: 0.0 for k in self.periods}
+        self.st = self.plant.state
+        self.rows: list[tuple] = []
+        self.last_can: CanFrame | None = None
+        self.last_imu: Imu | None = None
+        self.setpoints: list[tuple[float, float, float]] = []  # (t, v, kappa) on their way to the bridge
+        self.steer_effort = self.drive_effort = 0.0
+        self.progress = 0.0
+        self.last_s = self.st.s
+        self.lap_s_hint: float | None = None
+
+    def due(self, name: str) -> bool:
+        if self.st.t + 1e-9 < self.next_due[name]:
             return False
-        next_due[name] = max(next_due[name] + periods[name], st.t)
+        self.next_due[name] = max(self.next_due[name] + self.periods[name], self.st.t)
         return True
 
-    rows: list[tuple] = []
-    last_can: CanFrame | None = None
-    last_imu: Imu | None = None
-    setpoints: list[tuple[float, float, float]] = []  # (t, v, kappa) on their way to the bridge
-    steer_effort = drive_effort = 0.0
-    progress = 0.0
-    last_s = st.s
-    lap_s_hint: float | None = None
-    started = time.perf_counter()
-
-    while st.t < t_limit - 1e-9 and progress < distance_goal:
+    def step(self, record: bool) -> None:
+        """The sensors, the localization, the controller, the bridge, the record that are due, then physics."""
+        st = self.st
         t = st.t
-        # sensors, in the simulator node's order, each at the time of the state it reads
-        if due("can"):
-            last_can = CanFrame(t=t, **sensors.can.measure(st))
-            localizer.push("can", last_can)
-        if due("imu"):
-            last_imu = Imu(t=t, **sensors.imu.measure(st))
-            localizer.push("imu", last_imu)
-        if due("gnss") and sensors.gnss.fix_available(st.s, t):
-            fix = fix_of(st)
+        self._sense(t)
+        # as the node: messages are applied hold_back_s late, the pose carried forward to t
+        self.localizer.process_until(t - self.localizer.hold_back_s)
+        if self.due("control"):
+            self._control(t)
+        if self.due("dbw"):
+            self._bridge(t)
+        if record and self.due("record"):
+            self._record(t)
+        self.plant.step(self.steer_effort, self.drive_effort, self.dt)
+        self.progress += self.route.step_between(self.last_s, st.s)
+        self.last_s = st.s
+
+    def _sense(self, t: float) -> None:
+        """The sensors, in the simulator node's order, each at the time of the state it reads."""
+        st, sensors, localizer = self.st, self.sensors, self.localizer
+        if self.due("can"):
+            self.last_can = CanFrame(t=t, **sensors.can.measure(st))
+            localizer.push("can", self.last_can)
+        if self.due("imu"):
+            self.last_imu = Imu(t=t, **sensors.imu.measure(st))
+            localizer.push("imu", self.last_imu)
+        if self.due("gnss") and sensors.gnss.fix_available(st.s, t):
+            fix = self.fix_of(st)
             if fix is not None:
                 localizer.push("gnss", fix)
-        # as the node: messages are applied hold_back_s late, the pose carried forward to t
-        localizer.process_until(t - localizer.hold_back_s)
 
-        if due("control"):
-            # the wheels where the last CAN frame put them, as the controller nodes see them
-            delta, delta_age = (
-                (st.wheel_angle_rad, 0.0)
-                if last_can is None
-                else (profile.road_wheel_angle(last_can.steering_wheel_deg), t - last_can.t)
-            )
-            if use_truth_pose:
-                cmd = navigator.command(t, st.x, st.y, st.yaw, st.v, delta=delta, delta_age_s=delta_age)
-            else:
-                pose = localizer.pose(t)
-                cmd = (
-                    None
-                    if pose is None
-                    else navigator.command(
-                        t, pose.x, pose.y, pose.yaw, pose.v, pose.var_yaw, delta=delta, delta_age_s=delta_age
-                    )
+    def _control(self, t: float) -> None:
+        """The controller's setpoint, from the estimated pose (or the truth), on its way to the bridge."""
+        st, last_can = self.st, self.last_can
+        # the wheels where the last CAN frame put them, as the controller nodes see them
+        delta, delta_age = (
+            (st.wheel_angle_rad, 0.0)
+            if last_can is None
+            else (math.radians(last_can.steering_wheel_deg) / self.profile.steering_ratio, t - last_can.t)
+        )
+        if self.use_truth_pose:
+            cmd = self.navigator.command(t, st.x, st.y, st.yaw, st.v, delta=delta, delta_age_s=delta_age)
+        else:
+            pose = self.localizer.pose(t)
+            cmd = (
+                None
+                if pose is None
+                else self.navigator.command(
+                    t, pose.x, pose.y, pose.yaw, pose.v, pose.var_yaw, delta=delta, delta_age_s=delta_age
                 )
-            if cmd is not None:
-                setpoints.append((t, *cmd))
-
-        if due("dbw"):
-            # as the bridge node's period: the setpoints that arrived, time passes, the inner loops
-            arrived = [sp for sp in setpoints if sp[0] + setpoint_delay_s <= t + 1e-9]
-            for t_set, v_cmd, kappa_cmd in arrived:
-                board.handle(Event.setpoint(v_cmd, kappa_cmd, t_set))
-            del setpoints[: len(arrived)]
-            board.handle(Event.tick(t))
-            out = board.efforts(t, last_can, None if last_imu is None else last_imu.pitch)
-            steer_effort, drive_effort = out.steer_effort, out.drive_effort
-
-        if record and due("record"):
-            pose = localizer.pose(t)
-            s_proj, xte, _ = route.project(st.x, st.y, lap_s_hint)
-            lap_s_hint = s_proj
-            if pose is None:
-                est = (math.nan,) * 3 + (math.nan, math.nan, 0.0)
-            else:
-                cov = pose_covariance(pose)
-                est = (pose.x, pose.y, pose.yaw, pose.var_yaw, cov, scorer(cov))
-            rows.append(
-                (
-                    t,
-                    st.x,
-                    st.y,
-                    st.yaw,
-                    st.v,
-                    st.s,
-                    progress,
-                    st.odometer,
-                    xte,
-                    sensors.gnss.rtk_available(st.s, t),
-                    pose is not None,
-                )
-                + est
             )
+        if cmd is not None:
+            self.setpoints.append((t, *cmd))
 
-        plant.step(steer_effort, drive_effort, dt)
-        progress += route.step_between(last_s, st.s)
-        last_s = st.s
+    def _bridge(self, t: float) -> None:
+        """As the bridge node's period: the setpoints that arrived, time passes, the inner loops."""
+        arrived = [sp for sp in self.setpoints if sp[0] + self.setpoint_delay_s <= t + 1e-9]
+        for t_set, v_cmd, kappa_cmd in arrived:
+            self.board.handle(Event.setpoint(v_cmd, kappa_cmd, t_set))
+        del self.setpoints[: len(arrived)]
+        self.board.handle(Event.tick(t))
+        out = self.board.efforts(t, self.last_can, None if self.last_imu is None else self.last_imu.pitch)
+        self.steer_effort, self.drive_effort = out.steer_effort, out.drive_effort
 
-    names = (
-        "t",
-        "x",
-        "y",
-        "yaw",
-        "v",
-        "s",
-        "progress",
-        "odometer",
-        "xte",
-        "rtk_available",
-        "has_pose",
-        "est_x",
-        "est_y",
-        "est_yaw",
-        "var_yaw",
-        "cov",
-        "score",
-    )
-    cols = list(zip(*rows)) if rows else [[] for _ in names]
+    def _record(self, t: float) -> None:
+        """One row of RECORDED: the truth, the estimate, its covariance and score."""
+        st = self.st
+        pose = self.localizer.pose(t)
+        s_proj, xte, _ = self.route.project(st.x, st.y, self.lap_s_hint)
+        self.lap_s_hint = s_proj
+        if pose is None:
+            est = (math.nan,) * 3 + (math.nan, math.nan, 0.0)
+        else:
+            cov = pose_covariance(pose)
+            est = (pose.x, pose.y, pose.yaw, pose.var_yaw, cov, self.scorer(cov))
+        rtk = self.sensors.gnss.rtk_available(st.s, t)
+        self.rows.append(
+            (t, st.x, st.y, st.yaw, st.v, st.s, self.progress, st.odometer, xte, rtk, pose is not None) + est
+        )
+
+
+def _results(loop: _Loop, wall_s: float) -> dict:
+    """The recorded rows as arrays, the counts and the summary."""
+    cols = list(zip(*loop.rows)) if loop.rows else [[] for _ in RECORDED]
     out: dict = {
         name: np.asarray(col, dtype=bool if name in ("rtk_available", "has_pose") else float)
-        for name, col in zip(names, cols)
+        for name, col in zip(RECORDED, cols)
     }
-    out["wall_s"] = time.perf_counter() - started
-    out["progress_m"] = progress
-    out["counts"] = dict(localizer.counts)
-    out["summary"] = summarize(out) if rows else {}
-    out["summary"]["wall_s"] = round(out["wall_s"], 1)
-    if navigator.solve_ms:
-        out["summary"]["mpc_solve_p50_ms"] = percentile(navigator.solve_ms, 50, 3)
+    out["wall_s"] = wall_s
+    out["progress_m"] = loop.progress
+    out["counts"] = dict(loop.localizer.counts)
+    out["summary"] = summarize(out) if loop.rows else {}
+    out["summary"]["wall_s"] = round(wall_s, 1)
+    if loop.navigator.solve_ms:
+        out["summary"]["mpc_solve_p50_ms"] = percentile(loop.navigator.solve_ms, 50, 3)
     return out
 
 
