@@ -17,7 +17,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         help="every process's inputs, outputs, services and parameters, and the topic graph",
         description="Print each process's contract (inputs, outputs with their rates, services, parameters with "
         "their defaults, units and ranges) from its node class, and the topic graph. "
-        "docs/nodes.md is `ares describe --markdown`.",
+        "docs/nodes.md is `ares describe --markdown`; a node package's README holds "
+        "`ares describe --package NAME --markdown`.",
     )
     describe.add_argument("name", nargs="?", metavar="NODE", help="one process (default: all)")
     describe.add_argument("--json", action="store_true", help="one JSON object")
@@ -26,6 +27,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         "--architecture",
         action="store_true",
         help="the Markdown of docs/architecture.md: the layers and processes in one picture, the papers' equations",
+    )
+    describe.add_argument(
+        "--package",
+        metavar="NAME",
+        help="only this node package's processes (managers, perception, control, drivers, blackbox, "
+        "simulator); with --markdown the generated part of NAME/README.md",
+    )
+    describe.add_argument(
+        "--write",
+        action="store_true",
+        help="with --package: put the generated part in NAME/README.md, between its markers",
     )
     describe.add_argument(
         "--config",
@@ -144,6 +156,24 @@ def cmd_describe(args: argparse.Namespace) -> int:
             chosen = [processes.by_name(args.name)]
         except KeyError as exc:
             raise CliError(exc.args[0]) from None
+    if args.write and not args.package:
+        raise CliError("describe --write: name the package (--package NAME)")
+    if args.package:
+        from ares.tools import package_docs
+
+        if args.package not in package_docs.NODE_PACKAGES:
+            raise CliError(
+                f"describe --package {args.package}: not a node package ({', '.join(package_docs.NODE_PACKAGES)})"
+            )
+        if args.name:
+            raise CliError("describe: a process or a package, not both")
+        if args.write:
+            print(f"written: {package_docs.write(cfg, args.package)}")
+            return 0
+        if args.markdown:
+            sys.stdout.write(package_docs.package_markdown(cfg, args.package))
+            return 0
+        chosen = package_docs.package_processes(args.package)
     if args.markdown:
         sys.stdout.write(contracts.nodes_markdown(cfg, chosen))
         return 0
@@ -159,7 +189,7 @@ def cmd_describe(args: argparse.Namespace) -> int:
         return 0
     for c in found:
         print("\n".join(contracts.markdown(c)))
-    if not args.name:
+    if not args.name and not args.package:
         print("\n".join(contracts.graph_markdown(graph)))
     return 0
 
