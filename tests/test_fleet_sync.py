@@ -37,32 +37,18 @@ class FleetNetwork(MemoryNetwork):
     def __init__(self):
         super().__init__("fleet")
         self.cut: set[str] = set()
-        self._hidden: dict[str, dict] = {}
 
-    def put(self, key, encoding, payload):
-        vehicle = key.split("/")[1]
-        if vehicle not in self.cut:
-            return super().put(key, encoding, payload)
-        self.published[key] += 1
-        for pattern, callback in list(self._subscribers):
-            if not pattern.startswith("ares/*/") and self._matches(pattern, key):
-                callback(key, encoding, bytes(payload))
+    def delivers(self, key: str, pattern: str) -> bool:
+        return key.split("/")[1] not in self.cut or not pattern.startswith("ares/*/")
 
-    @staticmethod
-    def _matches(pattern, key):
-        from ares.core.membus import _matches
-
-        return _matches(pattern, key)
+    def serves(self, key: str) -> bool:
+        return key.split("/")[1] not in self.cut
 
     def cut_link(self, vehicle: str) -> None:
         self.cut.add(vehicle)
-        self._hidden[vehicle] = {k: v for k, v in self._services.items() if k.startswith(f"ares/{vehicle}/")}
-        for key in self._hidden[vehicle]:
-            del self._services[key]
 
     def heal(self, vehicle: str) -> None:
         self.cut.discard(vehicle)
-        self._services.update(self._hidden.pop(vehicle))
 
 
 def _cfg(vehicle_id: str, store) -> dict:

@@ -46,8 +46,17 @@ class MemoryNetwork:
     def put(self, key: str, encoding: str, payload: Payload) -> None:
         self.published[key] += 1
         for pattern, callback in list(self._subscribers):
-            if _matches(pattern, key):
+            if _matches(pattern, key) and self.delivers(key, pattern):
                 callback(key, encoding, bytes(payload))
+
+    def delivers(self, key: str, pattern: str) -> bool:
+        """Whether what is put on `key` reaches a subscription of `pattern` that matches it: always,
+        on one network; a test's network that cuts a link says otherwise."""
+        return True
+
+    def serves(self, key: str) -> bool:
+        """Whether a query on `key` reaches the service declared there: always, as `delivers`."""
+        return True
 
 
 def _matches(pattern: str, key: str) -> bool:
@@ -89,7 +98,7 @@ class MemoryBus(BaseBus):
         return key
 
     def _query(self, key: str, payload: Payload, encoding: str, timeout_s: float) -> Iterator[Answer]:
-        if key not in self.network._services:
+        if key not in self.network._services or not self.network.serves(key):
             return
         owner, on_query = self.network._services[key]
         answers: list[Answer] = []
