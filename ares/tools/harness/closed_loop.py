@@ -407,7 +407,7 @@ class _Loop:
         delta, delta_age = (
             (st.wheel_angle_rad, 0.0)
             if last_can is None
-            else (math.radians(last_can.steering_wheel_deg) / self.profile.steering_ratio, t - last_can.t)
+            else (self.profile.road_wheel_angle(last_can.steering_wheel_deg), t - last_can.t)
         )
         if self.use_truth_pose:
             cmd = self.navigator.command(t, st.x, st.y, st.yaw, st.v, delta=delta, delta_age_s=delta_age)
