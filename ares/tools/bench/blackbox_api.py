@@ -169,16 +169,90 @@ def _run_python_loadgen(url: str, token: str, seconds: float, connections: int, 
     }
 
 
+def _start_api(tmp: Path, db: Path, say: Callable[[str], None]) -> tuple[subprocess.Popen, str, str]:
+    """(the `ares api` process, its certificate file, its API's base URL), once it answers: on a
+    free port, per-client limits raised out of the bench's way."""
+    from ares.core import config
+    from blackbox.api import ApiSettings
+
+    port = free_port()
+    cfg = config.core_defaults()
+    cfg["api"] = ApiSettings.model_validate(
+        {
+            "state_dir": str(tmp),
+            "host": "127.0.0.1",
+            "port": port,
+            "log_level": "warning",
+            "rate_limit": {"client_per_s": 1e9, "client_burst": 1e9},
+            "blacklist": {"abuse_requests_per_s": 1e10},
+        }
+    ).model_dump(mode="json")
+    run_cfg = config.write_run_config(cfg, tmp / "run_config.json")
+    env = {**os.environ, config.RUN_CONFIG_ENV: str(run_cfg)}
+    env.pop("ARES_API_SECRET", None)
+    say(f"starting `ares api` on https://127.0.0.1:{port}")
+    # the server's output goes to a file: an unread pipe would fill up and stall it
+    with open(tmp / "api.log", "w") as log_file:
+        server = subprocess.Popen(
+            [sys.executable, "-m", "ares.cli", "api", "--store", str(db)],
+            env=env,
+            stdout=log_file,
+            stderr=subprocess.STDOUT,
+        )
+    cafile = str(tmp / "tls" / "api_cert.pem")
+    base = f"https://127.0.0.1:{port}/api/v1"
+    try:
+        _wait_until_healthy(server, base, cafile, tmp / "api.log")
+    except BaseException:
+        _stop_server(server)
+        raise
+    return server, cafile, base
+
+
+def _wait_until_healthy(server: subprocess.Popen, base: str, cafile: str, log: Path) -> None:
+    import httpx
+
+    deadline = time.monotonic() + 30
+    while True:
+        if server.poll() is not None:
+            raise RuntimeError(f"the API exited: {log.read_text()[-800:]}")
+        try:
+            if os.path.exists(cafile) and httpx.get(f"{base}/health", verify=cafile, timeout=1).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        if time.monotonic() > deadline:
+            raise RuntimeError("the API did not answer within 30 s")
+        time.sleep(0.1)
+
+
+def _token(base: str, cafile: str, password: str) -> str:
+    """The bench user's access token, once `latest` has answered with it as it should."""
+    import httpx
+
+    with httpx.Client(verify=cafile, timeout=5) as client:
+        token = client.post(f"{base}/auth/token", data={"username": USER, "password": password}).json()["access_token"]
+        check = client.get(f"{base}/vehicles/{VEHICLE}/latest", headers={"Authorization": f"Bearer {token}"})
+        if check.status_code != 200 or check.json().get("vehicle_id") != VEHICLE:
+            raise RuntimeError(f"latest answered {check.status_code}: {check.text[:200]}")
+    return token
+
+
+def _stop_server(server: subprocess.Popen) -> None:
+    if server.poll() is None:
+        server.terminate()
+        try:
+            server.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+
+
 def run_api_bench(
     progress: Callable[[str], None] | None = None, seconds: float = 10.0, connections: int = 16, tool: str = "auto"
 ) -> dict:
     """Start the API over HTTPS in a subprocess, load `latest` from another one; the figures.
     `tool`: "wrk", "python" or "auto" (wrk when installed)."""
-    import httpx
-
-    from ares.core import config
-    from blackbox.api import ApiSettings
-
     say = progress or (lambda _msg: None)
     tmp = Path(tempfile.mkdtemp(prefix="ares-api-bench-"))
     server = None
@@ -187,52 +261,8 @@ def run_api_bench(
         password = secrets.token_urlsafe(16)
         say("seeding an embedded store with an hour of records")
         _seed(db, password)
-        port = free_port()
-        cfg = config.core_defaults()
-        cfg["api"] = ApiSettings.model_validate(
-            {
-                "state_dir": str(tmp),
-                "host": "127.0.0.1",
-                "port": port,
-                "log_level": "warning",
-                "rate_limit": {"client_per_s": 1e9, "client_burst": 1e9},
-                "blacklist": {"abuse_requests_per_s": 1e10},
-            }
-        ).model_dump(mode="json")
-        run_cfg = config.write_run_config(cfg, tmp / "run_config.json")
-        env = {**os.environ, config.RUN_CONFIG_ENV: str(run_cfg)}
-        env.pop("ARES_API_SECRET", None)
-        say(f"starting `ares api` on https://127.0.0.1:{port}")
-        # the server's output goes to a file: an unread pipe would fill up and stall it
-        log_file = open(tmp / "api.log", "w")
-        server = subprocess.Popen(
-            [sys.executable, "-m", "ares.cli", "api", "--store", str(db)],
-            env=env,
-            stdout=log_file,
-            stderr=subprocess.STDOUT,
-        )
-        log_file.close()
-        cafile = str(tmp / "tls" / "api_cert.pem")
-        base = f"https://127.0.0.1:{port}/api/v1"
-        deadline = time.monotonic() + 30
-        while True:
-            if server.poll() is not None:
-                raise RuntimeError(f"the API exited: {(tmp / 'api.log').read_text()[-800:]}")
-            try:
-                if os.path.exists(cafile) and httpx.get(f"{base}/health", verify=cafile, timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.monotonic() > deadline:
-                raise RuntimeError("the API did not answer within 30 s")
-            time.sleep(0.1)
-        with httpx.Client(verify=cafile, timeout=5) as client:
-            token = client.post(f"{base}/auth/token", data={"username": USER, "password": password}).json()[
-                "access_token"
-            ]
-            check = client.get(f"{base}/vehicles/{VEHICLE}/latest", headers={"Authorization": f"Bearer {token}"})
-            if check.status_code != 200 or check.json().get("vehicle_id") != VEHICLE:
-                raise RuntimeError(f"latest answered {check.status_code}: {check.text[:200]}")
+        server, cafile, base = _start_api(tmp, db, say)
+        token = _token(base, cafile, password)
         url = f"{base}/vehicles/{VEHICLE}/latest"
         if tool == "auto":
             tool = "wrk" if shutil.which("wrk") else "python"
@@ -256,13 +286,8 @@ def run_api_bench(
         )
         return out
     finally:
-        if server is not None and server.poll() is None:
-            server.terminate()
-            try:
-                server.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                server.kill()
-                server.wait()
+        if server is not None:
+            _stop_server(server)
         shutil.rmtree(tmp, ignore_errors=True)
 
 

@@ -90,6 +90,57 @@ def realistic_records(vehicle_id: str, first: int, count: int, seed: int = 0) ->
     return out
 
 
+def _ingest(store: SqliteStore, records: int, batch: int, seed: int) -> float:
+    """Seconds insert_records took to write `records` fresh records in batches (building them
+    not counted)."""
+    elapsed = 0.0
+    for first in range(0, records, batch):
+        chunk = realistic_records(VEHICLE, first, min(batch, records - first), seed)
+        started = time.perf_counter()
+        store.insert_records(chunk)
+        elapsed += time.perf_counter() - started
+    return elapsed
+
+
+def _fill(store: SqliteStore, first_record: int, records_present: int, batch: int, seed: int, say) -> float:
+    """Seconds insert_records took to fill the store on up to `records_present` records."""
+    started_fill = time.perf_counter()
+    elapsed = 0.0
+    step = max(records_present // 10, batch)
+    next_report = first_record + step
+    for first in range(first_record, records_present, batch):
+        chunk = realistic_records(VEHICLE, first, min(batch, records_present - first), seed)
+        started = time.perf_counter()
+        store.insert_records(chunk)
+        elapsed += time.perf_counter() - started
+        if first + batch >= next_report:
+            say(f"filling: {first + batch}/{records_present} records ({time.perf_counter() - started_fill:.0f} s)")
+            next_report += step
+    return elapsed
+
+
+def _hour_queries(store: SqliteStore, records_present: int, queries: int, rng: random.Random) -> tuple[list, list]:
+    """(ms of each hour as dicts, ms of each hour as JSON), at random starting seconds."""
+    hour = min(3600, records_present)
+    times_ms, json_times_ms = [], []
+    for _ in range(queries):
+        start = T0 + timedelta(seconds=rng.randrange(0, records_present - hour + 1))
+        started = time.perf_counter()
+        docs = store.records(VEHICLE, start, start + timedelta(hours=1), limit=3600)
+        times_ms.append((time.perf_counter() - started) * 1000.0)
+        if len(docs) != hour:
+            raise RuntimeError(f"hour query returned {len(docs)} records, expected {hour}")
+        del docs
+        # the same hour as JSON bytes, for a handler that sends it on (no dicts built)
+        start = T0 + timedelta(seconds=rng.randrange(0, records_present - hour + 1))
+        started = time.perf_counter()
+        raw = store.records_json(VEHICLE, start, start + timedelta(hours=1), limit=3600)
+        json_times_ms.append((time.perf_counter() - started) * 1000.0)
+        if raw.count(b'"vehicle_id"') != hour:
+            raise RuntimeError(f"hour query (JSON) did not return {hour} records")
+    return times_ms, json_times_ms
+
+
 def run_store_bench(
     progress: Callable[[str], None] | None = None,
     *,
@@ -109,53 +160,12 @@ def run_store_bench(
         # inserts keeps all of them
         store = SqliteStore(str(path), now=lambda: T0 + RETENTION)
         try:
-            # 1. ingest into the fresh file
             say(f"ingest: {ingest_records} records in batches of {batch} into a fresh file")
-            elapsed = 0.0
-            for first in range(0, ingest_records, batch):
-                chunk = realistic_records(VEHICLE, first, min(batch, ingest_records - first), seed)
-                started = time.perf_counter()
-                store.insert_records(chunk)
-                elapsed += time.perf_counter() - started
-            ingest_rate = ingest_records / elapsed
-
-            # 2. fill the rest of the window through the same API
-            started_fill = time.perf_counter()
-            fill_elapsed = 0.0
-            step = max(records_present // 10, batch)
-            next_report = ingest_records + step
-            for first in range(ingest_records, records_present, batch):
-                chunk = realistic_records(VEHICLE, first, min(batch, records_present - first), seed)
-                started = time.perf_counter()
-                store.insert_records(chunk)
-                fill_elapsed += time.perf_counter() - started
-                if first + batch >= next_report:
-                    say(
-                        f"filling: {first + batch}/{records_present} records "
-                        f"({time.perf_counter() - started_fill:.0f} s)"
-                    )
-                    next_report += step
+            ingest_rate = ingest_records / _ingest(store, ingest_records, batch, seed)
+            fill_elapsed = _fill(store, ingest_records, records_present, batch, seed, say)
             present = store.count_records(VEHICLE, T0, T0 + timedelta(seconds=records_present))
-
-            # 3. one-hour queries at random starting seconds
-            hour = min(3600, records_present)
             say(f"queries: {queries} x one hour among {present} records")
-            times_ms, json_times_ms = [], []
-            for _ in range(queries):
-                start = T0 + timedelta(seconds=rng.randrange(0, records_present - hour + 1))
-                started = time.perf_counter()
-                docs = store.records(VEHICLE, start, start + timedelta(hours=1), limit=3600)
-                times_ms.append((time.perf_counter() - started) * 1000.0)
-                if len(docs) != hour:
-                    raise RuntimeError(f"hour query returned {len(docs)} records, expected {hour}")
-                del docs
-                # the same hour as JSON bytes, for a handler that sends it on (no dicts built)
-                start = T0 + timedelta(seconds=rng.randrange(0, records_present - hour + 1))
-                started = time.perf_counter()
-                raw = store.records_json(VEHICLE, start, start + timedelta(hours=1), limit=3600)
-                json_times_ms.append((time.perf_counter() - started) * 1000.0)
-                if raw.count(b'"vehicle_id"') != hour:
-                    raise RuntimeError(f"hour query (JSON) did not return {hour} records")
+            times_ms, json_times_ms = _hour_queries(store, records_present, queries, rng)
             record_bytes = len(realistic_records(VEHICLE, 0, 1, seed)[0].model_dump_json())
             file_mb = sum(p.stat().st_size for p in Path(tmp).iterdir()) / 2**20
         finally:

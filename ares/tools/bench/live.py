@@ -19,8 +19,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ares.app import run_config
+from ares.app.engagement import STARTUP_TIMEOUT_S, RunFailed, engage_automatic, wait_for
 from ares.app.processes import for_run
-from ares.app.stack import STARTUP_TIMEOUT_S, RunFailed, engage_automatic, wait_for
 from ares.app.supervisor import Supervisor
 from ares.core.clock import ScaledClock
 from ares.core.localhost import free_port
@@ -80,6 +80,77 @@ class BrowserCalmer:
         self._thread.join(timeout=2)
 
 
+def _operator_store(store_path: Path) -> None:
+    """A fresh black-box store holding the bench's operator (cheap password hashing: its cost is
+    not what is measured)."""
+    store = open_store(str(store_path))
+    add_user(
+        store, Passwords(Argon2Settings(time_cost=1, memory_kib=64, parallelism=1)), USER, "operator", PASSWORD, 10
+    )
+    store.close()
+
+
+def _live_config(config_files: tuple[str, ...], store_path: Path, api_port: int, browsers: int) -> dict:
+    return run_config.build(
+        config_files,
+        {
+            "bus": {"router": f"tcp/127.0.0.1:{free_port()}"},
+            "blackbox_store": {"uri": str(store_path)},
+            "api": {"port": api_port, "live": {"max_streams_per_user": max(browsers, 1) + 1}},
+            "mission_manager": {"autostart": "drive"},
+        },
+    )
+
+
+def _page_lags(url: str, browsers: int, warmup_s: float, seconds: float, progress: Callable[[str], None]) -> list:
+    """Each page's lags (ms) over `seconds` after `warmup_s`, the pages logged in on `url`."""
+    from playwright.sync_api import sync_playwright
+
+    chromium = chromium_path()
+    with sync_playwright() as p, BrowserCalmer():
+        browser = p.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox"])
+        pages = [_open_operator_page(browser, url) for _ in range(browsers)]
+        progress(f"{browsers} pages live; warm-up {warmup_s:g} s, then {seconds:g} s measured")
+        time.sleep(warmup_s)
+        for page in pages:
+            page.evaluate("window.aresLag = []")
+        time.sleep(seconds)
+        lags = [page.evaluate("window.aresLag.slice()") for page in pages]
+        browser.close()
+    return lags
+
+
+def _drive_and_measure(cfg: dict, run_dir: Path, measure: Callable[[], list]) -> tuple[list, float | None, list]:
+    """(what `measure` returned, the shuttle's speed at its end, the stops meanwhile): the stack
+    started, driving in Automatic, while `measure` runs; stopped again after."""
+    supervisor = Supervisor(cfg, for_run(True, cfg["lidars"]), run_dir, ScaledClock(1.0))
+    stop = threading.Event()
+    supervisor.start()
+    loop = threading.Thread(target=supervisor.run, args=(stop,), daemon=True)
+    loop.start()
+    try:
+        bus = supervisor.bus
+        truth, car = bus.subscribe("sim/truth"), bus.subscribe("dbw/car_state")
+        events = bus.subscribe("events", queue=100_000)
+        try:
+            wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
+            engage_automatic(bus, car, stop)
+        except RunFailed as exc:
+            raise BenchError(str(exc)) from None
+        measured = measure()
+        speed = truth.latest.v if truth.latest is not None else None
+        stops = [
+            e
+            for _, e in events.drain()
+            if e.kind in ("emergency_stop", "controlled_stop") and not e.message.startswith("cleared")
+        ]
+    finally:
+        stop.set()
+        loop.join(timeout=5)
+        supervisor.stop()
+    return measured, speed, stops
+
+
 def run_live_bench(
     browsers: int = 3,
     seconds: float = 30.0,
@@ -87,61 +158,17 @@ def run_live_bench(
     config_files: tuple[str, ...] = (),
     progress: Callable[[str], None] = lambda _msg: None,
 ) -> dict:
-    from playwright.sync_api import sync_playwright
-
+    chromium_path()  # before the stack starts: no browser, no bench
     with tempfile.TemporaryDirectory(prefix="ares-bench-live-") as tmp:
-        chromium = chromium_path()
         store_path = Path(tmp) / "bb.sqlite"
-        store = open_store(str(store_path))
-        add_user(
-            store, Passwords(Argon2Settings(time_cost=1, memory_kib=64, parallelism=1)), USER, "operator", PASSWORD, 10
-        )
-        store.close()
+        _operator_store(store_path)
         api_port = free_port()
-        cfg = run_config.build(
-            config_files,
-            {
-                "bus": {"router": f"tcp/127.0.0.1:{free_port()}"},
-                "blackbox_store": {"uri": str(store_path)},
-                "api": {"port": api_port, "live": {"max_streams_per_user": max(browsers, 1) + 1}},
-                "mission_manager": {"autostart": "drive"},
-            },
-        )
+        cfg = _live_config(config_files, store_path, api_port, browsers)
         progress(f"stack starting (LiDARs {'on' if cfg['lidars'] else 'off'}), then {browsers} browsers")
-        supervisor = Supervisor(cfg, for_run(True, cfg["lidars"]), Path(tmp) / "run", ScaledClock(1.0))
-        stop = threading.Event()
-        supervisor.start()
-        loop = threading.Thread(target=supervisor.run, args=(stop,), daemon=True)
-        loop.start()
-        try:
-            bus = supervisor.bus
-            truth, car = bus.subscribe("sim/truth"), bus.subscribe("dbw/car_state")
-            events = bus.subscribe("events", queue=100_000)
-            try:
-                wait_for(lambda: truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
-                engage_automatic(bus, car, stop)
-            except RunFailed as exc:
-                raise BenchError(str(exc)) from None
-            with sync_playwright() as p, BrowserCalmer():
-                browser = p.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox"])
-                pages = [_open_operator_page(browser, f"https://127.0.0.1:{api_port}") for _ in range(browsers)]
-                progress(f"{browsers} pages live; warm-up {warmup_s:g} s, then {seconds:g} s measured")
-                time.sleep(warmup_s)
-                for page in pages:
-                    page.evaluate("window.aresLag = []")
-                time.sleep(seconds)
-                lags = [page.evaluate("window.aresLag.slice()") for page in pages]
-                browser.close()
-            speed = truth.latest.v if truth.latest is not None else None
-            stops = [
-                e
-                for _, e in events.drain()
-                if e.kind in ("emergency_stop", "controlled_stop") and not e.message.startswith("cleared")
-            ]
-        finally:
-            stop.set()
-            loop.join(timeout=5)
-            supervisor.stop()
+        url = f"https://127.0.0.1:{api_port}"
+        lags, speed, stops = _drive_and_measure(
+            cfg, Path(tmp) / "run", lambda: _page_lags(url, browsers, warmup_s, seconds, progress)
+        )
     every = sorted(v for lag in lags for v in lag)
     if not every:
         raise BenchError("no page received a frame")

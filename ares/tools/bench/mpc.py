@@ -21,25 +21,13 @@ MPC_GOALS = {"solve_p50_ms": Goal(1.0), "solve_p99_ms": Goal(3.0), "deadline_mis
 PLANT_DT = 0.01
 
 
-def run_mpc_bench(
-    solves: int = 2000,
-    vehicle_name: str = "ares_shuttle",
-    tour: str = "default",
-    progress: Callable[[str], None] = lambda _msg: None,
-    params=None,
-) -> dict:
-    """`params` (MpcParams) replaces the configured MPC's: a test gives a late solve all the time
-    it takes, so that a busy machine does not count as a failing solver."""
-    from ares.core.config import load_vehicle
-    from ares.core.route import Route
-    from control.mpc import Mpc, MpcParams, VehicleState, predict
-    from managers.speed import SpeedProfileParams, speed_limits
+def _closed_loop(mpc, vehicle, route, speed, solves: int, progress: Callable[[str], None]):
+    """(ms of each solve, the cross-track error at each, the distance driven, the failed solves):
+    the MPC solving at its rate from the true state of a kinematic bicycle whose steering has the
+    vehicle's dead time and rate."""
+    from control.mpc import VehicleState, predict
 
-    vehicle = load_vehicle(vehicle_name)
-    route = Route.from_tour(tour)
-    speed = speed_limits(route, SpeedProfileParams(), vehicle)
-    params = params or MpcParams()
-    mpc = Mpc(vehicle, params)
+    params = mpc.params
     steering = vehicle.actuators.steering
     rate = vehicle.max_wheel_rate_rad_s * PLANT_DT
     every = round(1.0 / params.rate_hz / PLANT_DT)
@@ -47,7 +35,6 @@ def run_mpc_bench(
     pending: list[tuple[float, float]] = []
     target, times, xte, s_hint, failures = 0.0, [], [], 0.0, 0
     n = len(route.x)
-    progress(f"{solves} solves of horizon {params.horizon_steps} x {params.step_s} s round the '{tour}' tour")
     k = 0
     while len(times) < solves:
         t = k * PLANT_DT
@@ -71,6 +58,29 @@ def run_mpc_bench(
         v = max(0.0, v + accel * PLANT_DT)
         x, y, yaw, _ = predict(x, y, yaw, v, delta, 0.0, PLANT_DT, vehicle.wheelbase_m)
         k += 1
+    return times, xte, s_hint, failures
+
+
+def run_mpc_bench(
+    solves: int = 2000,
+    vehicle_name: str = "ares_shuttle",
+    tour: str = "default",
+    progress: Callable[[str], None] = lambda _msg: None,
+    params=None,
+) -> dict:
+    """`params` (MpcParams) replaces the configured MPC's: a test gives a late solve all the time
+    it takes, so that a busy machine does not count as a failing solver."""
+    from ares.core.config import load_vehicle
+    from ares.core.route import Route
+    from control.mpc import Mpc, MpcParams
+    from managers.speed import SpeedProfileParams, speed_limits
+
+    vehicle = load_vehicle(vehicle_name)
+    route = Route.from_tour(tour)
+    speed = speed_limits(route, SpeedProfileParams(), vehicle)
+    params = params or MpcParams()
+    progress(f"{solves} solves of horizon {params.horizon_steps} x {params.step_s} s round the '{tour}' tour")
+    times, xte, distance, failures = _closed_loop(Mpc(vehicle, params), vehicle, route, speed, solves, progress)
     period_ms = 1e3 / params.rate_hz
     err = np.abs(np.array(xte[20:]))  # after the start from standstill
     result = {
@@ -86,7 +96,7 @@ def run_mpc_bench(
         "failed_solves": failures,
         "xte_rmse_m": round(float(np.sqrt(np.mean(err**2))), 4),
         "xte_max_m": round(float(err.max()), 4),
-        "distance_m": round(float(s_hint), 1),
+        "distance_m": round(float(distance), 1),
         "vehicle": vehicle_name,
         "tour": tour,
         **versions("casadi", "numpy"),

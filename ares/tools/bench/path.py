@@ -79,22 +79,13 @@ def _ukf_step_p50_ms(n: int) -> float:
     return percentile(ukf_step_benchmark(n), 50) * 1e3
 
 
-def run_path_bench(
-    poses: int = 100_000,
-    queries: int = 10_000,
-    builds: int = 7,
-    ukf_steps: int = 1000,
-    seed: int = 1,
-    progress: Callable[[str], None] | None = None,
-) -> dict:
+def _build_times(route, builds: int) -> tuple[list[float], list[float], object]:
+    """(ms of each KD-tree build, ms of each PathIndex build, the last PathIndex)."""
     import numpy as np
     from scipy.spatial import cKDTree
 
     from managers.path import PathIndex
 
-    say = progress or (lambda _msg: None)
-    say(f"building a {poses}-pose route")
-    route = bench_route(poses)
     xy = np.column_stack([route.x, route.y])
     build_ms = []
     for _ in range(builds):
@@ -106,10 +97,12 @@ def run_path_bench(
         started = time.perf_counter()
         index = PathIndex(route)
         index_ms.append((time.perf_counter() - started) * 1e3)
+    return build_ms, index_ms, index
 
-    say(f"{queries} matches along {max(queries // 1000, 1)} drives")
-    drives = _drive_poses(route, queries, max(queries // 1000, 1), seed)
-    per = max(queries // max(queries // 1000, 1), 1)
+
+def _match_times(index, drives: list, per: int) -> tuple[list[float], int, float]:
+    """(µs of each match, the matches not tracked, the worst |match xte - true offset|): each
+    drive's matches hinted by the one before, as the path manager does."""
     match_us, not_tracked, worst_xte_error = [], 0, 0.0
     perf = time.perf_counter_ns
     hint = None
@@ -125,6 +118,12 @@ def run_path_bench(
             continue
         hint = m.progress
         worst_xte_error = max(worst_xte_error, abs(m.xte - offset))
+    return match_us, not_tracked, worst_xte_error
+
+
+def _kd_query_times(index, drives: list) -> tuple[list[float], list[float]]:
+    """(µs of each raw ball query, of each nearest query) at the drives' poses."""
+    perf = time.perf_counter_ns
     tree = index.tree
     ball_us, nearest_us = [], []
     for x, y, *_ in drives:
@@ -134,6 +133,28 @@ def run_path_bench(
         started = perf()
         tree.query((x, y))
         nearest_us.append((perf() - started) / 1e3)
+    return ball_us, nearest_us
+
+
+def run_path_bench(
+    poses: int = 100_000,
+    queries: int = 10_000,
+    builds: int = 7,
+    ukf_steps: int = 1000,
+    seed: int = 1,
+    progress: Callable[[str], None] | None = None,
+) -> dict:
+    import numpy as np
+
+    say = progress or (lambda _msg: None)
+    say(f"building a {poses}-pose route")
+    route = bench_route(poses)
+    build_ms, index_ms, index = _build_times(route, builds)
+    n_drives = max(queries // 1000, 1)
+    say(f"{queries} matches along {n_drives} drives")
+    drives = _drive_poses(route, queries, n_drives, seed)
+    match_us, not_tracked, worst_xte_error = _match_times(index, drives, max(queries // n_drives, 1))
+    ball_us, nearest_us = _kd_query_times(index, drives)
     say("UKF step")
     ukf_p50 = _ukf_step_p50_ms(ukf_steps)
     result = {

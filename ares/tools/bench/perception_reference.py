@@ -211,6 +211,27 @@ def real_case(path: str | Path, vehicle_name: str = "techs4agecar") -> ScanCase:
     return ScanCase(path.name, "real", pipeline, SensorSweep("roof", scan.points, ring), height)
 
 
+def _summary(simulated: list[dict], real_rows: list[dict]) -> dict:
+    """Per kind of scan (simulated, real): the worst and median IoU, the largest ground share gap,
+    the median times of each labeller."""
+    summary = {}
+    for name, part in (("simulated", simulated), ("real", real_rows)):
+        if not part:
+            continue
+        summary[name] = {
+            "scans": len(part),
+            "iou_min": {who: min(r["iou"][who] for r in part) for who in ("ours", "algorithm2")},
+            "iou_p50": {who: percentile([r["iou"][who] for r in part], 50, 4) for who in ("ours", "algorithm2")},
+            "share_gap_max": {
+                who: round(max(abs(r["share"][who] - r["share"]["patchworkpp"]) for r in part), 4)
+                for who in ("ours", "algorithm2")
+            },
+            "cpu_ms_p50": {who: percentile([r["cpu_ms"][who] for r in part], 50, 3) for who in LABELLERS},
+            "ms_p50": {who: percentile([r["ms"][who] for r in part], 50, 3) for who in LABELLERS},
+        }
+    return summary
+
+
 def run_reference_bench(
     frames: int = 8,
     repeats: int = 5,
@@ -253,22 +274,7 @@ def run_reference_bench(
             "OccupancyMapper.cells on each mask; medians of repeats, wall and thread CPU time"
         ),
     }
-    summary = {}
-    for name, part in (("simulated", simulated), ("real", real_rows)):
-        if not part:
-            continue
-        summary[name] = {
-            "scans": len(part),
-            "iou_min": {who: min(r["iou"][who] for r in part) for who in ("ours", "algorithm2")},
-            "iou_p50": {who: percentile([r["iou"][who] for r in part], 50, 4) for who in ("ours", "algorithm2")},
-            "share_gap_max": {
-                who: round(max(abs(r["share"][who] - r["share"]["patchworkpp"]) for r in part), 4)
-                for who in ("ours", "algorithm2")
-            },
-            "cpu_ms_p50": {who: percentile([r["cpu_ms"][who] for r in part], 50, 3) for who in LABELLERS},
-            "ms_p50": {who: percentile([r["ms"][who] for r in part], 50, 3) for who in LABELLERS},
-        }
-    result["summary"] = summary
+    result["summary"] = _summary(simulated, real_rows)
     result["scans_ours_not_faster"] = sum(r["cpu_ms"]["ours"] >= r["cpu_ms"]["patchworkpp"] for r in rows)
     goals = {"scans_ours_not_faster": Goal(0)}  # ours faster than Patchwork++ on every scan
     if simulated:
