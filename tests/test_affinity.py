@@ -11,9 +11,9 @@ import pytest
 
 from ares import cli
 from ares.app import run_config
-from ares.app.stack import overrides_from_args
 from ares.app.supervisor import check_cpus
 from ares.cli.args import cpu_list
+from ares.cli.run import run_options
 from ares.core import affinity, config
 from tests.helpers.stack import REPO
 
@@ -63,7 +63,7 @@ def test_run_refuses_vehicle_cpus_the_machine_lacks(capsys):
 def test_vehicle_cpus_give_the_simulator_and_the_host_the_others():
     first, *others = sorted(affinity.available())
     args = cli.build_parser().parse_args(["run", "--vehicle-cpus", str(first)])
-    over = overrides_from_args(args)
+    over = run_options(args).overrides()
     rest = others or None  # a machine of one CPU: everything shares it
     assert over["cpus"] == {"vehicle": [first], "simulator": rest, "host": rest}
 

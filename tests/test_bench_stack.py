@@ -118,15 +118,18 @@ def test_the_cpu_sampler_names_each_child_by_the_node_it_runs():
 
 def test_the_bench_runs_ares_run_at_the_speed_asked_on_ports_and_a_store_of_its_own(tmp_path):
     from ares.cli import build_parser
-    from ares.tools.bench.stack import run_argv
+    from ares.cli.run import run_options as ares_run_options
+    from ares.tools.bench.stack import run_options
 
-    for speed in ("max", "1"):
-        args = build_parser().parse_args(run_argv(1, None, (), False, tmp_path, speed))
-        assert args.headless and args.speed == build_parser().parse_args(["run", "--speed", speed]).speed
-        assert args.store == str(tmp_path / "blackbox.sqlite") and args.listen != "tcp/127.0.0.1:7447"
-    bench = build_parser().parse_args(["bench", "stack", "--speed", "1", "--seconds", "60"])
-    assert bench.speed == "1" and bench.seconds == 60 and bench.vehicle_cpus is None
-    # --vehicle-cpus reaches ares run as it was given
+    for speed in ("max", "paced", "1"):
+        bench = build_parser().parse_args(["bench", "stack", "--speed", speed, "--seconds", "60"])
+        options = run_options(bench.laps, bench.seconds, (), False, tmp_path, bench.speed)
+        as_ares_run = ares_run_options(build_parser().parse_args(["run", "--speed", speed]))
+        assert options.headless and options.speed == as_ares_run.speed
+        assert (options.seconds, options.laps, options.run_dir) == (60, None, tmp_path)
+        assert options.store == str(tmp_path / "blackbox.sqlite") and options.listen != "tcp/127.0.0.1:7447"
+    # --vehicle-cpus reaches the run as it was given
     bench = build_parser().parse_args(["bench", "stack", "--vehicle-cpus", "0"])
-    args = build_parser().parse_args(run_argv(1, None, (), False, tmp_path, "max", bench.vehicle_cpus))
-    assert args.vehicle_cpus == [0]
+    assert bench.vehicle_cpus == [0]
+    options = run_options(bench.laps, bench.seconds, (), False, tmp_path, bench.speed, bench.vehicle_cpus)
+    assert options.vehicle_cpus == (0,) and options.laps == 1 and options.speed == "max"

@@ -81,7 +81,7 @@ def test_run_parser_takes_every_option():
 
 def test_run_parser_defaults():
     args = cli.build_parser().parse_args(["run"])
-    assert args.headless is False and args.manual is False and args.speed == 1.0
+    assert args.headless is False and args.manual is False and args.speed is None  # paced in simulation
     assert args.laps is None and args.route is None and args.vehicle is None and args.passengers is None
     assert args.vehicle_id is None and args.router is None and args.run_dir is None
 
@@ -283,16 +283,14 @@ def test_no_router_is_a_clear_error(command):
 
 
 def test_run_route_takes_a_built_in_tour_a_tour_file_or_a_route_csv(tmp_path):
-    import argparse
-
-    from ares.app.stack import overrides_from_args
+    from ares.app.run_options import RunOptions
 
     tour = tmp_path / "mine.yaml"
     tour.write_text("name: mine\n")
     csv = tmp_path / "drive.csv"
     csv.write_text("0,0\n10,0\n")
     picked = {
-        r: {k: v for k, v in overrides_from_args(argparse.Namespace(route=r)).items() if k in ("tour", "route_file")}
+        r: {k: v for k, v in RunOptions(route=r).overrides().items() if k in ("tour", "route_file")}
         for r in ("campus", str(tour), str(csv))
     }
     assert picked == {

@@ -15,8 +15,10 @@ import time
 
 import pytest
 
+from ares.app import stack
+from ares.app.engagement import engage_automatic
 from ares.app.processes import for_run
-from ares.app.stack import engage_automatic
+from ares.app.run_options import RunOptions
 from ares.app.supervisor import Supervisor
 from ares.core import config
 from ares.core.clock import ScaledClock
@@ -24,7 +26,7 @@ from ares.core.localhost import free_port
 from ares.core.messages import DriveMode
 from ares.core.route import load_route
 from tests.helpers.records import assert_drive_recorded
-from tests.helpers.stack import headless, make_run_config
+from tests.helpers.stack import NO_LIDARS, headless, make_run_config
 
 pytestmark = [pytest.mark.stack, pytest.mark.whole_stack]
 
@@ -41,8 +43,23 @@ def test_the_simulator_driven_clock_behind_the_wires_gives_the_wall_clock_result
     points += [(21.0, 15 + y) for y in range(2, 8, 2)]
     route.write_text("\n".join(f"{x:.3f},{y:.3f}" for x, y in points))
     stores = {speed: tmp_path / f"blackbox_{speed}.sqlite" for speed in ("2", "max")}
-    # the wall clock, hurried: timers as at real time; then the clock the simulator drives
-    scaled = headless("--route", str(route), "--speed", "2", "--store", str(stores["2"]))
+    # the wall clock, hurried (timers as at real time), through the function `ares run` calls; then
+    # `ares run` itself, its last line, on the clock the simulator drives
+    scaled_run = stack.run(
+        RunOptions(
+            headless=True,
+            route=str(route),
+            speed=2.0,
+            store=str(stores["2"]),
+            config_files=(str(NO_LIDARS),),
+            listen=f"tcp/127.0.0.1:{free_port()}",
+            api_port=free_port(),
+            run_dir=tmp_path / "run_2",
+        )
+    )
+    assert (scaled_run.ok, scaled_run.exit_code, scaled_run.run_dir) == (True, 0, tmp_path / "run_2"), scaled_run.error
+    assert scaled_run.figures["laps"] == 0 and scaled_run.figures["route"] == "s_bend"  # an open route, to its end
+    scaled = scaled_run.summary()
     fast = headless("--route", str(route), "--speed", "max", "--wire", "--store", str(stores["max"]))
     assert (scaled["clock"], fast["clock"]) == ("scaled", "driven")
     assert "drivers" not in scaled

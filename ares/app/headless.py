@@ -5,10 +5,11 @@ It engages Automatic mode itself (the Auto/Manual button on the simulated panel,
 of the tour (or an open route to its end; or, with --seconds, for that much vehicle time), feeds
 what the stack publishes to the evaluations (ares.app.evaluation: the lap, localization,
 control, perception and safety figures), plays the scenario's process faults and operator
-actions (ares.app.scenario_driver), and returns the figures that `ares run` prints as its last
-line, with a picture of the lap (ares.app.lap_figure).
+actions (ares.app.scenario_driver), and returns the figures of the run's result (`ares run` prints
+them as its last line), with a picture of the lap (ares.app.lap_figure).
 
-The stack itself is started, watched and stopped by ares.app.stack.run, which calls `drive`.
+The stack itself is started, watched and stopped by ares.app.stack.run, which calls `drive` with
+the running stack.
 `Measurements` (what is measured, from which topics) and `Goal` (when the drive is done, or has
 failed) serve the in-process stack too (tests.helpers.in_process_stack), so that a test on
 the in-memory bus measures exactly what a headless run measures.
@@ -24,17 +25,17 @@ from typing import Any
 
 import numpy as np
 
+from ares.app.engagement import STARTUP_TIMEOUT_S, RunFailed, engage_automatic, wait_for
 from ares.app.evaluation.control_eval import ControlTracker
 from ares.app.evaluation.corrections_eval import CorrectionsTracker
 from ares.app.evaluation.lap_eval import LapTracker, LocalizationTracker
 from ares.app.evaluation.perception_eval import PerceptionTracker
 from ares.app.evaluation.safety_eval import SafetyTracker
 from ares.app.lap_figure import write_lap_svg
+from ares.app.run_options import RunningStack
 from ares.app.scenario_driver import ScenarioDriver
-from ares.app.stack import STARTUP_TIMEOUT_S, RunFailed, engage_automatic, wait_for
 from ares.core import config
 from ares.core.bus import BaseBus
-from ares.core.clock import Clock
 from ares.core.messages import DriveMode, MissionStatus
 from ares.core.route import Route
 from managers.speed import SpeedProfileParams, cruise_speed
@@ -282,16 +283,18 @@ class Goal:
         return self.laps if self.m.route.closed else 0
 
 
-def drive(args, cfg, route: Route, bus: BaseBus, clock: Clock, stop, run_dir: Path, inject) -> dict:
+def drive(running: RunningStack) -> dict:
     """Engage, drive and measure (see the module's docstring); RunFailed carries the figures up to a failure."""
+    cfg, route, bus, clock = running.cfg, running.route, running.bus, running.clock
+    stop, run_dir = running.stop, running.run_dir
     car_state = bus.subscribe("dbw/car_state")
-    m = Measurements(cfg, route, bus, inject)
+    m = Measurements(cfg, route, bus, running.supervisor.inject)
     wait_for(lambda: m.truth.latest is not None, STARTUP_TIMEOUT_S, "the simulator", stop)
     engage_automatic(bus, car_state, stop)
     t_start = clock.now()
     wall_start = time.monotonic()
     m.begin()
-    goal = Goal(m, t_start, int(getattr(args, "laps", None) or 1), getattr(args, "seconds", None))
+    goal = Goal(m, t_start, running.options.laps or 1, running.options.seconds)
     last_progress = 0.0
     clock_moved = (clock.now(), time.monotonic())  # a clock that stops moving is a stalled run
     try:
@@ -321,7 +324,6 @@ def drive(args, cfg, route: Route, bus: BaseBus, clock: Clock, stop, run_dir: Pa
     wall_s = time.monotonic() - wall_start
     laps = goal.laps_driven()
     result = {
-        "ok": True,
         "laps": laps,
         "route": route.name,
         "route_length_m": round(route.length, 2),
@@ -332,7 +334,6 @@ def drive(args, cfg, route: Route, bus: BaseBus, clock: Clock, stop, run_dir: Pa
         "clock": clock.mode,
         "wall_time_s": round(wall_s, 1),
         "vehicle": cfg["vehicle"],
-        "run_dir": str(run_dir),
         "t_start_s": round(t_start, 3),  # the drive, stack time
         "t_end_s": round(t_start + lap_time, 3),
     }

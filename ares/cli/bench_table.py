@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TextIO
 
 from .args import CliError, cpu_list, positive_float, positive_int
+from .run import speed as run_speed
 
 Progress = Callable[[str], None]
 
@@ -245,6 +246,7 @@ def _stack_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--speed",
+        type=run_speed,
         default="max",
         metavar="max|paced|FACTOR",
         help="as ares run --speed: max (default: the lockstep, as fast as every process keeps up), paced (the "
@@ -258,22 +260,10 @@ def _stack_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _parse_run_arguments(argv: list[str]) -> argparse.Namespace:
-    """`ares run`'s arguments, parsed by its own parser (the whole CLI's is not needed for one command)."""
-    from .run import add_parser as add_run_parser
-
-    parser = argparse.ArgumentParser(prog="ares")
-    add_run_parser(parser.add_subparsers(dest="command"))
-    return parser.parse_args(argv)
-
-
 def _stack_run(args: argparse.Namespace, progress: Progress) -> dict:
-    from ares.app.headless import drive
     from ares.tools.bench.stack import run_stack_bench
 
     return run_stack_bench(
-        _parse_run_arguments,
-        drive,
         args.laps,
         args.seconds,
         tuple(args.config or ()),

@@ -3,7 +3,7 @@
     ares compare [--controllers mpc,pure_pursuit] [--route R] [--vehicle V] [--scenario S]
                  [--laps N | --seconds S] [--config FILE] [--out PNG] [--json]
 
-Each run is `ares run --headless --speed max --controller C ...` in its own process, one after
+Each run is `ares run --headless --speed max --controller C ...` (ares.app.stack.run), one after
 the other (the machine's two cores are the stack's); `auto` lets the control manager choose. The
 table shows the figures that tell controllers apart; the picture, the cross-track error of each
 along the route with the stretches where road reactive control drove shaded.
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -82,36 +81,32 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
 
 
 def run_one(controller: str, args: argparse.Namespace, run_dir: Path) -> dict:
-    cmd = [
-        sys.executable,
-        "-m",
-        "ares.cli",
-        "run",
-        "--headless",
-        "--speed",
-        "max",
-        "--controller",
-        controller,
-        "--run-dir",
-        str(run_dir),
-    ]
-    for flag in ("route", "vehicle", "scenario", "laps", "seconds", "mission"):
-        value = getattr(args, flag)
-        if value is not None:
-            cmd += [f"--{flag}", str(value)]
-    for path in args.config:
-        cmd += ["--config", path]
-    print(f"[compare] {controller}: {' '.join(cmd[3:])}", file=sys.stderr, flush=True)
-    done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
-    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
-    if not lines:
-        raise CliError(
-            f"the run with {controller} ended without a result (exit {done.returncode}); its logs are in {run_dir}"
-        )
-    result = json.loads(lines[-1])
-    if not result.get("ok"):  # a controller that could not finish is a result too: its figures until then
-        print(f"[compare] {controller} did not finish: {result.get('error')}", file=sys.stderr, flush=True)
-    return result
+    """The headless run with `controller` pinned; its result's figures, as `ares run` prints them."""
+    from ares.app import stack
+    from ares.app.run_options import RunOptions
+
+    options = RunOptions(
+        headless=True,
+        speed="max",
+        controller=controller,
+        run_dir=run_dir,
+        route=args.route,
+        vehicle=args.vehicle,
+        scenario=args.scenario,
+        laps=args.laps,
+        seconds=args.seconds,
+        mission=args.mission,
+        config_files=tuple(args.config),
+    )
+    print(f"[compare] {controller}: in {run_dir}", file=sys.stderr, flush=True)
+    result = stack.run(options)
+    if result.refused:
+        raise CliError(f"the run with {controller} was refused: {result.error}")
+    if result.interrupted:
+        raise CliError(f"interrupted during the run with {controller} (its logs are in {run_dir})")
+    if not result.ok:  # a controller that could not finish is a result too: its figures until then
+        print(f"[compare] {controller} did not finish: {result.error}", file=sys.stderr, flush=True)
+    return result.summary()
 
 
 def table(results: dict[str, dict]) -> str:

@@ -1,11 +1,19 @@
-"""`ares run` (the whole stack, supervised) and `ares node` (one of its processes)."""
+"""`ares run` (the whole stack, supervised: ares.app.stack.run, given the options the arguments
+ask for) and `ares node` (one of its processes)."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .args import CliError, Command, cpu_list, endpoint, non_negative_int, positive_float, positive_int, vehicle_id
+
+if TYPE_CHECKING:
+    from ares.app.run_options import RunOptions
 
 
 def speed(text: str) -> float | str:
@@ -35,12 +43,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     run.add_argument(
         "--speed",
         type=speed,
-        default=1.0,
         metavar="X",
-        help="clock speed: simulated seconds per wall second (default 1), or `max`: as fast as "
-        "every process keeps up (the simulator drives the clock), or `paced`: the same, but never "
-        "faster than real time (a machine too small for the stack runs it slower instead of "
-        "starving the simulated sensors into faults; scripts/run.sh's default)",
+        help="the clock. In simulation by default `paced`: the simulator drives the clock, never faster "
+        "than real time (a machine too small for the stack runs it slower instead of starving the simulated "
+        "sensors into faults); `max`: the same, as fast as every process keeps up; a factor X: simulated "
+        "seconds per wall second, each process on its own timers (1: real time). On the vehicle "
+        "(simulate: false) the wall clock",
     )
     run.add_argument(
         "--config",
@@ -159,11 +167,44 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
 def cmd_run(args: argparse.Namespace) -> int:
     from ares.app import stack
 
-    if not args.headless:
-        return int(stack.run(args) or 0)
-    from ares.app import headless
+    result = stack.run(run_options(args))
+    if not result.ok:
+        print(f"ares run: {result.error}" + (f" (logs in {result.logs})" if result.logs else ""), file=sys.stderr)
+    if args.headless and not result.refused:
+        print(json.dumps(result.summary()))
+    return result.exit_code
 
-    return int(stack.run(args, headless.drive) or 0)
+
+def run_options(args: argparse.Namespace) -> RunOptions:
+    """The run `ares run`'s arguments ask for."""
+    from ares.app.run_options import RunOptions
+
+    return RunOptions(
+        config_files=tuple(args.config),
+        headless=args.headless,
+        manual=args.manual,
+        laps=args.laps,
+        seconds=args.seconds,
+        speed=args.speed,
+        route=args.route,
+        scenario=args.scenario,
+        mission=args.mission,
+        controller=args.controller,
+        wire=args.wire,
+        vehicle_io=args.vehicle_io,
+        vehicle=args.vehicle,
+        passengers=args.passengers,
+        vehicle_id=args.vehicle_id,
+        router=args.router,
+        listen=args.listen,
+        vehicle_cpus=None if args.vehicle_cpus is None else tuple(args.vehicle_cpus),
+        run_dir=None if args.run_dir is None else Path(args.run_dir),
+        api_port=args.api_port,
+        store=args.store,
+        fleet=args.fleet or 1,
+        record=args.record,
+        foxglove=args.foxglove,
+    )
 
 
 def cmd_node(args: argparse.Namespace) -> int:

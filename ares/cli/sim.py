@@ -29,13 +29,14 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ares.app import wire_sim
-    from ares.app.stack import default_run_dir, overrides_from_args
+    from ares.app.run_options import RunOptions
+    from ares.app.stack import default_run_dir
     from ares.core import config
 
     if args.sim != "serve":
         raise CliError("ares sim: say what to do (serve)")
     try:
-        overrides = overrides_from_args(args)
+        overrides = RunOptions(route=args.route, listen=args.listen).overrides()
         cfg = wire_sim.sim_config(tuple(args.config), overrides, Path(args.wire_dir).resolve())
     except config.ConfigError as exc:
         raise CliError(str(exc)) from None

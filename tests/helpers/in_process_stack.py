@@ -47,9 +47,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from ares.app.engagement import RunFailed
 from ares.app.headless import Goal, Measurements
 from ares.app.processes import Process, for_config
-from ares.app.stack import RunFailed, prepare
+from ares.app.stack import prepare
 from ares.app.supervisor import STATE_PERIOD_S, SupervisorSettings
 from ares.core import config
 from ares.core.clock import ManualClock

@@ -63,27 +63,27 @@ class RunTaps:
         return self.closed
 
 
-def start(args: Any, cfg: dict[str, Any], bus: Any, clock: Clock, run_dir: Path, route: Route) -> RunTaps:
-    """The taps `args` asks for (`record`: None, or "" for the run folder's file, or a path;
+def start(
+    record: str | None, foxglove: str | None, cfg: dict[str, Any], bus: Any, clock: Clock, run_dir: Path, route: Route
+) -> RunTaps:
+    """The taps a run asks for (`record`: None, or "" for the run folder's file, or a path;
     `foxglove`: None or [HOST:]PORT), attached to `bus` and started."""
     taps = RunTaps(bus=bus)
-    if getattr(args, "record", None) is None and getattr(args, "foxglove", None) is None:
+    if record is None and foxglove is None:
         return taps
     from ares.app.bus_record.foxglove_live import FoxgloveBridge
     from ares.app.bus_record.foxglove_views import FoxgloveViews
     from ares.app.bus_record.recorder import McapRecorder
 
     utc_epoch = clock.utc(0.0).timestamp()
-    record = getattr(args, "record", None)
     if record is not None:
         path = Path(record) if record else Path(run_dir) / RECORDING_NAME
         taps.recorder = McapRecorder(path, cfg, utc_epoch=utc_epoch, views=FoxgloveViews(cfg, utc_epoch), route=route)
         taps.recorder.attach(bus)
         taps.recorder.start()
         print(f"ares run: recording the bus to {path}", file=sys.stderr, flush=True)
-    where = getattr(args, "foxglove", None)
-    if where is not None:
-        host, port = host_port(where)
+    if foxglove is not None:
+        host, port = host_port(foxglove)
         try:
             taps.bridge = FoxgloveBridge(cfg, utc_epoch=utc_epoch, host=host, port=port, route=route).attach(bus)
         except RuntimeError as exc:  # the port taken, say: no run half set up

@@ -26,10 +26,6 @@ some of their 10 Hz slots and the awareness manager rightly latches an emergency
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import io
-import json
 import shutil
 import signal
 import subprocess
@@ -43,7 +39,8 @@ from pathlib import Path
 
 import psutil
 
-from ares.app import processes, stack
+from ares.app import headless, processes, stack
+from ares.app.run_options import HeadlessDrive, RunningStack, RunOptions, Speed
 from ares.core.localhost import free_port
 from ares.tools.bench.common import BenchError, percentile, versions
 
@@ -241,32 +238,60 @@ class Published:
         }
 
 
-def run_argv(
+def run_options(
     laps: int,
     seconds: float | None,
     config_files: tuple[str, ...],
     wire: bool,
     run_dir: Path,
-    speed: str = "max",
+    speed: Speed = "max",
     vehicle_cpus: list[int] | None = None,
-) -> list[str]:
-    """The `ares run` the bench drives, on ports and a store of its own."""
-    argv = ["run", "--headless", "--speed", speed, "--run-dir", str(run_dir)]
-    argv += ["--listen", f"tcp/127.0.0.1:{free_port()}", "--api-port", str(free_port())]
-    argv += ["--store", str(run_dir / "blackbox.sqlite")]
-    argv += ["--seconds", f"{seconds:g}"] if seconds else ["--laps", str(laps)]
-    for f in config_files:
-        argv += ["--config", f]
-    if wire:
-        argv.append("--wire")
-    if vehicle_cpus:
-        argv += ["--vehicle-cpus", ",".join(map(str, vehicle_cpus))]
-    return argv
+) -> RunOptions:
+    """The headless run the bench drives, on ports and a store of its own."""
+    return RunOptions(
+        headless=True,
+        speed=speed,
+        run_dir=run_dir,
+        listen=f"tcp/127.0.0.1:{free_port()}",
+        api_port=free_port(),
+        store=str(run_dir / "blackbox.sqlite"),
+        seconds=seconds,
+        laps=None if seconds else laps,
+        config_files=config_files,
+        wire=wire,
+        vehicle_cpus=tuple(vehicle_cpus) if vehicle_cpus else None,
+    )
+
+
+class Probes:
+    """The bench's probes, set up beside the headless drive once the stack runs."""
+
+    def __init__(self, running: RunningStack, profile_dir: Path | None):
+        table = processes.for_config(running.cfg)
+        bus, clock = running.bus, running.clock
+        self.clock = clock
+        self.cpus = running.cfg["cpus"]
+        self.sim = [p.name for p in table if p.sim_only]
+        self.sampler = CpuSampler({p.node: p.name for p in table}, profile_dir)
+        self.load = BusLoad(bus)
+        self.lag = RotationToCommand(bus, clock)
+        self.perception = Published(bus, "perception/lidar_status", lambda m: m.stage_ms.get("total"))
+        self.perception_cpu = Published(bus, "perception/lidar_status", lambda m: m.stage_ms.get("cpu"))
+        self.mpc = Published(bus, "control/candidate/mpc", lambda m: m.solve_ms)
+        self.began = self.ended = (clock.now(), time.monotonic())
+
+    def around(self, drive: HeadlessDrive, running: RunningStack) -> dict:
+        """`drive`, with the CPU sampled while it lasts."""
+        self.sampler.start()
+        self.began = (self.clock.now(), time.monotonic())
+        try:
+            return drive(running)
+        finally:
+            self.ended = (self.clock.now(), time.monotonic())
+            self.sampler.stop()
 
 
 def run_stack_bench(
-    parse_run: Callable[[list[str]], argparse.Namespace],
-    headless_drive: Callable[..., dict],
     laps: int = 1,
     seconds: float | None = None,
     config_files: tuple[str, ...] = (),
@@ -274,67 +299,50 @@ def run_stack_bench(
     profile_dir: Path | None = None,
     run_dir: Path | None = None,
     progress: Callable[[str], None] = lambda _msg: None,
-    speed: str = "max",
+    speed: Speed = "max",
     vehicle_cpus: list[int] | None = None,
+    drive: HeadlessDrive = headless.drive,
 ) -> dict:
+    """A headless run (ares.app.stack.run) whose `drive` (default: ares run --headless's) the
+    probes watch; their figures and the run's own (`lap`)."""
     run_dir = run_dir or Path(tempfile.mkdtemp(prefix="ares-bench-stack-"))
     if profile_dir is not None:
         profile_dir.mkdir(parents=True, exist_ok=True)
-    # the CLI's parser: it is `ares run`
-    args = parse_run(run_argv(laps, seconds, config_files, wire, run_dir, speed, vehicle_cpus))
-    probes: dict = {}
+    options = run_options(laps, seconds, config_files, wire, run_dir, speed, vehicle_cpus)
+    probed: list[Probes] = []
 
-    def probed_drive(args, cfg, route, bus, clock, stop, run_dir, inject):
-        table = processes.for_config(cfg)
-        sampler = CpuSampler({p.node: p.name for p in table}, profile_dir)
-        probes.update(
-            cpus=cfg["cpus"],
-            sampler=sampler,
-            sim=[p.name for p in table if p.sim_only],
-            load=BusLoad(bus),
-            lag=RotationToCommand(bus, clock),
-            perception=Published(bus, "perception/lidar_status", lambda m: m.stage_ms.get("total")),
-            perception_cpu=Published(bus, "perception/lidar_status", lambda m: m.stage_ms.get("cpu")),
-            mpc=Published(bus, "control/candidate/mpc", lambda m: m.solve_ms),
-        )
-        sampler.start()
-        probes["began"] = (clock.now(), time.monotonic())
-        try:
-            return headless_drive(args, cfg, route, bus, clock, stop, run_dir, inject)
-        finally:
-            probes["ended"] = (clock.now(), time.monotonic())
-            sampler.stop()
+    def probed_drive(running: RunningStack) -> dict:
+        probed.append(Probes(running, profile_dir))
+        return probed[0].around(drive, running)
 
     progress(f"ares run --headless --speed {speed} ({f'{seconds:g} s' if seconds else f'{laps} lap(s)'}), in {run_dir}")
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        code = stack.run(args, headless_drive=probed_drive)
-    lines = [line for line in out.getvalue().splitlines() if line.startswith("{")]
-    lap = json.loads(lines[-1]) if lines else {"ok": False, "error": f"ares run exited {code} without a result"}
-    if not probes:
-        raise BenchError(f"the stack did not start: {lap.get('error')}")
-    cpu = probes["sampler"].figures()
-    (t0, wall0), (t1, wall1) = probes["began"], probes["ended"]
+    result = stack.run(options, drive=probed_drive)
+    lap = result.summary()
+    if not probed:
+        raise BenchError(f"the stack did not start: {result.error}")
+    probes = probed[0]
+    cpu = probes.sampler.figures()
+    (t0, wall0), (t1, wall1) = probes.began, probes.ended
     # the run's own figure when it finished; over what it drove when it did not (a failed run's too)
     speedup = lap.get("speed_factor") or round((t1 - t0) / max(wall1 - wall0, 1e-9), 2)
-    vehicle = {n: f for n, f in cpu.items() if n != HOST and n not in probes["sim"]}
+    vehicle = {n: f for n, f in cpu.items() if n != HOST and n not in probes.sim}
     vehicle_cores = sum(f["mean_cores"] or 0.0 for f in vehicle.values())
     return {
-        "ok": bool(lap.get("ok")),
-        "speed": speed,
+        "ok": result.ok,
+        "speed": options.speed,
         "speedup": speedup,
         "vehicle_cpu_cores": round(vehicle_cores, 3),
         # what the same work needs at real time: the vehicle's own clock
         "vehicle_cpu_s_per_vehicle_s": round(vehicle_cores / speedup, 3) if speedup else None,
-        "cpus": probes["cpus"],
-        "simulator_cpu_cores": round(sum(cpu[n]["mean_cores"] or 0.0 for n in probes["sim"] if n in cpu), 3),
+        "cpus": probes.cpus,
+        "simulator_cpu_cores": round(sum(cpu[n]["mean_cores"] or 0.0 for n in probes.sim if n in cpu), 3),
         "host_cpu_cores": cpu.get(HOST, {}).get("mean_cores"),
         "cpu_per_process": cpu,
-        "perception_frame_ms": probes["perception"].figures(),
-        "perception_frame_cpu_ms": probes["perception_cpu"].figures(),
-        "mpc_solve_ms": probes["mpc"].figures(),
-        "bus": probes["load"].figures(),
-        "rotation_to_command": probes["lag"].figures(),
+        "perception_frame_ms": probes.perception.figures(),
+        "perception_frame_cpu_ms": probes.perception_cpu.figures(),
+        "mpc_solve_ms": probes.mpc.figures(),
+        "bus": probes.load.figures(),
+        "rotation_to_command": probes.lag.figures(),
         "lap": lap,
         "profiles": sorted(str(p) for p in profile_dir.glob("*.svg")) if profile_dir is not None else None,
         "cores": psutil.cpu_count(),

@@ -2,12 +2,13 @@
 
 The run: the plan (ares.tools.soak.plan) is drawn from the seed; its obstacles go into a scenario
 file of the soak's own (they appear ahead of the shuttle at their stack time); the soak starts its
-own Zenoh router process (a fault restarts it) and the stack under one supervisor, with
-ARES_FAULT_INJECTION=1 so that its processes take the busy-loop fault; it engages Automatic mode
-and, from `lead_s` of stack time on, injects each fault at its time (ares.tools.soak.injectors),
-measuring what the stack does (ares.tools.soak.measure, and the safety evaluation's collisions and
-invariants). As the operator and safety driver would, it re-arms a latched emergency stop once its
-cause has cleared and engages Automatic again if the shuttle fell back to Manual; both are counted.
+own Zenoh router process (a fault restarts it) and the stack under one supervisor (ares.app.stack.run,
+headless, the soak's drive `SoakDrive`), with ARES_FAULT_INJECTION=1 so that its processes take the
+busy-loop fault; it engages Automatic mode and, from `lead_s` of stack time on, injects each fault
+at its time (ares.tools.soak.injectors), measuring what the stack does (ares.tools.soak.measure,
+and the safety evaluation's collisions and invariants). As the operator and safety driver would,
+it re-arms a latched emergency stop once its cause has cleared and engages Automatic again if the
+shuttle fell back to Manual; both are counted.
 
 Everything goes to the soak's directory as it happens, so that a soak stopped early (or still
 running) can be summarised (`ares soak --summarise DIR`):
@@ -24,28 +25,17 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace
 
 import yaml
 
-from ares.app import processes
+from ares.app import processes, stack
+from ares.app.engagement import STARTUP_TIMEOUT_S, RunFailed, engage_automatic, wait_for
 from ares.app.evaluation.safety_eval import SafetyTracker
-from ares.app.stack import (
-    STARTUP_TIMEOUT_S,
-    RunFailed,
-    engage_automatic,
-    overrides_from_args,
-    prepare,
-    stack_clock,
-    wait_for,
-)
-from ares.app.supervisor import Supervisor
+from ares.app.run_options import RunningStack, RunOptions
 from ares.core import config
 from ares.core.bus import ServiceError
 from ares.core.launch import FAULT_INJECTION_ENV
@@ -120,31 +110,37 @@ class Soak:
         self.opts = opts
         self.out = opts.out_dir
         self.out.mkdir(parents=True, exist_ok=True)
-        self.stop = threading.Event()
 
     def log(self, text: str) -> None:
         if not self.opts.quiet:
             print(text, file=sys.stderr, flush=True)
 
     # ---- set up -------------------------------------------------------------------------------------
-    def configure(self) -> tuple[dict, list[PlannedFault]]:
+    def configure(self) -> tuple[RunOptions, dict, list[PlannedFault]]:
+        """The stack's run and its configuration, and the plan (drawn, its obstacles' scenario and
+        plan.json written)."""
         from ares.core.localhost import free_port
 
         opts = self.opts
-        listen = opts.listen or f"tcp/127.0.0.1:{free_port()}"
-        overrides = {
-            "bus": {"router": listen, "embedded_router": False},
-            "blackbox_store": {"uri": str((self.out / "blackbox.sqlite").resolve())},
-            "api": {"port": opts.api_port or free_port()},
+        settings: dict = {
             # a dozen processes importing at once on a shared machine miss the 15 s to their first
             # heartbeat, are restarted, import again: a storm in which no soak starts
             "supervisor": {"start_grace_s": START_GRACE_S},
         }
-        if opts.route:
-            overrides = config.deep_merge(overrides_from_args(SimpleNamespace(route=opts.route)), overrides)
         if opts.start_s_m is not None:
-            overrides = config.deep_merge(overrides, {"sim": {"start_s_m": round(opts.start_s_m, 1)}})
-        cfg = prepare(opts.configs, overrides, "max")
+            settings["sim"] = {"start_s_m": round(opts.start_s_m, 1)}
+        options = RunOptions(
+            config_files=opts.configs,
+            settings=settings,
+            headless=True,
+            speed="max",
+            route=opts.route,
+            router=opts.listen or f"tcp/127.0.0.1:{free_port()}",  # the soak's own router process
+            store=str((self.out / "blackbox.sqlite").resolve()),
+            api_port=opts.api_port or free_port(),
+            run_dir=self.out / "run",
+        )
+        cfg = stack.configure(options)
         core = config.core(cfg)
         lidars = sorted(core.vehicle_profile.lidars) if cfg["lidars"] else []
         running = [p for p in processes.for_config(cfg) if not p.sim_only]
@@ -160,8 +156,15 @@ class Soak:
         if scenario["obstacles"]:
             path = self.out / "scenario.yaml"
             path.write_text(yaml.safe_dump(scenario, sort_keys=False))
-            cfg = prepare(opts.configs, {**overrides, "scenario": str(path.resolve())}, "max")
+            options = options.model_copy(update={"scenario": str(path.resolve())})
+            cfg = stack.configure(options)
         self.safety_relevant = {p.name: p.safety_relevant for p in running}
+        self.write_plan(plan, kinds, lidars)
+        return options, cfg, plan
+
+    def write_plan(self, plan: list[PlannedFault], kinds: list[str], lidars: list[str]) -> None:
+        """plan.json: the plan and what drew it."""
+        opts = self.opts
         route_file = Path(opts.route or "").resolve()
         (self.out / "plan.json").write_text(
             json.dumps(
@@ -181,39 +184,28 @@ class Soak:
                 indent=1,
             )
         )
-        return cfg, plan
 
     # ---- the run --------------------------------------------------------------------------------------
     def run(self) -> dict:
-        cfg, plan = self.configure()
-        clock = stack_clock(cfg, "max")
+        """The stack driven through the plan (ares.app.stack.run, beside the soak's router), then
+        the figures, written to soak.json with the picture."""
+        options, cfg, plan = self.configure()
         run_dir = self.out / "run"
-        (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+        logs = run_dir / "logs"
+        logs.mkdir(parents=True, exist_ok=True)
         router_cfg = run_dir / "router.json"
         router_cfg.write_text(json.dumps({"vehicle_id": cfg["vehicle_id"], "bus": cfg["bus"]}))
-        router = RouterProcess(router_cfg, cfg["bus"]["router"], run_dir / "logs" / "router.log")
+        router = RouterProcess(router_cfg, cfg["bus"]["router"], logs / "router.log")
         os.environ[FAULT_INJECTION_ENV] = "1"  # the supervisor's children inherit it
-        previous = {sig: signal.signal(sig, lambda *_: self.stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-        router.start()
-        supervisor = Supervisor(cfg, processes.for_config(cfg), run_dir, clock)
-        supervisor.start()
-        loop = threading.Thread(target=supervisor.run, args=(self.stop,), name="supervisor", daemon=True)
-        loop.start()
         wall_start = time.monotonic()
-        result: dict
         try:
-            result = self.drive(cfg, plan, supervisor, clock, router)
-        except RunFailed as exc:
-            result = {"ok": False, "error": str(exc)}
+            router.start()
+            run = stack.run(options, drive=lambda running: SoakDrive(self, plan, running, router).drive())
         finally:
-            self.stop.set()
-            loop.join(timeout=5)
-            supervisor.stop()
             router.stop()
             os.environ.pop(FAULT_INJECTION_ENV, None)
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
         # the stack has stopped and the recorder has flushed what it held: the black box's seconds
+        result = {"ok": run.ok, **({"error": run.error} if run.error else {}), **run.figures}
         result["wall_time_s"] = round(time.monotonic() - wall_start, 1)
         summary = report.summarise_dir(self.out, final=result)
         (self.out / "soak.json").write_text(json.dumps(summary, indent=1))
@@ -224,210 +216,268 @@ class Soak:
         (self.out / "soak.json").write_text(json.dumps(summary, indent=1))
         return summary
 
-    def drive(self, cfg: dict, plan: list[PlannedFault], supervisor: Supervisor, clock, router) -> dict:
-        bus = supervisor.bus
-        vehicle = config.core(cfg).vehicle_profile
-        truth = bus.subscribe("sim/truth", queue=QUEUE)
-        car = bus.subscribe("dbw/car_state", queue=QUEUE)
-        gate = bus.subscribe("movement/status", queue=QUEUE)
-        awareness = bus.subscribe("awareness/state", queue=1024)
-        sup_state = bus.subscribe("supervisor/state", queue=1024)
-        mission = bus.subscribe("mission/status", queue=1024)
-        body = bus.subscribe("body/state", queue=1024)
-        world = bus.subscribe("sim/world", queue=1024) if cfg["lidars"] else None
-        # a loaded machine starts a dozen processes slowly (some are restarted before their first
-        # heartbeat): a soak is patient with its start, which is not what it measures
-        wait_for(lambda: truth.latest is not None, STARTUP_PATIENCE * STARTUP_TIMEOUT_S, "the simulator", self.stop)
-        for attempt in range(STARTUP_PATIENCE):
-            try:
-                engage_automatic(bus, car, self.stop)
-                break
-            except RunFailed as exc:
-                if attempt == STARTUP_PATIENCE - 1 or self.stop.is_set():
-                    raise
-                self.log(f"soak: not engaged yet ({exc}); trying again")
-        t_engaged = clock.now()
-        self.log(f"soak: engaged at t={t_engaged:.1f} s; {len(plan)} faults from t={self.opts.lead_s:g} s")
-        if t_engaged > self.opts.lead_s:
-            self.log(f"soak: engaged after the plan's start ({self.opts.lead_s:g} s): the first faults come late")
-        t0 = self.opts.lead_s
-        store = cfg["blackbox_store"]["uri"]
-        injectors = Injectors(
-            bus,
-            clock,
-            supervisor.inject,
-            router,
-            store if not store.startswith("mongodb") else None,
-            api_url(cfg),
-            cfg["vehicle_id"],
-        )
-        tracker = SoakTracker(t_start=clock.now())
-        safety = SafetyTracker(vehicle.length_m, vehicle.width_m, vehicle.front_bumper_m)
-        for sub in (truth, car, gate, awareness, sup_state, mission, body, *([world] if world else [])):
-            sub.drain()
-        faults_file = (self.out / "faults.jsonl").open("w")
-        timeline_file = (self.out / "timeline.csv").open("w")
-        timeline_file.write("t,v,level\n")
-        written_timeline = 0
-        pending = list(plan)
-        end_t = t0 + self.opts.hours * 3600.0 + END_GRACE_S
-        counters = {"rearms": 0, "rearm_refusals": 0, "engagements": 0, "mission_goals": 0}
-        drive_only = (cfg.get("mission_manager") or {}).get("autostart") == "drive"
-        no_goal_since: float | None = None
-        last_rearm = -1e9
-        out_of_auto_since: float | None = None
-        last_progress = time.monotonic()
-        wall_start = time.monotonic()
-        closed: set[int] = set()
-        clock_moved = (clock.now(), time.monotonic())
 
-        def write_closed(final: bool = False) -> None:
-            for outcome in tracker.faults:
-                i = outcome.fault.index
-                if i in closed or (outcome in tracker.open and not final):
-                    continue
-                if final or i in injectors.results or outcome.fault.kind not in LASTING:
-                    outcome.extra.update(injectors.results.get(i, {}))
-                    faults_file.write(json.dumps(outcome.as_dict()) + "\n")
-                    closed.add(i)
-            faults_file.flush()
-            timeline_file.flush()
+class SoakDrive:
+    """The soak's drive of the running stack: engaged once, then a round every 50 ms of wall time
+    (what the stack published, the faults due, the operator's and the safety driver's part, the
+    progress) until the plan is done and its faults have recovered or the soak's hours are up."""
 
-        def progress(now: float) -> dict:
-            injected = len(tracker.faults)
-            figures = {
-                "t": round(now, 2),
-                "t_start_s": round(tracker.t_start, 2),
-                "plan_start_s": t0,
-                "s": None if truth.latest is None else round(truth.latest.s, 1),  # where a resumed soak starts
-                "faults_injected": injected,
-                "faults_planned": len(plan),
-                "collisions": len(safety.collided),
-                "invariant_violations": safety.violations,
-                "invariant_examples": safety.examples,
-                "min_clearance_m": None if safety.min_clearance_m == float("inf") else round(safety.min_clearance_m, 3),
-                "closest_approach": safety.closest,
-                "availability": None if tracker.availability() is None else round(tracker.availability(), 5),
-                "available_s": round(tracker.available_s, 1),
-                "measured_s": round(tracker.total_s, 1),
-                **counters,
-                "router_restarts": router.restarts,
-                "process_restarts": {n: c.restarts for n, c in supervisor.children.items() if c.restarts},
-                "wall_s": round(time.monotonic() - wall_start, 1),
-                "speed_factor": round(tracker.total_s / max(time.monotonic() - wall_start, 1e-9), 2),
-            }
-            (self.out / "progress.json").write_text(json.dumps(figures, indent=1))
-            return figures
+    def __init__(self, soak: Soak, plan: list[PlannedFault], running: RunningStack, router: RouterProcess):
+        self.soak, self.plan, self.running, self.router = soak, plan, running, router
+        cfg, bus = running.cfg, running.bus
+        self.bus, self.clock, self.stop = bus, running.clock, running.stop
+        self.vehicle = config.core(cfg).vehicle_profile
+        self.truth = bus.subscribe("sim/truth", queue=QUEUE)
+        self.car = bus.subscribe("dbw/car_state", queue=QUEUE)
+        self.gate = bus.subscribe("movement/status", queue=QUEUE)
+        self.awareness = bus.subscribe("awareness/state", queue=1024)
+        self.sup_state = bus.subscribe("supervisor/state", queue=1024)
+        self.mission = bus.subscribe("mission/status", queue=1024)
+        self.body = bus.subscribe("body/state", queue=1024)
+        self.world = bus.subscribe("sim/world", queue=1024) if cfg["lidars"] else None
+        self.t0 = soak.opts.lead_s
+        self.pending = list(plan)
+        self.end_t = self.t0 + soak.opts.hours * 3600.0 + END_GRACE_S
+        self.counters = {"rearms": 0, "rearm_refusals": 0, "engagements": 0, "mission_goals": 0}
+        self.drive_only = (cfg.get("mission_manager") or {}).get("autostart") == "drive"
+        self.no_goal_since: float | None = None
+        self.last_rearm = -1e9
+        self.out_of_auto_since: float | None = None
+        self.closed: set[int] = set()
+        self.written_timeline = 0
 
+    def drive(self) -> dict:
+        self.engage_first()
+        self.start_measuring()
         try:
             while True:
                 if self.stop.is_set():
                     raise RunFailed("interrupted")
-                now, wall = clock.now(), time.monotonic()
-                # what happened since the last look, in an order that judges motion against its causes
-                for _, msg in sup_state.drain():
-                    tracker.add_processes([(p.name, p.state, p.restarts) for p in msg.processes])
-                for _, msg in awareness.drain():
-                    tracker.add_awareness(msg.level)
-                    safety.add_awareness(msg)
-                for _, msg in mission.drain():
-                    tracker.add_mission(msg.state)
-                for _, msg in body.drain():
-                    safety.add_body(msg)
-                if world is not None:
-                    for _, msg in world.drain():
-                        safety.add_world(msg)
-                for _, msg in gate.drain():
-                    tracker.add_gate(msg.t, msg.latched, msg.stopping, msg.limit_mps, wall)
-                    safety.add_status(msg)
-                for _, msg in car.drain():
-                    tracker.add_car(msg.t, msg.watchdog_tripped, msg.emergency, wall)
-                for _, msg in truth.drain():
-                    safety.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.v, msg.board_failsafe)
-                    tracker.add_truth(msg.t, msg.v, msg.board_failsafe, wall)
-                for t, v, level in tracker.timeline[written_timeline:]:
-                    timeline_file.write(f"{t},{v},{level}\n")
-                written_timeline = len(tracker.timeline)
-                # the faults due
-                while pending and t0 + pending[0].at_s <= now:
-                    fault = pending.pop(0)
-                    ok, detail = injectors.inject(fault, now)
-                    relevant = KINDS[fault.kind].safety_relevant and (
-                        fault.target is None or self.safety_relevant.get(fault.target, True)
-                    )
-                    process = LIDAR_PROCESS if fault.kind == "lidar_silent" else None
-                    process = fault.target if fault.kind in SIGNAL_OF else process
-                    if process is not None and "is not running" in detail:
-                        ok = False  # restarting after an earlier fault: nothing to inject into
-                    outcome = FaultOutcome(fault, now, relevant, ok, detail, process=process if ok else None)
-                    if fault.kind == "bad_api_burst":  # the API itself down (a fault of its own): none can answer
-                        outcome.extra["api_running"] = tracker.process_states.get("api") == ProcessState.RUNNING
-                    tracker.injected(outcome, time.monotonic())
-                    if fault.index % 10 == 0 or not ok:
-                        self.log(
-                            f"[t={now:8.1f} s] fault {fault.index + 1}/{len(plan)} {fault.kind}"
-                            f"{' ' + fault.target if fault.target else ''}: {detail}"
-                        )
-                tracker.give_up(now, GIVE_UP_S)
-                write_closed()
-                if now != clock_moved[0]:
-                    clock_moved = (now, time.monotonic())
-                elif time.monotonic() - clock_moved[1] > CLOCK_STALL_S:
-                    raise RunFailed(f"the stack clock has not moved for {CLOCK_STALL_S:g} s of wall time")
-                # the operator: re-arm a latched stop once its cause has cleared
-                status = gate.latest
-                level = awareness.latest.level if awareness.latest is not None else None
-                if status is not None and status.latched and level != 1 and now - last_rearm >= REARM_EVERY_S:
-                    last_rearm = now
-                    try:
-                        reply = bus.call("movement/rearm", RearmRequest(operator=OPERATOR))
-                        counters["rearms" if reply.accepted else "rearm_refusals"] += 1
-                    except ServiceError:
-                        counters["rearm_refusals"] += 1
-                # the operator: the tour again if the mission has none (a mission manager restarted before its
-                # first heartbeat does not set its start-up goal: it resumes what it had, here nothing)
-                goal = mission.latest
-                if goal is not None and goal.state in ("IDLE", "SUCCEEDED", "CANCELED"):
-                    no_goal_since = now if no_goal_since is None else no_goal_since
-                    if now - no_goal_since >= GOAL_AFTER_S:
-                        no_goal_since = None
-                        try:
-                            request = MissionGoal(operator=OPERATOR, drive=drive_only, repeat=not drive_only)
-                            if bus.call("mission/goal", request).accepted:
-                                counters["mission_goals"] += 1
-                                self.log(f"[t={now:8.1f} s] soak: the mission had no goal; the tour set again")
-                        except ServiceError as exc:
-                            self.log(f"soak: could not set the mission's goal: {exc}")
-                else:
-                    no_goal_since = None
-                # the safety driver: Automatic again if the shuttle fell back out of it
-                state = car.latest
-                if state is not None and state.mode != DriveMode.AUTOMATIC:
-                    out_of_auto_since = now if out_of_auto_since is None else out_of_auto_since
-                    if now - out_of_auto_since >= ENGAGE_AFTER_S:
-                        try:
-                            engage_automatic(bus, car, self.stop)
-                            counters["engagements"] += 1
-                        except RunFailed as exc:
-                            self.log(f"soak: could not engage again: {exc}")
-                        out_of_auto_since = None
-                else:
-                    out_of_auto_since = None
-                if time.monotonic() - last_progress >= PROGRESS_WALL_S:
-                    last_progress = time.monotonic()
-                    p = progress(now)
-                    self.log(
-                        f"[t={now:8.1f} s] {p['faults_injected']}/{len(plan)} faults, collisions "
-                        f"{p['collisions']}, violations {p['invariant_violations']}, availability "
-                        f"{p['availability']}, x{p['speed_factor']} real time"
-                    )
-                if not pending and (now >= end_t or not tracker.open):
+                now = self.clock.now()
+                self.take_messages(time.monotonic())
+                self.inject_due(now)
+                self.tracker.give_up(now, GIVE_UP_S)
+                self.write_closed()
+                self.check_clock(now)
+                self.rearm(now)
+                self.set_goal_again(now)
+                self.engage_again(now)
+                self.report_progress(now)
+                if not self.pending and (now >= self.end_t or not self.tracker.open):
                     break
                 time.sleep(0.05)
         finally:
-            injectors.wait()
-            write_closed(final=True)
-            faults_file.close()
-            timeline_file.close()
-            final = progress(clock.now())
-        return {"ok": True, **final, "level_history_changes": len(safety.level_history)}
+            self.injectors.wait()
+            self.write_closed(final=True)
+            self.faults_file.close()
+            self.timeline_file.close()
+            final = self.progress(self.clock.now())
+        return {**final, "level_history_changes": len(self.safety.level_history)}
+
+    # ---- the start ----------------------------------------------------------------------------------
+    def engage_first(self) -> None:
+        """Automatic mode, with the patience a loaded machine needs: it starts a dozen processes slowly
+        (some are restarted before their first heartbeat), which is not what a soak measures."""
+        wait_for(
+            lambda: self.truth.latest is not None, STARTUP_PATIENCE * STARTUP_TIMEOUT_S, "the simulator", self.stop
+        )
+        for attempt in range(STARTUP_PATIENCE):
+            try:
+                engage_automatic(self.bus, self.car, self.stop)
+                break
+            except RunFailed as exc:
+                if attempt == STARTUP_PATIENCE - 1 or self.stop.is_set():
+                    raise
+                self.soak.log(f"soak: not engaged yet ({exc}); trying again")
+        t_engaged = self.clock.now()
+        lead_s = self.soak.opts.lead_s
+        self.soak.log(f"soak: engaged at t={t_engaged:.1f} s; {len(self.plan)} faults from t={lead_s:g} s")
+        if t_engaged > lead_s:
+            self.soak.log(f"soak: engaged after the plan's start ({lead_s:g} s): the first faults come late")
+
+    def start_measuring(self) -> None:
+        """The injectors, the trackers and the soak's files; what came before the engagement dropped."""
+        cfg = self.running.cfg
+        store = cfg["blackbox_store"]["uri"]
+        self.injectors = Injectors(
+            self.bus,
+            self.clock,
+            self.running.supervisor.inject,
+            self.router,
+            store if not store.startswith("mongodb") else None,
+            api_url(cfg),
+            cfg["vehicle_id"],
+        )
+        self.tracker = SoakTracker(t_start=self.clock.now())
+        self.safety = SafetyTracker(self.vehicle.length_m, self.vehicle.width_m, self.vehicle.front_bumper_m)
+        for sub in self._subscriptions():
+            sub.drain()
+        self.faults_file = (self.soak.out / "faults.jsonl").open("w")
+        self.timeline_file = (self.soak.out / "timeline.csv").open("w")
+        self.timeline_file.write("t,v,level\n")
+        self.last_progress = self.wall_start = time.monotonic()
+        self.clock_moved = (self.clock.now(), time.monotonic())
+
+    def _subscriptions(self) -> list:
+        subs = [self.truth, self.car, self.gate, self.awareness, self.sup_state, self.mission, self.body]
+        return subs + ([self.world] if self.world is not None else [])
+
+    # ---- a round ------------------------------------------------------------------------------------
+    def take_messages(self, wall: float) -> None:
+        """What happened since the last look, in an order that judges motion against its causes; the
+        timeline's new rows."""
+        tracker, safety = self.tracker, self.safety
+        for _, msg in self.sup_state.drain():
+            tracker.add_processes([(p.name, p.state, p.restarts) for p in msg.processes])
+        for _, msg in self.awareness.drain():
+            tracker.add_awareness(msg.level)
+            safety.add_awareness(msg)
+        for _, msg in self.mission.drain():
+            tracker.add_mission(msg.state)
+        for _, msg in self.body.drain():
+            safety.add_body(msg)
+        if self.world is not None:
+            for _, msg in self.world.drain():
+                safety.add_world(msg)
+        for _, msg in self.gate.drain():
+            tracker.add_gate(msg.t, msg.latched, msg.stopping, msg.limit_mps, wall)
+            safety.add_status(msg)
+        for _, msg in self.car.drain():
+            tracker.add_car(msg.t, msg.watchdog_tripped, msg.emergency, wall)
+        for _, msg in self.truth.drain():
+            safety.add_truth(msg.t, msg.x, msg.y, msg.yaw, msg.v, msg.board_failsafe)
+            tracker.add_truth(msg.t, msg.v, msg.board_failsafe, wall)
+        for t, v, level in tracker.timeline[self.written_timeline :]:
+            self.timeline_file.write(f"{t},{v},{level}\n")
+        self.written_timeline = len(tracker.timeline)
+
+    def inject_due(self, now: float) -> None:
+        """Each fault whose time has come, injected and tracked until it has recovered."""
+        while self.pending and self.t0 + self.pending[0].at_s <= now:
+            fault = self.pending.pop(0)
+            ok, detail = self.injectors.inject(fault, now)
+            relevant = KINDS[fault.kind].safety_relevant and (
+                fault.target is None or self.soak.safety_relevant.get(fault.target, True)
+            )
+            process = LIDAR_PROCESS if fault.kind == "lidar_silent" else None
+            process = fault.target if fault.kind in SIGNAL_OF else process
+            if process is not None and "is not running" in detail:
+                ok = False  # restarting after an earlier fault: nothing to inject into
+            outcome = FaultOutcome(fault, now, relevant, ok, detail, process=process if ok else None)
+            if fault.kind == "bad_api_burst":  # the API itself down (a fault of its own): none can answer
+                outcome.extra["api_running"] = self.tracker.process_states.get("api") == ProcessState.RUNNING
+            self.tracker.injected(outcome, time.monotonic())
+            if fault.index % 10 == 0 or not ok:
+                self.soak.log(
+                    f"[t={now:8.1f} s] fault {fault.index + 1}/{len(self.plan)} {fault.kind}"
+                    f"{' ' + fault.target if fault.target else ''}: {detail}"
+                )
+
+    def write_closed(self, final: bool = False) -> None:
+        """faults.jsonl: each fault once it has recovered (every one, `final`ly); both files flushed."""
+        for outcome in self.tracker.faults:
+            i = outcome.fault.index
+            if i in self.closed or (outcome in self.tracker.open and not final):
+                continue
+            if final or i in self.injectors.results or outcome.fault.kind not in LASTING:
+                outcome.extra.update(self.injectors.results.get(i, {}))
+                self.faults_file.write(json.dumps(outcome.as_dict()) + "\n")
+                self.closed.add(i)
+        self.faults_file.flush()
+        self.timeline_file.flush()
+
+    def check_clock(self, now: float) -> None:
+        """RunFailed if the stack clock has stood still for CLOCK_STALL_S of wall time."""
+        if now != self.clock_moved[0]:
+            self.clock_moved = (now, time.monotonic())
+        elif time.monotonic() - self.clock_moved[1] > CLOCK_STALL_S:
+            raise RunFailed(f"the stack clock has not moved for {CLOCK_STALL_S:g} s of wall time")
+
+    def rearm(self, now: float) -> None:
+        """The operator: re-arm a latched stop once its cause has cleared."""
+        status = self.gate.latest
+        level = self.awareness.latest.level if self.awareness.latest is not None else None
+        if status is None or not status.latched or level == 1 or now - self.last_rearm < REARM_EVERY_S:
+            return
+        self.last_rearm = now
+        try:
+            reply = self.bus.call("movement/rearm", RearmRequest(operator=OPERATOR))
+            self.counters["rearms" if reply.accepted else "rearm_refusals"] += 1
+        except ServiceError:
+            self.counters["rearm_refusals"] += 1
+
+    def set_goal_again(self, now: float) -> None:
+        """The operator: the tour again if the mission has none (a mission manager restarted before its
+        first heartbeat does not set its start-up goal: it resumes what it had, here nothing)."""
+        goal = self.mission.latest
+        if goal is None or goal.state not in ("IDLE", "SUCCEEDED", "CANCELED"):
+            self.no_goal_since = None
+            return
+        self.no_goal_since = now if self.no_goal_since is None else self.no_goal_since
+        if now - self.no_goal_since < GOAL_AFTER_S:
+            return
+        self.no_goal_since = None
+        try:
+            request = MissionGoal(operator=OPERATOR, drive=self.drive_only, repeat=not self.drive_only)
+            if self.bus.call("mission/goal", request).accepted:
+                self.counters["mission_goals"] += 1
+                self.soak.log(f"[t={now:8.1f} s] soak: the mission had no goal; the tour set again")
+        except ServiceError as exc:
+            self.soak.log(f"soak: could not set the mission's goal: {exc}")
+
+    def engage_again(self, now: float) -> None:
+        """The safety driver: Automatic again if the shuttle fell back out of it."""
+        state = self.car.latest
+        if state is None or state.mode == DriveMode.AUTOMATIC:
+            self.out_of_auto_since = None
+            return
+        self.out_of_auto_since = now if self.out_of_auto_since is None else self.out_of_auto_since
+        if now - self.out_of_auto_since < ENGAGE_AFTER_S:
+            return
+        try:
+            engage_automatic(self.bus, self.car, self.stop)
+            self.counters["engagements"] += 1
+        except RunFailed as exc:
+            self.soak.log(f"soak: could not engage again: {exc}")
+        self.out_of_auto_since = None
+
+    def report_progress(self, now: float) -> None:
+        """progress.json and a line on stderr every PROGRESS_WALL_S of wall time."""
+        if time.monotonic() - self.last_progress < PROGRESS_WALL_S:
+            return
+        self.last_progress = time.monotonic()
+        p = self.progress(now)
+        self.soak.log(
+            f"[t={now:8.1f} s] {p['faults_injected']}/{len(self.plan)} faults, collisions "
+            f"{p['collisions']}, violations {p['invariant_violations']}, availability "
+            f"{p['availability']}, x{p['speed_factor']} real time"
+        )
+
+    def progress(self, now: float) -> dict:
+        """The running totals, written to progress.json."""
+        tracker, safety, wall_s = self.tracker, self.safety, time.monotonic() - self.wall_start
+        truth = self.truth.latest
+        availability = tracker.availability()
+        figures = {
+            "t": round(now, 2),
+            "t_start_s": round(tracker.t_start, 2),
+            "plan_start_s": self.t0,
+            "s": None if truth is None else round(truth.s, 1),  # where a resumed soak starts
+            "faults_injected": len(tracker.faults),
+            "faults_planned": len(self.plan),
+            "collisions": len(safety.collided),
+            "invariant_violations": safety.violations,
+            "invariant_examples": safety.examples,
+            "min_clearance_m": None if safety.min_clearance_m == float("inf") else round(safety.min_clearance_m, 3),
+            "closest_approach": safety.closest,
+            "availability": None if availability is None else round(availability, 5),
+            "available_s": round(tracker.available_s, 1),
+            "measured_s": round(tracker.total_s, 1),
+            **self.counters,
+            "router_restarts": self.router.restarts,
+            "process_restarts": {n: c.restarts for n, c in self.running.supervisor.children.items() if c.restarts},
+            "wall_s": round(wall_s, 1),
+            "speed_factor": round(tracker.total_s / max(wall_s, 1e-9), 2),
+        }
+        (self.soak.out / "progress.json").write_text(json.dumps(figures, indent=1))
+        return figures
