@@ -67,7 +67,7 @@ def stack(tmp_path_factory, browser):
     ports, with the LiDARs (light, every 8th azimuth step) and a store holding one user per role; started after the
     browser. The test watches the bus from a session of its own.
 
-    At `--speed paced` (scripts/run.sh's default): the simulator drives the clock, waits for every
+    At `--speed paced` (`ares run`'s default in simulation): the simulator drives the clock, waits for every
     process it feeds and never runs ahead of real time, so a browser sharing the two cores slows
     the run rather than starving the LiDAR simulation into a rate fault (on the vehicle the
     browsers are tablets). Vehicle time is stack time: "stopped within 2 s" is 2 s of it."""
