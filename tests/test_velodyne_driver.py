@@ -95,7 +95,7 @@ class DriverOnTheBus:
         self.clock.set(t)
         self.node.step_once(t)
 
-    def step_until(self, done, wall_s: float = 3.0) -> None:
+    def step_until(self, done, wall_s: float = 10.0) -> None:
         """Steps until done() (loopback delivery is quick but not instant): never timing-asserted."""
         deadline = time.monotonic() + wall_s
         while not done() and time.monotonic() < deadline:
