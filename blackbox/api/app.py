@@ -75,6 +75,18 @@ def create_app(
     app.state.services = services
     app.state.state_dir = sdir  # the TLS certificate's home (blackbox.api.uvicorn_server)
 
+    add_middleware(app, settings, services)
+    app.add_exception_handler(StoreUnavailable, store_down)
+    app.add_exception_handler(RequestValidationError, invalid)
+
+    include_routes(app, services, commands_offered=call is not None, live_offered=live is not None)
+    pages.mount(app)
+    return app
+
+
+def add_middleware(app: FastAPI, settings: ApiSettings, services: Services) -> None:
+    """CORS where origins are configured, then the security middleware (rate limits, the blacklist,
+    the headers)."""
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,
@@ -97,16 +109,16 @@ def create_app(
         on_blacklist=partial(run_in_threadpool, services.repository.record_blacklisting),
     )
 
-    app.add_exception_handler(StoreUnavailable, store_down)
-    app.add_exception_handler(RequestValidationError, invalid)
 
+def include_routes(app: FastAPI, services: Services, *, commands_offered: bool, live_offered: bool) -> None:
+    """Every resource's router under PREFIX, and a 405 with `Allow` for the methods a path lacks."""
     methods: dict[str, set[str]] = {}  # path -> its methods
     # what this API can serve where it runs: the commands need the vehicle's bus, the live routes
     # its live hub; an API over a store alone offers neither (not a 503: they are not in its schema)
     offered = [health, auth, vehicles, records, events, users]
-    if call is not None:
+    if commands_offered:
         offered.append(commands)
-    if live is not None:
+    if live_offered:
         offered.append(live_routes)
     for routes in offered:
         router = routes.build_router(services)
@@ -115,8 +127,6 @@ def create_app(
             if isinstance(route, APIRoute):
                 methods.setdefault(PREFIX + route.path, set()).update(route.methods)
     answer_other_methods(app, methods)
-    pages.mount(app)
-    return app
 
 
 def answer_other_methods(app: FastAPI, methods: dict[str, set[str]]) -> None:
