@@ -38,12 +38,16 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
 from ares.tools.bench.common import BenchError, Goal, judge, percentile
 from perception.scan_file import KITTI_SENSOR_HEIGHT_M
+
+if TYPE_CHECKING:
+    from perception.lidar_perception import FrameResult, LidarPipeline
+    from simulator.lidar import Sweep
 
 GOALS = {
     "raycast_core_share_at_10hz": Goal(0.30),  # of one core at 10 Hz
@@ -221,7 +225,7 @@ class _Place:
     s: float
     first: list
     second: list
-    dense: object
+    dense: Sweep
 
 
 def _simulate_places(scene: TourScene, sensors: dict, places: list[float], seed: int, say) -> tuple[list, dict, tuple]:
@@ -244,7 +248,7 @@ def _simulate_places(scene: TourScene, sensors: dict, places: list[float], seed:
     return simulated, as_run, dense_sensor
 
 
-def _time_stack_frame(pipeline, place: _Place, repeats: int, ms: dict) -> object:
+def _time_stack_frame(pipeline: LidarPipeline, place: _Place, repeats: int, ms: dict) -> FrameResult:
     """The second frame of a place, `repeats` times against the first's road; its last result."""
     pipeline.previous = None
     pipeline.process(place.first)
@@ -259,7 +263,9 @@ def _time_stack_frame(pipeline, place: _Place, repeats: int, ms: dict) -> object
     return frame
 
 
-def _time_dense_scan(pipeline, single, place: _Place, repeats: int, ms: dict) -> object:
+def _time_dense_scan(
+    pipeline: LidarPipeline, single: LidarPipeline, place: _Place, repeats: int, ms: dict
+) -> FrameResult:
     """heightmap.ground_mask on the dense scan `repeats` times, then the whole one-sensor pipeline
     on it once, as a file's first frame; that pipeline's result."""
     from perception.extrinsics import apply
@@ -291,7 +297,7 @@ def _time_pipeline(shuttle, dense_sensor: tuple, simulated: list[_Place], scene:
     pipeline = LidarPipeline(shuttle)
     car, mount = dense_sensor
     single = LidarPipeline(car, mounts={"roof": mount})  # the dense scan's one sensor
-    keys = ("ground_mask", "pipeline", "pipeline_cpu", "scan", "scan_cpu")
+    keys: tuple[str, ...] = ("ground_mask", "pipeline", "pipeline_cpu", "scan", "scan_cpu")
     keys += tuple(f"stack_{st}" for st in STAGES) + tuple(f"scan_{st}" for st in STAGES)
     ms: dict[str, list[float]] = {key: [] for key in keys}
     where = []
