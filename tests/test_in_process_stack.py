@@ -28,7 +28,9 @@ from tests.helpers.stack import LIGHT_LIDARS, NO_LIDARS, REPO
 
 SCENARIOS = REPO / "tests" / "scenarios"
 IN_PROCESS = REPO / "tests" / "in_process.yaml"  # no wall-clock deadline decides anything
-pytestmark = pytest.mark.timeout(240)
+# a guard against a hang, not a time limit: a drive of 22 s on an idle machine took over 240 s on one
+# shared with whole-stack runs (a load of 30 on two cores)
+pytestmark = pytest.mark.timeout(1200)
 
 
 def drive(tmp_path, files=(NO_LIDARS,), *, seconds: float | None = None, **overrides) -> dict:
@@ -143,7 +145,7 @@ def test_the_same_configuration_drives_the_same_drive(tmp_path):
         done = subprocess.run(
             [sys.executable, "-m", "tests.helpers.in_process_stack", "--seconds", "15", "--store", str(store),
              "--config", str(NO_LIDARS), "--config", str(IN_PROCESS)],
-            cwd=REPO, capture_output=True, text=True, timeout=180, env={**os.environ, "PYTHONHASHSEED": seed},
+            cwd=REPO, capture_output=True, text=True, timeout=900, env={**os.environ, "PYTHONHASHSEED": seed},
         )  # fmt: skip
         assert done.returncode == 0, done.stderr[-3000:]
         results.append(json.loads(done.stdout.strip().splitlines()[-1]))

@@ -29,7 +29,7 @@ from ares.core.messages import EventLevel, ProcessState, SupervisorState
 from ares.tools.bench.ticker import CONTROL_DIR_ENV
 from tests.helpers.stack import make_run_config
 
-pytestmark = [pytest.mark.stack, pytest.mark.timeout(60)]
+pytestmark = [pytest.mark.stack, pytest.mark.timeout(240)]  # a hang guard: each wait below ends as its event comes
 
 TEST_OVERRIDES = {
     "bus": {"lease_ms": 1000},
@@ -52,7 +52,7 @@ def pid_alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
-def drive(sup: Supervisor, cond, timeout_s: float = 10.0, what: str = "") -> float:
+def drive(sup: Supervisor, cond, timeout_s: float = 30.0, what: str = "") -> float:
     """Step the supervisor every check period until cond() holds; the time it took."""
     started = time.monotonic()
     while True:
@@ -80,7 +80,7 @@ class Harness:
     def child(self, name: str):
         return self.sup.children[name]
 
-    def drive(self, cond, timeout_s: float = 10.0, what: str = "") -> float:
+    def drive(self, cond, timeout_s: float = 30.0, what: str = "") -> float:
         return drive(self.sup, cond, timeout_s, what)
 
     def all_running(self) -> float:
