@@ -45,8 +45,9 @@ def test_fleet_services_are_services_of_the_table():
     from ares.core.topics import SERVICES
 
     assert set(router_config.FLEET_SERVICES) <= set(SERVICES)
-    # a fleet operator never re-arms, opens doors or switches to automatic from afar
-    assert not {"movement/rearm", "mission/body", "set_automatic_mode"} & set(router_config.FLEET_SERVICES)
+    # the fleet commands nothing: no mission, no re-arm, no doors, no automatic mode from afar
+    commands = {"mission/goal", "mission/pause", "mission/resume", "mission/cancel", "mission/body"}
+    assert not (commands | {"movement/rearm", "set_automatic_mode"}) & set(router_config.FLEET_SERVICES)
 
 
 def _client(endpoint: str, user: str, password: str) -> zenoh.Session:
@@ -182,6 +183,9 @@ def test_the_fleet_calls_only_its_services(deployment):
     assert _linked(router, LINK_WAIT_S)
     process.declare_queryable("ares/shuttle01/srv/supervisor/status", lambda q: q.reply(q.key_expr, b"status"))
     process.declare_queryable("ares/shuttle01/srv/movement/rearm", lambda q: q.reply(q.key_expr, b"rearmed"))
+    commands = ("mission/goal", "mission/pause", "mission/resume", "mission/cancel")
+    for command in commands:
+        process.declare_queryable(f"ares/shuttle01/srv/{command}", lambda q: q.reply(q.key_expr, b"commanded"))
     received: list[str] = []
     process.declare_subscriber("ares/shuttle01/**", lambda s: received.append(str(s.key_expr)))
 
@@ -194,6 +198,12 @@ def test_the_fleet_calls_only_its_services(deployment):
         time.sleep(0.1)
     assert call("supervisor/status") == [b"status"]
     assert call("movement/rearm") == []  # re-arming is for someone at the vehicle
+    # the fleet's credentials start no mission, nor pause, resume or cancel one (the vehicle's own
+    # processes, through the same router, are answered: the services are there)
+    for command in commands:
+        assert call(command) == [], command
+        local = process.get(f"ares/shuttle01/srv/{command}", timeout=2.0)
+        assert [r.ok.payload.to_bytes() for r in local if r.ok is not None] == [b"commanded"], command
     deployment.fleet.put("ares/shuttle01/movement/status", b"forged")  # the fleet never publishes to a vehicle
     assert call("supervisor/status") == [b"status"]
     assert received == []

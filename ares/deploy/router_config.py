@@ -8,7 +8,8 @@ ways, each checked by the fleet router and the vehicle's router alike:
 - Zenoh user/password: the vehicle's user is its id, checked against the fleet's dictionary;
 - access control, default deny: a vehicle may publish, answer and declare liveliness only under
   `ares/<its id>/**` (its certificate's common name and its user must both be that id); the fleet
-  may subscribe to every vehicle and call only the services of FLEET_SERVICES.
+  may subscribe to every vehicle and call only the services of FLEET_SERVICES, which read and
+  command nothing: no goal, pause, resume or cancel of a mission (docs/security.md).
 
 The fleet's own services (API, recorder) reach the fleet router over plain TCP on the fleet
 server's private network, with the user `fleet`; that router publishes its TLS port only. A
@@ -35,15 +36,13 @@ LOCAL_PORT = 7448  # TCP: a host's own processes to its router
 LOCAL_USER = pki.LOCAL_USER
 LEASE_MS = 2000  # as the stack's bus.lease_ms: a cut link is noticed within it
 
-# the services the fleet may call on a vehicle: its state, the mission, and the black-box seconds a
-# lost link kept from the fleet's store; the rest (automatic mode, re-arm, doors, the simulator)
-# belong to someone standing by the vehicle
+# the services the fleet may call on a vehicle: its state and the black-box seconds a lost link kept
+# from the fleet's store. No command: every process holding the fleet's Zenoh password (the
+# network-facing fleet API among them) would otherwise send any shuttle driving; a mission's goal,
+# pause, resume and cancel, the re-arm, the doors, automatic mode and the simulator are the vehicle's
+# own API's, for an operator it has authenticated
 FLEET_SERVICES = (
     "supervisor/status",
-    "mission/goal",
-    "mission/pause",
-    "mission/resume",
-    "mission/cancel",
     "blackbox/records",
 )
 
