@@ -1,8 +1,8 @@
 """The whole run configuration: the core sections and every process's own, one typed model.
 
 The model is assembled from the process table: each node class brings its `Params` (its section,
-named after the process) and the shared sections it reads; the supervisor and route import add
-theirs. `build()` validates every file and override before any process is spawned, so a
+named after the process) and the shared sections it reads; the supervisor, route import and the
+release check at start add theirs. `build()` validates every file and override before any process is spawned, so a
 misspelt key or a bad value is one clear error naming the file, the key and what is allowed.
 """
 
@@ -19,8 +19,13 @@ from ares.app.route_import import RouteImportSettings
 from ares.app.supervisor import SupervisorSettings
 from ares.core import config
 from ares.core.config import CoreConfig, Params
+from ares.core.manifest import ReleaseSettings
 
-COMPOSITION_SECTIONS: dict[str, type[Params]] = {"supervisor": SupervisorSettings, "route_import": RouteImportSettings}
+COMPOSITION_SECTIONS: dict[str, type[Params]] = {
+    "supervisor": SupervisorSettings,
+    "route_import": RouteImportSettings,
+    "release": ReleaseSettings,
+}
 
 
 def sections(processes: tuple[Process, ...] = (*PROCESSES, *FLEET_SERVER)) -> dict[str, type[Params]]:

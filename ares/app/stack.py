@@ -42,6 +42,7 @@ from ares.app.run_options import LOCKSTEP_SPEEDS, HeadlessDrive, RunningStack, R
 from ares.app.supervisor import Supervisor, check_cpus
 from ares.core import config
 from ares.core.clock import MODE_ENV, Clock, DrivenClock, ScaledClock, WallClock
+from ares.core.manifest import ReleaseRefused, ReleaseSettings, check_release
 from ares.core.route import Route, RouteError, load_route, read_origin
 from blackbox.api import ApiSettings
 from blackbox.api.api_node import api_url, pages_url
@@ -88,7 +89,9 @@ def run(options: RunOptions, drive: HeadlessDrive | None = None) -> RunResult:
     try:
         cfg = configure(options, wire_dir=run_dir / "wire")
         route = load_route(config.core(cfg))
-    except (config.ConfigError, RouteError) as exc:
+        # ARES §3.8.3: a stack that is not the signed release does not start
+        check_release(config.section(cfg, "release", ReleaseSettings))
+    except (config.ConfigError, RouteError, ReleaseRefused) as exc:
         return RunResult(ok=False, run_dir=run_dir, error=str(exc), refused=True)
     speed = resolved_speed(options.speed, cfg["simulate"], options.fleet)
     clock = stack_clock(cfg, speed)

@@ -104,6 +104,10 @@
                                    partition, the refusals, a restart (docs/deploy.md)
     ares deploy check DIR [--json] a deployment folder checked before `docker compose up` (compose file,
                                    secrets, certificates, ARES configs)
+    ares deploy manifest --key KEY --out MANIFEST
+                                   the installed stack's files hashed and signed with the fleet's Ed25519
+                                   release key (made at KEY, public half KEY.pub, when absent); `ares run`
+                                   refuses to start a stack that differs (the `release` section)
     ares fleet serve [--config FILE] [--router ENDPOINT] [--store URI] [--api-port PORT] [--run-dir DIR]
                                    the fleet server: every vehicle's black box in the fleet's store, its API
     ares sim serve --wire-dir DIR [--config FILE] [--route NAME|FILE] [--listen ENDPOINT] [--run-dir DIR]

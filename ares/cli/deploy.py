@@ -98,6 +98,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     )
     chk.add_argument("folder", metavar="DIR")
     chk.add_argument("--json", action="store_true", help="one JSON object instead of lines")
+    manifest = sub.add_parser(
+        "manifest",
+        help="the installed stack's files hashed and signed with the fleet's release key",
+        description="Hash every installed file of the project's packages and sign the list with the fleet's "
+        "Ed25519 release key (made at KEY when absent, its public half at KEY.pub). A vehicle whose "
+        "configuration names the manifest and the public key (section `release`) refuses to start "
+        "`ares run` on any difference, naming the first file. Prints one JSON line.",
+    )
+    manifest.add_argument("--key", required=True, metavar="KEY", help="the fleet's release key (PEM, private)")
+    manifest.add_argument("--out", required=True, metavar="MANIFEST", help="where the signed manifest goes")
     return {"deploy": cmd_deploy}
 
 
@@ -113,7 +123,31 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         return _check(args)
     if action == "rehearse":
         return _rehearse(args)
-    raise CliError("ares deploy: give an action (certs, router-config, router, check, rehearse)")
+    if action == "manifest":
+        return _manifest(args)
+    raise CliError("ares deploy: give an action (certs, router-config, router, check, rehearse, manifest)")
+
+
+def _manifest(args: argparse.Namespace) -> int:
+    from ares.core.manifest import ReleaseRefused
+    from ares.deploy import manifest
+
+    try:
+        made = manifest.make_manifest(Path(args.key), Path(args.out))
+    except (manifest.ReleaseKeyError, ReleaseRefused, OSError) as exc:
+        print(f"ares deploy manifest: {exc}", file=sys.stderr)
+        return 2
+    print(
+        json.dumps(
+            {
+                "manifest": str(made.manifest),
+                "files": made.files,
+                "public_key": str(made.public_key),
+                "created_key": made.created_key,
+            }
+        )
+    )
+    return 0
 
 
 def _rehearse(args: argparse.Namespace) -> int:
