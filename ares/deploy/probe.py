@@ -4,6 +4,8 @@ python -m ares.deploy.probe ...`), each printing one JSON line:
     link CONFIG SECONDS           does a router of CONFIG link to a router within SECONDS? {"linked": ...}
     put CONFIG KEY COUNT          COUNT puts on KEY, 0.1 s apart, from a session of CONFIG
     listen CONFIG SECONDS KEY...  how many samples of each KEY arrive within SECONDS {"received": {...}}
+    serve CONFIG SECONDS KEY...   answer queries on each KEY for SECONDS {"queried": {...}}
+    call CONFIG PAYLOAD KEY...    query each KEY with PAYLOAD: how many answers {"answered": {...}}
 
 CONFIG is a Zenoh session config (JSON5) made by the rehearsal.
 """
@@ -73,6 +75,38 @@ def listen(config: str, seconds: float, keys: list[str]) -> dict:
     return {"received": received}
 
 
+def serve(config: str, seconds: float, keys: list[str]) -> dict:
+    queried = dict.fromkeys(keys, 0)
+
+    def answer(query, key: str) -> None:
+        queried[key] += 1
+        query.reply(query.key_expr, json.dumps({"served": key}).encode())
+
+    session = _open(config)
+    queryables = [session.declare_queryable(key, lambda q, k=key: answer(q, k)) for key in keys]
+    try:
+        print(json.dumps({"serving": keys}), flush=True)
+        time.sleep(seconds)
+    finally:
+        for queryable in queryables:
+            queryable.undeclare()
+        session.close()
+    return {"queried": queried}
+
+
+def call(config: str, payload: str, keys: list[str], timeout_s: float = 3.0) -> dict:
+    session = _open(config)
+    try:
+        time.sleep(1.0)  # the session's routes first
+        answered = {
+            key: sum(r.ok is not None for r in session.get(key, payload=payload.encode(), timeout=timeout_s))
+            for key in keys
+        }
+    finally:
+        session.close()
+    return {"answered": answered}
+
+
 def main(argv: list[str]) -> int:
     what, config, *rest = argv
     if what == "link":
@@ -81,6 +115,10 @@ def main(argv: list[str]) -> int:
         out = put(config, rest[0], int(rest[1]))
     elif what == "listen":
         out = listen(config, float(rest[0]), rest[1:])
+    elif what == "serve":
+        out = serve(config, float(rest[0]), rest[1:])
+    elif what == "call":
+        out = call(config, rest[0], rest[1:])
     else:
         print(f"unknown probe {what!r}", file=sys.stderr)
         return 2

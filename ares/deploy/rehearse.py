@@ -14,7 +14,8 @@ router`, with certificates and credentials from a fleet CA made for the run:
 What it shows, in order: both vehicles reachable on the fleet API; a router with a wrong password
 and one with a certificate of another CA refused; a vehicle publishing under the other's id
 refused by access control (the fleet hears nothing of it, and an `acl_refused` event reaches the
-fleet's black box); shuttle01's link cut for `partition_s` (the fleet marks it unreachable; it
+fleet's black box); the fleet's credentials calling `mission/goal` on shuttle01, refused by its
+router (`fleet_command_refused`); shuttle01's link cut for `partition_s` (the fleet marks it unreachable; it
 drives on; after the link returns every second its black box recorded reaches the fleet's store);
 the fleet router killed and started again (both vehicles back on the fleet, no vehicle process
 restarted). One JSON object of figures. Every namespace, link and process it made is removed at
@@ -413,6 +414,39 @@ class Rehearsal:
         self.figures["acl_refusal_event"] = refused_event
         self.progress(f"access control: heard {heard}; the fleet's event: {refused_event!r}")
 
+    def check_fleet_commands(self) -> None:
+        """The fleet's credentials try to start a mission on shuttle01: its router refuses the call
+        (the vehicle's service never hears it), while the fleet's status call on the same link is
+        answered."""
+        vehicle, v1 = VEHICLES[0], self.hosts[VEHICLES[0]]
+        goal, status = f"ares/{vehicle}/srv/mission/goal", f"ares/{vehicle}/srv/supervisor/status"
+        local = (self.ca / "vehicles" / vehicle / "zenoh_local_password").read_text().strip()
+        server = self._client("server.json5", f"tcp/127.0.0.1:{router_config.LOCAL_PORT}", pki.LOCAL_USER, local)
+        fleet = self._client(
+            "fleet-caller.json5", f"tcp/127.0.0.1:{router_config.LOCAL_PORT}", pki.FLEET_USER, self.fleet_password
+        )
+        serving = subprocess.Popen(
+            ["ip", "netns", "exec", v1.name, sys.executable, "-m", "ares.deploy.probe", "serve", str(server), "10",
+             goal, status],
+            stdout=subprocess.PIPE, stderr=open(self.work / "logs" / "probe-serve.log", "w"), text=True,  # noqa: SIM115
+            start_new_session=True,
+        )  # fmt: skip
+        self.procs.append(serving)
+        serving.name = "probe-serve"  # type: ignore[attr-defined]
+        assert serving.stdout is not None
+        serving.stdout.readline()  # serving
+        time.sleep(1.0)  # the queryables' declarations reach the fleet router
+        drive = json.dumps({"t": 0.0, "operator": "fleet", "drive": True})
+        answered = self._run(self.fleet.name, "-m", "ares.deploy.probe", "call", str(fleet), drive, goal, status)
+        out = serving.communicate(timeout=30)[0].strip().splitlines()
+        self.procs.remove(serving)
+        if not out:
+            raise RehearsalError(f"the vehicle's serving probe said nothing (exit {serving.returncode})")
+        queried = json.loads(out[-1])["queried"]
+        refused = answered["answered"][goal] == 0 and queried[goal] == 0
+        self.figures["fleet_command_refused"] = refused and answered["answered"][status] > 0
+        self.progress(f"the fleet's mission/goal on {vehicle}: answered {answered['answered']}, heard {queried}")
+
     def _acl_event(self) -> str | None:
         from datetime import UTC, datetime, timedelta
 
@@ -533,6 +567,7 @@ class Rehearsal:
         started = self.start_vehicles()
         self.check_seen(started)
         self.check_refusals()
+        self.check_fleet_commands()
         self.check_partition()
         self.check_router_restart()
         self.figures["light"] = self.light
