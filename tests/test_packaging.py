@@ -53,3 +53,22 @@ def test_the_dockerfile_keeps_its_promises():
     assert "USER ares" in final and "useradd --system" in final
     assert not re.search(r"build-essential|gcc|\bnpm\b|pip install", final)
     assert "COPY --from=build /opt/ares /opt/ares" in final
+
+
+def test_the_image_copies_every_package_the_wheel_installs():
+    """The build stage installs from what it copied: a package of pyproject.toml left out of its
+    COPY lines is silently missing from the image (as drivers/ and simulator/ once were)."""
+    import tomllib
+
+    find = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]
+    packages = {pattern.rstrip("*") for pattern in find["include"]}
+    build = DOCKERFILE.read_text().split("\nFROM ")[2]
+    assert build.startswith("${PYTHON_IMAGE} AS build")
+    copied = {
+        source
+        for line in build.splitlines()
+        if line.startswith("COPY ") and "--from=" not in line
+        for source in line.split()[1:-1]
+    }
+    assert copied - {"pyproject.toml", "README.md"} == packages
+    assert all((REPO / package / "__init__.py").is_file() for package in packages)
