@@ -231,3 +231,23 @@ def test_a_fleet_router_admitting_a_vehicle_without_a_user(tmp_path, fleet_ca):
         router_config.render(router_config.fleet_router(["shuttle01", "shuttle02", "shuttle09"]), "fleet")
     )
     _expect(folder, "admits shuttle09, who have no user")
+
+
+def test_the_api_published_on_every_address_is_refused(tmp_path, fleet_ca):
+    """Docker publishes a port past the host's firewall: the API's is bound to one address too."""
+    folder = vehicle_copy(tmp_path, fleet_ca)
+    compose = folder / "compose.yaml"
+    compose.write_text(compose.read_text().replace('"${ARES_API_ADDRESS:-127.0.0.1}:8443:8443"', '"8443:8443"'))
+    _expect(folder, "'stack' publishes the API's port 8443 on every address", "ARES_API_ADDRESS")
+
+
+def test_the_api_on_the_configured_address(tmp_path, fleet_ca):
+    folder = vehicle_copy(tmp_path, fleet_ca)
+    report = check.check(folder, env={"ARES_API_ADDRESS": "192.0.2.10"})
+    assert report.ok, report.problems
+    services = json.loads(check.run_compose(folder / "compose.yaml", "config", "--format", "json").stdout)
+    assert [p["host_ip"] for p in services["services"]["stack"]["ports"]] == ["127.0.0.1"]  # the default
+    configured = check.run_compose(
+        folder / "compose.yaml", "config", "--format", "json", env={"ARES_API_ADDRESS": "192.0.2.10"}
+    )
+    assert [p["host_ip"] for p in json.loads(configured.stdout)["services"]["stack"]["ports"]] == ["192.0.2.10"]

@@ -8,7 +8,8 @@ project's checks run on the normalized model it prints (`--format json`):
   names), the fleet server's every process of its table, and no label names a process of neither;
 - a service that others wait on has a healthcheck, and they wait for it to be healthy;
 - every long-running service has a restart policy; published ports are bound to 127.0.0.1,
-  except the API's (a vehicle's only outside service, ARES §3.8) and the fleet router's TLS port;
+  except the API's (a vehicle's only outside service, ARES §3.8), bound to one address all the
+  same (Docker publishes past the host's firewall), and the fleet router's TLS port;
 - no secret in a plain environment value (`*_FILE` variables point at secrets instead);
 - every secret's file is there and not empty;
 - the router image is the zenohd release of the eclipse-zenoh the stack runs, and its config is a
@@ -166,8 +167,16 @@ def _ports_and_restart(report: Report, compose_file: Path, services: dict[str, A
             report.problem(f"{compose_file}: {name!r} has no restart policy (restart: unless-stopped)")
         router = str(service.get("image", "")).startswith(ROUTER_IMAGE)
         for port in service.get("ports") or []:
-            if port.get("target") == API_PORT or (router and port.get("target") == router_config.ROUTER_PORT):
-                continue  # the API's, and the fleet router's TLS port for the vehicles
+            if router and port.get("target") == router_config.ROUTER_PORT:
+                continue  # the fleet router's TLS port, which the vehicles reach from anywhere
+            if port.get("target") == API_PORT:
+                if port.get("host_ip") in (None, "", "0.0.0.0", "::"):
+                    # Docker's own rules publish the port past the host's firewall: one address only
+                    report.problem(
+                        f"{compose_file}: {name!r} publishes the API's port {port.get('published')} on every "
+                        "address; bind it to the operators' network address (ARES_API_ADDRESS, default 127.0.0.1)"
+                    )
+                continue
             if port.get("host_ip") not in ("127.0.0.1", "::1"):
                 report.problem(
                     f"{compose_file}: {name!r} publishes port {port.get('published')} on every address; "
