@@ -8,6 +8,7 @@ from typing import Any
 from pydantic import model_validator
 
 from ares.core.config import Params, param
+from blackbox.api.connections import ConnectionSettings
 from blackbox.api.credentials import AuthSettings
 from blackbox.api.security import BlacklistSettings, HeaderSettings, RateLimitSettings
 from blackbox.api.tls import TlsSettings
@@ -57,6 +58,10 @@ class ApiSettings(Params):
     log_level: str = param("info", "uvicorn's log level")
     keep_alive_s: int = param(5, "HTTP keep-alive", unit="s", ge=1, le=300)
     limit_concurrency: int | None = param(1000, "connections+requests in flight beyond this get 503", ge=1)
+    connections: ConnectionSettings = param(
+        doc="per address: open connections; per connection: TLS handshake, header and read timeouts",
+        factory=ConnectionSettings,
+    )
     cors_origins: list[str] = param(doc="browsers' cross-origin calls: closed unless origins are listed", factory=list)
     limits: LimitSettings = param(doc="query limits and caches", factory=LimitSettings)
     auth: AuthSettings = param(doc="tokens and passwords", factory=AuthSettings)

@@ -21,21 +21,24 @@ def uvicorn_config(
     port: int | None = None,
 ):
     """uvicorn's configuration for `app`: TLS with the configured or self-signed certificate,
-    unless `insecure_http` (explicit: tokens and records would cross the network in clear)."""
+    unless `insecure_http` (explicit: tokens and records would cross the network in clear).
+    TLS and HTTP are served by blackbox.api.connections' protocols: a cap per address and
+    timeouts on the handshake, the headers and the body."""
     import uvicorn
 
-    tls_args: dict = {}
+    from blackbox.api.connections import protocol_factory, server_tls_context
+
+    tls = None
     if not insecure_http:
         from blackbox.api.tls import certificate
 
-        cert, key = certificate(settings.tls, app.state.state_dir)
-        tls_args = {"ssl_certfile": str(cert), "ssl_keyfile": str(key)}
+        tls = server_tls_context(*certificate(settings.tls, app.state.state_dir))
     return uvicorn.Config(
         app,
         host=host or settings.host,
         port=settings.port if port is None else port,
         loop="uvloop",
-        http="httptools",
+        http=protocol_factory(settings.connections, tls),
         lifespan="off",
         access_log=settings.access_log,
         log_level=settings.log_level,
@@ -43,7 +46,6 @@ def uvicorn_config(
         server_header=False,
         timeout_keep_alive=settings.keep_alive_s,
         limit_concurrency=settings.limit_concurrency,
-        **tls_args,
     )
 
 
