@@ -158,7 +158,7 @@ def test_a_password_in_plain_environment(tmp_path, fleet_ca):
     compose = folder / "compose.yaml"
     compose.write_text(
         compose.read_text().replace(
-            "MONGO_INITDB_ROOT_PASSWORD_FILE: /run/secrets/mongo_password", "MONGO_INITDB_ROOT_PASSWORD: hunter2hunter2"
+            "MONGO_INITDB_ROOT_PASSWORD_FILE: /run/secrets/mongo_root_password", "MONGO_INITDB_ROOT_PASSWORD: hunter2hunter2"
         )
     )
     _expect(folder, "MONGO_INITDB_ROOT_PASSWORD", "plain environment")
@@ -251,3 +251,24 @@ def test_the_api_on_the_configured_address(tmp_path, fleet_ca):
         folder / "compose.yaml", "config", "--format", "json", env={"ARES_API_ADDRESS": "192.0.2.10"}
     )
     assert [p["host_ip"] for p in json.loads(configured.stdout)["services"]["stack"]["ports"]] == ["192.0.2.10"]
+
+
+def test_the_stack_is_not_mongodbs_root(tmp_path, fleet_ca):
+    """Least privilege: the stack's user reads and writes its database; root stays MongoDB's."""
+    folder = vehicle_copy(tmp_path, fleet_ca)
+    assert (folder / "secrets" / "mongo_root_password").read_text() != (
+        folder / "secrets" / "mongo_password"
+    ).read_text()
+    init = (folder / "mongo-init.js").read_text()
+    assert 'user: "ares"' in init and '[{ role: "readWrite", db: "ares" }]' in init
+    compose = folder / "compose.yaml"
+    original = compose.read_text()
+    compose.write_text(original.replace("MONGO_INITDB_ROOT_USERNAME: root", "MONGO_INITDB_ROOT_USERNAME: ares"))
+    _expect(folder, "config 'ares_config' signs in to 'mongo' as its root user 'ares'")
+    compose.write_text(
+        original.replace(
+            "secrets: [zenoh_local_password, mongo_password,",
+            "secrets: [zenoh_local_password, mongo_password, mongo_root_password,",
+        )
+    )
+    _expect(folder, "'stack' is given 'mongo''s root password (mongo_root_password)")

@@ -15,6 +15,8 @@ project's checks run on the normalized model it prints (`--format json`):
 - the router image is the zenohd release of the eclipse-zenoh the stack runs, and its config is a
   file zenohd can read (by its extension) mounted where its command says;
 - every ARES config file the services mount passes the typed configuration;
+- the stack signs in to MongoDB as its own user, not as MongoDB's root, and no service but
+  MongoDB's is given root's password;
 - the certificates: signed by the CA beside them, matching their keys, valid now; a vehicle's
   router certificate names the vehicle of its ARES config, and so does its Zenoh user; the
   routers' JSON5 files parse and enable access control.
@@ -40,6 +42,7 @@ from ares.deploy import pki, router_config
 
 SECRET_WORDS = re.compile(r"PASSWORD|PASSWD|SECRET|TOKEN|PRIVATE|_KEY$|^KEY$", re.IGNORECASE)
 API_PORT = 8443
+MONGO_IMAGE = "mongo:"
 ROUTER_IMAGE = "eclipse/zenoh"
 LONG_RUNNING = {"always", "unless-stopped", "on-failure"}
 ZENOHD_CONFIG_SUFFIXES = (".json5", ".json", ".yaml")
@@ -107,6 +110,7 @@ def check(folder: Path, env: dict[str, str] | None = None) -> Report:
     secret_files = _secrets(report, model)
     ares_configs = _ares_configs(report, model, services)
     _router_image(report, compose_file, services, model.get("configs") or {}, secret_files)
+    _mongo_users(report, compose_file, services, ares_configs)
     _certificates(report, secret_files, ares_configs)
     return report
 
@@ -230,6 +234,28 @@ def _ares_configs(report: Report, model: dict[str, Any], services: dict[str, Any
                 report.problem(f"{path}: {exc.strerror}")
     report.checked.append("ARES configs")
     return out
+
+
+def _mongo_users(report: Report, compose_file: Path, services: dict[str, Any], ares_configs: dict[str, dict]) -> None:
+    """Least privilege: root is MongoDB's own (its first start, an administrator), the stack's user
+    another one (deploy/*/mongo-init.js gives it its database alone)."""
+    for name, service in services.items():
+        if not str(service.get("image", "")).startswith(MONGO_IMAGE):
+            continue
+        environment = service.get("environment") or {}
+        root = environment.get("MONGO_INITDB_ROOT_USERNAME")
+        root_secret = Path(str(environment.get("MONGO_INITDB_ROOT_PASSWORD_FILE") or "")).name
+        for source, cfg in ares_configs.items():
+            if root is not None and cfg["blackbox_store"].get("mongo_user") == root:
+                report.problem(
+                    f"{compose_file}: config {source!r} signs in to {name!r} as its root user {root!r}; "
+                    "give the stack its own user (mongo-init.js)"
+                )
+        for other, other_service in services.items():
+            given = {str(s.get("source")) for s in other_service.get("secrets") or []}
+            if other != name and root_secret and root_secret in given:
+                report.problem(f"{compose_file}: {other!r} is given {name!r}'s root password ({root_secret})")
+    report.checked.append("MongoDB's users")
 
 
 def _router_image(

@@ -23,7 +23,8 @@ Layout of the CA folder (`ares deploy certs --fleet-ca DIR`):
     and in both folders the black box's:
         api_tls_cert, api_tls_key      the REST API's HTTPS certificate (names: the id or `fleet`, --api-host)
         api_signing_key                the key that signs the API's tokens
-        mongo_password                 the password of MongoDB's user `ares`
+        mongo_password                 the password of MongoDB's user `ares` (the stack's: its database only)
+        mongo_root_password            MongoDB's root user's, for its first start and an administrator alone
 
 Keys are written owner-only, each file atomically (a reader never sees half a key). The certificates
 are made by ares.core.certificates (the black box's self-signed one too).
@@ -218,8 +219,9 @@ def issue_blackbox(
     # kept when present: MongoDB sets its user's password once, at its first start (docs/deploy.md: rotation)
     if not (out / "api_signing_key").exists():
         _write(out / "api_signing_key", secrets.token_hex(32).encode(), private=True)
-    if not (out / "mongo_password").exists():
-        _write(out / "mongo_password", secrets.token_urlsafe(24).encode(), private=True)
+    for password in ("mongo_password", "mongo_root_password"):
+        if not (out / password).exists():
+            _write(out / password, secrets.token_urlsafe(24).encode(), private=True)
 
 
 def issue_vehicle(
