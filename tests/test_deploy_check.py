@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from ares.app import run_config
 from ares.deploy import check, pki
 
 REPO = Path(__file__).resolve().parents[1]
@@ -51,6 +52,12 @@ def fleet_ca(tmp_path_factory) -> Path:
     for vehicle_id in ("shuttle01", "shuttle02"):
         result = ares("deploy", "certs", "--fleet-ca", str(ca), "--vehicle", vehicle_id)
         assert result.returncode == 0, result.stderr
+    # the release every vehicle must run, signed with the fleet's release key (docs/deploy.md)
+    result = ares("deploy", "manifest", "--key", str(ca / "release_key"), "--out", str(ca / "release_manifest"))
+    assert result.returncode == 0, result.stderr
+    for vehicle_id in ("shuttle01", "shuttle02"):
+        for release in ("release_manifest", "release_key.pub"):
+            shutil.copy(ca / release, ca / "vehicles" / vehicle_id / release)
     return ca
 
 
@@ -158,7 +165,8 @@ def test_a_password_in_plain_environment(tmp_path, fleet_ca):
     compose = folder / "compose.yaml"
     compose.write_text(
         compose.read_text().replace(
-            "MONGO_INITDB_ROOT_PASSWORD_FILE: /run/secrets/mongo_root_password", "MONGO_INITDB_ROOT_PASSWORD: hunter2hunter2"
+            "MONGO_INITDB_ROOT_PASSWORD_FILE: /run/secrets/mongo_root_password",
+            "MONGO_INITDB_ROOT_PASSWORD: hunter2hunter2",
         )
     )
     _expect(folder, "MONGO_INITDB_ROOT_PASSWORD", "plain environment")
@@ -267,8 +275,16 @@ def test_the_stack_is_not_mongodbs_root(tmp_path, fleet_ca):
     _expect(folder, "config 'ares_config' signs in to 'mongo' as its root user 'ares'")
     compose.write_text(
         original.replace(
-            "secrets: [zenoh_local_password, mongo_password,",
-            "secrets: [zenoh_local_password, mongo_password, mongo_root_password,",
+            "[zenoh_local_password, mongo_password,", "[zenoh_local_password, mongo_password, mongo_root_password,"
         )
     )
     _expect(folder, "'stack' is given 'mongo''s root password (mongo_root_password)")
+
+
+def test_the_vehicle_runs_only_the_signed_release(tmp_path, fleet_ca):
+    """The deployment's config turns the release check on, and the folder must hold the release."""
+    folder = vehicle_copy(tmp_path, fleet_ca)
+    cfg = run_config.build((str(folder / "ares.yaml"),))
+    assert cfg["release"] == {"manifest": "/run/secrets/release_manifest", "public_key": "/run/secrets/release_key.pub"}
+    (folder / "secrets" / "release_manifest").unlink()
+    _expect(folder, "secret 'release_manifest'", "is missing (made by `ares deploy manifest`)")

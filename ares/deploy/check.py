@@ -208,7 +208,8 @@ def _secrets(report: Report, model: dict[str, Any]) -> dict[str, Path]:
         if "file" not in secret:
             report.problem(f"secret {name!r}: not a file (environment secrets are not accepted)")
         elif not path.is_file():
-            report.problem(f"secret {name!r}: {path} is missing (made by `ares deploy certs`)")
+            made_by = "ares deploy manifest" if name.startswith("release_") else "ares deploy certs"
+            report.problem(f"secret {name!r}: {path} is missing (made by `{made_by}`)")
         elif path.stat().st_size == 0:
             report.problem(f"secret {name!r}: {path} is empty")
         else:
