@@ -193,7 +193,10 @@ def test_login_form_as_its_schema_says(tmp_path, seeded):
         tmp_path,
         db,
         port,
-        api={"blacklist": {"failed_logins": 1_000_000}, "rate_limit": {"token_per_s": 1000, "token_burst": 1000}},
+        api={
+            "blacklist": {"failed_logins": 1_000_000, "account_failed_logins": 1_000_000},
+            "rate_limit": {"token_per_s": 1000, "token_burst": 1000},
+        },
     )
     cert = tmp_path / "state" / "tls" / "api_cert.pem"
     try:

@@ -20,7 +20,7 @@ from blackbox.api.models import STORE_RETRY_AFTER_S
 from blackbox.api.repository import Repository
 from blackbox.api.routes import auth, commands, events, health, pages, records, users, vehicles
 from blackbox.api.routes import live as live_routes
-from blackbox.api.security import Guard, SecurityMiddleware, security_headers
+from blackbox.api.security import BAN_FILE, Guard, SecurityMiddleware, security_headers
 from blackbox.api.settings import PREFIX, TOKEN_PATH, ApiSettings, state_dir
 from blackbox.console.live_hub import LiveHub
 from blackbox.register.store.record_store import RecordStore, StoreUnavailable
@@ -46,7 +46,7 @@ def create_app(
         repository=Repository(store, settings.limits, vehicle_id, (clock or Clock.from_env()).now),
         tokens=Tokens(settings.auth, load_secret(settings.auth, sdir)),
         passwords=Passwords(settings.auth.argon2),
-        guard=Guard(settings.rate_limit, settings.blacklist),
+        guard=Guard(settings.rate_limit, settings.blacklist, ban_file=sdir / BAN_FILE),
         settings=settings,
         vehicle_id=vehicle_id,
         call=call,

@@ -14,30 +14,40 @@ and notifying those responsible."
   over `abuse_window_s` (counted whether they were served or refused: a client that keeps
   hammering after its 429s is no dashboard). Each blacklisting is written to the black box as
   an event (source "api", kind "ip_blacklisted", level WARNING) and logged.
+- Accounts: guesses spread over many addresses stay under every address's limits, so failures
+  are counted per account name too: `account_failed_logins` failed logins of one name within
+  `account_window_s` (from any addresses) lock that name's logins for `account_lock_s` (429
+  with Retry-After, even with the right password; the account's tokens keep working).
 - Headers: every response carries HSTS, nosniff, X-Frame-Options DENY, no referrer, a CSP that
   allows nothing (the API serves JSON, never pages), and Cache-Control no-store (records and
   tokens must not linger in caches).
 
 State is in memory, per API process (the API runs as one process on the vehicle), bounded by
-`max_clients`. The client is the TCP peer: no X-Forwarded-For is trusted, as the API faces the
-VPN directly (ARES §3.8: port 443 is the vehicle's only open port).
+`max_clients`; the blacklist and the account locks are also kept in a file (`ban_file`, in the
+API's state directory), so that a restart does not let a banned address or a locked name in.
+The client is the TCP peer: no X-Forwarded-For is trusted, as the API faces the VPN directly
+(ARES §3.8: port 443 is the vehicle's only open port).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from datetime import datetime, timedelta
+from pathlib import Path
 
 import orjson
 
 from ares.core.config import Params, param
 
 log = logging.getLogger("blackbox.api.security")
+
+BAN_FILE = "api_bans.json"  # in the API's state directory, beside its token key
 
 
 class RateLimitSettings(Params):
@@ -58,6 +68,9 @@ class BlacklistSettings(Params):
     abuse_requests_per_s: float = param(100.0, "or more requests per second than this ...", unit="1/s", gt=0)
     abuse_window_s: float = param(10.0, "... averaged over this window", unit="s", gt=0)
     duration_s: float = param(900.0, "how long an IP stays blacklisted", unit="s", gt=0)
+    account_failed_logins: int = param(10, "failed logins of one user name, from any addresses ...", ge=1)
+    account_window_s: float = param(300.0, "... within this window ...", unit="s", gt=0)
+    account_lock_s: float = param(900.0, "... lock that name's logins this long (429)", unit="s", gt=0)
 
 
 class HeaderSettings(Params):
@@ -108,18 +121,67 @@ class _Client:
 
 
 class Guard:
-    """Rate limits and blacklist decisions; no I/O (the caller writes the events)."""
+    """Rate limits, blacklist and account-lock decisions; no I/O but its `ban_file` (the caller
+    writes the events)."""
 
     def __init__(
-        self, limits: RateLimitSettings, blacklist: BlacklistSettings, now: Callable[[], float] = time.monotonic
+        self,
+        limits: RateLimitSettings,
+        blacklist: BlacklistSettings,
+        now: Callable[[], float] = time.monotonic,
+        ban_file: Path | None = None,
+        wall: Callable[[], float] = time.time,
     ):
         self.limits = limits
         self.cfg = blacklist
         self.now = now
+        self.wall = wall  # the ban file's clock: monotonic times do not survive a restart
         self.clients: dict[str, _Client] = {}
         self.blacklist: dict[str, float] = {}  # ip -> monotonic time it is let in again
+        self.account_failures: dict[str, deque[float]] = {}
+        self.locked_accounts: dict[str, float] = {}  # user name -> monotonic time its logins are let in again
         # the middleware calls in from the event loop, the login handler from a worker thread
         self._lock = threading.Lock()
+        self.ban_file = ban_file
+        if ban_file is not None:
+            self._load_bans(ban_file)
+
+    # ---- the ban file ----------------------------------------------------------------------------
+
+    def _load_bans(self, path: Path) -> None:
+        """The bans of an earlier run that still hold; an unreadable file is logged and ignored
+        (the API must start), a missing one is a first start."""
+        try:
+            saved = orjson.loads(path.read_bytes())
+            addresses, accounts = dict(saved["addresses"]), dict(saved["accounts"])
+        except FileNotFoundError:
+            return
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            log.error("REST API: ban file %s unreadable (%s): starting with no bans", path, exc)
+            return
+        now, wall = self.now(), self.wall()
+        self.blacklist = {ip: now + until - wall for ip, until in addresses.items() if float(until) > wall}
+        self.locked_accounts = {name: now + until - wall for name, until in accounts.items() if float(until) > wall}
+
+    def _save_bans(self) -> None:
+        """Written whole at each new ban (rare: each takes a flood or many failures), replaced
+        atomically so a crash mid-write leaves the previous list."""
+        if self.ban_file is None:
+            return
+        now, wall = self.now(), self.wall()
+        body = orjson.dumps(
+            {
+                "addresses": {ip: wall + until - now for ip, until in self.blacklist.items() if until > now},
+                "accounts": {name: wall + until - now for name, until in self.locked_accounts.items() if until > now},
+            }
+        )
+        try:
+            self.ban_file.parent.mkdir(parents=True, exist_ok=True)
+            partial = self.ban_file.with_suffix(".partial")
+            partial.write_bytes(body)
+            os.replace(partial, self.ban_file)
+        except OSError as exc:
+            log.error("REST API: could not keep the bans in %s (%s): they hold until a restart", self.ban_file, exc)
 
     def _client(self, ip: str, now: float) -> _Client:
         client = self.clients.get(ip)
@@ -136,9 +198,17 @@ class Guard:
         if len(self.clients) >= self.limits.max_clients:
             self.clients.clear()  # flooded by distinct addresses: forget rather than grow
 
+    def _prune_accounts(self, now: float) -> None:
+        window = self.cfg.account_window_s
+        self.account_failures = {n: f for n, f in self.account_failures.items() if f and now - f[-1] < window}
+        self.locked_accounts = {n: until for n, until in self.locked_accounts.items() if until > now}
+        if len(self.account_failures) >= self.limits.max_clients:
+            self.account_failures.clear()  # guesses at endless distinct names: forget rather than grow
+
     def _ban(self, ip: str, now: float, reason: str) -> Verdict:
         self.blacklist[ip] = now + self.cfg.duration_s
         self.clients.pop(ip, None)
+        self._save_bans()
         return Verdict(
             403,
             f"address blacklisted for {self.cfg.duration_s:g} s: {reason}",
@@ -219,6 +289,41 @@ class Guard:
         if len(c.failures) >= self.cfg.failed_logins:
             return self._ban(ip, now, f"{len(c.failures)} failed logins within {self.cfg.failed_logins_window_s:g} s")
         return None
+
+    # ---- accounts ----------------------------------------------------------------------------------
+
+    def account_locked(self, name: str) -> Verdict | None:
+        """The refusal of a login as `name` while that name is locked, else None."""
+        with self._lock:
+            until = self.locked_accounts.get(name)
+            if until is None:
+                return None
+            left = until - self.now()
+            if left <= 0:
+                del self.locked_accounts[name]
+                return None
+            return Verdict(429, "too many failed logins for this user: wait before trying again", int(left) + 1)
+
+    def account_failed(self, name: str) -> str | None:
+        """Count a failed login as `name`; the reason, when this failure locked the name."""
+        with self._lock:
+            now = self.now()
+            failures = self.account_failures.get(name)
+            if failures is None:
+                if len(self.account_failures) >= self.limits.max_clients:
+                    self._prune_accounts(now)
+                failures = self.account_failures[name] = deque()
+            failures.append(now)
+            while failures and now - failures[0] > self.cfg.account_window_s:
+                failures.popleft()
+            if len(failures) < self.cfg.account_failed_logins:
+                return None
+            del self.account_failures[name]
+            self.locked_accounts[name] = now + self.cfg.account_lock_s
+            self._save_bans()
+            reason = f"{len(failures)} failed logins within {self.cfg.account_window_s:g} s"
+            log.warning("REST API: logins as %r locked for %g s (%s)", name, self.cfg.account_lock_s, reason)
+            return reason
 
 
 def client_ip(scope) -> str:

@@ -53,7 +53,7 @@ def api_settings(**overrides) -> ApiSettings:
     base = {
         "auth": {"argon2": FAST_ARGON2},
         "rate_limit": {"client_per_s": 10_000, "client_burst": 10_000, "token_per_s": 100, "token_burst": 100},
-        "blacklist": {"failed_logins": 1000, "abuse_requests_per_s": 100_000},
+        "blacklist": {"failed_logins": 1000, "abuse_requests_per_s": 100_000, "account_failed_logins": 1000},
     }
     for key, value in overrides.items():
         base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value

@@ -16,12 +16,22 @@ def build_router(services: Services) -> APIRouter:
 
     @router.post("/auth/token", response_model=Token, responses=error_responses(400, 401, 413, 422, 503))
     def token(request: Request, form: Annotated[LoginForm, Form()]) -> Token:
-        user = repo.authenticate(passwords, form.username, form.password)
-        if user is None:
-            ip = request.client.host if request.client else "unknown"
+        ip = request.client.host if request.client else "unknown"
+
+        def count_failure() -> None:
             verdict = guard.login_failed(ip)
             if verdict is not None:
                 repo.record_blacklisting(ip, verdict.newly_blacklisted or "", guard.cfg.duration_s)
+
+        # guesses spread over many addresses: the name's own limit (security.py), before any hashing
+        locked = guard.account_locked(form.username)
+        if locked is not None:
+            count_failure()
+            raise HTTPException(429, locked.detail, headers={"Retry-After": str(locked.retry_after_s)})
+        user = repo.authenticate(passwords, form.username, form.password)
+        if user is None:
+            guard.account_failed(form.username)
+            count_failure()
             raise HTTPException(401, "wrong user name or password", headers={"WWW-Authenticate": "Bearer"})
         access, ttl = tokens.issue(user.name, user.role)
         return Token(access_token=access, expires_in=ttl, role=user.role)
