@@ -10,7 +10,8 @@ Collections (database blackbox_store.mongo_db):
   second;
 - events: a plain collection (events are few, and a plain collection allows any delete), a TTL
   index on time (RETENTION) and an index on (vehicle_id, time);
-- users: unique index on name.
+- users: unique index on name;
+- revoked_tokens: the token ids refused before their expiry, removed by a TTL index past it.
 
 Setup (collections, indexes) runs on first use and is retried on the next call until it
 succeeds, so the API and the register can start before the database does. Every call is
@@ -95,6 +96,7 @@ class MongoStore(RecordStore):
         self._records = self._db["records"]
         self._events = self._db["events"]
         self._users = self._db["users"]
+        self._revoked = self._db["revoked_tokens"]
         self._setup_lock = threading.Lock()
         self._ready = False
 
@@ -122,6 +124,9 @@ class MongoStore(RecordStore):
         self._events.create_index([(f, ASCENDING) for f in EVENT_IDENTITY], unique=True, name="event_once")
         self._events.create_index("time", expireAfterSeconds=RETENTION_S)
         self._users.create_index("name", unique=True)
+        # a revoked token id is kept until its token expires (the server's TTL monitor removes it)
+        self._revoked.create_index("token_id", unique=True)
+        self._revoked.create_index("expires", expireAfterSeconds=0)
 
     @contextmanager
     def _call(self, setup: bool = True) -> Iterator[None]:
@@ -264,13 +269,34 @@ class MongoStore(RecordStore):
         return _user(doc) if doc else None
 
     def put_user(self, user: User) -> None:
-        doc = {"name": user.name, "role": user.role, "password_hash": user.password_hash, "created": _utc(user.created)}
+        doc = {
+            "name": user.name,
+            "role": user.role,
+            "password_hash": user.password_hash,
+            "created": _utc(user.created),
+            "disabled": user.disabled,
+            "generation": user.generation,
+        }
         with self._call():
             self._users.replace_one({"name": user.name}, doc, upsert=True)
 
     def list_users(self) -> list[User]:
         with self._call():
             return [_user(doc) for doc in self._users.find({}, _PROJECTION).sort("name", ASCENDING)]
+
+    def delete_user(self, name: str) -> bool:
+        with self._call():
+            return self._users.delete_one({"name": name}).deleted_count > 0
+
+    def revoke_token(self, token_id: str, expires: datetime) -> None:
+        with self._call():
+            self._revoked.replace_one(
+                {"token_id": token_id}, {"token_id": token_id, "expires": _utc(expires)}, upsert=True
+            )
+
+    def token_revoked(self, token_id: str) -> bool:
+        with self._call():
+            return self._revoked.find_one({"token_id": token_id}, {"_id": 1}) is not None
 
     # ---- lifecycle -------------------------------------------------------------------------------
 
@@ -292,4 +318,12 @@ def _range(vehicle_id: str, start: datetime, end: datetime) -> dict:
 
 
 def _user(doc: dict) -> User:
-    return User(name=doc["name"], role=doc["role"], password_hash=doc["password_hash"], created=doc["created"])
+    return User(
+        name=doc["name"],
+        role=doc["role"],
+        password_hash=doc["password_hash"],
+        created=doc["created"],
+        # documents written before these fields: an enabled account of generation 0
+        disabled=bool(doc.get("disabled", False)),
+        generation=int(doc.get("generation", 0)),
+    )

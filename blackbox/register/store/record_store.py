@@ -103,6 +103,10 @@ class User:
     role: str  # auditor | operator | fleet | admin
     password_hash: str
     created: datetime
+    disabled: bool = False  # refused at login and on every request, kept for the record
+    # bumped whenever the account changes (role, password, disabled): tokens carry the generation
+    # they were issued under, so a change ends every token issued before it
+    generation: int = 0
 
 
 def utc_now() -> datetime:
@@ -183,6 +187,18 @@ class RecordStore(ABC):
 
     @abstractmethod
     def list_users(self) -> list[User]: ...
+
+    @abstractmethod
+    def delete_user(self, name: str) -> bool:
+        """Remove the user; False when there was none."""
+
+    @abstractmethod
+    def revoke_token(self, token_id: str, expires: datetime) -> None:
+        """Refuse the token `token_id` from now on; kept until `expires` (the token's own expiry:
+        past it the signature check refuses the token anyway, so the entry can go)."""
+
+    @abstractmethod
+    def token_revoked(self, token_id: str) -> bool: ...
 
     @abstractmethod
     def ping(self) -> None:

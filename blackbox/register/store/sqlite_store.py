@@ -8,7 +8,11 @@ Layout:
 - events (vehicle_id, ts, kind, doc), indexed on (vehicle_id, ts): several events may share a
   second, but the same event twice (a retried batch) is stored once (unique on all columns;
   files from before that rule are de-duplicated when first opened);
-- users (name, role, password_hash, created).
+- users (name, role, password_hash, created, disabled, generation), and revoked_tokens
+  (token_id, expires): the token ids refused before their expiry.
+
+The file (and SQLite's -wal and -shm beside it, which take its mode) is its owner's only (0600):
+it holds the users' password hashes.
 
 Concurrency: WAL journal (readers never wait for the writer). FastAPI runs handlers in a
 thread pool, so each call borrows a connection from a small pool (one per concurrent call):
@@ -24,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import queue
 import sqlite3
 import threading
@@ -69,9 +74,22 @@ CREATE TABLE IF NOT EXISTS users (
     name TEXT PRIMARY KEY,
     role TEXT NOT NULL,
     password_hash TEXT NOT NULL,
-    created TEXT NOT NULL
+    created TEXT NOT NULL,
+    disabled INTEGER NOT NULL DEFAULT 0,
+    generation INTEGER NOT NULL DEFAULT 0
+);
+CREATE TABLE IF NOT EXISTS revoked_tokens (
+    token_id TEXT PRIMARY KEY,
+    expires REAL NOT NULL
 );
 """
+# columns the users table gained after files were made: added to those files when first opened
+USER_COLUMNS_ADDED = {
+    "disabled": "INTEGER NOT NULL DEFAULT 0",
+    "generation": "INTEGER NOT NULL DEFAULT 0",
+}
+USER_COLUMNS = "name, role, password_hash, created, disabled, generation"
+FILE_MODE = 0o600  # the file holds the users' password hashes: its owner's only
 
 
 def as_utc(dt: datetime) -> datetime:
@@ -111,6 +129,7 @@ class SqliteStore(RecordStore):
         self.settings = settings
         self.path = Path(path or settings.path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        _owner_only(self.path)
         self._busy_timeout_s = settings.busy_timeout_s
         self._query_timeout_s = settings.query_timeout_s
         self._purge_interval = timedelta(seconds=settings.purge_interval_s)
@@ -164,7 +183,7 @@ class SqliteStore(RecordStore):
         if conn.execute("PRAGMA journal_mode = WAL").fetchone()[0].lower() != "wal":
             raise sqlite3.OperationalError("could not switch the journal to WAL")
         present = {row[0] for row in conn.execute("SELECT name FROM sqlite_master")}
-        if present >= {"records", "events", "events_vehicle_ts", "events_once", "users"}:
+        if present >= {"records", "events", "events_vehicle_ts", "events_once", "users", "revoked_tokens"}:
             # an existing file: no write lock needed, so a restarted reader can serve queries
             # even while another process holds the write lock
             with self._lock:
@@ -175,6 +194,7 @@ class SqliteStore(RecordStore):
             for statement in SCHEMA.split(";"):
                 if statement.strip():
                     conn.execute(statement)
+            _add_user_columns(conn)
             conn.execute("COMMIT")
         except BaseException:
             conn.execute("ROLLBACK")
@@ -346,24 +366,47 @@ class SqliteStore(RecordStore):
 
     def get_user(self, name: str) -> User | None:
         with self._connection() as conn:
-            row = conn.execute(
-                "SELECT name, role, password_hash, created FROM users WHERE name = ?", (name,)
-            ).fetchone()
+            row = conn.execute(f"SELECT {USER_COLUMNS} FROM users WHERE name = ?", (name,)).fetchone()
         return _user(row) if row else None
 
     def put_user(self, user: User) -> None:
         with self._connection(write=True) as conn:
             conn.execute(
-                "INSERT INTO users (name, role, password_hash, created) VALUES (?, ?, ?, ?) "
+                f"INSERT INTO users ({USER_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?) "
                 "ON CONFLICT (name) DO UPDATE SET role = excluded.role, "
-                "password_hash = excluded.password_hash, created = excluded.created",
-                (user.name, user.role, user.password_hash, as_utc(user.created).isoformat()),
+                "password_hash = excluded.password_hash, created = excluded.created, "
+                "disabled = excluded.disabled, generation = excluded.generation",
+                (
+                    user.name,
+                    user.role,
+                    user.password_hash,
+                    as_utc(user.created).isoformat(),
+                    int(user.disabled),
+                    user.generation,
+                ),
             )
 
     def list_users(self) -> list[User]:
         with self._connection() as conn:
-            rows = conn.execute("SELECT name, role, password_hash, created FROM users ORDER BY name").fetchall()
+            rows = conn.execute(f"SELECT {USER_COLUMNS} FROM users ORDER BY name").fetchall()
         return [_user(row) for row in rows]
+
+    def delete_user(self, name: str) -> bool:
+        with self._connection(write=True) as conn:
+            return conn.execute("DELETE FROM users WHERE name = ?", (name,)).rowcount > 0
+
+    def revoke_token(self, token_id: str, expires: datetime) -> None:
+        with self._connection(write=True) as conn:
+            # the entries past their token's expiry are no longer needed: they go with each new one
+            conn.execute("DELETE FROM revoked_tokens WHERE expires < ?", (self.now().timestamp(),))
+            conn.execute(
+                "INSERT OR REPLACE INTO revoked_tokens (token_id, expires) VALUES (?, ?)",
+                (token_id, as_utc(expires).timestamp()),
+            )
+
+    def token_revoked(self, token_id: str) -> bool:
+        with self._connection() as conn:
+            return conn.execute("SELECT 1 FROM revoked_tokens WHERE token_id = ?", (token_id,)).fetchone() is not None
 
     # ---- lifecycle -------------------------------------------------------------------------------
 
@@ -412,8 +455,40 @@ def _event_row(event: StoredEvent) -> tuple[str, float, str, str]:
 
 
 def _user(row: tuple) -> User:
-    name, role, password_hash, created = row
-    return User(name=name, role=role, password_hash=password_hash, created=datetime.fromisoformat(created))
+    name, role, password_hash, created, disabled, generation = row
+    return User(
+        name=name,
+        role=role,
+        password_hash=password_hash,
+        created=datetime.fromisoformat(created),
+        disabled=bool(disabled),
+        generation=generation,
+    )
+
+
+def _add_user_columns(conn: sqlite3.Connection) -> None:
+    """The users table's later columns, on a file made before them."""
+    present = {row[1] for row in conn.execute("PRAGMA table_info(users)")}
+    for column, declaration in USER_COLUMNS_ADDED.items():
+        if column not in present:
+            conn.execute(f"ALTER TABLE users ADD COLUMN {column} {declaration}")
+
+
+def _owner_only(path: Path) -> None:
+    """Create the store's file readable and writable by its owner only, before SQLite does (with
+    the umask's 0644); an existing file is narrowed to that too."""
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, FILE_MODE)
+    except OSError as exc:  # not ours to open: SQLite will say what it makes of it
+        log.warning("embedded store %s: not narrowed to its owner: %s", path, exc)
+        return
+    try:
+        if os.fstat(fd).st_mode & 0o777 != FILE_MODE:
+            os.fchmod(fd, FILE_MODE)
+    except OSError as exc:  # another user's file: theirs to protect
+        log.warning("embedded store %s: not narrowed to its owner: %s", path, exc)
+    finally:
+        os.close(fd)
 
 
 def _vehicle_ids(conn: sqlite3.Connection, table: str) -> list[str]:
