@@ -11,12 +11,15 @@ handlers are thin: they check the caller's role and the parameters, then ask the
     repository.py      Repository: every store call and cache; pages, reports, export files
     dependencies.py    the services routes work with, roles (ROLES_*, `allow`), shared parameters
     credentials.py     passwords (argon2) and tokens (JWT); first_logins.py: one user per page
-    security.py        rate limits, the blacklist, security headers
+    security.py        rate limits, the blacklist and account locks (kept across restarts), report
+                       slots per role, security headers
     live_hub.py        the live gateway: the bus state the pages show, kept in memory
     routes/            one router per resource: health, auth, vehicles, records, events, users,
                        commands, live, pages
     app.py             create_app: services, middleware, error handlers, routers
     uvicorn_server.py  uvicorn_config, serve; tls.py: the self-signed certificate
+    connections.py     what a caller's connections may hold: a cap per address, TLS handshake,
+                       header and read timeouts (uvicorn's protocols, wrapped)
     api_node.py        the `api` process of the stack (serves this on the vehicle's bus)
 
 What the API writes to the store: users (admin role; `ares run` makes the first ones on an empty

@@ -61,6 +61,8 @@ class Repository:
         self.stack_time = stack_time  # t of the events the API writes
         self._latest: dict[str, tuple[float, bytes, dict]] = {}  # vehicle -> (expires, JSON, record)
         self._vehicles: tuple[float, list[str]] = (0.0, [])
+        # (vehicle, piece start) -> ((its record count, its fault count), Segment): settled pieces' reliability
+        self.reliability_pieces: dict[tuple[str, datetime], tuple[tuple[int, int] | None, rel.Segment]] = {}
         self.grace = timedelta(seconds=limits.start_grace_s)
 
     def ping(self) -> None:
@@ -205,18 +207,19 @@ class Repository:
             skip += batch
 
     def reliability(self, vehicle_id: str, window: Window, t_hours: float) -> dict:
+        """The window's figures, chained from its pieces (reliability_piece_s, an hour): each
+        settled whole piece's Segment comes from the cache, so a week's report reads its records
+        once, not at every call (after that: its two partial hours and what is new)."""
         start, end = window.start, window.end
-        faults = self.fault_times(vehicle_id, start, end)
-        count = 0
-
-        def counted():
-            nonlocal count
-            for r in self.iter_records(vehicle_id, start, end, self.limits.reliability_batch):
-                count += 1
-                yield r
-
-        until = min(end, _utc(self.store.now()))
-        tally = rel.tally_window(counted(), faults, until=max(until, start))
+        now = _utc(self.store.now())
+        until = max(min(end, now), start)
+        faults = [f for f in self.fault_times(vehicle_id, start, end) if f <= until]
+        settled = now - timedelta(seconds=self.limits.reliability_settle_s)
+        segments = (
+            self._segment(vehicle_id, lo, hi, [f for f in faults if lo <= f < hi], whole and hi <= settled)
+            for lo, hi, whole in pieces(start, until, end, self.limits.reliability_piece_s)
+        )
+        tally, count = rel.chain(segments, until=until)
         return {
             "vehicle_id": vehicle_id,
             "start": start,
@@ -226,6 +229,21 @@ class Repository:
             "open_failures": tally.open_failures,
             **tally.figures(t_hours).as_dict(),
         }
+
+    def _segment(self, vehicle_id: str, lo: datetime, hi: datetime, faults: list[datetime], cacheable: bool):
+        """The Segment of [lo, hi). A cached piece is used while its record and fault counts are
+        those it was made from (a late upload or a replayed spool changes them)."""
+        key = (vehicle_id, lo)
+        stamp = (self.store.count_records(vehicle_id, lo, hi), len(faults)) if cacheable else None
+        hit = self.reliability_pieces.get(key)
+        if hit is not None and hit[0] == stamp:
+            return hit[1]
+        seg = rel.segment(self.iter_records(vehicle_id, lo, hi, self.limits.reliability_batch), faults)
+        if cacheable:
+            if len(self.reliability_pieces) >= self.limits.reliability_cache_pieces:
+                del self.reliability_pieces[next(iter(self.reliability_pieces))]  # the oldest filled
+            self.reliability_pieces[key] = (stamp, seg)
+        return seg
 
     def authenticate(self, passwords: Passwords, name: str, password: str) -> User | None:
         return passwords.authenticate(self.store, name, password)
@@ -254,6 +272,27 @@ class Repository:
             )
         except StoreUnavailable as exc:
             log.error("could not record the blacklisting of %s: %s", ip, exc)
+
+
+EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+
+
+def pieces(
+    start: datetime, until: datetime, end: datetime, piece_s: float
+) -> Iterator[tuple[datetime, datetime, bool]]:
+    """[start, until) cut at multiples of piece_s since 1970 (UTC), then [until, end) whole (a
+    window may end in the year 9999: what lies past now is one piece): (lo, hi, whether
+    [lo, hi) is a whole piece)."""
+    step = timedelta(seconds=piece_s)
+    lo = start
+    while lo < until:
+        piece_start = EPOCH + step * ((lo - EPOCH) // step)
+        piece_end = piece_start + step  # until is at most now: no overflow
+        hi = min(piece_end, until)
+        yield lo, hi, lo == piece_start and hi == piece_end
+        lo = hi
+    if until < end:
+        yield until, end, False
 
 
 # ---- parameters ----------------------------------------------------------------------------------

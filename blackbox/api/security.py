@@ -35,8 +35,9 @@ import logging
 import os
 import threading
 import time
-from collections import deque
-from collections.abc import Awaitable, Callable
+from collections import Counter, deque
+from collections.abc import Awaitable, Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -58,6 +59,9 @@ class RateLimitSettings(Params):
     token_per_s: float = param(0.05, "login attempts: one per 20 s sustained ...", unit="1/s", gt=0)
     token_burst: float = param(5.0, "... after a burst of 5", ge=1)
     max_clients: int = param(100_000, "IPs tracked at once (memory bound)", ge=100)
+    reports_per_role: int = param(
+        2, "reliability reports computed at once per role (each may read a week of records); more: 429", ge=1
+    )
 
 
 class BlacklistSettings(Params):
@@ -140,6 +144,7 @@ class Guard:
         self.blacklist: dict[str, float] = {}  # ip -> monotonic time it is let in again
         self.account_failures: dict[str, deque[float]] = {}
         self.locked_accounts: dict[str, float] = {}  # user name -> monotonic time its logins are let in again
+        self.reports_in_flight: Counter[str] = Counter()  # role -> reports being computed
         # the middleware calls in from the event loop, the login handler from a worker thread
         self._lock = threading.Lock()
         self.ban_file = ban_file
@@ -289,6 +294,23 @@ class Guard:
         if len(c.failures) >= self.cfg.failed_logins:
             return self._ban(ip, now, f"{len(c.failures)} failed logins within {self.cfg.failed_logins_window_s:g} s")
         return None
+
+    # ---- expensive reports -----------------------------------------------------------------------
+
+    @contextmanager
+    def report_slot(self, role: str) -> Iterator[bool]:
+        """Whether a report may be computed for a caller of `role` now (held while it is); a role's
+        callers share `reports_per_role` slots, so the lowest role cannot take every core."""
+        with self._lock:
+            admitted = self.reports_in_flight[role] < self.limits.reports_per_role
+            if admitted:
+                self.reports_in_flight[role] += 1
+        try:
+            yield admitted
+        finally:
+            if admitted:
+                with self._lock:
+                    self.reports_in_flight[role] -= 1
 
     # ---- accounts ----------------------------------------------------------------------------------
 

@@ -33,6 +33,11 @@ class LimitSettings(Params):
     max_page: int = param(100_000, "highest page number", ge=1)
     export_batch: int = param(2000, "records per store query while streaming an export", ge=1)
     reliability_batch: int = param(5000, "records per store query while computing reliability", ge=1)
+    reliability_piece_s: float = param(
+        3600.0, "reliability is tallied in pieces this long (since 1970, UTC), each settled one cached", unit="s", gt=0
+    )
+    reliability_settle_s: float = param(60.0, "a piece ended this long ago is settled", unit="s", ge=0)
+    reliability_cache_pieces: int = param(20_000, "cached pieces' tallies (vehicles x 168 hours)", ge=1)
     max_t_hours: float = param(100_000.0, "largest t of R(t)", unit="h", gt=0)
     max_body_bytes: int = param(8192, "request bodies are a login form or a new user: small", unit="B", ge=256)
     latest_cache_s: float = param(

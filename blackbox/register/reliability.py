@@ -175,3 +175,102 @@ def tally_window(
         pending = next(faults, None)
     tally.close(until)
     return tally
+
+
+# ---- a window from pieces --------------------------------------------------------------------------
+#
+# A week's report reads ~600 000 records; the API keeps each finished day's Segment instead and
+# chains them. A Segment is its records and faults tallied from a neutral start (nothing up
+# before it, no outage open); what the real entry state would change is only what happens
+# before the segment's first up record, which the segment keeps: that record's time and its
+# first FAULT before it.
+
+
+@dataclass(frozen=True)
+class Segment:
+    records: int
+    operating_s: float
+    failures: int
+    repair_s: float
+    first_up: datetime | None  # its first up record
+    first_fault_before_up: datetime | None  # its first FAULT before that (or at all, with no up record)
+    last_up: datetime | None  # the neutral tally's state at its end ...
+    down_since: datetime | None  # ... (an outage still open)
+
+
+def segment(
+    records: Iterable[dict],
+    fault_times: Iterable[datetime],
+    record_period_s: float = RECORD_PERIOD_S,
+    max_gap_s: float = 2.0,
+) -> Segment:
+    """Records (oldest first) and the FAULT times of the same span, tallied from a neutral start
+    (no close: the span is a piece of a window)."""
+    tally = Tally(record_period_s, max_gap_s)
+    faults = iter(sorted(fault_times))
+    pending = next(faults, None)
+    count = 0
+    first_up: datetime | None = None
+    first_fault: datetime | None = None
+
+    def take_fault(time: datetime) -> None:
+        nonlocal first_fault
+        if first_up is None and first_fault is None:
+            first_fault = time
+        tally.fault(time)
+
+    for rec in records:
+        time = rec["time"]
+        while pending is not None and pending <= time:
+            take_fault(pending)
+            pending = next(faults, None)
+        up = is_up(rec)
+        if up and first_up is None:
+            first_up = time
+        tally.record(time, up)
+        count += 1
+    while pending is not None:
+        take_fault(pending)
+        pending = next(faults, None)
+    return Segment(
+        records=count,
+        operating_s=tally.operating_s,
+        failures=tally.failures,
+        repair_s=tally.repair_s,
+        first_up=first_up,
+        first_fault_before_up=first_fault,
+        last_up=tally._last_up_time,
+        down_since=tally._down_since,
+    )
+
+
+def chain(
+    segments: Iterable[Segment], until: datetime, record_period_s: float = RECORD_PERIOD_S, max_gap_s: float = 2.0
+) -> tuple[Tally, int]:
+    """The closed Tally of consecutive segments (oldest first), as tally_window would make it
+    from all their records and faults at once; and the number of records."""
+    tally = Tally(record_period_s, max_gap_s)
+    records = 0
+    for seg in segments:
+        records += seg.records
+        down_since, last_up = tally._down_since, tally._last_up_time
+        entry_failure = (
+            down_since is None
+            and last_up is not None
+            and seg.first_fault_before_up is not None
+            and seg.first_fault_before_up - last_up <= tally.max_gap
+        )
+        if entry_failure:
+            tally.failures += 1
+            down_since = seg.first_fault_before_up
+        if seg.first_up is None:  # nothing up: the neutral tally counted nothing, the entry state goes on
+            tally._down_since = down_since
+            continue
+        if down_since is not None:
+            tally.repair_s += max(0.0, (seg.first_up - down_since).total_seconds())
+        tally.operating_s += seg.operating_s
+        tally.failures += seg.failures
+        tally.repair_s += seg.repair_s
+        tally._last_up_time, tally._down_since = seg.last_up, seg.down_since
+    tally.close(until)
+    return tally, records

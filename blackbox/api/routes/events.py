@@ -3,7 +3,7 @@ GET /vehicles/{id}/reliability (MTBF, MTTR, R(t), availability over a window).""
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import Response
 
 from blackbox.api.credentials import Claims
@@ -19,6 +19,8 @@ from blackbox.api.dependencies import (
 )
 from blackbox.api.models import EventsPage, ReliabilityReport, error_responses, json_response
 from blackbox.api.repository import parse_kinds
+
+REPORT_RETRY_AFTER_S = 5  # a week's first report takes seconds; later ones come from the per-day cache
 
 
 def build_router(services: Services) -> APIRouter:
@@ -59,7 +61,7 @@ def build_router(services: Services) -> APIRouter:
     )
     def reliability(
         vehicle_id: VehicleId,
-        _: Reader,
+        claims: Reader,
         start: Start = None,
         end: End = None,
         t_hours: Annotated[
@@ -68,7 +70,14 @@ def build_router(services: Services) -> APIRouter:
     ) -> Response:
         window = repo.window(start, end)
         repo.require_vehicle(vehicle_id)
-        report = repo.reliability(vehicle_id, window, t_hours)
+        with services.guard.report_slot(claims.role) as admitted:
+            if not admitted:
+                raise HTTPException(
+                    429,
+                    f"as many reliability reports as a {claims.role} may have are being computed: try again shortly",
+                    headers={"Retry-After": str(REPORT_RETRY_AFTER_S)},
+                )
+            report = repo.reliability(vehicle_id, window, t_hours)
         return json_response({**report, "definitions": ReliabilityReport.model_fields["definitions"].default})
 
     return router
