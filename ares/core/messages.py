@@ -15,6 +15,7 @@ from typing import Annotated, ClassVar, Literal, Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from ares.core.config import VEHICLE_ID_PATTERN
 from ares.core.schema import Array, BulkMsg, Msg
 
 __all__ = ["Msg", "BulkMsg"]  # re-exported: the base classes live in ares.core.schema
@@ -618,7 +619,7 @@ class VehicleRecord(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    vehicle_id: str
+    vehicle_id: str = Field(pattern=VEHICLE_ID_PATTERN)  # one key segment: the fleet files it under it
     time: datetime  # UTC, the whole second of vehicle time this record stands for
     t: float  # stack seconds of that second
     position: Position | None = None

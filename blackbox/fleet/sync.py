@@ -15,11 +15,13 @@ Reachability is judged on the wall clock: a vehicle from which nothing arrived f
 
 from __future__ import annotations
 
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 
 from ares.core.config import param
 from blackbox.register.recorder import StoreWriterParams
+from blackbox.register.store.record_store import RETENTION
 
 
 class FleetSyncParams(StoreWriterParams):
@@ -32,6 +34,18 @@ class FleetSyncParams(StoreWriterParams):
     backfill_retry_s: float = param(2.0, "a gap still open is asked for again after this (wall)", unit="s", gt=0)
     backfill_timeout_s: float = param(3.0, "a gap's request waits this long for the recorder's answer", unit="s", gt=0)
     backfill_max_s: int = param(600, "seconds asked for in one request", ge=1)
+    future_tolerance_s: float = param(
+        300.0, "a vehicle's record or event stamped further ahead of the fleet's wall is refused", unit="s", gt=0
+    )
+    oldest_accepted_s: float = param(
+        RETENTION.total_seconds(),
+        "a record or event stamped further behind the fleet's wall is refused (the store keeps no older)",
+        unit="s",
+        gt=0,
+    )
+    refusal_report_s: float = param(
+        60.0, "refused messages of one vehicle and cause are reported as one event at most this often", unit="s", gt=0
+    )
 
 
 @dataclass
@@ -121,6 +135,7 @@ class FleetLedger:
             return
         start, end = ledger.in_flight
         ledger.in_flight = None
+        seconds = {k for k in seconds if start <= k < end}  # what was asked for, nothing more
         self._fill(ledger, seconds)
         rest = {k for k in range(start, end) if k not in seconds}
         before_memory = {k for k in rest if oldest_held is None or k < oldest_held}
@@ -138,23 +153,31 @@ class FleetLedger:
 
     @staticmethod
     def _fill(ledger: VehicleLedger, seconds: set[int], count: bool = True) -> None:
+        """Close the seconds given in the gaps that hold them. The work is the gaps they touch
+        and the seconds given, never the seconds a gap spans: a gap may be days long."""
         if not seconds:
             return
+        ordered = sorted(seconds)
+        # the gaps that may hold one: from the last starting at or before the lowest to the last
+        # starting at or before the highest (the gaps are disjoint, oldest first)
+        first = max(bisect_right(ledger.gaps, ordered[0], key=_start) - 1, 0)
+        last = bisect_right(ledger.gaps, ordered[-1], key=_start)
         kept: list[list[int]] = []
-        for start, end in ledger.gaps:
-            run_start = None
-            for k in range(start, end):
-                if k in seconds:
-                    if count:
-                        ledger.filled += 1
-                    if run_start is not None:
-                        kept.append([run_start, k])
-                        run_start = None
-                elif run_start is None:
-                    run_start = k
-            if run_start is not None:
-                kept.append([run_start, end])
-        ledger.gaps = kept
+        for start, end in ledger.gaps[first:last]:
+            cursor = start
+            for k in ordered[bisect_left(ordered, start) : bisect_left(ordered, end)]:
+                if count:
+                    ledger.filled += 1
+                if k > cursor:
+                    kept.append([cursor, k])
+                cursor = k + 1
+            if cursor < end:
+                kept.append([cursor, end])
+        ledger.gaps[first:last] = kept
+
+
+def _start(gap: list[int]) -> int:
+    return gap[0]
 
 
 def epoch_of(value: datetime | str) -> float:

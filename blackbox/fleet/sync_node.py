@@ -17,6 +17,7 @@ from the fleet stay in the vehicle's own store: only records are filled in.
 
 from __future__ import annotations
 
+import math
 import queue
 import threading
 import time
@@ -24,6 +25,7 @@ from datetime import UTC, datetime
 
 from ares.core.bus import ServiceError
 from ares.core.messages import BlackboxRecord, Event, EventLevel, RecordRange, StoredEvent, VehicleRecord
+from blackbox.fleet.door import Refusals, StampWindow, epoch_or_none
 from blackbox.fleet.sync import FleetLedger, FleetSyncParams, Reachability, epoch_of
 from blackbox.register.blackbox_node import BlackboxNode
 from blackbox.register.recorder import open_configured_store, store_uri, stored_event
@@ -44,6 +46,8 @@ class FleetSync(BlackboxNode):
         settings = self.shared["blackbox_store"]
         self.wall = time.time  # reachability is the wall's (a test gives its own)
         self.ledger = FleetLedger(p)
+        self.window = StampWindow(p.oldest_accepted_s, p.future_tolerance_s)
+        self.refusals = Refusals(p.refusal_report_s)
         self.arrived: queue.SimpleQueue[tuple[str, float, object]] = queue.SimpleQueue()
         self._known_from_store(settings)
         self.start_writer(settings, self.core.vehicle_id)
@@ -68,8 +72,14 @@ class FleetSync(BlackboxNode):
         try:
             for vehicle_id in store.vehicles():
                 latest = store.latest(vehicle_id)
-                if latest is not None:
-                    self.ledger.known(vehicle_id, int(epoch_of(latest["time"])))
+                if latest is None:
+                    continue
+                newest = epoch_of(latest["time"])
+                why = self.window.why_refused(newest, self.wall())
+                if why is None:
+                    self.ledger.known(vehicle_id, int(newest))
+                else:  # stored before the door refused such stamps: no gap is measured from it
+                    self.log.warning("the newest second stored of %s is not taken as its newest: %s", vehicle_id, why)
         except StoreUnavailable as exc:
             self.log.warning("store unavailable at start (%s): gaps from before this start are not known", exc)
         finally:
@@ -85,16 +95,9 @@ class FleetSync(BlackboxNode):
             if vehicle_id != self.core.vehicle_id:  # the fleet server's own events: no vehicle's
                 self._reachability(self.ledger.heard(vehicle_id, arrived_wall))
             if isinstance(msg, BlackboxRecord):
-                record = msg.record
-                if record.vehicle_id != vehicle_id:  # the key's id is the one access control checked
-                    self._refused(vehicle_id, f"a record for {record.vehicle_id!r} under ares/{vehicle_id}")
-                    continue
-                self.ledger.record(vehicle_id, int(epoch_of(record.time)), record.t)
-                self.submit(record)
+                self._live_record(vehicle_id, msg.record, arrived_wall)
             elif isinstance(msg, Event):
-                offset = self.ledger.vehicle(vehicle_id).utc_offset_s
-                stamp = arrived_wall if offset is None else offset + msg.t
-                self.submit(stored_event(vehicle_id, datetime.fromtimestamp(stamp, UTC), msg))
+                self._live_event(vehicle_id, msg, arrived_wall)
         while True:
             try:
                 vehicle_id, records, oldest, error = self.answers.get_nowait()
@@ -104,23 +107,83 @@ class FleetSync(BlackboxNode):
                 self.ledger.failed(vehicle_id)
                 self.log.info("gap of %s not filled yet: %s", vehicle_id, error)
                 continue
-            for record in records:
-                if record.vehicle_id == vehicle_id:
-                    self.submit(record)
-            self.ledger.answered(vehicle_id, {int(epoch_of(r.time)) for r in records}, oldest)
-            ledger = self.ledger.vehicle(vehicle_id)
-            self.log.info(
-                "gap of %s: %d seconds filled so far, %d open, %d left on the vehicle",
-                vehicle_id,
-                ledger.filled,
-                self.ledger.open_seconds(vehicle_id),
-                ledger.left_on_vehicle,
-            )
+            self._answer(vehicle_id, records, oldest, wall)
         for change in self.ledger.silent(wall):
             self._reachability(change)
         for ask in self.ledger.requests(wall):
             self.asks.put(ask)
+        for vehicle_id, cause, count, example in self.refusals.due(wall):
+            self.event(
+                "fleet_record_refused",
+                f"{count} from {vehicle_id} refused ({cause}), the latest: {example}: not stored",
+                EventLevel.WARNING,
+                vehicle=vehicle_id,
+                cause=cause,
+                refused=count,
+            )
         self.publish_notices()
+
+    def _live_record(self, vehicle_id: str, record: VehicleRecord, wall: float) -> None:
+        epoch = self._accepted_second(vehicle_id, record, wall)
+        if epoch is None:
+            return
+        self.ledger.record(vehicle_id, epoch, record.t)
+        self.submit(record)
+
+    def _live_event(self, vehicle_id: str, msg: Event, arrived_wall: float) -> None:
+        known = self.ledger.vehicles.get(vehicle_id)  # the fleet's own events have no ledger
+        offset = None if known is None else known.utc_offset_s
+        stamp = arrived_wall if offset is None else offset + msg.t
+        why = self.window.why_refused(stamp, arrived_wall)
+        if why is not None:
+            self.refusals.note(vehicle_id, "event time", f"an event at stack time {msg.t!r}: {why}")
+            return
+        self.submit(stored_event(vehicle_id, datetime.fromtimestamp(stamp, UTC), msg))
+
+    def _answer(self, vehicle_id: str, records: list[VehicleRecord], oldest: int | None, wall: float) -> None:
+        """The recorder's answer: of its records, those of the range asked for are stored."""
+        asked = self.ledger.vehicle(vehicle_id).in_flight
+        if asked is None:
+            return
+        seconds = set()
+        for record in records:
+            epoch = self._accepted_second(vehicle_id, record, wall)
+            if epoch is None:
+                continue
+            if not asked[0] <= epoch < asked[1]:
+                self.refusals.note(vehicle_id, "answer outside the range asked", f"{epoch} for {asked}")
+                continue
+            seconds.add(epoch)
+            self.submit(record)
+        self.ledger.answered(vehicle_id, seconds, oldest)
+        ledger = self.ledger.vehicle(vehicle_id)
+        self.log.info(
+            "gap of %s: %d seconds filled so far, %d open, %d left on the vehicle",
+            vehicle_id,
+            ledger.filled,
+            self.ledger.open_seconds(vehicle_id),
+            ledger.left_on_vehicle,
+        )
+
+    def _accepted_second(self, vehicle_id: str, record: VehicleRecord, wall: float) -> int | None:
+        """The second a vehicle's record stands for, or None (the refusal counted) when the fleet
+        does not take it: another vehicle's, or stamped outside the window."""
+        if record.vehicle_id != vehicle_id:  # the key's id is the one access control checked
+            self.refusals.note(
+                vehicle_id,
+                "record of another vehicle",
+                f"a record for {record.vehicle_id[:80]!r} under ares/{vehicle_id}",
+            )
+            return None
+        if not math.isfinite(record.t):  # the bus's schema refuses it; a record built in-process may not
+            self.refusals.note(vehicle_id, "record stack time", f"a record at stack time {record.t!r}")
+            return None
+        epoch = epoch_or_none(record.time)
+        why = "a time out of range" if epoch is None else self.window.why_refused(epoch, wall)
+        if epoch is None or why is not None:
+            self.refusals.note(vehicle_id, "record time", f"a record stamped {record.time.isoformat()}: {why}")
+            return None
+        return int(epoch)
 
     def _ask_vehicles(self) -> None:
         """The backfill calls, one at a time, off the loop."""
@@ -164,9 +227,6 @@ class FleetSync(BlackboxNode):
                 data={"silent_s": round(change.silent_s, 2)},
             )
         )
-
-    def _refused(self, vehicle_id: str, what: str) -> None:
-        self.event("fleet_record_refused", f"{what}: not stored", EventLevel.WARNING, vehicle=vehicle_id)
 
     def teardown(self) -> None:
         asks = getattr(self, "asks", None)
