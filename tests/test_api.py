@@ -488,12 +488,18 @@ def test_nothing_alters_records(world):
             assert client.request(method, path, headers=h).status_code == 405, (method, path)
     schema = client.get("/openapi.json").json()
     writes = {(p, m) for p, ops in schema["paths"].items() for m in ops if m in ("put", "delete", "patch", "post")}
-    # an API over a store alone: logging in and adding users only; with a vehicle's bus the
+    # an API over a store alone: logging in and out, and the users; with a vehicle's bus the
     # operator's commands too, which alter no record (tests/test_api_commands.py)
     assert writes == {
         ("/api/v1/auth/token", "post"),
         ("/api/v1/auth/renew", "post"),
+        ("/api/v1/auth/revoke", "post"),
         ("/api/v1/users", "post"),
+        ("/api/v1/users/{name}", "delete"),
+        ("/api/v1/users/{name}/role", "put"),
+        ("/api/v1/users/{name}/password", "put"),
+        ("/api/v1/users/{name}/disable", "post"),
+        ("/api/v1/users/{name}/enable", "post"),
     }
 
 

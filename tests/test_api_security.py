@@ -80,7 +80,8 @@ def test_bad_tokens_401(store):
     claims = jwt.decode(good, options={"verify_signature": False})
     secret, cfg = app.state.services.tokens.secret, app.state.services.settings.auth
 
-    expired = Tokens(cfg, secret, now=lambda: time.time() - cfg.token_ttl_s - 5).issue("auditor", "auditor")[0]
+    long_ago = Tokens(cfg, secret, VEHICLE_ID, now=lambda: time.time() - cfg.token_ttl_s - 5)
+    expired = long_ago.issue("auditor", "auditor", 0)[0]
     tampered = ".".join([header, b64({**claims, "role": "admin", "sub": "admin"}), signature])
     alg_none = ".".join([b64({"alg": "none", "typ": "JWT"}), b64(claims), ""])
     wrong_key = jwt.encode(

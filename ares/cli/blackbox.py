@@ -34,8 +34,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
 
     users = subparsers.add_parser(
         "users",
-        help="REST API users: add, list",
-        description="Users of the black box's REST API and their roles (auditor, operator, fleet, admin).",
+        help="REST API users: add, list, role, passwd, disable, enable, delete",
+        description="Users of the black box's REST API and their roles (auditor, operator, fleet, admin). "
+        "A change of role or password, a disabling or a deletion refuses every token the user holds "
+        "at its next request.",
     )
     users_sub = users.add_subparsers(dest="users", metavar="ACTION")
     add = users_sub.add_parser(
@@ -50,6 +52,25 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     lst = users_sub.add_parser("list", help="list users and their roles", description="List the API's users.")
     lst.add_argument("--store", metavar="URI", help="mongodb:// URI or the embedded store's file")
     lst.add_argument("--json", action="store_true", help="print one JSON object")
+    role = users_sub.add_parser("role", help="change a user's role", description="Change a user's role.")
+    role.add_argument("name", metavar="NAME")
+    role.add_argument("role", choices=["auditor", "operator", "fleet", "admin"])
+    role.add_argument("--store", metavar="URI", help="mongodb:// URI or the embedded store's file")
+    passwd = users_sub.add_parser(
+        "passwd",
+        help="change a user's password, read from stdin",
+        description="Change a user's password; read from stdin as `add` reads it.",
+    )
+    passwd.add_argument("name", metavar="NAME")
+    passwd.add_argument("--store", metavar="URI", help="mongodb:// URI or the embedded store's file")
+    for action, what in (
+        ("disable", "refuse a user's logins and tokens (kept, `enable` undoes it)"),
+        ("enable", "allow a disabled user again"),
+        ("delete", "remove a user"),
+    ):
+        sub = users_sub.add_parser(action, help=what, description=what[0].upper() + what[1:] + ".")
+        sub.add_argument("name", metavar="NAME")
+        sub.add_argument("--store", metavar="URI", help="mongodb:// URI or the embedded store's file")
     return {"api": cmd_api, "users": cmd_users}
 
 
@@ -118,44 +139,34 @@ def _read_new_password() -> str:
     return lines[0]
 
 
+USER_ACTIONS = ("add", "list", "role", "passwd", "disable", "enable", "delete")
+
+
 def cmd_users(args: argparse.Namespace) -> int:
-    if args.users not in ("add", "list"):
-        raise CliError("which action? try `ares users add NAME --role ROLE` or `ares users list`")
+    if args.users not in USER_ACTIONS:
+        raise CliError(
+            "which action? try `ares users add NAME --role ROLE`, `ares users list`, or "
+            "`ares users role|passwd|disable|enable|delete NAME`"
+        )
     _, settings, store_settings, uri = _api_context(args)
-    from blackbox.api.credentials import Passwords, UserError, add_user, check_new_user
+    from blackbox.api.credentials import UserError, check_new_user, check_password
     from blackbox.register.store.record_store import StoreUnavailable
 
-    if args.users == "add":
+    password = ""
+    if args.users in ("add", "passwd"):
         password = _read_new_password()
         try:  # before the store is opened: a bad name or password costs nothing
-            check_new_user(args.name, args.role, password, settings.auth.min_password_length)
+            if args.users == "add":
+                check_new_user(args.name, args.role, password, settings.auth.min_password_length)
+            else:
+                check_password(password, settings.auth.min_password_length)
         except UserError as exc:
             raise CliError(str(exc)) from None
     store = _open_store(uri, store_settings)
     try:
-        if args.users == "add":
-            user = add_user(
-                store,
-                Passwords(settings.auth.argon2),
-                args.name,
-                args.role,
-                password,
-                settings.auth.min_password_length,
-            )
-            print(f"added {user.name} ({user.role})")
-            return 0
-        users = store.list_users()
-        if args.json:
-            print(
-                json.dumps(
-                    {"users": [{"name": u.name, "role": u.role, "created": u.created.isoformat()} for u in users]}
-                )
-            )
-        else:
-            for u in users:
-                print(f"{u.name:<32}  {u.role:<8}  {u.created.isoformat()}")
-            if not users:
-                print("(no users: add one with `ares users add NAME --role admin`)", file=sys.stderr)
+        if args.users == "list":
+            return _list_users(store, args.json)
+        print(_change_user(store, args, settings.auth, password))
         return 0
     except UserError as exc:
         raise CliError(str(exc)) from None
@@ -163,3 +174,41 @@ def cmd_users(args: argparse.Namespace) -> int:
         raise CliError(f"black box store unavailable: {exc}") from None
     finally:
         store.close()
+
+
+def _change_user(store, args: argparse.Namespace, auth, password: str) -> str:
+    """Do `ares users add|role|passwd|disable|enable|delete` on the store; what to print."""
+    from blackbox.api import credentials
+
+    if args.users == "add":
+        passwords = credentials.Passwords(auth.argon2)
+        user = credentials.add_user(store, passwords, args.name, args.role, password, auth.min_password_length)
+        return f"added {user.name} ({user.role})"
+    if args.users == "role":
+        user = credentials.set_role(store, args.name, args.role)
+        return f"{user.name} is {user.role} now (the tokens it held are refused)"
+    if args.users == "passwd":
+        passwords = credentials.Passwords(auth.argon2)
+        credentials.set_password(store, passwords, args.name, password, auth.min_password_length)
+        return f"password of {args.name} changed (the tokens it held are refused)"
+    if args.users == "delete":
+        credentials.delete_user(store, args.name)
+        return f"deleted {args.name} (the tokens it held are refused)"
+    disabled = args.users == "disable"
+    credentials.set_disabled(store, args.name, disabled)
+    return f"{args.name} {'disabled (its tokens are refused)' if disabled else 'enabled'}"
+
+
+def _list_users(store, as_json: bool) -> int:
+    users = store.list_users()
+    if as_json:
+        rows = [
+            {"name": u.name, "role": u.role, "created": u.created.isoformat(), "disabled": u.disabled} for u in users
+        ]
+        print(json.dumps({"users": rows}))
+        return 0
+    for u in users:
+        print(f"{u.name:<32}  {u.role:<8}  {u.created.isoformat()}{'  disabled' if u.disabled else ''}")
+    if not users:
+        print("(no users: add one with `ares users add NAME --role admin`)", file=sys.stderr)
+    return 0

@@ -38,7 +38,8 @@ Endpoints, all under /api/v1 (roles: ROLES_* in dependencies.py):
 
     GET  /health                                   no auth: status and store reachability
     POST /auth/token                               OAuth2 password form -> bearer token (15 min)
-    POST /auth/renew                               valid token -> fresh token
+    POST /auth/renew                               valid token of an account that allows it -> fresh token
+    POST /auth/revoke                              the token refused from then on (a logout)
     GET  /vehicles                                 fleet, auditor, operator
     GET  /vehicles/{id}/latest                     fleet, auditor, operator
     GET  /vehicles/{id}/records?start&end&fields&page&page_size     auditor, operator
@@ -54,6 +55,8 @@ Endpoints, all under /api/v1 (roles: ROLES_* in dependencies.py):
     GET  /fleet                                    fleet, operator, auditor (the same, once)
     GET  /route                                    fleet, operator, auditor
     GET  /users, POST /users                       admin
+    PUT  /users/{name}/role|password               admin (every token the user holds is refused)
+    POST /users/{name}/disable|enable, DELETE /users/{name}     admin (not on their own account)
 
 The pages (/operator, /blackbox, /fleet) and their files are served outside /api/v1 (routes/pages.py).
 """

@@ -14,7 +14,7 @@ from fastapi.routing import APIRoute
 from starlette.concurrency import run_in_threadpool
 
 from ares.core.clock import Clock
-from blackbox.api.credentials import Passwords, Tokens, load_secret
+from blackbox.api.credentials import Accounts, Passwords, Tokens, load_secret
 from blackbox.api.dependencies import Services
 from blackbox.api.models import STORE_RETRY_AFTER_S
 from blackbox.api.repository import Repository
@@ -44,7 +44,7 @@ def create_app(
     sdir = state_dir(settings, store)
     services = Services(
         repository=Repository(store, settings.limits, vehicle_id, (clock or Clock.from_env()).now),
-        tokens=Tokens(settings.auth, load_secret(settings.auth, sdir)),
+        tokens=Tokens(settings.auth, load_secret(settings.auth, sdir), vehicle_id, Accounts(store)),
         passwords=Passwords(settings.auth.argon2),
         guard=Guard(settings.rate_limit, settings.blacklist, ban_file=sdir / BAN_FILE),
         settings=settings,

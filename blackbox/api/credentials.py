@@ -1,19 +1,27 @@
 """Who may use the REST API: users with Argon2 password hashes, and short-lived signed tokens.
 
-- Users live in the black box store (RecordStore.get_user/put_user/list_users); the password
-  hash is Argon2id (argon2-cffi) and is re-hashed on the next successful login whenever the
-  configured cost parameters change, so stored hashes follow the configuration.
+- Users live in the black box store (RecordStore.get_user/put_user/list_users/delete_user); the
+  password hash is Argon2id (argon2-cffi) and is re-hashed on the next successful login whenever
+  the configured cost parameters change, so stored hashes follow the configuration.
 - Tokens are JWTs signed with an HMAC key (HS256 by default). Decoding always names the one
   accepted algorithm, so `alg: none` and algorithm-confusion tokens are refused, and requires
-  exp/iat/sub/role/iss. A token lives `token_ttl_s` (15 min); a holder renews it before it
-  expires (ARES §3.8: "a time-limited token they must renew").
+  exp/iat/sub/role/iss/aud/jti/gen. A token lives `token_ttl_s` (15 min); a holder renews it
+  before it expires (ARES §3.8: "a time-limited token they must renew"). A token that claims a
+  longer life than that (exp - iat), or to be issued in the future, is refused even when its
+  signature is right: the key alone must not make a token that outlives the rules.
+- A token is bound to the black box that issued it: its audience (`aud`) is the API's vehicle id,
+  so a token of one shuttle's API is refused by another's, even with the same key.
+- Every request checks the account, not only the signature (`Accounts`): the user must still
+  exist, be enabled, have the token's role, and the token must be of the account's current
+  generation (a change of role or password, or a disabling, bumps it: every token issued before
+  is refused) and its id (`jti`) not revoked (POST /auth/revoke, a logout).
 - The key comes from the file `auth.secret_file` when set (a deployment's compose secret), else
   from the environment variable `auth.secret_env` when set, else from a file
   `api_secret` in the API's state directory, created on first use (0600) and kept, so tokens
   survive a restart of the API.
-- Verified tokens are cached for a few seconds (never past their expiry): a dashboard polling
-  `latest` many times a second must not pay an HMAC and a JSON parse each time. A user removed
-  or demoted keeps what their current token allows until it expires (at most token_ttl_s).
+- Verified signatures are cached for a few seconds (never past their expiry): a dashboard polling
+  `latest` many times a second must not pay an HMAC and a JSON parse each time. The account
+  check is never cached: an account disabled, removed or changed is refused at its next request.
 """
 
 from __future__ import annotations
@@ -24,7 +32,7 @@ import secrets
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import argon2
@@ -55,6 +63,9 @@ class AuthSettings(Params):
         900, "token lifetime; POST /auth/renew with a valid token gives a fresh one", unit="s", ge=30, le=86400
     )
     issuer: str = param("ares-api", "the tokens' issuer")
+    clock_skew_s: int = param(
+        30, "a token issued up to this far in the future (another clock) is accepted", unit="s", ge=0, le=300
+    )
     secret_file: str | None = param(
         None, "signing key from this file (a compose secret, >= 32 characters); null: secret_env, then the state dir"
     )
@@ -63,7 +74,8 @@ class AuthSettings(Params):
     )
     verify_cache_s: float = param(
         5.0,
-        "a verified token is trusted this long without re-checking its signature (never past exp)",
+        "a verified signature is trusted this long without re-checking it (never past exp); the account is "
+        "checked on every request",
         unit="s",
         ge=0.0,
         le=60.0,
@@ -78,7 +90,11 @@ class AuthError(Exception):
 
 
 class UserError(ValueError):
-    """A user cannot be created as asked (bad name, role or password, or already exists)."""
+    """A user cannot be created or changed as asked (bad name, role or password, or already exists)."""
+
+
+class NoSuchUser(UserError):
+    """The user named does not exist."""
 
 
 @dataclass(frozen=True)
@@ -86,6 +102,8 @@ class Claims:
     name: str
     role: str
     expires: float  # epoch seconds
+    token_id: str  # the token's jti: what POST /auth/revoke refuses from then on
+    generation: int  # the account's generation the token was issued under
 
 
 # ---- passwords ------------------------------------------------------------------------------
@@ -119,10 +137,10 @@ class Passwords:
             return None
         except argon2.exceptions.InvalidHashError:
             return None
-        if user is None:
+        if user is None or user.disabled:
             return None
         if self.hasher.check_needs_rehash(user.password_hash):
-            user = User(name=user.name, role=user.role, password_hash=self.hasher.hash(password), created=user.created)
+            user = replace(user, password_hash=self.hasher.hash(password))  # the same password: tokens stay
             store.put_user(user)
         return user
 
@@ -133,8 +151,16 @@ def check_new_user(name: str, role: str, password: str, min_length: int) -> None
             f"invalid user name {name!r}: 2-32 characters, lower-case letters, digits, '_', '.', '-', "
             "starting with a letter"
         )
+    check_role(role)
+    check_password(password, min_length)
+
+
+def check_role(role: str) -> None:
     if role not in ROLES:
         raise UserError(f"unknown role {role!r}; roles: {', '.join(ROLES)}")
+
+
+def check_password(password: str, min_length: int) -> None:
     if len(password) < min_length:
         raise UserError(f"password too short: at least {min_length} characters")
     if len(password) > MAX_PASSWORD_CHARS:
@@ -148,6 +174,42 @@ def add_user(store: RecordStore, passwords: Passwords, name: str, role: str, pas
     user = User(name=name, role=role, password_hash=passwords.hash(password), created=utc_now())
     store.put_user(user)
     return user
+
+
+def existing_user(store: RecordStore, name: str) -> User:
+    user = store.get_user(name) if USERNAME_RE.match(name) else None
+    if user is None:
+        raise NoSuchUser(f"no user {name!r}")
+    return user
+
+
+def change_user(store: RecordStore, name: str, **changes: object) -> User:
+    """The user with `changes` (role, password_hash, disabled), stored under a new generation:
+    every token issued before is refused from now on."""
+    user = existing_user(store, name)
+    user = replace(user, **changes, generation=user.generation + 1)  # type: ignore[arg-type]
+    store.put_user(user)
+    return user
+
+
+def set_role(store: RecordStore, name: str, role: str) -> User:
+    check_role(role)
+    user = existing_user(store, name)
+    return user if user.role == role else change_user(store, name, role=role)  # the same role: no change
+
+
+def set_password(store: RecordStore, passwords: Passwords, name: str, password: str, min_length: int) -> User:
+    check_password(password, min_length)
+    return change_user(store, name, password_hash=passwords.hash(password))
+
+
+def set_disabled(store: RecordStore, name: str, disabled: bool) -> User:
+    return change_user(store, name, disabled=disabled)
+
+
+def delete_user(store: RecordStore, name: str) -> None:
+    if not (USERNAME_RE.match(name) and store.delete_user(name)):
+        raise NoSuchUser(f"no user {name!r}")
 
 
 # ---- tokens ---------------------------------------------------------------------------------
@@ -182,20 +244,51 @@ def load_secret(cfg: AuthSettings, state_dir: Path) -> bytes:
     return key
 
 
+class Accounts:
+    """The check of every request past its token's signature: the account as it is now in the store."""
+
+    def __init__(self, store: RecordStore):
+        self.store = store
+
+    def check(self, claims: Claims) -> None:
+        """Raise AuthError unless the token's account still allows it."""
+        user = self.store.get_user(claims.name)
+        if user is None or user.disabled:
+            raise AuthError("this account is disabled or removed")
+        if user.role != claims.role or user.generation != claims.generation:
+            raise AuthError("the account changed since this token was issued: log in again")
+        if self.store.token_revoked(claims.token_id):
+            raise AuthError("token revoked: log in again")
+
+
 class Tokens:
-    def __init__(self, cfg: AuthSettings, secret: bytes, now: Callable[[], float] = time.time):
+    """Tokens of one black box (`audience`: its vehicle id). `accounts`: the account check each
+    verification ends with (None: the signature and claims only, for tools without a store)."""
+
+    def __init__(
+        self,
+        cfg: AuthSettings,
+        secret: bytes,
+        audience: str,
+        accounts: Accounts | None = None,
+        now: Callable[[], float] = time.time,
+    ):
         self.cfg = cfg
         self.secret = secret
+        self.audience = audience
+        self.accounts = accounts
         self.now = now
         self._cache: dict[str, tuple[Claims, float]] = {}
 
-    def issue(self, name: str, role: str) -> tuple[str, int]:
-        """(token, lifetime in seconds)."""
+    def issue(self, name: str, role: str, generation: int) -> tuple[str, int]:
+        """(token, lifetime in seconds) for the account `name` as it is now (its role and generation)."""
         now = int(self.now())
         payload = {
             "sub": name,
             "role": role,
+            "gen": generation,
             "iss": self.cfg.issuer,
+            "aud": self.audience,
             "iat": now,
             "exp": now + self.cfg.token_ttl_s,
             "jti": uuid.uuid4().hex,
@@ -203,6 +296,13 @@ class Tokens:
         return jwt.encode(payload, self.secret, algorithm=self.cfg.algorithm), self.cfg.token_ttl_s
 
     def verify(self, token: str) -> Claims:
+        """The token's claims when its signature, claims and account allow it; else AuthError."""
+        claims = self._signed_claims(token)
+        if self.accounts is not None:
+            self.accounts.check(claims)
+        return claims
+
+    def _signed_claims(self, token: str) -> Claims:
         now = self.now()
         hit = self._cache.get(token)
         if hit is not None and hit[1] > now:
@@ -215,16 +315,29 @@ class Tokens:
                 self.secret,
                 algorithms=[self.cfg.algorithm],
                 issuer=self.cfg.issuer,
-                options={"require": ["exp", "iat", "sub", "iss"]},
+                audience=self.audience,
+                options={"require": ["exp", "iat", "sub", "iss", "aud", "jti"]},
             )
         except jwt.ExpiredSignatureError:
             raise AuthError("token expired: get a new one at /api/v1/auth/token") from None
+        except jwt.InvalidAudienceError:
+            raise AuthError("this token is for another vehicle's black box") from None
         except jwt.InvalidTokenError:
             raise AuthError("invalid token") from None
-        role, name, exp = payload.get("role"), payload.get("sub"), payload["exp"]
-        if role not in ROLES or not isinstance(name, str):
+        role, name, exp, iat = payload.get("role"), payload.get("sub"), payload["exp"], payload["iat"]
+        token_id, generation = payload.get("jti"), payload.get("gen")
+        if (
+            role not in ROLES
+            or not isinstance(name, str)
+            or not isinstance(token_id, str)
+            or not isinstance(generation, int)
+            or isinstance(generation, bool)
+        ):
             raise AuthError("invalid token")
-        claims = Claims(name=name, role=role, expires=float(exp))
+        if exp - iat > self.cfg.token_ttl_s or iat > now + self.cfg.clock_skew_s:
+            # signed with the key, yet not a token this API issues: longer-lived than the rules
+            raise AuthError(f"invalid token: a token lives at most {self.cfg.token_ttl_s} s")
+        claims = Claims(name=name, role=role, expires=float(exp), token_id=token_id, generation=generation)
         if self.cfg.verify_cache_s > 0 and self.cfg.verify_cache_max > 0:
             if len(self._cache) >= self.cfg.verify_cache_max:
                 self._cache.clear()  # crude but bounded; refills within seconds

@@ -55,9 +55,11 @@ bearer = OAuth2PasswordBearer(tokenUrl=TOKEN_PATH, auto_error=False)
 
 
 def allow(tokens: Tokens, *roles: str) -> Callable:
-    """A dependency: the caller's claims when its bearer token is valid and its role one of `roles`."""
+    """A dependency: the caller's claims when its bearer token is valid, its account still allows
+    it (Tokens.verify) and its role is one of `roles`. A plain function: FastAPI runs it in its
+    thread pool, so the account's look-up in the store never holds up the event loop."""
 
-    async def check(token: Annotated[str | None, Security(bearer)]) -> Claims:
+    def check(token: Annotated[str | None, Security(bearer)]) -> Claims:
         if not token:
             raise HTTPException(
                 401,

@@ -144,6 +144,35 @@ class UserInfo(BaseModel):
     name: str
     role: str
     created: datetime
+    disabled: bool = Field(description="refused at login and on every request (POST /users/{name}/enable undoes it)")
+
+
+class RoleChange(BaseModel):
+    """A user's new role; every token the user holds is refused from then on."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"role": "auditor"}]})
+
+    role: Literal[ROLES]  # type: ignore[valid-type]
+
+
+class PasswordChange(BaseModel):
+    """A user's new password; every token the user holds is refused from then on.
+    password_change_model gives it the configured minimum length."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    password: str = Field(min_length=1, max_length=MAX_PASSWORD_CHARS)
+
+
+def password_change_model(min_password_length: int) -> type[PasswordChange]:
+    example = {"password": "another passphrase".ljust(min_password_length, ".")}
+    return create_model(
+        "PasswordChange",
+        __base__=PasswordChange,
+        __doc__=PasswordChange.__doc__,
+        __config__=ConfigDict(extra="forbid", json_schema_extra={"examples": [example]}),
+        password=(str, Field(min_length=min_password_length, max_length=MAX_PASSWORD_CHARS)),
+    )
 
 
 class NewUser(BaseModel):
@@ -173,11 +202,13 @@ def new_user_model(min_password_length: int) -> type[NewUser]:
 ERROR_DESCRIPTIONS = {
     400: "Malformed body: not parseable (not JSON where JSON is expected), too many form fields, or a form "
     "field over 4 kB",
-    401: "Not authenticated: no token, or an expired, malformed or forged one (send Authorization: Bearer <token>)",
+    401: "Not authenticated: no token, or an expired, malformed, forged or revoked one, one of another vehicle, or "
+    "one whose account was disabled, removed or changed since (send Authorization: Bearer <token>)",
     403: "Forbidden: the token's role may not do this, or the client address is blacklisted "
     "after an abnormal flow of requests (then with Retry-After)",
-    404: "Unknown vehicle",
-    409: "Conflict: the user already exists, or the vehicle refused the command in its present state",
+    404: "Unknown vehicle, or (the users' routes) unknown user",
+    409: "Conflict: the user already exists, an admin would disable, delete or demote their own account, or the "
+    "vehicle refused the command in its present state",
     413: "Request body too large (any request's: over api.limits.max_body_bytes)",
     422: "Invalid parameters or body: a value outside its documented type, format, range, pattern or "
     "enumeration (the offending ones in `errors`)",

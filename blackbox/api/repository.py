@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 from fastapi import HTTPException
 
 from ares.core.messages import EventLevel, StoredEvent, VehicleRecord
-from blackbox.api.credentials import Passwords, UserError, add_user
+from blackbox.api.credentials import Claims, NoSuchUser, Passwords, UserError, add_user, delete_user
 from blackbox.api.models import json_bytes
 from blackbox.api.security import blacklist_event
 from blackbox.api.settings import LimitSettings
@@ -258,6 +258,25 @@ class Repository:
             return add_user(self.store, passwords, name, role, password, min_password_length)
         except UserError as exc:
             raise HTTPException(422, str(exc)) from None
+
+    def revoke_token(self, claims: Claims) -> None:
+        self.store.revoke_token(claims.token_id, datetime.fromtimestamp(claims.expires, UTC))
+
+    def change_user(self, change: Callable[[RecordStore], User]) -> User:
+        """`change`, a credentials function over the store (set_role, set_disabled, ...): an
+        unknown user is a 404, a refused value a 422."""
+        try:
+            return change(self.store)
+        except NoSuchUser as exc:
+            raise HTTPException(404, str(exc)) from None
+        except UserError as exc:
+            raise HTTPException(422, str(exc)) from None
+
+    def delete_user(self, name: str) -> None:
+        try:
+            delete_user(self.store, name)
+        except NoSuchUser as exc:
+            raise HTTPException(404, str(exc)) from None
 
     def record_blacklisting(self, ip: str, reason: str, duration_s: float) -> None:
         """Log and store the event that tells those responsible; a store that is down loses only the event."""
