@@ -46,7 +46,7 @@ from ares.core.manifest import ReleaseRefused, ReleaseSettings, check_release
 from ares.core.route import Route, RouteError, load_route, read_origin
 from blackbox.api import ApiSettings
 from blackbox.api.api_node import api_url, pages_url
-from blackbox.api.first_logins import ensure_first_logins
+from blackbox.api.first_logins import FIRST_USERS, ensure_first_logins
 from blackbox.api.settings import state_dir
 from blackbox.register.recorder import open_configured_store, store_uri
 from blackbox.register.store.record_store import StoreSettings
@@ -329,8 +329,8 @@ def first_logins(cfg: dict) -> str:
         store.close()
     if made is None:
         return "  logins    the black box's users (`ares users list`; `ares users add NAME --role operator`)\n"
-    users = "".join(f"            {line}\n" for line in made.read_text().splitlines() if not line.startswith("#"))
-    return f"  logins    first users made (also in {made}):\n{users}"
+    # where the passwords are, never the passwords: a banner ends up in logs
+    return f"  logins    first users made ({', '.join(FIRST_USERS)}): their passwords are in {made} (owner only)\n"
 
 
 def _interactive(running: RunningStack) -> None:
