@@ -634,6 +634,9 @@ class VehicleRecord(BaseModel):
     mission_state: str | None = None  # the mission's state, or the POI action running
     corrections: CorrectionsRecord | None = None  # the RTK corrections' link and age, and the fix type
     events: int = 0  # events recorded during this second (kept in full apart)
+    # the recording run (one per recorder start): with the time, the record's key in the store, so
+    # that a clock set back between two runs adds the second run's record beside the first's
+    run: str = ""
 
 
 class StoredEvent(BaseModel):
@@ -655,6 +658,21 @@ class BlackboxRecord(Msg):
     """A second of the black box as the recorder built it, published for the fleet's store."""
 
     record: VehicleRecord
+
+
+class BlackboxStatus(Msg):
+    """The black box's own health, as its writer counts it (blackbox/register/recorder.py)."""
+
+    store_up: bool  # the last write reached the store and nothing waits before it
+    written: int = Field(ge=0)  # records the store confirmed holding
+    events_written: int = Field(ge=0)
+    dropped: int = Field(ge=0)  # records lost: neither store nor spool took them and memory was full
+    events_dropped: int = Field(ge=0)
+    lost: int = Field(ge=0)  # records and events the writer's queue had no room for
+    store_faults: int = Field(ge=0)  # failed store calls and spool writes
+    spooled: int = Field(ge=0)  # waiting on disk
+    in_memory: int = Field(ge=0)  # waiting in memory (the spool failed too)
+    last_error: str = ""
 
 
 # ---- services -----------------------------------------------------------------------------

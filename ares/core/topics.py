@@ -108,6 +108,11 @@ TOPIC_TABLE: list[Topic] = [
     Topic("body/command", m.BodyCommand, "doors, ramp and media: the mission manager's demand to the body"),
     Topic("body/state", m.BodyState, "doors and ramp end-position sensors, the entrance, passengers"),
     Topic("blackbox/record", m.BlackboxRecord, "each second of the black box as recorded, for the fleet's store"),
+    Topic(
+        "blackbox/status",
+        m.BlackboxStatus,
+        "the black box's own health each second: store up, records written, dropped, faults, what waits",
+    ),
     Topic("awareness/state", m.AwarenessState, "self-awareness level (0, 1 critical, 2 low) and its causes"),
     Topic("control/status", m.ControllerStatus, "the controller in charge, why, and the errors along the route"),
     Topic("dbw/actuators", m.ActuatorCommand, "efforts to the steering motor and traction/brake"),

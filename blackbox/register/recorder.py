@@ -21,9 +21,16 @@ Events are stored as they arrive, with time = clock.utc(event.t).
 Never blocking. The node's loop (blackbox.register.recorder_node) only builds documents and hands them to a
 writer thread through a bounded queue; the writer batches inserts. When an insert fails (StoreUnavailable or
 any other error), the batch goes to a disk spool (blackbox/register/spool.py) and the writer retries with
-a growing backoff; once the store answers, the spool is flushed in order and removed. Record
-inserts are idempotent per (vehicle, second), so a batch retried after an uncertain failure
-never duplicates a record (events are re-sent only when their own insert failed). On SIGTERM
+a growing backoff; once the store answers, the spool is flushed in order and removed. When the
+spool fails too (a full disk), the newest `memory_max_entries` items wait in memory and the
+older are dropped and counted; every such failure is a `blackbox_fault` event, the store counts
+as down, and `blackbox/status` (each second) carries the writer's counts: written, dropped,
+faults, what waits where. One writer per spool: a second recorder on the same store and vehicle
+is refused at start (SpoolBusy). Record inserts are idempotent per (vehicle, second, run): each
+recorder start has its own run id, so a batch retried after an uncertain failure never
+duplicates a record, and a clock set back between two runs never drops the second run's records
+(the store keeps both; its queries give the first stored). Events are re-sent only when their
+own insert failed. On SIGTERM
 the writer gets shutdown_flush_s to write what is queued; the rest is spooled. A spool left
 over from an earlier run is flushed first. Health timing (backoff) is in wall seconds: it
 judges the store and the computer, not the simulated vehicle.
@@ -42,6 +49,7 @@ record times of a simulated run.
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import queue
@@ -56,6 +64,7 @@ from ares.core.config import Params, param
 from ares.core.geodesy import LocalFrame
 from ares.core.messages import (
     AwarenessState,
+    BlackboxStatus,
     CarState,
     ControllerStatus,
     CorrectionsRecord,
@@ -72,11 +81,14 @@ from ares.core.messages import (
     SupervisorState,
     VehicleRecord,
 )
-from blackbox.register.spool import Item, Spool, split
+from blackbox.register.spool import Item, Spool, SpoolLock, split
 from blackbox.register.store.open_store import open_store
 from blackbox.register.store.record_store import RecordStore, StoreSettings, StoreUnavailable, is_mongo
 
 log = logging.getLogger("blackbox")
+
+DROPPED_REPORT_EVERY_S = 10.0  # wall; the running count makes the notices in between redundant
+FAULT_REPORT_EVERY_S = 10.0  # wall; a failure that lasts is told again this often, not at each retry
 
 SENSOR_TOPICS = {"gnss": "sensors/gnss", "imu": "sensors/imu", "can": "sensors/can"}
 
@@ -100,6 +112,12 @@ class StoreWriterParams(Params):
     )
     spool_max_entries: int = param(
         1_000_000, "~8 days of records (691,200) plus events; beyond it the oldest go first (FAULT event)", ge=1
+    )
+    memory_max_entries: int = param(
+        7200,
+        "neither the store nor the spool can take items (a full disk): the newest this many wait in memory, "
+        "the older are dropped and counted (blackbox_fault)",
+        ge=1,
     )
     queue_size: int = param(10000, "loop -> writer thread; fills only if a store call hangs for hours", ge=1)
     batch_max: int = param(500, "items per insert call", ge=1)
@@ -206,6 +224,7 @@ def build_record(
     frame: LocalFrame,
     sensor_min_hz: Mapping[str, float],
     events: int,
+    run: str = "",
 ) -> VehicleRecord:
     return VehicleRecord(
         vehicle_id=vehicle_id,
@@ -229,6 +248,7 @@ def build_record(
         mission_state=mission_state(snap.mission),
         corrections=corrections_of(snap.corrections, snap.fix),
         events=events,
+        run=run,
     )
 
 
@@ -280,6 +300,7 @@ def store_writer(params: StoreWriterParams, settings: StoreSettings, spool_name:
     return StoreWriter(
         lambda: open_configured_store(settings),
         Spool(spool_path(params, settings, spool_name), params.spool_max_entries),
+        memory_max_entries=params.memory_max_entries,
         queue_size=params.queue_size,
         batch_max=params.batch_max,
         batch_wait_s=params.batch_wait_s,
@@ -294,6 +315,13 @@ class StoreWriter:
 
     The store is opened (and used) only on the writer's thread. Health timing is in wall
     seconds (time.monotonic): it judges the store and the computer, not the simulated vehicle.
+
+    Supervised: no failure ends the thread quietly. When the spool cannot take a batch either (a
+    full disk holds the store and the spool alike), the items wait in memory, the newest
+    `memory_max_entries` of them, and what falls out is counted (`dropped`); each such failure
+    is a `blackbox_fault` event, and the store counts as down (`blackbox_store_down`) until the
+    backlog reached it. What is waiting (spool, memory) is retried in order, oldest first.
+    `status()` is the figure the node publishes: written, dropped, faults, what waits where.
     """
 
     def __init__(
@@ -301,6 +329,7 @@ class StoreWriter:
         open_store_fn: Callable[[], RecordStore],
         spool: Spool,
         *,
+        memory_max_entries: int = 7200,
         queue_size: int = 10000,
         batch_max: int = 500,
         batch_wait_s: float = 0.5,
@@ -314,8 +343,16 @@ class StoreWriter:
         self.retry_min_s, self.retry_max_s = float(retry_min_s), float(retry_max_s)
         self.notices: queue.SimpleQueue[Notice] = queue.SimpleQueue()
         self.store: RecordStore | None = None
-        self.records_written = 0
+        self.lock = SpoolLock(spool.path)
+        self.records_written = 0  # records the store confirmed holding (new, or already there from a retry)
         self.events_written = 0
+        self.records_dropped = 0  # records and events lost: memory full while store and spool failed
+        self.events_dropped = 0
+        self.store_faults = 0  # failed store calls, failed spool appends, writer errors
+        self._held: collections.deque[Item] = collections.deque()  # in order, after the spool's entries
+        self.memory_max_entries = int(memory_max_entries)
+        self._dropped_reported_at = -math.inf
+        self._fault_reported_at = -math.inf
         self._queue: queue.Queue[Item] = queue.Queue(maxsize=int(queue_size))
         self._down_since: float | None = None  # monotonic time of the failure; None: healthy
         self._last_error = ""
@@ -340,11 +377,31 @@ class StoreWriter:
     def stopped_summary(self, lost: int) -> str:
         return (
             f"stopped: {self.records_written} records and {self.events_written} events written, "
-            f"{len(self.spool)} spooled, {lost} lost"
+            f"{len(self.spool)} spooled, {len(self._held)} held in memory and not kept, "
+            f"{self.records_dropped + self.events_dropped} dropped, {lost} lost"
         )
 
     def start(self) -> None:
+        """Claim the spool (SpoolBusy if another writer has it) and start the thread."""
+        self.lock.acquire()
         self._thread.start()
+
+    def status(self, t: float = 0.0, lost: int = 0) -> BlackboxStatus:
+        """What the writer has done and what waits, at stack time t; `lost`: what the node's
+        submissions found no room for in the queue (the node counts it)."""
+        return BlackboxStatus(
+            t=t,
+            store_up=self.store_up,
+            written=self.records_written,
+            events_written=self.events_written,
+            dropped=self.records_dropped,
+            events_dropped=self.events_dropped,
+            lost=lost,
+            store_faults=self.store_faults,
+            spooled=len(self.spool),
+            in_memory=len(self._held),
+            last_error=self._last_error,
+        )
 
     def submit(self, item: Item) -> bool:
         """Queue one record or event; False if the queue is full (never waits)."""
@@ -368,13 +425,19 @@ class StoreWriter:
             # duplicate, should the call still succeed, is absorbed by the idempotent insert)
             left = list(self._inflight) + self._take(0.0)
             log.warning("store call still running at shutdown: spooling %d items", len(left))
-            self.spool.append(left)
+            self._park(left)
         elif self.store is not None:
             try:
                 self.store.close()
             except Exception:
                 log.exception("closing the store")
-        self.spool.close()
+        if self._held:  # memory does not outlive the process: one last try to keep it on disk
+            self._park_held()
+        try:
+            self.spool.close()
+        except Exception as exc:
+            self._fault("closing the spool", exc)
+        self.lock.release()
 
     # ---- the thread ----------------------------------------------------------------------
     def _run(self) -> None:
@@ -387,9 +450,10 @@ class StoreWriter:
             self._inflight = items
             try:
                 self._write(items, stopping)
-            except Exception:  # a bug here must not end the black box: keep the items
-                log.exception("writer error; spooling %d items", len(items))
-                self.spool.append(items)
+            except Exception as exc:  # a bug here must not end the black box: keep the items
+                log.exception("writer error; keeping %d items", len(items))
+                self._went_down(exc)
+                self._park(items)
             self._inflight = []
 
     def _take(self, wait_s: float) -> list[Item]:
@@ -406,28 +470,30 @@ class StoreWriter:
         return items
 
     def _write(self, items: list[Item], stopping: bool) -> None:
-        if self.spool.pending or not self.store_up:
-            # keep the order: new items queue up behind what already waits on disk
-            if items:
-                self._to_spool(items)
+        if self.spool.pending or self._held or not self.store_up:
+            # keep the order: new items queue up behind what already waits
+            self._park(items)
             if not stopping and time.monotonic() >= self._retry_at:
-                self._flush_spool()
+                self._flush_backlog()
             return
         if not items:
             return
         try:
             self._insert(items)
         except Exception as exc:
-            self._to_spool(items)
             self._went_down(exc)
+            self._park(items)
 
     def _insert(self, items: Sequence[Item]) -> None:
         records, events = split(items)
+        store = self.store
+        if store is None:
+            raise StoreUnavailable("the store is not open")
         try:
             if records:
-                self.store.insert_records(records)
+                store.insert_records(records)
             if events:
-                self.store.insert_events(events)
+                store.insert_events(events)
         except (ValueError, TypeError) as exc:
             if isinstance(exc, StoreUnavailable):
                 raise
@@ -459,8 +525,19 @@ class StoreWriter:
                     error=repr(item_exc)[:200],
                 )
 
-    def _to_spool(self, items: list[Item]) -> None:
-        dropped = self.spool.append(items)
+    def _park(self, items: list[Item]) -> None:
+        """Keep items that cannot go to the store now: on disk, else in memory (in order)."""
+        if not items:
+            return
+        if self._held:  # behind what already waits in memory
+            self._hold(items)
+            return
+        try:
+            dropped = self.spool.append(items)
+        except Exception as exc:
+            self._fault(f"spooling {len(items)} items to {self.spool.path}", exc)
+            self._hold(items)
+            return
         if dropped:
             self._notify(
                 "blackbox_spool_overflow",
@@ -469,6 +546,64 @@ class StoreWriter:
                 dropped=dropped,
                 dropped_total=self.spool.dropped_total,
             )
+
+    def _hold(self, items: list[Item]) -> None:
+        self._held.extend(items)
+        over = len(self._held) - self.memory_max_entries
+        if over <= 0:
+            return
+        records = 0
+        for _ in range(over):  # the oldest go: the newest say most about what happened last
+            records += isinstance(self._held.popleft(), VehicleRecord)
+        self.records_dropped += records
+        self.events_dropped += over - records
+        now = time.monotonic()
+        if now - self._dropped_reported_at >= DROPPED_REPORT_EVERY_S:
+            self._dropped_reported_at = now
+            self._notify(
+                "blackbox_fault",
+                f"neither the store nor the spool takes items: {self.records_dropped} records and "
+                f"{self.events_dropped} events dropped so far (the newest {self.memory_max_entries} kept in memory)",
+                EventLevel.FAULT,
+                dropped=self.records_dropped,
+                events_dropped=self.events_dropped,
+                in_memory=len(self._held),
+            )
+
+    def _park_held(self) -> None:
+        """Move what waits in memory to the spool, if the spool takes it now."""
+        held = list(self._held)
+        try:
+            dropped = self.spool.append(held)
+        except Exception as exc:
+            self._fault(f"spooling {len(held)} items held in memory", exc)
+            return
+        self._held.clear()
+        if dropped:
+            self._notify(
+                "blackbox_spool_overflow",
+                f"black-box spool full ({self.spool.max_entries} entries): dropped the {dropped} oldest",
+                EventLevel.FAULT,
+                dropped=dropped,
+                dropped_total=self.spool.dropped_total,
+            )
+
+    def _fault(self, what: str, exc: Exception) -> None:
+        """A failure of the black box's own keeping (not the store's answer): a FAULT event, and the
+        store counts as down so that the backlog is retried and its return is told."""
+        self._went_down(exc)
+        now = time.monotonic()
+        if now - self._fault_reported_at < FAULT_REPORT_EVERY_S:  # the same failure, retried
+            return
+        self._fault_reported_at = now
+        log.error("black box: %s failed: %r", what, exc)
+        self._notify(
+            "blackbox_fault",
+            f"black box: {what} failed ({type(exc).__name__}: {exc})"[:300],
+            EventLevel.FAULT,
+            error=f"{type(exc).__name__}: {exc}"[:300],
+            store_faults=self.store_faults,
+        )
 
     def _ensure_store(self) -> bool:
         if self.store is None:
@@ -479,25 +614,41 @@ class StoreWriter:
                 return False
         return True
 
-    def _flush_spool(self) -> None:
+    def _flush_backlog(self) -> None:
+        """The spool's entries, then what waits in memory, to the store, oldest first."""
+        if self._held:
+            self._park_held()
         if not self._ensure_store():
             return
         flushed = 0
         while self.spool.pending:
             if self._stopping.is_set() and time.monotonic() >= self._deadline:
                 return
-            upto, chunk = self.spool.peek(self.batch_max)
+            try:
+                upto, chunk = self.spool.peek(self.batch_max)
+                self._insert(chunk)
+                self.spool.ack(upto)
+            except Exception as exc:
+                self._went_down(exc)
+                return
+            flushed += len(chunk)
+        while self._held:
+            if self._stopping.is_set() and time.monotonic() >= self._deadline:
+                return
+            chunk = [self._held[i] for i in range(min(self.batch_max, len(self._held)))]
             try:
                 self._insert(chunk)
             except Exception as exc:
                 self._went_down(exc)
                 return
-            self.spool.ack(upto)
+            for _ in chunk:
+                self._held.popleft()
             flushed += len(chunk)
         self._came_up(flushed)
 
     def _went_down(self, exc: Exception) -> None:
         now = time.monotonic()
+        self.store_faults += 1
         self._last_error = f"{type(exc).__name__}: {exc}"[:300]
         if self._down_since is None:
             self._down_since = now
@@ -530,6 +681,7 @@ class StoreWriter:
                 flushed=flushed,
             )
         self._down_since = None
+        self._fault_reported_at = -math.inf  # a new failure is told at once
         self._retry_delay = self.retry_min_s
         self._retry_at = 0.0
 

@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import collections
 import math
+import uuid
 
 from ares.core import topics
 from ares.core.geodesy import LocalFrame
-from ares.core.messages import BlackboxRecord, EventLevel, RecordBatch, RecordRange, VehicleRecord
+from ares.core.messages import BlackboxRecord, BlackboxStatus, EventLevel, RecordBatch, RecordRange, VehicleRecord
 from ares.core.node import Input, InputGroup, Output, service
 from blackbox.register.blackbox_node import BlackboxNode
 from blackbox.register.recorder import (
@@ -50,6 +51,7 @@ class Recorder(BlackboxNode):
     sensors = InputGroup(SENSOR_TOPICS, doc="message rates -> sensor health")
     events = Input("events", queue="event_queue", doc="recorded as they arrive")
     published = Output("blackbox/record", rate=1.0, doc="each record as it is written, for the fleet's store")
+    health = Output("blackbox/status", rate=1.0, doc="the writer's counts each second: no failure goes unseen")
 
     def setup(self) -> None:
         p = self.params
@@ -58,6 +60,8 @@ class Recorder(BlackboxNode):
         self.frame = LocalFrame(self.core.origin_utm)
         self.sensor_min_hz = p.sensor_min_hz.model_dump()
         self.start_writer(self.store_settings, self.vehicle_id)
+        # this start's records are told apart from another's of the same second (a clock set back)
+        self.run_id = uuid.uuid4().hex[:16]
 
         # the first second crossed from now on; a restart in the same run picks up from here
         self.next_k = math.floor(self.clock.now()) + 1
@@ -85,6 +89,7 @@ class Recorder(BlackboxNode):
             # the record of second k counts the events of [k - 1, k); one that comes after its
             # record was written goes to the next one
             self.event_counts[max(math.floor(ev.t) + 1, self.next_k)] += 1
+        crossed = False
         while self.next_k <= now:
             k = self.next_k
             record = build_record(
@@ -95,13 +100,20 @@ class Recorder(BlackboxNode):
                 self.frame,
                 self.sensor_min_hz,
                 self.event_counts.pop(k, 0),
+                run=self.run_id,
             )
             self.submit(record)
             if self.params.fleet_memory_s > 0:
                 self.memory.append(record)
             self.published.put(BlackboxRecord(t=float(k), record=record))
             self.next_k = k + 1
+            crossed = True
         self.publish_notices()
+        if crossed:
+            self.health.put(self.status(now))
+
+    def status(self, now: float) -> BlackboxStatus:
+        return self.writer.status(now, self.lost)
 
     @service("blackbox/records")
     def _records(self, request: RecordRange) -> RecordBatch:

@@ -14,14 +14,21 @@ line would need repair), and dropping the oldest rows is one DELETE instead of a
 It is bounded (`max_entries`, default about 8 days of records plus their events): beyond the
 bound the OLDEST rows go first, and append() reports how many were dropped so the recorder can
 raise a FAULT event. Re-sending a row that already reached the store is harmless: the store's
-inserts are idempotent per (vehicle, second).
+inserts are idempotent per (vehicle, second, run).
 
 Thread-safe: the writer thread fills and flushes it; at shutdown the node's own thread may
 spool what the writer could not finish.
+
+One writer per spool (SpoolLock): a spool is one vehicle's queue towards one store, and a
+second writer on it would remove the file under the first (it deletes the spool once it has
+flushed it). The lock is an flock on `<spool>.lock`, released by the kernel when the process
+ends however it ends, so a recorder killed mid-run never blocks the next start.
 """
 
 from __future__ import annotations
 
+import fcntl
+import os
 import sqlite3
 import threading
 from collections.abc import Iterable, Sequence
@@ -60,11 +67,15 @@ class Spool:
         if self._db is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             db = sqlite3.connect(self.path, timeout=5.0, isolation_level=None, check_same_thread=False)
-            db.execute(
-                "CREATE TABLE IF NOT EXISTS spool ("
-                "seq INTEGER PRIMARY KEY AUTOINCREMENT, kind TEXT NOT NULL, doc TEXT NOT NULL)"
-            )
-            self._count = db.execute("SELECT COUNT(*) FROM spool").fetchone()[0]
+            try:
+                db.execute(
+                    "CREATE TABLE IF NOT EXISTS spool ("
+                    "seq INTEGER PRIMARY KEY AUTOINCREMENT, kind TEXT NOT NULL, doc TEXT NOT NULL)"
+                )
+                self._count = db.execute("SELECT COUNT(*) FROM spool").fetchone()[0]
+            except BaseException:  # a full disk: the next append tries again from scratch
+                db.close()
+                raise
             self._db = db
         return self._db
 
@@ -136,6 +147,38 @@ class Spool:
                 else:
                     self._db.close()
                     self._db = None
+
+
+class SpoolBusy(RuntimeError):
+    """Another writer (another recorder process, most likely) already holds this spool."""
+
+
+class SpoolLock:
+    """The exclusive claim of one writer on a spool file (see the module's docstring)."""
+
+    def __init__(self, spool: str | Path):
+        self.path = Path(str(spool) + ".lock")
+        self._fd: int | None = None
+
+    def acquire(self) -> None:
+        """Take the lock without waiting; SpoolBusy if another process (or writer) has it."""
+        if self._fd is not None:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise SpoolBusy(f"{self.path}: another black-box writer is using this spool and store") from None
+        self._fd = fd
+
+    def release(self) -> None:
+        # the file stays: removing it would let a third writer lock a new file while a second
+        # still holds the old one
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
 
 
 def split(items: Sequence[Item]) -> tuple[list[VehicleRecord], list[StoredEvent]]:

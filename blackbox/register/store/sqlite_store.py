@@ -1,10 +1,17 @@
 """The embedded black-box store: one SQLite file (stdlib sqlite3), the default without MongoDB.
 
 Layout:
-- records (vehicle_id, ts, doc): ts is the record's whole second (unix s), doc the record's
-  JSON. PRIMARY KEY (vehicle_id, ts) WITHOUT ROWID keeps a vehicle's records clustered in
-  time order, so an hour is one contiguous range read, and `INSERT OR IGNORE` makes a retried
-  batch a no-op for the seconds already stored;
+- records (vehicle_id, ts, dup, run, doc): ts is the record's whole second (unix s), doc the
+  record's JSON (without its run), run the recording run it came from (VehicleRecord.run).
+  PRIMARY KEY (vehicle_id, ts, dup) WITHOUT ROWID keeps a vehicle's records clustered in time
+  order, so an hour is one contiguous range read. A record whose (vehicle, second, run) is
+  already stored is skipped (a retried batch is a no-op); one of another run for a second
+  already held (a clock set back between two runs) is kept beside it with the next `dup`, so
+  no record counted as written is ever dropped or overwritten. The queries (latest, records,
+  records_json, count_records: the API's) read `dup = 0` only: one record per second as
+  before, the first one stored for that second; a record stored for a second once never
+  changes to another. Files from before `dup`/`run` are rebuilt when first opened (each of
+  their records becomes `dup = 0` of run '');
 - events (vehicle_id, ts, kind, doc), indexed on (vehicle_id, ts): several events may share a
   second, but the same event twice (a retried batch) is stored once (unique on all columns;
   files from before that rule are de-duplicated when first opened);
@@ -58,8 +65,10 @@ SCHEMA = """
 CREATE TABLE IF NOT EXISTS records (
     vehicle_id TEXT NOT NULL,
     ts INTEGER NOT NULL,
+    dup INTEGER NOT NULL DEFAULT 0,
+    run TEXT NOT NULL DEFAULT '',
     doc TEXT NOT NULL,
-    PRIMARY KEY (vehicle_id, ts)
+    PRIMARY KEY (vehicle_id, ts, dup)
 ) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS events (
     vehicle_id TEXT NOT NULL,
@@ -183,7 +192,9 @@ class SqliteStore(RecordStore):
         if conn.execute("PRAGMA journal_mode = WAL").fetchone()[0].lower() != "wal":
             raise sqlite3.OperationalError("could not switch the journal to WAL")
         present = {row[0] for row in conn.execute("SELECT name FROM sqlite_master")}
-        if present >= {"records", "events", "events_vehicle_ts", "events_once", "users", "revoked_tokens"}:
+        if present >= {"records", "events", "events_vehicle_ts", "events_once", "users", "revoked_tokens"} and (
+            _records_keyed_by_run(conn)
+        ):
             # an existing file: no write lock needed, so a restarted reader can serve queries
             # even while another process holds the write lock
             with self._lock:
@@ -191,6 +202,7 @@ class SqliteStore(RecordStore):
             return
         conn.execute("BEGIN IMMEDIATE")
         try:
+            _rebuild_records_keyed_by_run(conn)
             for statement in SCHEMA.split(";"):
                 if statement.strip():
                     conn.execute(statement)
@@ -245,26 +257,32 @@ class SqliteStore(RecordStore):
 
     # ---- records ---------------------------------------------------------------------------
 
-    def _insert_new(self, sql: str, rows: list[tuple]) -> int:
-        """executemany an INSERT OR IGNORE in one transaction; how many rows were new."""
+    def _insert_new(self, sql: str, rows: list, oldest: float) -> int:
+        """executemany an insert that skips what is already stored, in one transaction; how many
+        rows were new. `oldest`: the earliest time (unix s) among the rows."""
         if not rows:
             return 0
         with self._connection(write=True) as conn:
             before = conn.total_changes
             conn.executemany(sql, rows)
             new = conn.total_changes - before
-        self._purge_if_due()
+        self._purge_if_due(oldest)
         return new
 
     def insert_records(self, records: Sequence[VehicleRecord]) -> int:
         return self._insert_new(
-            "INSERT OR IGNORE INTO records (vehicle_id, ts, doc) VALUES (?, ?, ?)", [_record_row(r) for r in records]
+            "INSERT INTO records (vehicle_id, ts, dup, run, doc) "
+            "SELECT :vehicle, :ts, coalesce((SELECT max(dup) + 1 FROM records WHERE vehicle_id = :vehicle "
+            "AND ts = :ts), 0), :run, :doc "
+            "WHERE NOT EXISTS (SELECT 1 FROM records WHERE vehicle_id = :vehicle AND ts = :ts AND run = :run)",
+            rows := [_record_row(r) for r in records],
+            min((float(row["ts"]) for row in rows), default=math.inf),
         )
 
     def latest(self, vehicle_id: str) -> dict | None:
         with self._connection() as conn:
             rows = conn.execute(
-                "SELECT ts, doc FROM records WHERE vehicle_id = ? ORDER BY ts DESC LIMIT 1", (vehicle_id,)
+                "SELECT ts, doc FROM records WHERE vehicle_id = ? AND dup = 0 ORDER BY ts DESC LIMIT 1", (vehicle_id,)
             ).fetchall()
         docs = _decode_records(rows)
         return docs[0] if docs else None
@@ -281,7 +299,7 @@ class SqliteStore(RecordStore):
     ) -> list[tuple]:
         with self._connection() as conn:
             return conn.execute(
-                f"SELECT {columns} FROM records WHERE vehicle_id = ? AND ts >= ? AND ts < ? "
+                f"SELECT {columns} FROM records WHERE vehicle_id = ? AND ts >= ? AND ts < ? AND dup = 0 "
                 "ORDER BY ts LIMIT ? OFFSET ?",
                 (vehicle_id, _first_second_from(start), _first_second_from(end), limit, max(skip, 0)),
             ).fetchall()
@@ -300,7 +318,7 @@ class SqliteStore(RecordStore):
     def count_records(self, vehicle_id: str, start: datetime, end: datetime) -> int:
         with self._connection() as conn:
             return conn.execute(
-                "SELECT count(*) FROM records WHERE vehicle_id = ? AND ts >= ? AND ts < ?",
+                "SELECT count(*) FROM records WHERE vehicle_id = ? AND ts >= ? AND ts < ? AND dup = 0",
                 (vehicle_id, _first_second_from(start), _first_second_from(end)),
             ).fetchone()[0]
 
@@ -313,7 +331,8 @@ class SqliteStore(RecordStore):
     def insert_events(self, events: Sequence[StoredEvent]) -> int:
         return self._insert_new(
             "INSERT OR IGNORE INTO events (vehicle_id, ts, kind, doc) VALUES (?, ?, ?, ?)",
-            [_event_row(e) for e in events],
+            rows := [_event_row(e) for e in events],
+            min((row[1] for row in rows), default=math.inf),
         )
 
     def _query_events(
@@ -337,19 +356,30 @@ class SqliteStore(RecordStore):
     # ---- retention -----------------------------------------------------------------------------
 
     def purge_expired(self) -> int:
+        """What is older than RETENTION by the store's clock, of each vehicle whose newest entry
+        (in that table) is younger than that: a vehicle whose every entry looks expired either has
+        a clock far behind the store's (days behind at boot) or stopped recording a week ago, and
+        in both cases its last entries are what must not go."""
         cutoff = (self.now() - RETENTION).timestamp()
         with self._connection(write=True) as conn:
             before = conn.total_changes
             # per vehicle, so each DELETE is a range of the (vehicle_id, ts) key, not a table scan
             for table in ("records", "events"):
                 for vehicle_id in _vehicle_ids(conn, table):
-                    conn.execute(f"DELETE FROM {table} WHERE vehicle_id = ? AND ts < ?", (vehicle_id, cutoff))
+                    newest = conn.execute(f"SELECT max(ts) FROM {table} WHERE vehicle_id = ?", (vehicle_id,))
+                    if newest.fetchone()[0] >= cutoff:
+                        conn.execute(f"DELETE FROM {table} WHERE vehicle_id = ? AND ts < ?", (vehicle_id, cutoff))
             return conn.total_changes - before
 
-    def _purge_if_due(self) -> None:
+    def _purge_if_due(self, oldest_inserted: float) -> None:
         """After an insert (records or events): purge at most once per purge_interval_s of the store's clock. Runs in
-        its own transaction, so a failed purge never loses the insert; it is retried later."""
+        its own transaction, so a failed purge never loses the insert; it is retried later. An insert
+        of entries already past the retention by the store's clock (the writer's clock is behind)
+        purges nothing: the entries just stored would be the first to go."""
         now = self.now()
+        if oldest_inserted < (now - RETENTION).timestamp():
+            log.warning("retention purge skipped: entries stored older than %s (a clock behind?)", RETENTION)
+            return
         with self._lock:
             if self._last_purge is not None and now - self._last_purge < self._purge_interval:
                 return
@@ -428,13 +458,15 @@ class SqliteStore(RecordStore):
 # ---- row codecs ------------------------------------------------------------------------------
 
 
-def _record_row(record: VehicleRecord) -> tuple[str, int, str]:
+def _record_row(record: VehicleRecord) -> dict[str, str | int]:
     second = whole_second(record.time)
     t = record.time
     if t.microsecond or t.utcoffset() != timedelta(0):
         # a record stands for a whole UTC second: store exactly that second
         record = record.model_copy(update={"time": _EPOCH + timedelta(seconds=second)})
-    return record.vehicle_id, second, record.model_dump_json()
+    # the run is the key's, not the document's: the API's records look as they always did
+    doc = record.model_dump_json(exclude={"run"})
+    return {"vehicle": record.vehicle_id, "ts": second, "run": record.run, "doc": doc}
 
 
 def _decode_records(rows: list[tuple[int, str]]) -> list[dict]:
@@ -464,6 +496,26 @@ def _user(row: tuple) -> User:
         disabled=bool(disabled),
         generation=generation,
     )
+
+
+def _records_keyed_by_run(conn: sqlite3.Connection) -> bool:
+    return "run" in {row[1] for row in conn.execute("PRAGMA table_info(records)")}
+
+
+def _rebuild_records_keyed_by_run(conn: sqlite3.Connection) -> None:
+    """A records table from before `dup`/`run` (key (vehicle_id, ts)), rebuilt with them: the
+    key of a WITHOUT ROWID table cannot be altered in place. Its records become dup 0 of run ''."""
+    if not conn.execute("SELECT 1 FROM sqlite_master WHERE name = 'records'").fetchone():
+        return
+    if _records_keyed_by_run(conn):
+        return
+    log.info("embedded store: rebuilding the records table with a run per record (once)")
+    conn.execute("ALTER TABLE records RENAME TO records_before_run")
+    conn.execute(SCHEMA.split(";")[0])  # CREATE TABLE records, the current layout
+    conn.execute(
+        "INSERT INTO records (vehicle_id, ts, dup, run, doc) SELECT vehicle_id, ts, 0, '', doc FROM records_before_run"
+    )
+    conn.execute("DROP TABLE records_before_run")
 
 
 def _add_user_columns(conn: sqlite3.Connection) -> None:
