@@ -116,7 +116,13 @@ def test_on_a_bus_the_writes_are_logging_in_users_and_the_commands(vehicle):
     assert writes == {
         ("/api/v1/auth/token", "post"),
         ("/api/v1/auth/renew", "post"),
+        ("/api/v1/auth/revoke", "post"),
         ("/api/v1/users", "post"),
+        ("/api/v1/users/{name}", "delete"),
+        ("/api/v1/users/{name}/role", "put"),
+        ("/api/v1/users/{name}/password", "put"),
+        ("/api/v1/users/{name}/disable", "post"),
+        ("/api/v1/users/{name}/enable", "post"),
         ("/api/v1/vehicles/{vehicle_id}/rearm", "post"),
         ("/api/v1/vehicles/{vehicle_id}/mission", "post"),
         ("/api/v1/vehicles/{vehicle_id}/mission/{action}", "post"),
