@@ -229,3 +229,5 @@ def test_the_recorder_publishes_its_writers_state_each_second_and_a_full_disk_sh
         rig.stop_recorder()
     final = recorder.writer.status()
     assert len(rows_in(small_disk / "blackbox.sqlite")) == final.written and final.dropped > 0
+    # the last status, published at teardown, holds the counts after the final flush
+    assert statuses.latest.written == final.written and statuses.latest.store_up

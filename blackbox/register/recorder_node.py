@@ -115,6 +115,11 @@ class Recorder(BlackboxNode):
     def status(self, now: float) -> BlackboxStatus:
         return self.writer.status(now, self.lost)
 
+    def teardown(self) -> None:
+        super().teardown()
+        if getattr(self, "writer", None) is not None:  # the counts after the last flush, for whoever listens
+            self.health.put(self.status(self.clock.now()))
+
     @service("blackbox/records")
     def _records(self, request: RecordRange) -> RecordBatch:
         wanted = [r for r in self.memory if request.start_epoch_s <= int(r.time.timestamp()) < request.end_epoch_s]
