@@ -44,6 +44,7 @@ from ares.core.messages import (
 )
 from ares.core.node import Input, Node, Output, service
 from ares.core.route import load_route
+from ares.core.signed_command import CommandVerifier, load_command_key
 from managers.mission import Body, Mission, MissionParams, MissionState, PoiGoal, body_request_refusal, ready_to_move
 
 
@@ -108,6 +109,7 @@ class MissionManager(Node):
         self._last_s: float | None = None
         self._saved_at = -math.inf
         self.state_path = self.kept_state_path()
+        self.commands = CommandVerifier(load_command_key(self.core.commands), self.core.commands.max_age_s)
         # a restart before the first start set its goal finds nothing kept: that goal is still to set
         never_set = self.state_path is not None and not self.state_path.exists()
         if self.restarted and self._restore():
@@ -168,9 +170,27 @@ class MissionManager(Node):
         return pois, targets
 
     # ---- the action's services ------------------------------------------------------------------
+    def _signed(self, service: str, request: MissionGoal | MissionRequest | BodyRequest) -> str | MissionReply:
+        """Who gave the command, as the vehicle's API or CLI signed it (never the request's own
+        `operator`), or the refusal of a command unsigned, forged, stale or replayed."""
+        operator, refusal = self.commands.check(service, request)
+        if operator is not None:
+            return operator
+        self.event(
+            "command_refused",
+            f"{service} claimed by {request.operator!r}: {refusal}",
+            EventLevel.WARNING,
+            service=service,
+            claimed=request.operator,
+        )
+        return self._reply(False, refusal)
+
     @service("mission/goal")
     def _goal(self, request: MissionGoal) -> MissionReply:
-        return self._set_goal(request.pois, request.drive, request.operator, repeat=request.repeat)
+        operator = self._signed("mission/goal", request)
+        if isinstance(operator, MissionReply):
+            return operator
+        return self._set_goal(request.pois, request.drive, operator, repeat=request.repeat)
 
     def _set_goal(self, names: list[str] | None, drive: bool, operator: str, repeat: bool = False) -> MissionReply:
         now = self.clock.now()
@@ -199,22 +219,34 @@ class MissionManager(Node):
 
     @service("mission/pause")
     def _pause(self, request: MissionRequest) -> MissionReply:
-        return self._reply(*self.mission.pause(), request.operator)
+        operator = self._signed("mission/pause", request)
+        if isinstance(operator, MissionReply):
+            return operator
+        return self._reply(*self.mission.pause(), operator)
 
     @service("mission/resume")
     def _resume(self, request: MissionRequest) -> MissionReply:
-        return self._reply(*self.mission.resume(self._body(self.clock.now())), request.operator)
+        operator = self._signed("mission/resume", request)
+        if isinstance(operator, MissionReply):
+            return operator
+        return self._reply(*self.mission.resume(self._body(self.clock.now())), operator)
 
     @service("mission/cancel")
     def _cancel(self, request: MissionRequest) -> MissionReply:
+        operator = self._signed("mission/cancel", request)
+        if isinstance(operator, MissionReply):
+            return operator
         body = self._body(self.clock.now())
         if body is None:
-            return self._reply(False, "refused: the doors' state is not known", request.operator)
-        return self._reply(*self.mission.cancel(body), request.operator)
+            return self._reply(False, "refused: the doors' state is not known", operator)
+        return self._reply(*self.mission.cancel(body), operator)
 
     @service("mission/body")
     def _body_request(self, request: BodyRequest) -> MissionReply:
         """The operator's doors and ramp (managers/mission.body_request_refusal decides)."""
+        operator = self._signed("mission/body", request)
+        if isinstance(operator, MissionReply):
+            return operator
         now = self.clock.now()
         body, car = self._body(now), self.car.fresh(now)
         if body is None or car is None:
@@ -231,10 +263,10 @@ class MissionManager(Node):
                 state, abs(car.speed_mps) <= self.params.stopped_mps, body, request.doors, request.ramp
             )
         if refusal is not None:
-            return self._reply(False, refusal, request.operator)
+            return self._reply(False, refusal, operator)
         self.body_command.put(BodyCommand(t=now, doors=request.doors, ramp=request.ramp))
         asked = " and ".join(f"{what} {how}" for what, how in (("doors", request.doors), ("ramp", request.ramp)) if how)
-        return self._reply(True, f"{asked}: asked of the body", request.operator)
+        return self._reply(True, f"{asked}: asked of the body", operator)
 
     def _reply(self, accepted: bool, reason: str, operator: str = "") -> MissionReply:
         if operator:

@@ -44,6 +44,7 @@ from ares.core.messages import (
     SpeedLimits,
 )
 from ares.core.node import Input, Node, Output, service
+from ares.core.signed_command import CommandVerifier, load_command_key
 from managers.movement import GateInputs, GateLimits, Level, MovementGate
 
 
@@ -113,6 +114,7 @@ class MovementManager(Node):
         self.obstacle_required = bool(self.core.lidars)
         self._synced = False  # the bridge's emergency state read (at start)
         self._started = self.clock.now()
+        self.commands = CommandVerifier(load_command_key(self.core.commands), self.core.commands.max_age_s)
 
     @staticmethod
     def _level_of(state: AwarenessState | None) -> tuple[Level | None, str]:
@@ -122,12 +124,23 @@ class MovementManager(Node):
 
     @service("movement/rearm")
     def _rearm(self, request: RearmRequest) -> RearmReply:
+        # who re-arms is the name signed by the vehicle's API or CLI, never the one in the request
+        operator, refusal = self.commands.check("movement/rearm", request)
+        if operator is None:
+            self.event(
+                "command_refused",
+                f"movement/rearm claimed by {request.operator!r}: {refusal}",
+                EventLevel.WARNING,
+                service="movement/rearm",
+                claimed=request.operator,
+            )
+            return RearmReply(t=self.clock.now(), accepted=False, reason=refusal)
         accepted, reason = self.gate.rearm(self._level)
         self.event(
             "rearm",
-            f"re-arm by {request.operator}: {reason}",
+            f"re-arm by {operator}: {reason}",
             EventLevel.INFO if accepted else EventLevel.WARNING,
-            operator=request.operator,
+            operator=operator,
             accepted=accepted,
         )
         return RearmReply(t=self.clock.now(), accepted=accepted, reason=reason)

@@ -11,16 +11,18 @@ from ares.core import config
 from ares.core.clock import ManualClock
 from ares.core.membus import MemoryNetwork
 from ares.core.messages import AwarenessState, CarState, DriveMode, Setpoint, SpeedLimits
+from ares.core.signed_command import load_command_key
 from blackbox.api import create_app
 from managers.movement_node import MovementManager
 from tests.helpers.api import VEHICLE_ID, add_role_users, api_settings, auth, open_test_store, token_for
+from tests.helpers.commands import with_command_key
 
 
 @pytest.fixture
 def vehicle(run_config, tmp_path):
     """(client, tokens, step(level, seconds), events): the API of a stack whose movement manager runs
     on the in-memory bus."""
-    cfg = config.deep_merge(run_config, {"lidars": False})
+    cfg = config.deep_merge(with_command_key(run_config, tmp_path), {"lidars": False})
     clock, network = ManualClock(), MemoryNetwork()
     node = MovementManager(cfg, clock=clock, bus=network.bus("movement_manager", clock))
     node.setup()
@@ -28,7 +30,8 @@ def vehicle(run_config, tmp_path):
     events = feed.subscribe("events", queue=100)
     api_bus = network.bus("api", clock)
     store = open_test_store(tmp_path / "bb.sqlite")
-    app = create_app(store, api_settings(), VEHICLE_ID, call=api_bus.call)
+    key = load_command_key(config.core(cfg).commands)
+    app = create_app(store, api_settings(), VEHICLE_ID, call=api_bus.call, command_key=key)
     add_role_users(store, app)
     client = TestClient(app)
     tokens = {role: token_for(client, role) for role in ("operator", "auditor", "fleet")}
@@ -143,10 +146,12 @@ def test_without_a_bus_the_commands_are_not_offered(tmp_path):
 def test_an_operator_sets_pauses_and_cancels_the_mission_through_the_mission_manager(run_config, tmp_path):
     from tests.helpers.mission import Tour
 
-    tour = Tour(config.deep_merge(run_config, {"mission_manager": {"autostart": "none"}}), s0=40.0)
+    cfg = config.deep_merge(with_command_key(run_config, tmp_path), {"mission_manager": {"autostart": "none"}})
+    tour = Tour(cfg, s0=40.0)
     tour.run(0.5)
     store = open_test_store(tmp_path / "bb.sqlite")
-    app = create_app(store, api_settings(), VEHICLE_ID, call=tour.network.bus("api", tour.clock).call)
+    key = load_command_key(config.core(cfg).commands)
+    app = create_app(store, api_settings(), VEHICLE_ID, call=tour.network.bus("api", tour.clock).call, command_key=key)
     add_role_users(store, app)
     client = TestClient(app)
     tokens = {role: token_for(client, role) for role in ("operator", "auditor", "fleet")}

@@ -7,14 +7,17 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 
 import pytest
 
 from ares.core import config
 from ares.core.messages import BodyRequest, MissionGoal, MissionRequest
 from ares.core.recording import INCARNATION_ENV
+from ares.core.signed_command import load_command_key, sign
 from managers.mission import Body, MissionState, body_request_refusal
 from simulator.scenario import ScenarioPassengers
+from tests.helpers.commands import call_signed, with_command_key
 from tests.helpers.mission import Tour
 
 DT = 0.1
@@ -22,8 +25,8 @@ CRUISE = 3.0
 
 
 @pytest.fixture
-def tour_cfg(run_config) -> dict:
-    return config.deep_merge(run_config, {"mission_manager": {"autostart": "tour"}})
+def tour_cfg(run_config, tmp_path) -> dict:
+    return config.deep_merge(with_command_key(run_config, tmp_path), {"mission_manager": {"autostart": "tour"}})
 
 
 def test_the_tour_serves_each_poi_in_order_and_passengers_hold_the_doors(tour_cfg):
@@ -65,7 +68,7 @@ def test_pause_holds_resume_goes_on_and_the_limit_falls_gently(tour_cfg):
     tour = Tour(tour_cfg, s0=40.0)  # past the Depot: the Library next
     tour.run(8.0)
     assert tour.v == pytest.approx(CRUISE)
-    reply = tour.bus.call("mission/pause", MissionRequest(operator="ana"))
+    reply = call_signed(tour.bus, tour.cfg, "mission/pause", MissionRequest(operator="ana"))
     assert reply.accepted and reply.state == "PAUSED"
     limits = []
     for _ in range(30):
@@ -74,9 +77,9 @@ def test_pause_holds_resume_goes_on_and_the_limit_falls_gently(tour_cfg):
     assert all(a - b <= 3.0 * DT + 1e-6 for a, b in zip(limits, limits[1:]))  # <= pause_decel_mps2
     assert tour.v == 0.0 and limits[-1] == 0.0
     assert [(e.data["operator"], e.data["accepted"]) for e in tour.kinds("mission_command")] == [("ana", True)]
-    refused = tour.bus.call("mission/pause", MissionRequest(operator="ana"))
+    refused = call_signed(tour.bus, tour.cfg, "mission/pause", MissionRequest(operator="ana"))
     assert not refused.accepted and "nothing to pause" in refused.reason
-    assert tour.bus.call("mission/resume", MissionRequest(operator="ana")).accepted
+    assert call_signed(tour.bus, tour.cfg, "mission/resume", MissionRequest(operator="ana")).accepted
     tour.run(5.0)
     assert tour.v > 2.0
 
@@ -85,23 +88,23 @@ def test_goals_are_checked_pre_empt_and_end_with_a_result(tour_cfg):
     tour = Tour(config.deep_merge(tour_cfg, {"mission_manager": {"autostart": "none"}}))
     tour.run(1.0)
     assert tour.status.latest.state == "IDLE" and tour.status.latest.limit_mps == 0.0  # no mission, no motion
-    refused = tour.bus.call("mission/goal", MissionGoal(operator="ana", pois=["Atlantis"]))
+    refused = call_signed(tour.bus, tour.cfg, "mission/goal", MissionGoal(operator="ana", pois=["Atlantis"]))
     assert not refused.accepted and "unknown POIs ['Atlantis']" in refused.reason
-    first = tour.bus.call("mission/goal", MissionGoal(operator="ana", pois=["Lakeside", "Library"]))
+    first = call_signed(tour.bus, tour.cfg, "mission/goal", MissionGoal(operator="ana", pois=["Lakeside", "Library"]))
     assert first.accepted and first.goal_id == 1
     tour.run(2.0)
-    second = tour.bus.call("mission/goal", MissionGoal(operator="ben", pois=["Depot"]))
+    second = call_signed(tour.bus, tour.cfg, "mission/goal", MissionGoal(operator="ben", pois=["Depot"]))
     assert second.accepted and second.goal_id == 2
     results = tour.kinds("mission_result")
     assert len(results) == 1 and "pre-empted by goal 2" in results[0].message
     tour.until(lambda: tour.status.latest.state == "SUCCEEDED", 120, "the Depot served")
     assert tour.kinds("mission_result")[-1].data["state"] == "SUCCEEDED"
     assert tour.status.latest.limit_mps == 0.0
-    drive = tour.bus.call("mission/goal", MissionGoal(operator="ana", drive=True))
+    drive = call_signed(tour.bus, tour.cfg, "mission/goal", MissionGoal(operator="ana", drive=True))
     assert drive.accepted
     tour.run(3.0)
     assert tour.status.latest.kind == "drive" and tour.status.latest.limit_mps is None and tour.v > 2.0
-    assert tour.bus.call("mission/cancel", MissionRequest(operator="ana")).accepted
+    assert call_signed(tour.bus, tour.cfg, "mission/cancel", MissionRequest(operator="ana")).accepted
     tour.run(3.0)
     assert tour.v == 0.0 and tour.status.latest.state == "CANCELED"
 
@@ -205,31 +208,77 @@ def test_every_doors_and_ramp_request_in_every_state(state, standing, doors_ask,
 def test_an_operator_opens_and_closes_the_doors_while_paused_and_is_refused_on_the_move(tour_cfg):
     tour = Tour(tour_cfg, s0=40.0)
     tour.run(5.0)
-    moving = tour.bus.call("mission/body", BodyRequest(operator="ana", doors="open"))
+    moving = call_signed(tour.bus, tour.cfg, "mission/body", BodyRequest(operator="ana", doors="open"))
     assert not moving.accepted and "moving" in moving.reason
-    assert tour.bus.call("mission/pause", MissionRequest(operator="ana")).accepted
+    assert call_signed(tour.bus, tour.cfg, "mission/pause", MissionRequest(operator="ana")).accepted
     tour.until(lambda: tour.v == 0.0, 10, "stopped")
     tour.run(0.5)
-    reply = tour.bus.call("mission/body", BodyRequest(operator="ana", doors="open"))
+    reply = call_signed(tour.bus, tour.cfg, "mission/body", BodyRequest(operator="ana", doors="open"))
     assert reply.accepted and reply.state == "PAUSED"
     tour.until(lambda: tour.body.door_state == "open", 5, "the doors open")
     tour.run(0.2)  # the manager hears the body
-    ramp = tour.bus.call("mission/body", BodyRequest(operator="ana", ramp="deploy"))
+    ramp = call_signed(tour.bus, tour.cfg, "mission/body", BodyRequest(operator="ana", ramp="deploy"))
     assert ramp.accepted
     tour.until(lambda: tour.body.ramp_state == "deployed", 8, "the ramp deployed")
     tour.run(0.2)  # the manager hears the body
-    assert not tour.bus.call("mission/body", BodyRequest(operator="ana", doors="close")).accepted  # over the ramp
-    assert "close the doors" in tour.bus.call("mission/resume", MissionRequest(operator="ana")).reason
+    assert not call_signed(
+        tour.bus, tour.cfg, "mission/body", BodyRequest(operator="ana", doors="close")
+    ).accepted  # over the ramp
+    assert "close the doors" in call_signed(tour.bus, tour.cfg, "mission/resume", MissionRequest(operator="ana")).reason
     tour.run(3.0)
     assert tour.v == 0.0
-    assert tour.bus.call("mission/body", BodyRequest(operator="ana", ramp="stow")).accepted
+    assert call_signed(tour.bus, tour.cfg, "mission/body", BodyRequest(operator="ana", ramp="stow")).accepted
     tour.until(lambda: tour.body.ramp_state == "stowed", 8, "the ramp stowed")
     tour.run(0.2)  # the manager hears the body
-    assert tour.bus.call("mission/body", BodyRequest(operator="ana", doors="close")).accepted
+    assert call_signed(tour.bus, tour.cfg, "mission/body", BodyRequest(operator="ana", doors="close")).accepted
     tour.until(lambda: tour.body.door_state == "closed", 5, "the doors closed")
     tour.run(0.2)  # the manager hears the body
-    assert tour.bus.call("mission/resume", MissionRequest(operator="ana")).accepted
+    assert call_signed(tour.bus, tour.cfg, "mission/resume", MissionRequest(operator="ana")).accepted
     tour.until(lambda: tour.v > 1.0, 15, "driving on")
     commands = [e for e in tour.kinds("mission_command") if e.data["operator"] == "ana"]
     assert [e.data["accepted"] for e in commands] == [False, True, True, True, False, False, True, True, True]
     assert tour.violations == []
+
+
+# ---- who commands: the signed name, only from a holder of the vehicle's command key --------------
+
+
+def test_only_a_command_signed_with_the_vehicles_key_is_obeyed_under_its_signed_name(tour_cfg):
+    tour = Tour(config.deep_merge(tour_cfg, {"mission_manager": {"autostart": "none"}}), s0=40.0)
+    tour.run(0.5)
+    key = load_command_key(config.core(tour.cfg).commands)
+    goal = MissionGoal(operator="ana", pois=["Library"])
+    drive = sign(key, "mission/goal", MissionGoal(operator="ana", drive=True), "ana")
+    refused = {
+        # what any process holding the bus's password (the fleet's, say) could send
+        "unsigned": goal,
+        "another key": sign(b"f" * 64, "mission/goal", goal, "ana"),
+        "a drive's signature on a tour": drive.model_copy(update={"drive": False, "pois": ["Library"]}),
+        "another name on the signature": drive.model_copy(
+            update={"signature": drive.signature.model_copy(update={"operator": "boss"})}
+        ),
+        "a pause's signature": sign(key, "mission/pause", goal, "ana"),
+        "a minute old": sign(key, "mission/goal", goal, "ana", wall=lambda: time.time() - 60.0),
+    }
+    reasons = {why: tour.bus.call("mission/goal", request) for why, request in refused.items()}
+    assert not any(reply.accepted for reply in reasons.values())
+    assert "an unsigned command" in reasons["unsigned"].reason
+    for why in ("another key", "a drive's signature on a tour", "another name on the signature", "a pause's signature"):
+        assert "signature does not match" in reasons[why].reason, why
+    assert "a stale command" in reasons["a minute old"].reason
+    tour.run(1.0)
+    assert tour.status.latest.state == "IDLE" and tour.status.latest.goal_id == 0 and tour.v == 0.0
+
+    # signed for ana, whatever name the payload gives: the black box keeps the signed one
+    obeyed = sign(key, "mission/goal", MissionGoal(operator="mallory", pois=["Library"]), "ana")
+    assert tour.bus.call("mission/goal", obeyed).accepted
+    replayed = tour.bus.call("mission/goal", obeyed)
+    assert not replayed.accepted and "a replayed command" in replayed.reason
+    events = [e for _, e in tour.events.drain()]
+    commands = [(e.data["operator"], e.data["accepted"]) for e in events if e.kind == "mission_command"]
+    assert commands == [("ana", True)]
+    refusals = [e for e in events if e.kind == "command_refused"]
+    assert len(refusals) == len(refused) + 1 and {e.data["service"] for e in refusals} == {"mission/goal"}
+    assert {e.data["claimed"] for e in refusals} == {"ana", "mallory"}
+    tour.run(3.0)
+    assert tour.status.latest.goal_id == 1 and tour.v > 0.0

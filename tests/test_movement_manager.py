@@ -29,6 +29,7 @@ from ares.core.messages import (
 )
 from managers.awareness_node import AwarenessManager
 from managers.movement_node import MovementManager
+from tests.helpers.commands import call_signed
 from tests.helpers.stack import make_run_config
 
 PERIOD = 0.02
@@ -37,7 +38,7 @@ _CFG = make_run_config(7447)  # hypothesis tests take no function-scoped fixture
 
 class Gate:
     def __init__(self, cfg: dict, lidars: bool = False):
-        cfg = config.deep_merge(cfg, {"lidars": lidars})
+        self.cfg = cfg = config.deep_merge(cfg, {"lidars": lidars})
         self.clock = ManualClock()
         self.network = MemoryNetwork()
         self.node = MovementManager(cfg, clock=self.clock, bus=self.network.bus("movement_manager", self.clock))
@@ -173,11 +174,11 @@ def test_level_1_latches_until_an_operator_rearms_and_the_event_names_them(gate)
     gate.run(2.0)
     command, status = gate.run(0.1, level=1, causes=["lidar roof: blind"])
     assert command.emergency and command.v == 0.0 and status.latched and status.latch_cause == "lidar roof: blind"
-    refused = gate.bus.call("movement/rearm", RearmRequest(operator="ana"))
+    refused = call_signed(gate.bus, gate.cfg, "movement/rearm", RearmRequest(operator="ana"))
     assert not refused.accepted and "level 1 persists" in refused.reason
     command, _ = gate.run(1.0)  # cleared, still latched
     assert command.emergency
-    accepted = gate.bus.call("movement/rearm", RearmRequest(operator="ana"))
+    accepted = call_signed(gate.bus, gate.cfg, "movement/rearm", RearmRequest(operator="ana"))
     assert accepted.accepted
     command, status = gate.run(1.0)
     assert not command.emergency and command.v > 0.0 and not status.latched
@@ -193,7 +194,7 @@ def test_a_restarted_movement_manager_keeps_the_emergency_stop_the_bridge_is_in(
     command, status = gate.run(1.0, bridge_emergency=True)
     assert command.emergency and status.latched
     assert status.latch_cause == "emergency stop in force when the movement manager started"
-    assert gate.bus.call("movement/rearm", RearmRequest(operator="ana")).accepted
+    assert call_signed(gate.bus, gate.cfg, "movement/rearm", RearmRequest(operator="ana")).accepted
     command, _ = gate.run(1.0)
     assert not command.emergency
 

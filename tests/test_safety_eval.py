@@ -232,7 +232,7 @@ def test_the_scenario_fires_faults_and_operator_actions_at_their_times():
     injected = []
     tracker = SafetyTracker(**SHUTTLE)
     driver = ScenarioDriver(
-        scenario, network.bus("run", clock), lambda p, k: injected.append((p, k)) or f"{k} {p}", tracker
+        scenario, network.bus("run", clock), lambda p, k: injected.append((p, k)) or f"{k} {p}", tracker, b"k" * 32
     )
     for t in (1.0, 2.0, 5.5, 6.5):
         driver.step(t)

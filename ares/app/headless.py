@@ -38,6 +38,7 @@ from ares.core import config
 from ares.core.bus import BaseBus
 from ares.core.messages import DriveMode, MissionStatus
 from ares.core.route import Route
+from ares.core.signed_command import load_command_key
 from managers.speed import SpeedProfileParams, cruise_speed
 from simulator.scenario import load_scenario
 
@@ -61,7 +62,7 @@ class Measurements:
         self.perception = PerceptionTracker(route, front_bumper_x_m=(vehicle.length_m + vehicle.wheelbase_m) / 2)
         self.corrections = CorrectionsTracker()
         scenario = load_scenario(cfg["scenario"]) if cfg["scenario"] else None
-        self.scenario = ScenarioDriver(scenario, bus, inject, self.safety)
+        self.scenario = ScenarioDriver(scenario, bus, inject, self.safety, load_command_key(config.core(cfg).commands))
         self.truth = bus.subscribe("sim/truth", queue=QUEUE)
         self.statuses = bus.subscribe("control/status", queue=QUEUE)
         self.movement = bus.subscribe("movement/status", queue=QUEUE)

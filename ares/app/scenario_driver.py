@@ -1,6 +1,7 @@
 """What a scenario does to a headless run from outside the simulator, at its stack times: process
 faults through the supervisor (kill, stop, hang) and the operator's actions through the vehicle's
-services (re-arm, pause, resume, cancel). The simulator injects the sensor faults itself; they are
+services (re-arm, pause, resume, cancel), signed with the vehicle's command key as the operator
+"scenario" (ares/core/signed_command.py). The simulator injects the sensor faults itself; they are
 noted here when their time comes, so that the safety figures can time the response to each."""
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from collections.abc import Callable
 from ares.app.evaluation.safety_eval import SafetyTracker
 from ares.core.bus import BaseBus, ServiceError
 from ares.core.messages import MissionRequest, RearmRequest
+from ares.core.signed_command import sign
 from simulator.scenario import PROCESS_FAULTS, Scenario
 
 OPERATOR = "scenario"
@@ -25,9 +27,14 @@ SENSOR_OF = {
 
 class ScenarioDriver:
     def __init__(
-        self, scenario: Scenario | None, bus: BaseBus, inject: Callable[[str, str], str], tracker: SafetyTracker
+        self,
+        scenario: Scenario | None,
+        bus: BaseBus,
+        inject: Callable[[str, str], str],
+        tracker: SafetyTracker,
+        command_key: bytes,
     ):
-        self.bus, self.inject, self.tracker = bus, inject, tracker
+        self.bus, self.inject, self.tracker, self.command_key = bus, inject, tracker, command_key
         self.timed: list[tuple[float, str, object]] = []
         if scenario is not None:
             self.timed = sorted(
@@ -61,9 +68,10 @@ class ScenarioDriver:
     def _operator(self, now: float, action: str) -> None:
         try:
             if action == "rearm":
-                reply = self.bus.call("movement/rearm", RearmRequest(operator=OPERATOR))
+                service, request = "movement/rearm", RearmRequest(operator=OPERATOR)
             else:
-                reply = self.bus.call(f"mission/{action}", MissionRequest(operator=OPERATOR))
+                service, request = f"mission/{action}", MissionRequest(operator=OPERATOR)
+            reply = self.bus.call(service, sign(self.command_key, service, request, OPERATOR))
             ok, detail = reply.accepted, reply.reason
         except ServiceError as exc:
             ok, detail = False, str(exc)

@@ -1,4 +1,11 @@
-"""`ares mission start|pause|resume|cancel|status`: the mission manager's action from a terminal."""
+"""`ares mission start|pause|resume|cancel|status`: the mission manager's action from a terminal.
+
+The mission manager obeys signed commands only (ares/core/signed_command.py): the CLI signs each with
+the vehicle's command key, `commands.key_file` of the run configuration, else the user's state
+directory's `command_key`, the file the stack's processes read too. So on a developer's machine a
+stack started by the same user takes `ares mission ...` with nothing to set up, and a user who
+cannot read the key cannot command the shuttle, whatever name they give.
+"""
 
 from __future__ import annotations
 
@@ -27,7 +34,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         "--operator",
         default=None,
         metavar="NAME",
-        help="the name the black box keeps with the command (default: your login name)",
+        help="the name the black box keeps with the command, signed with the command key (default: your login name)",
     )
     mission.add_argument(
         "--seconds",
@@ -41,24 +48,31 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
 
 
 def cmd_mission(args: argparse.Namespace) -> int:
+    from ares.core import config
     from ares.core.bus import ServiceError
     from ares.core.messages import MissionGoal, MissionRequest
+    from ares.core.signed_command import load_command_key, sign
 
     if args.action != "start" and (args.pois or args.drive or args.repeat):
         raise CliError(f"`ares mission {args.action}` takes no POIs, --drive or --repeat")
     operator = args.operator or getpass.getuser()
+    key = b""
+    if args.action != "status":
+        try:
+            key = load_command_key(config.core(config.current()).commands)
+        except (config.ConfigError, OSError, ValueError) as exc:
+            raise CliError(f"cannot read the command key: {exc}") from None
     bus = connect(args, "cli")
     try:
         if args.action == "status":
             return _status(bus, args.seconds)
         try:
             if args.action == "start":
-                reply = bus.call(
-                    "mission/goal",
-                    MissionGoal(operator=operator, pois=args.pois or None, drive=args.drive, repeat=args.repeat),
-                )
+                goal = MissionGoal(operator=operator, pois=args.pois or None, drive=args.drive, repeat=args.repeat)
+                reply = bus.call("mission/goal", sign(key, "mission/goal", goal, operator))
             else:
-                reply = bus.call(f"mission/{args.action}", MissionRequest(operator=operator))
+                service = f"mission/{args.action}"
+                reply = bus.call(service, sign(key, service, MissionRequest(operator=operator), operator))
         except ServiceError as exc:
             raise CliError(str(exc)) from None
         print(f"{'accepted' if reply.accepted else 'refused'}: {reply.reason} (goal {reply.goal_id}, {reply.state})")

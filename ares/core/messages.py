@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from ares.core.config import VEHICLE_ID_PATTERN
 from ares.core.schema import Array, BulkMsg, Msg
+from ares.core.signed_command import CommandSignature
 
 __all__ = ["Msg", "BulkMsg"]  # re-exported: the base classes live in ares.core.schema
 
@@ -544,6 +545,7 @@ class MissionGoal(Msg):
     pois: list[str] | None = None
     drive: bool = False
     repeat: bool = False  # a closed route's tour: round again after the last POI, until canceled
+    signature: CommandSignature | None = None  # who commanded, signed (ares/core/signed_command.py)
 
     @model_validator(mode="after")
     def _one_kind(self) -> Self:
@@ -556,6 +558,7 @@ class MissionRequest(Msg):
     """Pause, resume or cancel the mission (the operator's name goes to the black box)."""
 
     operator: str = Field(min_length=1, max_length=64)
+    signature: CommandSignature | None = None  # who commanded, signed (ares/core/signed_command.py)
 
 
 class BodyRequest(Msg):
@@ -564,6 +567,7 @@ class BodyRequest(Msg):
     operator: str = Field(min_length=1, max_length=64)
     doors: Literal["open", "close"] | None = None
     ramp: Literal["deploy", "stow"] | None = None
+    signature: CommandSignature | None = None  # who commanded, signed (ares/core/signed_command.py)
 
 
 class MissionReply(Msg):
@@ -700,6 +704,7 @@ class RearmRequest(Msg):
     """A person re-arms after an emergency stop (the REST API checks the operator's credentials)."""
 
     operator: str = Field(min_length=1, max_length=64)
+    signature: CommandSignature | None = None  # who commanded, signed (ares/core/signed_command.py)
 
 
 class RearmReply(Msg):

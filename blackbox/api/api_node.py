@@ -31,6 +31,7 @@ from ares.core import config
 from ares.core.messages import EventLevel
 from ares.core.node import AsyncNode
 from ares.core.route import RouteError, load_route
+from ares.core.signed_command import load_command_key
 from blackbox.api import PREFIX, ApiSettings, create_app, uvicorn_config
 from blackbox.console.live_hub import GATEWAY_TOPICS, LiveHub
 from blackbox.register.recorder import open_configured_store, store_uri
@@ -136,6 +137,7 @@ class ApiServer(AsyncNode):
             call=self.bus.call,
             live=self.live,
             route=route_view(self.core),
+            command_key=load_command_key(self.core.commands),
         )
 
     async def serve(self) -> None:

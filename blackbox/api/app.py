@@ -36,11 +36,13 @@ def create_app(
     call: Callable[[str, Any], Any] | None = None,
     live: LiveHub | None = None,
     route: dict | None = None,
+    command_key: bytes | None = None,
 ) -> FastAPI:
     """The API over `store`, serving the black box of `vehicle_id` (whose events the API's own events
     are; stack time from `clock`); `call`: the stack's services on its bus (blocking; the command
     routes run it in a thread); `live`: the bus state for the pages; `route`: the vehicle's route
-    for their maps. Holds no global state: tests build as many as they like."""
+    for their maps; `command_key`: the vehicle's, with which the command routes sign each command
+    (needed with `call`). Holds no global state: tests build as many as they like."""
     sdir = state_dir(settings, store)
     services = Services(
         repository=Repository(store, settings.limits, vehicle_id, (clock or Clock.from_env()).now),
@@ -50,6 +52,7 @@ def create_app(
         settings=settings,
         vehicle_id=vehicle_id,
         call=call,
+        command_key=command_key,
         live=live,
         route=route,
     )

@@ -45,6 +45,9 @@ class Services:
     # the stack's services on its bus: (name, request) -> reply; None outside a stack (tests of the
     # records alone, `ares api serve` over a store): the command routes then answer 503
     call: Callable[[str, Any], Any] | None = None
+    # the vehicle's command key: the command routes sign each command with the operator's name
+    # (ares/core/signed_command.py); None without `call`
+    command_key: bytes | None = None
     live: LiveHub | None = None  # the live gateway (None outside a stack: its routes answer 503)
     route: dict | None = None  # the vehicle's route for the maps (None outside a stack)
 

@@ -85,6 +85,24 @@ class BusSettings(Params):
         return self
 
 
+class CommandSettings(Params):
+    """The key that signs an operator's commands (ares/core/signed_command.py)."""
+
+    key_file: str | None = param(
+        None,
+        "the vehicle's command key (a compose secret, at least 32 characters) with which its API and "
+        "CLI sign an operator's commands and its managers check them; null: `command_key` in the "
+        "user's state directory ($XDG_STATE_HOME/ares or ~/.local/state/ares), made at first use",
+    )
+    max_age_s: float = param(
+        10.0,
+        "a signed command older than this (wall clock) is refused as stale; its nonce is remembered "
+        "this long against a replay",
+        unit="s",
+        gt=0,
+    )
+
+
 class HeartbeatSettings(Params):
     period_s: float = param(
         0.2, "heartbeat period, wall clock: it reveals a stuck Python loop, not sim time", unit="s", gt=0
@@ -205,6 +223,7 @@ class CoreConfig(Params):
     )
     origin_utm: UtmOrigin = param(doc="origin of the local frame", factory=UtmOrigin)
     bus: BusSettings = param(doc="the Zenoh bus", factory=BusSettings)
+    commands: CommandSettings = param(doc="the operator's signed commands", factory=CommandSettings)
     heartbeat: HeartbeatSettings = param(doc="process heartbeats", factory=HeartbeatSettings)
     lockstep: LockstepSettings = param(doc="the simulator-driven clock of `--speed max`", factory=LockstepSettings)
     replay: ReplaySettings = param(doc="process replay recordings", factory=ReplaySettings)

@@ -40,6 +40,7 @@ from ares.core import config
 from ares.core.bus import ServiceError
 from ares.core.launch import FAULT_INJECTION_ENV
 from ares.core.messages import DriveMode, MissionGoal, ProcessState, RearmRequest
+from ares.core.signed_command import load_command_key, sign
 from ares.tools.soak import report
 from ares.tools.soak.injectors import LASTING, LIDAR_PROCESS, SIGNAL_OF, Injectors, RouterProcess
 from ares.tools.soak.measure import GIVE_UP_S, FaultOutcome, SoakTracker
@@ -227,6 +228,7 @@ class SoakDrive:
         cfg, bus = running.cfg, running.bus
         self.bus, self.clock, self.stop = bus, running.clock, running.stop
         self.vehicle = config.core(cfg).vehicle_profile
+        self.command_key = load_command_key(config.core(cfg).commands)  # the operator's, as the CLI's
         self.truth = bus.subscribe("sim/truth", queue=QUEUE)
         self.car = bus.subscribe("dbw/car_state", queue=QUEUE)
         self.gate = bus.subscribe("movement/status", queue=QUEUE)
@@ -401,7 +403,8 @@ class SoakDrive:
             return
         self.last_rearm = now
         try:
-            reply = self.bus.call("movement/rearm", RearmRequest(operator=OPERATOR))
+            rearm = sign(self.command_key, "movement/rearm", RearmRequest(operator=OPERATOR), OPERATOR)
+            reply = self.bus.call("movement/rearm", rearm)
             self.counters["rearms" if reply.accepted else "rearm_refusals"] += 1
         except ServiceError:
             self.counters["rearm_refusals"] += 1
@@ -419,7 +422,7 @@ class SoakDrive:
         self.no_goal_since = None
         try:
             request = MissionGoal(operator=OPERATOR, drive=self.drive_only, repeat=not self.drive_only)
-            if self.bus.call("mission/goal", request).accepted:
+            if self.bus.call("mission/goal", sign(self.command_key, "mission/goal", request, OPERATOR)).accepted:
                 self.counters["mission_goals"] += 1
                 self.soak.log(f"[t={now:8.1f} s] soak: the mission had no goal; the tour set again")
         except ServiceError as exc:

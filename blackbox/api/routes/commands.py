@@ -1,5 +1,6 @@
-"""The operator's commands, each forwarded with the operator's name to a manager's service on
-the vehicle's bus, which decides and records the event with that name:
+"""The operator's commands, each signed with the operator's name from the validated token (the
+vehicle's command key, ares/core/signed_command.py) and forwarded to a manager's service on the
+vehicle's bus, which checks the signature, decides and records the event with that signed name:
 
 | route                                      | service                        |
 |--------------------------------------------|--------------------------------|
@@ -22,6 +23,7 @@ from starlette.concurrency import run_in_threadpool
 
 from ares.core.bus import ServiceError
 from ares.core.messages import BodyRequest, MissionGoal, MissionRequest, Msg, RearmRequest
+from ares.core.signed_command import sign
 from blackbox.api.credentials import Claims
 from blackbox.api.dependencies import ROLES_COMMAND, Services, allow, vehicle_id_path
 from blackbox.api.models import error_responses, json_response
@@ -98,6 +100,9 @@ def build_router(services: Services) -> APIRouter:
     if services.call is None:
         raise ValueError("the command routes need the vehicle's bus (services.call)")
     call = services.call
+    if services.command_key is None:
+        raise ValueError("the command routes need the vehicle's command key (services.command_key)")
+    key = services.command_key
 
     async def forward(vehicle_id: str, service: str, request: Msg, who: str, manager: str) -> Response:
         if vehicle_id != services.vehicle_id:
@@ -105,7 +110,7 @@ def build_router(services: Services) -> APIRouter:
                 404, f"vehicle {vehicle_id!r} is not this API's: commands go to {services.vehicle_id!r} only"
             )
         try:
-            reply = await run_in_threadpool(call, service, request)
+            reply = await run_in_threadpool(call, service, sign(key, service, request, who))
         except ServiceError as exc:
             raise HTTPException(
                 503, f"the {manager} did not answer: {exc}", headers={"Retry-After": str(COMMAND_RETRY_AFTER_S)}
