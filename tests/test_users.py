@@ -283,3 +283,21 @@ def test_a_store_file_from_before_the_account_columns_is_upgraded(tmp_path):
         assert store.delete_user("ana") and store.get_user("ana") is None and not store.delete_user("ana")
     finally:
         store.close()
+
+
+def test_a_change_by_another_process_is_seen_within_account_cache_s(api):
+    """`ares users` (or another API process) changes the store behind this API's back: an account
+    this API found allowing a token a moment ago is trusted for account_cache_s, then asked again."""
+    from blackbox.api.credentials import set_disabled
+
+    client, app, store = api
+    accounts = app.state.services.tokens.accounts
+    clock = [1000.0]
+    accounts.now = lambda: clock[0]
+    token = token_for(client, "auditor")
+    served(client, token)  # found allowing it: trusted for account_cache_s (1 s)
+    set_disabled(store, "auditor", True)  # as `ares users disable auditor` does, on the same file
+    clock[0] += 0.5
+    assert client.get(LATEST, headers=auth(token)).status_code == 200
+    clock[0] += 0.6
+    refused(client, token)

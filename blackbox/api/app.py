@@ -46,7 +46,9 @@ def create_app(
     sdir = state_dir(settings, store)
     services = Services(
         repository=Repository(store, settings.limits, vehicle_id, (clock or Clock.from_env()).now),
-        tokens=Tokens(settings.auth, load_secret(settings.auth, sdir), vehicle_id, Accounts(store)),
+        tokens=Tokens(
+            settings.auth, load_secret(settings.auth, sdir), vehicle_id, Accounts(store, settings.auth.account_cache_s)
+        ),
         passwords=Passwords(settings.auth.argon2),
         guard=Guard(settings.rate_limit, settings.blacklist, ban_file=sdir / BAN_FILE),
         settings=settings,

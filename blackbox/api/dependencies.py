@@ -10,6 +10,7 @@ from typing import Annotated, Any
 from fastapi import HTTPException, Path, Query, Security
 from fastapi.security import OAuth2PasswordBearer
 from pydantic import AwareDatetime, BeforeValidator
+from starlette.concurrency import run_in_threadpool
 
 from ares.core.config import VEHICLE_ID_PATTERN  # what a stack's vehicle id may be: the ids of its records
 from blackbox.api.credentials import AuthError, Claims, Passwords, Tokens
@@ -59,10 +60,10 @@ bearer = OAuth2PasswordBearer(tokenUrl=TOKEN_PATH, auto_error=False)
 
 def allow(tokens: Tokens, *roles: str) -> Callable:
     """A dependency: the caller's claims when its bearer token is valid, its account still allows
-    it (Tokens.verify) and its role is one of `roles`. A plain function: FastAPI runs it in its
-    thread pool, so the account's look-up in the store never holds up the event loop."""
+    it (Tokens.verify) and its role is one of `roles`. The account's look-up in the store, when
+    due, runs in the thread pool: it never holds up the event loop."""
 
-    def check(token: Annotated[str | None, Security(bearer)]) -> Claims:
+    async def check(token: Annotated[str | None, Security(bearer)]) -> Claims:
         if not token:
             raise HTTPException(
                 401,
@@ -70,7 +71,10 @@ def allow(tokens: Tokens, *roles: str) -> Callable:
                 headers={"WWW-Authenticate": "Bearer"},
             )
         try:
-            claims = tokens.verify(token)
+            claims = tokens.signed_claims(token)
+            accounts = tokens.accounts
+            if accounts is not None and not accounts.recently_allowed(claims):
+                await run_in_threadpool(accounts.check, claims)
         except AuthError as exc:
             raise HTTPException(401, str(exc), headers={"WWW-Authenticate": "Bearer"}) from None
         if claims.role not in roles:

@@ -47,6 +47,8 @@ def build_router(services: Services) -> APIRouter:
     @router.post("/auth/revoke", status_code=204, response_class=Response, responses=error_responses(401, 503))
     def revoke(claims: Holder) -> Response:
         repo.revoke_token(claims)
+        if tokens.accounts is not None:
+            tokens.accounts.forget()  # it was trusted a moment ago: no longer
         return Response(status_code=204)
 
     return router

@@ -27,13 +27,20 @@ def not_yourself(admin: Claims, name: str, what: str) -> None:
 
 
 def build_router(services: Services) -> APIRouter:
-    repo = services.repository
+    repo, accounts = services.repository, services.tokens.accounts
+
+    def changed(user: User) -> UserInfo:
+        """What a change answers; the accounts the API trusted are asked again from now on."""
+        if accounts is not None:
+            accounts.forget()
+        return user_info(user)
+
     Admin = Annotated[Claims, Depends(allow(services.tokens, *ROLES_ADMIN))]
     min_password_length = services.settings.auth.min_password_length
     NewUserBody = new_user_model(min_password_length)
     PasswordBody = password_change_model(min_password_length)
     router = APIRouter(tags=["users"])
-    changed = error_responses(401, 404, 409, 413, 422, 503)
+    on_a_user = error_responses(401, 404, 409, 413, 422, 503)
 
     @router.get("/users", response_model=list[UserInfo], responses=error_responses(401, 503))
     def list_users(_: Admin) -> list[UserInfo]:
@@ -49,7 +56,7 @@ def build_router(services: Services) -> APIRouter:
     def change_role(name: UserName, body: RoleChange, admin: Admin) -> UserInfo:
         if body.role != "admin":
             not_yourself(admin, name, "demote")
-        return user_info(repo.change_user(partial(credentials.set_role, name=name, role=body.role)))
+        return changed(repo.change_user(partial(credentials.set_role, name=name, role=body.role)))
 
     @router.put(
         "/users/{name}/password", response_model=UserInfo, responses=error_responses(400, 401, 404, 413, 422, 503)
@@ -62,21 +69,23 @@ def build_router(services: Services) -> APIRouter:
             password=body.password,
             min_length=min_password_length,
         )
-        return user_info(repo.change_user(change))
+        return changed(repo.change_user(change))
 
-    @router.post("/users/{name}/disable", response_model=UserInfo, responses=changed)
+    @router.post("/users/{name}/disable", response_model=UserInfo, responses=on_a_user)
     def disable_user(name: UserName, admin: Admin) -> UserInfo:
         not_yourself(admin, name, "disable")
-        return user_info(repo.change_user(partial(credentials.set_disabled, name=name, disabled=True)))
+        return changed(repo.change_user(partial(credentials.set_disabled, name=name, disabled=True)))
 
     @router.post("/users/{name}/enable", response_model=UserInfo, responses=error_responses(401, 404, 422, 503))
     def enable_user(name: UserName, _: Admin) -> UserInfo:
-        return user_info(repo.change_user(partial(credentials.set_disabled, name=name, disabled=False)))
+        return changed(repo.change_user(partial(credentials.set_disabled, name=name, disabled=False)))
 
-    @router.delete("/users/{name}", status_code=204, response_class=Response, responses=changed)
+    @router.delete("/users/{name}", status_code=204, response_class=Response, responses=on_a_user)
     def delete_user(name: UserName, admin: Admin) -> Response:
         not_yourself(admin, name, "delete")
         repo.delete_user(name)
+        if accounts is not None:
+            accounts.forget()
         return Response(status_code=204)
 
     return router
