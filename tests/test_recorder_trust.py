@@ -25,7 +25,7 @@ T0 = datetime.now(UTC).replace(microsecond=0) - timedelta(days=1)
 SETTINGS = StoreSettings(synchronous="OFF")
 
 
-def record(k: int, run: str = "run-a", speed: float = 1.0, at: datetime = T0) -> VehicleRecord:
+def record(k: int, run: str | None = "run-a", speed: float = 1.0, at: datetime = T0) -> VehicleRecord:
     return VehicleRecord(vehicle_id=VEHICLE, time=at + timedelta(seconds=k), t=float(k), speed_mps=speed, run=run)
 
 
@@ -145,7 +145,7 @@ def test_a_clock_set_back_between_two_runs_drops_no_record_and_the_api_keeps_the
         assert len(docs) == 150 == store.count_records(VEHICLE, T0, T0 + timedelta(seconds=200))
         # one record per second: the first stored for it (run a's for 50..99), never replaced later
         assert [d["speed_mps"] for d in docs] == [1.0] * 100 + [2.0] * 50
-        assert "run" not in docs[0]
+        assert docs[0]["run"] == "run-a" and docs[-1]["run"] == "run-b"  # which run each came from
         # a retried batch of an already stored run is still a no-op
         assert store.insert_records([record(k, run="run-b", speed=2.0) for k in range(50, 150)]) == 0
     finally:
@@ -159,7 +159,7 @@ def test_a_store_from_before_the_run_key_is_rebuilt_and_stays_readable(tmp_path)
         "CREATE TABLE records (vehicle_id TEXT NOT NULL, ts INTEGER NOT NULL, doc TEXT NOT NULL, "
         "PRIMARY KEY (vehicle_id, ts)) WITHOUT ROWID"
     )
-    old = [record(k, run="") for k in range(3)]
+    old = [record(k, run=None) for k in range(3)]
     db.executemany(
         "INSERT INTO records VALUES (?, ?, ?)",
         [(r.vehicle_id, int(r.time.timestamp()), r.model_dump_json(exclude={"run"})) for r in old],

@@ -639,8 +639,9 @@ class VehicleRecord(BaseModel):
     corrections: CorrectionsRecord | None = None  # the RTK corrections' link and age, and the fix type
     events: int = 0  # events recorded during this second (kept in full apart)
     # the recording run (one per recorder start): with the time, the record's key in the store, so
-    # that a clock set back between two runs adds the second run's record beside the first's
-    run: str = ""
+    # that a clock set back between two runs adds the second run's record beside the first's;
+    # None: a record stored before runs were told apart, or not from a recorder
+    run: str | None = None
 
 
 class StoredEvent(BaseModel):

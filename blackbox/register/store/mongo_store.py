@@ -154,7 +154,7 @@ class MongoStore(RecordStore):
         by_vehicle: dict[str, dict[datetime, dict]] = {}
         for record in records:
             t = _utc(record.time).replace(microsecond=0)
-            doc = record.model_dump(mode="json", exclude={"run"})  # the records look as they always did
+            doc = record.model_dump(mode="json")
             doc["time"] = t
             by_vehicle.setdefault(record.vehicle_id, {}).setdefault(t, doc)
         if not by_vehicle:

@@ -2,7 +2,7 @@
 
 Layout:
 - records (vehicle_id, ts, dup, run, doc): ts is the record's whole second (unix s), doc the
-  record's JSON (without its run), run the recording run it came from (VehicleRecord.run).
+  record's JSON, run the recording run it came from (VehicleRecord.run; '' for none).
   PRIMARY KEY (vehicle_id, ts, dup) WITHOUT ROWID keeps a vehicle's records clustered in time
   order, so an hour is one contiguous range read. A record whose (vehicle, second, run) is
   already stored is skipped (a retried batch is a no-op); one of another run for a second
@@ -10,8 +10,9 @@ Layout:
   no record counted as written is ever dropped or overwritten. The queries (latest, records,
   records_json, count_records: the API's) read `dup = 0` only: one record per second as
   before, the first one stored for that second; a record stored for a second once never
-  changes to another. Files from before `dup`/`run` are rebuilt when first opened (each of
-  their records becomes `dup = 0` of run '');
+  changes to another; its `run` tells which run it came from. Files from before `dup`/`run` are
+  rebuilt when first opened (each of their records becomes `dup = 0` of run '', its document as
+  it was, without a `run`);
 - events (vehicle_id, ts, kind, doc), indexed on (vehicle_id, ts): several events may share a
   second, but the same event twice (a retried batch) is stored once (unique on all columns;
   files from before that rule are de-duplicated when first opened);
@@ -464,9 +465,7 @@ def _record_row(record: VehicleRecord) -> dict[str, str | int]:
     if t.microsecond or t.utcoffset() != timedelta(0):
         # a record stands for a whole UTC second: store exactly that second
         record = record.model_copy(update={"time": _EPOCH + timedelta(seconds=second)})
-    # the run is the key's, not the document's: the API's records look as they always did
-    doc = record.model_dump_json(exclude={"run"})
-    return {"vehicle": record.vehicle_id, "ts": second, "run": record.run, "doc": doc}
+    return {"vehicle": record.vehicle_id, "ts": second, "run": record.run or "", "doc": record.model_dump_json()}
 
 
 def _decode_records(rows: list[tuple[int, str]]) -> list[dict]:
