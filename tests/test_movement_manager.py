@@ -189,6 +189,27 @@ def test_level_1_latches_until_an_operator_rearms_and_the_event_names_them(gate)
     assert [(e.data["operator"], e.data["accepted"]) for e in rearms] == [("ana", False), ("ana", True)]
 
 
+def test_an_unsigned_rearm_is_refused_and_the_stop_stays_latched(gate):
+    """Any process with the bus's password may call movement/rearm: only a command signed with the
+    vehicle's command key (its API's, its CLI's) re-arms, under the signed name."""
+    gate.run(2.0)
+    gate.run(0.1, level=1, causes=["lidar roof: blind"])
+    gate.run(1.0)  # cleared, still latched
+    refused = gate.bus.call("movement/rearm", RearmRequest(operator="ana"))
+    assert not refused.accepted and "an unsigned command" in refused.reason
+    command, status = gate.run(1.0)
+    assert command.emergency and status.latched
+    accepted = call_signed(gate.bus, gate.cfg, "movement/rearm", RearmRequest(operator="mallory"), "ana")
+    assert accepted.accepted
+    command, status = gate.run(1.0)
+    assert not command.emergency and not status.latched
+    events = [e for _, e in gate.events.drain()]
+    assert [(e.data["service"], e.data["claimed"]) for e in events if e.kind == "command_refused"] == [
+        ("movement/rearm", "ana")
+    ]
+    assert [(e.data["operator"], e.data["accepted"]) for e in events if e.kind == "rearm"] == [("ana", True)]
+
+
 def test_a_restarted_movement_manager_keeps_the_emergency_stop_the_bridge_is_in(run_config):
     gate = Gate(run_config)
     command, status = gate.run(1.0, bridge_emergency=True)

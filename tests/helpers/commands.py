@@ -28,6 +28,6 @@ def signed(cfg: dict, service: str, request: Command, operator: str | None = Non
     return sign(key, service, request, operator or request.operator)
 
 
-def call_signed(bus, cfg: dict, service: str, request: Msg):
-    """The reply of `service` to `request`, signed as by the operator it names."""
-    return bus.call(service, signed(cfg, service, request))
+def call_signed(bus, cfg: dict, service: str, request: Msg, operator: str | None = None):
+    """The reply of `service` to `request`, signed as by `operator` (default: the one it names)."""
+    return bus.call(service, signed(cfg, service, request, operator))
