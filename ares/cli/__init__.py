@@ -86,6 +86,14 @@
                                    add an API user; the password is read from stdin (asked twice on a terminal)
     ares users list [--store URI] [--json]
                                    list the API's users and their roles
+    ares users role NAME auditor|operator|fleet|admin [--store URI]
+                                   change a user's role (the tokens they hold are refused from then on)
+    ares users passwd NAME [--store URI]
+                                   change a user's password, read from stdin
+    ares users disable|enable NAME [--store URI]
+                                   refuse a user's logins and tokens, or allow them again
+    ares users delete NAME [--store URI]
+                                   remove a user (their tokens are refused at their next request)
     ares perception scan FILE [--sensor-height M] [--vehicle NAME] [--json] [--out PNG]
                          [--model VLP-16|HDL-32E|VLP-32C|HDL-64E|VLS-128] [--frame N] [--calibration YAML]
                          [--port PORT] [--fov START END]
