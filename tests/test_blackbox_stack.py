@@ -187,6 +187,10 @@ def test_a_30_s_store_outage_mid_run_loses_no_second(tmp_path):
     ts, events = stored(path)
     assert_every_second_once(ts)
     assert result["blackbox_records"] == len(ts)
+    # the recorder's own count after its final flush: every record it counted is in the store
+    blackbox = result["blackbox"]
+    assert blackbox["written"] == blackbox["in_store"] == len(ts) and blackbox["dropped"] == 0
+    assert blackbox["store_faults"] > 0 and blackbox["store_up"]
     outage = set(range(before + 1, before + 31))
     assert outage <= set(ts) and ts[-1] > before + 31
     kinds = [e["kind"] for e in events]

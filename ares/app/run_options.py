@@ -124,6 +124,8 @@ class RunResult:
     logs: Path | None = None  # where the run's processes logged
     figures: dict[str, Any] = field(default_factory=dict)
     blackbox_records: int | None = None  # records the store holds for the run (None: it could not say)
+    # the recorder's last status (blackbox/status, after its final flush) and `in_store`, the count above
+    blackbox: dict[str, Any] | None = None
     recording: dict[str, Any] | None = None  # the MCAP file's figures (--record)
 
     @property
@@ -139,6 +141,8 @@ class RunResult:
         line = {**head, "run_dir": str(self.run_dir), **self.figures}
         if self.ok:
             line["blackbox_records"] = self.blackbox_records
+            if self.blackbox is not None:
+                line["blackbox"] = self.blackbox
             if self.recording:
                 line["recording"] = self.recording
         return line

@@ -120,6 +120,8 @@ def _supervised(running: RunningStack, taps: bus_record.RunTaps, drive: Headless
     supervisor, stop, run_dir = running.supervisor, running.stop, running.run_dir
     failure: RunFailed | None = None
     figures: dict = {}
+    # the recorder's last word comes at its teardown, before the supervisor closes its bus
+    blackbox_status = supervisor.bus.subscribe("blackbox/status")
     with stop_on_signals(stop):
         supervisor.start()
         loop = threading.Thread(target=supervisor.run, args=(stop,), name="supervisor", daemon=True)
@@ -147,14 +149,17 @@ def _supervised(running: RunningStack, taps: bus_record.RunTaps, drive: Headless
             logs=logs,
             figures=failure.figures or {},
         )
+    # the stack has stopped and the recorder flushed what it held: count what the store has
+    in_store = count_blackbox_records(running.cfg, running.clock) if drive is not None else None
+    last = blackbox_status.latest
     return RunResult(
         ok=True,
         run_dir=run_dir,
         interrupted=interrupted,
         logs=logs,
         figures=figures,
-        # the stack has stopped and the recorder flushed what it held: count what the store has
-        blackbox_records=count_blackbox_records(running.cfg, running.clock) if drive is not None else None,
+        blackbox_records=in_store,
+        blackbox=None if drive is None else {**(last.model_dump(exclude={"t"}) if last else {}), "in_store": in_store},
         recording=recording or None,
     )
 
