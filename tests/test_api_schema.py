@@ -241,14 +241,17 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
     from ares.core import config
     from ares.core.clock import ManualClock
     from ares.core.membus import MemoryNetwork
+    from ares.core.signed_command import load_command_key
     from blackbox.api import create_app
     from blackbox.api.api_node import route_view
     from blackbox.console.live_hub import LiveHub, LiveSettings
     from managers.mission_node import MissionManager
     from managers.movement_node import MovementManager
     from tests.helpers.api import add_role_users, api_settings
+    from tests.helpers.commands import with_command_key
 
     cfg = config.deep_merge(run_config, {"lidars": False, "mission_manager": {"autostart": "none"}})
+    cfg = with_command_key(cfg, tmp_path)  # the key the API signs with and the managers check
     clock, network = ManualClock(), MemoryNetwork()
     managers = [
         MissionManager(cfg, clock=clock, bus=network.bus("mission_manager", clock)),
@@ -269,6 +272,7 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
         call=network.bus("api", clock).call,
         live=LiveHub(LiveSettings()),
         route=route_view(config.core(cfg)),
+        command_key=load_command_key(config.core(cfg).commands),
     )
     add_role_users(store, app)
     try:
