@@ -110,6 +110,29 @@ def test_a_full_disk_is_told_keeps_the_newest_in_memory_and_every_record_counted
     assert seconds[-500:] == list(range(newest - 499, newest + 1))  # the newest were the ones kept
 
 
+def test_a_writer_stopped_while_the_disk_is_full_counts_what_it_could_not_keep(small_disk):
+    """Memory does not outlive the process: what waits there at the stop, with neither the store nor
+    the spool taking it, is counted as dropped and told, never left uncounted."""
+    writer = writer_on(small_disk, memory_max_entries=500)
+    writer.start()
+    try:
+        for k in range(10):
+            writer.submit(record(k))
+        wait_until(lambda: writer.records_written == 10 and writer.store_up, 10, "the first records")
+        fill(small_disk)
+        for k in range(10, 210):
+            assert writer.submit(record(k))
+        wait_until(lambda: writer.status().in_memory == 200 and writer._queue.empty(), 20, "the records held")
+    finally:
+        writer.close(2.0)
+    status = writer.status()
+    assert status.in_memory == 0 and status.spooled == 0
+    assert status.written == 10 and status.dropped == 200 and status.written + status.dropped == 210
+    assert len(rows_in(small_disk / "blackbox.sqlite")) == status.written
+    told = [n for n in writer.take_notices() if n.kind == "blackbox_fault"]
+    assert any(n.data.get("dropped") == 200 for n in told), [n.message for n in told]
+
+
 def test_a_second_writer_on_the_same_spool_is_refused_and_removes_nothing(tmp_path):
     first, second = writer_on(tmp_path), writer_on(tmp_path)
     first.start()

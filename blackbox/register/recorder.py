@@ -433,6 +433,8 @@ class StoreWriter:
                 log.exception("closing the store")
         if self._held:  # memory does not outlive the process: one last try to keep it on disk
             self._park_held()
+        if self._held:  # neither store nor spool took them: lost with the process, and counted so
+            self._drop_held_at_stop()
         try:
             self.spool.close()
         except Exception as exc:
@@ -587,6 +589,23 @@ class StoreWriter:
                 dropped=dropped,
                 dropped_total=self.spool.dropped_total,
             )
+
+    def _drop_held_at_stop(self) -> None:
+        """What still waits in memory when the writer stops (the store and the spool refusing it):
+        counted as dropped and told, so that written + dropped is every item the writer took."""
+        records = sum(isinstance(item, VehicleRecord) for item in self._held)
+        events = len(self._held) - records
+        self._held.clear()
+        self.records_dropped += records
+        self.events_dropped += events
+        self._notify(
+            "blackbox_fault",
+            f"stopping with the store and the spool refusing: {records} records and {events} events held in "
+            f"memory are not kept ({self.records_dropped} records and {self.events_dropped} events dropped in all)",
+            EventLevel.FAULT,
+            dropped=records,
+            events_dropped=events,
+        )
 
     def _fault(self, what: str, exc: Exception) -> None:
         """A failure of the black box's own keeping (not the store's answer): a FAULT event, and the
