@@ -10,6 +10,7 @@ the level they add up to.
 |                       | corrections: any of them wrong for longer than       | after     |
 |                       | gnss_max_outage_s (5 min) is an outage               | 5 min     |
 | whitelisted processes | running (the supervisor judges hangs by heartbeat)   | level 2   |
+| the black box         | losing no record (blackbox/status: dropped, lost)     | level 2   |
 
 A blocked LiDAR is level 1 because the shuttle is then blind on that side, whatever its
 localization; the others are level 2: the shuttle stops under control and goes on by itself once
@@ -24,6 +25,13 @@ driving through such stretches on the road the LiDARs see is what the control ma
 reactive control is for (ARES §3.6; the `dead_reckoning_drift` scenario), and the paper's
 awareness calls only an outage longer than 5 min level 2. Until then `sensors["gnss"]` says what
 is wrong and for how long.
+
+The black box (blackbox/status, each second) is `sensors["blackbox"]`: a store that is down while
+the spool or the writer's memory holds every record is said there and is no cause (nothing is
+lost, and the must of ARES §3.8, a record every second, still holds). A record or event the black
+box could not keep (its store, spool and memory all full) is level 2 for `blackbox_loss_hold_s`
+after the last loss: the shuttle stops under control rather than drive unrecorded, and goes on by
+itself once the black box keeps everything again.
 """
 
 from __future__ import annotations
@@ -32,7 +40,15 @@ import collections
 from dataclasses import dataclass, field
 
 from ares.core.config import Params, param
-from ares.core.messages import CorrectionsStatus, GnssFix, Imu, LidarStatus, ProcessState, SupervisorState
+from ares.core.messages import (
+    BlackboxStatus,
+    CorrectionsStatus,
+    GnssFix,
+    Imu,
+    LidarStatus,
+    ProcessState,
+    SupervisorState,
+)
 
 NOMINAL, CRITICAL, LOW = 0, 1, 2
 
@@ -67,6 +83,12 @@ class AwarenessParams(Params):
     rtk_recent_s: float = param(2.0, "corrections count as in use while the last RTK fix is younger", unit="s", gt=0)
     supervisor_timeout_s: float = param(
         1.5, "no process table from the supervisor this long: processes unknown", unit="s", gt=0
+    )
+    blackbox_status_timeout_s: float = param(
+        5.0, "no black-box status this long (it comes each second): its health is unknown", unit="s", gt=0
+    )
+    blackbox_loss_hold_s: float = param(
+        10.0, "a record or event the black box lost keeps level 2 this long after the last loss", unit="s", gt=0
     )
 
 
@@ -114,6 +136,9 @@ class AwarenessChecks:
         self._started_at = started_at
         self._lidar_since: float | None = None  # the first LiDAR status: rates are judged a window later
         self._corrections: CorrectionsStatus | None = None  # the corrections' latest state, if any comes
+        self._blackbox: BlackboxStatus | None = None
+        self._blackbox_losses: int | None = None  # dropped + lost of the latest status
+        self._blackbox_lost_at: float | None = None  # when those last grew
 
     def on_imu(self, imu: Imu) -> None:
         self.imu_rate.add(imu.t)
@@ -125,6 +150,13 @@ class AwarenessChecks:
 
     def on_corrections(self, status: CorrectionsStatus | None) -> None:
         self._corrections = status
+
+    def on_blackbox(self, status: BlackboxStatus) -> None:
+        losses = status.dropped + status.events_dropped + status.lost
+        # a count below the last is a restarted recorder, counting from 0: no loss in that
+        if self._blackbox_losses is not None and losses > self._blackbox_losses:
+            self._blackbox_lost_at = status.t
+        self._blackbox_losses, self._blackbox = losses, status
 
     def on_gnss(self, fix: GnssFix) -> None:
         self.gnss_rate.add(fix.t)
@@ -174,7 +206,23 @@ class AwarenessChecks:
         if out.sensors["imu"] != "ok":
             out.add(LOW, f"imu: {out.sensors['imu']}")
         self._processes(now, supervisor, whitelist, out)
+        self._blackbox_health(now, out)
         return out
+
+    def _blackbox_health(self, now: float, out: Assessment) -> None:
+        status = self._blackbox
+        if status is None:
+            return  # no black box on this run (yet): nothing to say
+        if now - status.t > self.p.blackbox_status_timeout_s:
+            out.sensors["blackbox"] = f"no status for {now - status.t:.0f} s"
+        elif status.store_up:
+            out.sensors["blackbox"] = "ok"
+        else:
+            waiting = f"{status.spooled} spooled, {status.in_memory} in memory"
+            out.sensors["blackbox"] = f"store down ({waiting}): {status.last_error or 'no reason given'}"
+        if self._blackbox_lost_at is not None and now - self._blackbox_lost_at <= self.p.blackbox_loss_hold_s:
+            lost = status.dropped + status.events_dropped + status.lost
+            out.add(LOW, f"blackbox: losing records ({lost} lost since it started)")
 
     def _lidars(self, now: float, status: LidarStatus | None, out: Assessment) -> None:
         p = self.p

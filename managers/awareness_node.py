@@ -3,7 +3,8 @@
 Sensor awareness from the sensors' own messages (the IMU's and GNSS's rates and readings, the
 LiDARs' rates and road points from perception's status) and software awareness from the
 supervisor's table of processes (every safety-relevant process must be running; the supervisor
-restarts one that is not). The checks and their thresholds are in managers/awareness.py.
+restarts one that is not), and the black box's own status (a record lost is level 2). The checks
+and their thresholds are in managers/awareness.py.
 The level goes to the movement manager, which acts on it (1: emergency stop until re-armed; 2:
 a controlled stop, resumed by itself), and to the black box; every change of level is an event
 with its causes.
@@ -36,6 +37,7 @@ class AwarenessManager(Node):
     corrections = Input("gnss/corrections", doc="the corrections' link and age: the named cause of a loss of RTK")
     lidar = Input("perception/lidar_status", doc="each LiDAR's rate and road points")
     supervisor = Input("supervisor/state", doc="every process's state")
+    blackbox = Input("blackbox/status", queue=8, doc="the black box's writer: a store down, records lost")
     state = Output("awareness/state", rate="rate_hz", doc="the level and its causes")
 
     def setup(self) -> None:
@@ -50,6 +52,8 @@ class AwarenessManager(Node):
         for _, fix in self.gnss.drain():
             self.checks.on_gnss(fix)
         self.checks.on_corrections(self.corrections.latest)
+        for _, status in self.blackbox.drain():
+            self.checks.on_blackbox(status)
         found = self.checks.assess(now, self.lidar.latest, self.supervisor.latest)
         if found.level != self._level or (found.level != NOMINAL and _kinds(found.causes) != _kinds(self._causes)):
             level = (

@@ -248,3 +248,63 @@ def test_a_corrections_outage_is_named_for_what_it_is():
     checks.on_corrections(fresh)
     found = checks.assess(10.0, lidars(9.95), supervisor(9.95))
     assert found.sensors["corrections"] == "ok" and found.sensors["gnss"].startswith("no RTK corrections for")
+
+
+def blackbox_status(t: float, *, store_up: bool = True, dropped: int = 0, lost: int = 0, in_memory: int = 0):
+    from ares.core.messages import BlackboxStatus
+
+    return BlackboxStatus(
+        t=t,
+        store_up=store_up,
+        written=int(t),
+        events_written=0,
+        dropped=dropped,
+        events_dropped=0,
+        lost=lost,
+        store_faults=0 if store_up else 3,
+        spooled=0,
+        in_memory=in_memory,
+        last_error="" if store_up else "database or disk is full",
+    )
+
+
+def test_a_black_box_store_down_holding_every_record_is_said_and_is_no_cause():
+    """The store on a full disk while the writer's memory holds the records: nothing is lost, the
+    shuttle drives on, and the operator sees why the black box is not writing."""
+    checks = fed()
+    checks.on_blackbox(blackbox_status(2.0))
+    checks.on_blackbox(blackbox_status(3.0, store_up=False, in_memory=40))
+    found = checks.assess(3.0, lidars(2.95), supervisor(2.9))
+    assert found.level == NOMINAL and found.causes == []
+    assert found.sensors["blackbox"] == "store down (0 spooled, 40 in memory): database or disk is full"
+
+
+def test_a_black_box_losing_records_is_level_2_until_it_keeps_everything_again():
+    checks = fed(seconds=30.0)
+    checks.on_blackbox(blackbox_status(2.0, store_up=False, in_memory=7200))
+    assert checks.assess(2.0, lidars(1.95), supervisor(1.9)).level == NOMINAL  # a count, not a loss yet
+    checks.on_blackbox(blackbox_status(3.0, store_up=False, dropped=1, in_memory=7200))
+    found = checks.assess(3.0, lidars(2.95), supervisor(2.9))
+    assert found.level == LOW and found.causes == ["blackbox: losing records (1 lost since it started)"]
+    # the store back: the count stays, no new loss; level 2 holds for blackbox_loss_hold_s after the last
+    checks.on_blackbox(blackbox_status(3.0 + P.blackbox_loss_hold_s - 0.5, dropped=1))
+    assert checks.assess(3.0 + P.blackbox_loss_hold_s, lidars(12.9), supervisor(12.9)).level == LOW
+    checks.on_blackbox(blackbox_status(3.0 + P.blackbox_loss_hold_s + 1.0, dropped=1))
+    found = checks.assess(3.0 + P.blackbox_loss_hold_s + 1.0, lidars(13.9), supervisor(13.9))
+    assert found.level == NOMINAL and found.sensors["blackbox"] == "ok"
+
+
+def test_a_restarted_recorder_counting_from_zero_is_no_loss_and_a_silent_one_is_said():
+    checks = fed()
+    checks.on_blackbox(blackbox_status(1.0, dropped=5))
+    checks.on_blackbox(blackbox_status(2.0, dropped=0))  # a new recorder process
+    found = checks.assess(2.0, lidars(1.95), supervisor(1.9))
+    assert found.level == NOMINAL
+    found = checks.assess(2.0 + P.blackbox_status_timeout_s + 1.0, lidars(7.95), supervisor(7.9))
+    assert found.sensors["blackbox"] == "no status for 6 s"
+    assert "blackbox" not in " ".join(found.causes)  # a dead recorder is the supervisor's to judge
+
+
+def test_without_a_black_box_nothing_is_said_of_it():
+    found = fed().assess(3.0, lidars(2.95), supervisor(2.9))
+    assert "blackbox" not in found.sensors

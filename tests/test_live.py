@@ -383,3 +383,33 @@ def test_the_page_libraries_are_installed_and_served(live_api):
         kind = "javascript" if path.endswith(".js") else "text/css"
         assert kind in r.headers["content-type"] and len(r.content) > 1000, path
         assert "script-src 'self'" in r.headers["content-security-policy"]
+
+
+def test_the_operator_sees_the_black_boxs_writer():
+    from ares.core.messages import BlackboxStatus
+
+    hub = LiveHub(LiveSettings(), now=Wall())
+    hub.put(VEHICLE_ID, "dbw/car_state", car())
+    assert hub.frame(VEHICLE_ID)["blackbox"] is None  # never heard: missing, not invented
+    status = BlackboxStatus(
+        t=1.0,
+        store_up=False,
+        written=120,
+        events_written=4,
+        dropped=2,
+        events_dropped=1,
+        lost=0,
+        store_faults=37,
+        spooled=0,
+        in_memory=18,
+        last_error="database or disk is full",
+    )
+    hub.put(VEHICLE_ID, "blackbox/status", status)
+    assert hub.frame(VEHICLE_ID)["blackbox"] == {
+        "store": "down",
+        "written": 120,
+        "waiting": 18,
+        "lost": 3,
+        "store_faults": 37,
+        "last_error": "database or disk is full",
+    }

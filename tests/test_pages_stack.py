@@ -202,6 +202,9 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     wait_for(lambda: (field(pg, "speed_mps"), field(pg, "steering_wheel_deg")) != first, 10, "live values to change")
     assert field(pg, "mode") == "AUTOMATIC" and field(pg, "controller")
     wait_for(lambda: pg.locator("#events li").count() > 0, 10, "events on the page")
+    # the black box's writer, as its status says each second: its store up, nothing lost
+    wait_for(lambda: field(pg, "blackbox.store") == "up", 10, "the black box's store on the page")
+    assert field(pg, "blackbox.lost") == "0"
     # the page says how far it is behind the bus; how far is a figure of `ares bench live`, not a
     # bound here (a timed assertion flakes on a loaded machine)
     lag = pg.evaluate("window.aresLag.slice(-20)")

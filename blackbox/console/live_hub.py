@@ -30,6 +30,7 @@ from ares.core.geometry import vehicle_to_local
 from ares.core.messages import (
     FIX_QUALITY_NAMES,
     AwarenessState,
+    BlackboxStatus,
     BodyState,
     CarState,
     ControllerStatus,
@@ -68,6 +69,7 @@ GATEWAY_TOPICS: dict[str, type] = {
     "perception/grid": OccupancyGrid,
     "gnss/corrections": CorrectionsStatus,
     "gnss/fix": GnssFix,
+    "blackbox/status": BlackboxStatus,
     "events": Event,
 }
 
@@ -368,6 +370,20 @@ def _gnss(fix: GnssFix | None, corrections: CorrectionsStatus | None, odometry: 
     }
 
 
+def _blackbox(status: BlackboxStatus | None) -> dict | None:
+    """What the operator sees of the black box's writer: a store down, and whether anything is lost."""
+    if status is None:
+        return None
+    return {
+        "store": "up" if status.store_up else "down",
+        "written": status.written,
+        "waiting": status.spooled + status.in_memory,
+        "lost": status.dropped + status.events_dropped + status.lost,
+        "store_faults": status.store_faults,
+        "last_error": status.last_error or None,
+    }
+
+
 def _summary(vehicle_id: str, get: dict, legs: LegTimer, now_wall: float, s: LiveSettings) -> dict:
     pose: Pose | None = get["localization/pose"]
     car: CarState | None = get["dbw/car_state"]
@@ -408,6 +424,7 @@ def _summary(vehicle_id: str, get: dict, legs: LegTimer, now_wall: float, s: Liv
         "gnss": _gnss(get["gnss/fix"], get["gnss/corrections"], odometry),
         "speed_limit_mps": None if limits is None else limits.limit_mps,
         "awareness": None if awareness is None else {"level": awareness.level, "causes": list(awareness.causes)},
+        "blackbox": _blackbox(get["blackbox/status"]),
         "mission": None
         if mission is None
         else {
