@@ -11,7 +11,14 @@ Collections (database blackbox_store.mongo_db):
 - events: a plain collection (events are few, and a plain collection allows any delete), a TTL
   index on time (RETENTION) and an index on (vehicle_id, time);
 - users: unique index on name;
-- revoked_tokens: the token ids refused before their expiry, removed by a TTL index past it.
+- revoked_tokens: the token ids refused before their expiry, removed by a TTL index past it;
+- acknowledged: per vehicle, the second up to which the fleet's store holds every record.
+
+With `keep_until_acknowledged` (a vehicle that waits for its fleet) records and events have no
+TTL: the server's monitor would delete seconds the fleet never acknowledged. An existing
+collection's TTL is switched off (collMod) and the events' TTL index dropped at setup, and
+inserts run purge_expired (which keeps what is not acknowledged) at most every
+`purge_interval_s`, as the embedded store does.
 
 Setup (collections, indexes) runs on first use and is retried on the next call until it
 succeeds, so the API and the register can start before the database does. Every call is
@@ -29,6 +36,7 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import UTC, datetime
+from typing import Any
 
 import orjson
 from pymongo import ASCENDING, DESCENDING, MongoClient
@@ -97,6 +105,8 @@ class MongoStore(RecordStore):
         self._events = self._db["events"]
         self._users = self._db["users"]
         self._revoked = self._db["revoked_tokens"]
+        self._acknowledged = self._db["acknowledged"]
+        self._last_purge: datetime | None = None
         self._setup_lock = threading.Lock()
         self._ready = False
 
@@ -104,29 +114,36 @@ class MongoStore(RecordStore):
 
     def _setup(self) -> None:
         existing = set(self._db.list_collection_names())
+        ttl: dict[str, Any] = {} if self.settings.keep_until_acknowledged else {"expireAfterSeconds": RETENTION_S}
         if "records" not in existing:
             try:
                 self._db.create_collection(
                     "records",
                     timeseries={"timeField": "time", "metaField": "vehicle_id", "granularity": "seconds"},
-                    expireAfterSeconds=RETENTION_S,
+                    **ttl,
                 )
             except CollectionInvalid:
                 pass  # created by another process since we listed
             except OperationFailure as exc:
                 if exc.code != NAMESPACE_EXISTS:
                     raise
+        elif not ttl:  # made with a TTL before the vehicle waited for its fleet
+            self._db.command("collMod", "records", expireAfterSeconds="off")
         # MongoDB >= 6.3 already indexes (meta, time) on new time-series collections; asking
         # again for the same index is a no-op, and covers older servers
         self._records.create_index([("vehicle_id", ASCENDING), ("time", ASCENDING)])
         self._events.create_index([("vehicle_id", ASCENDING), ("time", ASCENDING)])
         # an event is stored once: a batch retried after an uncertain failure adds nothing
         self._events.create_index([(f, ASCENDING) for f in EVENT_IDENTITY], unique=True, name="event_once")
-        self._events.create_index("time", expireAfterSeconds=RETENTION_S)
+        if ttl:
+            self._events.create_index("time", expireAfterSeconds=RETENTION_S)
+        elif "time_1" in self._events.index_information():
+            self._events.drop_index("time_1")
         self._users.create_index("name", unique=True)
         # a revoked token id is kept until its token expires (the server's TTL monitor removes it)
         self._revoked.create_index("token_id", unique=True)
         self._revoked.create_index("expires", expireAfterSeconds=0)
+        self._acknowledged.create_index("vehicle_id", unique=True)
 
     @contextmanager
     def _call(self, setup: bool = True) -> Iterator[None]:
@@ -172,7 +189,22 @@ class MongoStore(RecordStore):
                 new.extend(doc for t, doc in docs.items() if t not in stored)
             if new:
                 self._records.insert_many(new, ordered=False)
+        self._purge_if_due()
         return len(new)
+
+    def _purge_if_due(self) -> None:
+        """Without a TTL (keep_until_acknowledged) the purge is the inserts': at most every
+        purge_interval_s of the store's clock; one that fails is tried again later."""
+        if not self.settings.keep_until_acknowledged:
+            return
+        now = self.now()
+        if self._last_purge is not None and (now - self._last_purge).total_seconds() < self.settings.purge_interval_s:
+            return
+        self._last_purge = now
+        try:
+            self.purge_expired()
+        except StoreUnavailable:
+            return
 
     def latest(self, vehicle_id: str) -> dict | None:
         with self._call():
@@ -250,16 +282,41 @@ class MongoStore(RecordStore):
 
     def purge_expired(self) -> int:
         """MongoDB's TTL monitor already removes expired data (every ~60 s, by the server's
-        clock). This deletes explicitly by the store's clock too, so the retention contract
-        holds exactly and can be tested with a controlled clock. Deleting from a time-series
-        collection on its timeField needs MongoDB >= 7.0; on releases affected by SERVER-99527
-        such a delete can expire data inserted later within ~2 h of the deleted range early,
-        which a 7-day cutoff meets only for records uploaded a week late."""
+        clock) unless the store keeps what is not acknowledged. This deletes explicitly by the
+        store's clock too, so the retention contract holds exactly and can be tested with a
+        controlled clock. Deleting from a time-series collection on its timeField needs MongoDB
+        >= 7.0; on releases affected by SERVER-99527 such a delete can expire data inserted later
+        within ~2 h of the deleted range early, which a 7-day cutoff meets only for records
+        uploaded a week late."""
         cutoff = self.now() - RETENTION
         with self._call():
-            removed = self._records.delete_many({"time": {"$lt": cutoff}}).deleted_count
-            removed += self._events.delete_many({"time": {"$lt": cutoff}}).deleted_count
-        return removed
+            if not self.settings.keep_until_acknowledged:
+                removed = self._records.delete_many({"time": {"$lt": cutoff}}).deleted_count
+                return removed + self._events.delete_many({"time": {"$lt": cutoff}}).deleted_count
+            removed = 0
+            for mark in self._acknowledged.find({}, {"_id": 0}):
+                until = min(cutoff, datetime.fromtimestamp(mark["upto"] + 1, UTC))
+                older = {"vehicle_id": mark["vehicle_id"], "time": {"$lt": until}}
+                removed += self._records.delete_many(older).deleted_count
+                removed += self._events.delete_many(older).deleted_count
+            return removed
+
+    def acknowledged(self, vehicle_id: str) -> int | None:
+        with self._call():
+            doc = self._acknowledged.find_one({"vehicle_id": vehicle_id}, {"_id": 0, "upto": 1})
+        return None if doc is None else int(doc["upto"])
+
+    def acknowledge(self, vehicle_id: str, upto_epoch_s: int) -> int:
+        with self._call():
+            # $max: the mark never goes back, whichever of two writers comes last
+            doc = self._acknowledged.find_one_and_update(
+                {"vehicle_id": vehicle_id},
+                {"$max": {"upto": int(upto_epoch_s)}},
+                upsert=True,
+                return_document=True,
+                projection={"_id": 0, "upto": 1},
+            )
+        return int(doc["upto"])
 
     # ---- users ---------------------------------------------------------------------------------
 

@@ -13,6 +13,7 @@ queries return thousands of them and validating each again would cost more than 
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -53,6 +54,10 @@ class StoreSettings(Params):
     )
     purge_interval_s: float = param(
         60.0, "inserts run the retention purge at most this often (store clock)", unit="s", gt=0
+    )
+    keep_until_acknowledged: bool = param(
+        False,
+        "the purge deletes only seconds the fleet acknowledged holding (a vehicle with a fleet: on); off: 7 days",
     )
     page_size: int = param(16384, "new files only: a ~1.4 kB record fits its b-tree page", unit="B", ge=512)
     mmap_size_mb: int = param(256, "reads map the file instead of copying pages", unit="MiB", ge=0)
@@ -107,6 +112,17 @@ class User:
     # bumped whenever the account changes (role, password, disabled): tokens carry the generation
     # they were issued under, so a change ends every token issued before it
     generation: int = 0
+
+
+_EARLIEST = datetime(1970, 1, 1, tzinfo=UTC)
+_LATEST = datetime(9000, 1, 1, tzinfo=UTC)
+
+
+def as_utc(dt: datetime) -> datetime:
+    """Aware UTC datetime; a naive one is taken to be UTC already."""
+    if dt.tzinfo is None:
+        return dt.replace(tzinfo=UTC)
+    return dt.astimezone(UTC)
 
 
 def utc_now() -> datetime:
@@ -177,7 +193,38 @@ class RecordStore(ABC):
 
     @abstractmethod
     def purge_expired(self) -> int:
-        """Remove what is older than RETENTION by the store's clock; returns how many."""
+        """Remove what is older than RETENTION by the store's clock; returns how many. With
+        `keep_until_acknowledged`, of each vehicle only what is also at or before its acknowledged
+        mark (nothing of a vehicle without one): the fleet's store holds it."""
+
+    @abstractmethod
+    def acknowledged(self, vehicle_id: str) -> int | None:
+        """The second (UTC epoch s) up to which the fleet's store holds every record of the
+        vehicle, as the fleet last acknowledged it; None before the first acknowledgement."""
+
+    @abstractmethod
+    def acknowledge(self, vehicle_id: str, upto_epoch_s: int) -> int:
+        """Raise the vehicle's acknowledged mark to `upto_epoch_s` (never lower it: a purge may
+        already have deleted what it covered); returns the mark now stored."""
+
+    def oldest_second(self, vehicle_id: str) -> int | None:
+        """The oldest second of the vehicle's records held (UTC epoch s), None if none."""
+        first = self.records(vehicle_id, _EARLIEST, _LATEST, limit=1)
+        return None if not first else math.floor(as_utc(first[0]["time"]).timestamp())
+
+    def unacknowledged_expired(self, vehicle_id: str) -> tuple[int, int | None]:
+        """(how many, the oldest) of the vehicle's records older than RETENTION that the purge
+        keeps for want of an acknowledgement."""
+        cutoff = self.now() - RETENTION
+        mark = self.acknowledged(vehicle_id)
+        start = _EARLIEST if mark is None else datetime.fromtimestamp(mark + 1, UTC)
+        if start >= cutoff:
+            return 0, None
+        count = self.count_records(vehicle_id, start, cutoff)
+        if not count:
+            return 0, None
+        first = self.records(vehicle_id, start, cutoff, limit=1)
+        return count, math.floor(as_utc(first[0]["time"]).timestamp()) if first else None
 
     @abstractmethod
     def get_user(self, name: str) -> User | None: ...

@@ -16,6 +16,9 @@ Layout:
 - events (vehicle_id, ts, kind, doc), indexed on (vehicle_id, ts): several events may share a
   second, but the same event twice (a retried batch) is stored once (unique on all columns;
   files from before that rule are de-duplicated when first opened);
+- acknowledged (vehicle_id, upto): the second up to which the fleet's store holds every record
+  of the vehicle (its acknowledgement); with `keep_until_acknowledged` the purge deletes nothing
+  after it;
 - users (name, role, password_hash, created, disabled, generation), and revoked_tokens
   (token_id, expires): the token ids refused before their expiry.
 
@@ -55,6 +58,7 @@ from blackbox.register.store.record_store import (
     StoreSettings,
     StoreUnavailable,
     User,
+    as_utc,
     utc_now,
 )
 
@@ -92,6 +96,10 @@ CREATE TABLE IF NOT EXISTS revoked_tokens (
     token_id TEXT PRIMARY KEY,
     expires REAL NOT NULL
 );
+CREATE TABLE IF NOT EXISTS acknowledged (
+    vehicle_id TEXT PRIMARY KEY,
+    upto INTEGER NOT NULL
+);
 """
 # columns the users table gained after files were made: added to those files when first opened
 USER_COLUMNS_ADDED = {
@@ -100,13 +108,6 @@ USER_COLUMNS_ADDED = {
 }
 USER_COLUMNS = "name, role, password_hash, created, disabled, generation"
 FILE_MODE = 0o600  # the file holds the users' password hashes: its owner's only
-
-
-def as_utc(dt: datetime) -> datetime:
-    """Aware UTC datetime; a naive one is taken to be UTC already."""
-    if dt.tzinfo is None:
-        return dt.replace(tzinfo=UTC)
-    return dt.astimezone(UTC)
 
 
 def whole_second(dt: datetime) -> int:
@@ -193,9 +194,15 @@ class SqliteStore(RecordStore):
         if conn.execute("PRAGMA journal_mode = WAL").fetchone()[0].lower() != "wal":
             raise sqlite3.OperationalError("could not switch the journal to WAL")
         present = {row[0] for row in conn.execute("SELECT name FROM sqlite_master")}
-        if present >= {"records", "events", "events_vehicle_ts", "events_once", "users", "revoked_tokens"} and (
-            _records_keyed_by_run(conn)
-        ):
+        if present >= {
+            "records",
+            "events",
+            "events_vehicle_ts",
+            "events_once",
+            "users",
+            "revoked_tokens",
+            "acknowledged",
+        } and (_records_keyed_by_run(conn)):
             # an existing file: no write lock needed, so a restarted reader can serve queries
             # even while another process holds the write lock
             with self._lock:
@@ -360,17 +367,43 @@ class SqliteStore(RecordStore):
         """What is older than RETENTION by the store's clock, of each vehicle whose newest entry
         (in that table) is younger than that: a vehicle whose every entry looks expired either has
         a clock far behind the store's (days behind at boot) or stopped recording a week ago, and
-        in both cases its last entries are what must not go."""
+        in both cases its last entries are what must not go. With `keep_until_acknowledged`, only
+        what is also at or before the vehicle's acknowledged mark."""
         cutoff = (self.now() - RETENTION).timestamp()
         with self._connection(write=True) as conn:
             before = conn.total_changes
+            marks = dict(conn.execute("SELECT vehicle_id, upto FROM acknowledged").fetchall())
             # per vehicle, so each DELETE is a range of the (vehicle_id, ts) key, not a table scan
             for table in ("records", "events"):
                 for vehicle_id in _vehicle_ids(conn, table):
+                    until = cutoff
+                    if self.settings.keep_until_acknowledged:
+                        if vehicle_id not in marks:
+                            continue
+                        until = min(cutoff, marks[vehicle_id] + 1)
                     newest = conn.execute(f"SELECT max(ts) FROM {table} WHERE vehicle_id = ?", (vehicle_id,))
                     if newest.fetchone()[0] >= cutoff:
-                        conn.execute(f"DELETE FROM {table} WHERE vehicle_id = ? AND ts < ?", (vehicle_id, cutoff))
+                        conn.execute(f"DELETE FROM {table} WHERE vehicle_id = ? AND ts < ?", (vehicle_id, until))
             return conn.total_changes - before
+
+    def acknowledged(self, vehicle_id: str) -> int | None:
+        with self._connection() as conn:
+            row = conn.execute("SELECT upto FROM acknowledged WHERE vehicle_id = ?", (vehicle_id,)).fetchone()
+        return None if row is None else int(row[0])
+
+    def acknowledge(self, vehicle_id: str, upto_epoch_s: int) -> int:
+        with self._connection(write=True) as conn:
+            conn.execute(
+                "INSERT INTO acknowledged (vehicle_id, upto) VALUES (?, ?) "
+                "ON CONFLICT (vehicle_id) DO UPDATE SET upto = max(upto, excluded.upto)",
+                (vehicle_id, int(upto_epoch_s)),
+            )
+            return int(conn.execute("SELECT upto FROM acknowledged WHERE vehicle_id = ?", (vehicle_id,)).fetchone()[0])
+
+    def oldest_second(self, vehicle_id: str) -> int | None:
+        with self._connection() as conn:
+            row = conn.execute("SELECT min(ts) FROM records WHERE vehicle_id = ?", (vehicle_id,)).fetchone()
+        return None if row[0] is None else int(row[0])
 
     def _purge_if_due(self, oldest_inserted: float) -> None:
         """After an insert (records or events): purge at most once per purge_interval_s of the store's clock. Runs in
