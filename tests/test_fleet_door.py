@@ -218,9 +218,14 @@ _answers = st.lists(st.lists(_records, max_size=6), max_size=4)
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(arrivals=_arrivals, answers=_answers, oldest=st.none() | st.integers(-(2**62), 2**62))
+@given(
+    arrivals=_arrivals,
+    answers=_answers,
+    oldest=st.none() | st.integers(-(2**62), 2**62),
+    complete_to=st.none() | st.integers(-(2**62), 2**62),
+)
 def test_no_payload_on_the_fleets_keys_and_no_recorders_answer_makes_the_step_raise(
-    tmp_path_factory, arrivals, answers, oldest
+    tmp_path_factory, arrivals, answers, oldest, complete_to
 ):
     fleet = Fleet(tmp_path_factory.mktemp("fleet"))
     try:
@@ -241,7 +246,7 @@ def test_no_payload_on_the_fleets_keys_and_no_recorders_answer_makes_the_step_ra
             for vehicle_id, state in ledger.vehicles.items():
                 if state.in_flight is None and state.gaps:
                     state.in_flight = (state.gaps[0][0], state.gaps[0][1])
-                fleet.sync.answers.put((vehicle_id, records, oldest, ""))
+                fleet.sync.answers.put((vehicle_id, records, oldest, complete_to, ""))
             fleet.step()
         window = fleet.sync.window
         for state in ledger.vehicles.values():

@@ -827,8 +827,11 @@ class RecordRange(Msg):
 
 
 class RecordBatch(Msg):
-    """The recorder's answer: the records of a range it still holds, oldest first, and the oldest
-    second it holds (a range from before it is gone from the vehicle's memory, not from its store)."""
+    """The recorder's answer: the records of a range it holds (memory, then its store), oldest
+    first; the oldest second in its memory; and `complete_to_epoch_s`: every second of the range
+    before it was sent or never recorded (None: a recorder from before it, that answered from
+    memory only)."""
 
     records: list[VehicleRecord] = Field(default_factory=list)
     oldest_epoch_s: int | None = None
+    complete_to_epoch_s: int | None = Field(default=None, ge=0)

@@ -4,10 +4,11 @@ The fleet server keeps every vehicle's black box in its own store (blackbox/flee
 Records arrive live, one per second of each vehicle (`blackbox/record`); a link that is cut, or
 a fleet server that is down, leaves a gap. `FleetLedger` keeps, per vehicle, the newest second
 stored and the gaps behind it, and says which range to ask the vehicle's recorder for
-(`blackbox/records`); an answer fills what it holds. A second the vehicle's recorder no longer
-holds in memory (older than its `fleet_memory_s`) is not lost: it is in the vehicle's own store,
-and the ledger counts it as `left_on_vehicle`. A second the recorder never wrote (it was not
-running) is counted as `never_recorded`.
+(`blackbox/records`); an answer fills what it holds, from the recorder's memory or its store, and
+says up to where it is complete: a second before that which it did not send was never recorded
+(`never_recorded`), one after it stays open and is asked for again, however old, until the
+vehicle answers it. Only a recorder from before such answers (memory only) leaves a second older
+than its memory as `left_on_vehicle`.
 
 Reachability is judged on the wall clock: a vehicle from which nothing arrived for
 `unreachable_after_s` is unreachable until the next message. Nothing here does I/O.
@@ -126,10 +127,15 @@ class FleetLedger:
             out.append((vehicle_id, start, end))
         return out
 
-    def answered(self, vehicle_id: str, seconds: set[int], oldest_held: int | None) -> None:
-        """The recorder's answer to the request in flight: the seconds it sent are stored; of the
-        rest of the range, those older than what it holds stay on the vehicle, the others it
-        never recorded."""
+    def answered(
+        self, vehicle_id: str, seconds: set[int], oldest_held: int | None, complete_to: int | None = None
+    ) -> None:
+        """The recorder's answer to the request in flight: the seconds it sent are stored. One that
+        says up to where it is complete (`complete_to`: it reads its store) closes the rest of the
+        range before that as never recorded; what lies after stays open, asked again (at once if
+        the answer made progress, else after backfill_retry_s). An older recorder's (memory only):
+        of the rest, those older than what it holds stay on the vehicle, the others it never
+        recorded."""
         ledger = self.vehicle(vehicle_id)
         if ledger.in_flight is None:
             return
@@ -137,6 +143,14 @@ class FleetLedger:
         ledger.in_flight = None
         seconds = {k for k in seconds if start <= k < end}  # what was asked for, nothing more
         self._fill(ledger, seconds)
+        if complete_to is not None:
+            done = min(max(complete_to, start), end)
+            rest = {k for k in range(start, done) if k not in seconds}
+            ledger.never_recorded += len(rest)
+            self._fill(ledger, rest, count=False)
+            if done > start or seconds:
+                ledger.asked_wall = -1e18  # progress: the next piece at once
+            return
         rest = {k for k in range(start, end) if k not in seconds}
         before_memory = {k for k in rest if oldest_held is None or k < oldest_held}
         ledger.left_on_vehicle += len(before_memory)

@@ -52,7 +52,9 @@ class FleetSync(BlackboxNode):
         self._known_from_store(settings)
         self.start_writer(settings, self.core.vehicle_id)
         self.asks: queue.SimpleQueue[tuple[str, int, int] | None] = queue.SimpleQueue()
-        self.answers: queue.SimpleQueue[tuple[str, list[VehicleRecord] | None, int | None, str]] = queue.SimpleQueue()
+        self.answers: queue.SimpleQueue[tuple[str, list[VehicleRecord] | None, int | None, int | None, str]] = (
+            queue.SimpleQueue()
+        )
         self.asker = threading.Thread(target=self._ask_vehicles, name="fleet-backfill", daemon=True)
         self.asker.start()
         for topic in self.fleet_inputs:
@@ -100,14 +102,14 @@ class FleetSync(BlackboxNode):
                 self._live_event(vehicle_id, msg, arrived_wall)
         while True:
             try:
-                vehicle_id, records, oldest, error = self.answers.get_nowait()
+                vehicle_id, records, oldest, complete_to, error = self.answers.get_nowait()
             except queue.Empty:
                 break
             if records is None:
                 self.ledger.failed(vehicle_id)
                 self.log.info("gap of %s not filled yet: %s", vehicle_id, error)
                 continue
-            self._answer(vehicle_id, records, oldest, wall)
+            self._answer(vehicle_id, records, oldest, complete_to, wall)
         for change in self.ledger.silent(wall):
             self._reachability(change)
         for ask in self.ledger.requests(wall):
@@ -140,7 +142,9 @@ class FleetSync(BlackboxNode):
             return
         self.submit(stored_event(vehicle_id, datetime.fromtimestamp(stamp, UTC), msg))
 
-    def _answer(self, vehicle_id: str, records: list[VehicleRecord], oldest: int | None, wall: float) -> None:
+    def _answer(
+        self, vehicle_id: str, records: list[VehicleRecord], oldest: int | None, complete_to: int | None, wall: float
+    ) -> None:
         """The recorder's answer: of its records, those of the range asked for are stored."""
         asked = self.ledger.vehicle(vehicle_id).in_flight
         if asked is None:
@@ -155,7 +159,7 @@ class FleetSync(BlackboxNode):
                 continue
             seconds.add(epoch)
             self.submit(record)
-        self.ledger.answered(vehicle_id, seconds, oldest)
+        self.ledger.answered(vehicle_id, seconds, oldest, complete_to)
         ledger = self.ledger.vehicle(vehicle_id)
         self.log.info(
             "gap of %s: %d seconds filled so far, %d open, %d left on the vehicle",
@@ -196,9 +200,9 @@ class FleetSync(BlackboxNode):
                     timeout_s=self.params.backfill_timeout_s,
                     vehicle_id=vehicle_id,
                 )
-                self.answers.put((vehicle_id, list(batch.records), batch.oldest_epoch_s, ""))
+                self.answers.put((vehicle_id, list(batch.records), batch.oldest_epoch_s, batch.complete_to_epoch_s, ""))
             except ServiceError as exc:
-                self.answers.put((vehicle_id, None, None, str(exc)))
+                self.answers.put((vehicle_id, None, None, None, str(exc)))
 
     def _reachability(self, change: Reachability | None) -> None:
         if change is None:

@@ -150,6 +150,16 @@ class RecorderParams(StoreWriterParams):
         unit="s",
         ge=0,
     )
+    answer_max_records: int = param(600, "records in one answer to the fleet's gap request (blackbox/records)", ge=1)
+    answer_read_timeout_s: float = param(
+        0.5, "an answer's read of the vehicle's store waits at most this (it runs on the loop)", unit="s", gt=0
+    )
+    answer_store_retry_s: float = param(
+        10.0,
+        "a store that failed an answer's read is tried again after this (wall); memory answers meanwhile",
+        unit="s",
+        gt=0,
+    )
 
 
 # ---- where the store and the spool are --------------------------------------------------------

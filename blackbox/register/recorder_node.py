@@ -7,30 +7,35 @@ turns the writer's notices into events (both as every black box does: blackbox.r
 
 For the fleet: each record is also published (`blackbox/record`) as it is handed to the writer,
 and the last `fleet_memory_s` of them are kept in memory, from which `blackbox/records` answers
-the fleet's store when it asks for the seconds a lost link kept from it (blackbox/fleet/sync.py).
-The answer never waits on the vehicle's own store.
+the fleet's store when it asks for the seconds a lost link kept from it (blackbox/fleet/sync.py);
+an older second is read from the vehicle's own store (blackbox.register.answer), through a
+handle of its own whose every read is bounded by `answer_read_timeout_s`; a store that failed
+is left alone for `answer_store_retry_s`, memory answering meanwhile.
 """
 
 from __future__ import annotations
 
 import collections
 import math
+import time
 import uuid
 
 from ares.core import topics
 from ares.core.geodesy import LocalFrame
 from ares.core.messages import BlackboxRecord, BlackboxStatus, EventLevel, RecordBatch, RecordRange, VehicleRecord
 from ares.core.node import Input, InputGroup, Output, service
+from blackbox.register.answer import answer_range
 from blackbox.register.blackbox_node import BlackboxNode
 from blackbox.register.recorder import (
     SENSOR_TOPICS,
     RecorderParams,
     Snapshot,
     build_record,
+    open_configured_store,
     store_uri,
     stored_event,
 )
-from blackbox.register.store.record_store import StoreSettings
+from blackbox.register.store.record_store import RecordStore, StoreSettings, StoreUnavailable
 
 
 class Recorder(BlackboxNode):
@@ -68,6 +73,8 @@ class Recorder(BlackboxNode):
         self.event_counts: collections.Counter[int] = collections.Counter()
         self.memory: collections.deque[VehicleRecord] = collections.deque(maxlen=max(p.fleet_memory_s, 1))
         self._events_overflowed = 0
+        self.reader: RecordStore | None = None  # the answers' own handle on the store, opened when first needed
+        self.reader_retry_at = 0.0
         self.log.info(
             "recording %s to %s (spool %s)", self.vehicle_id, store_uri(self.store_settings), self.writer.spool.path
         )
@@ -116,15 +123,52 @@ class Recorder(BlackboxNode):
         return self.writer.status(now, self.lost)
 
     def teardown(self) -> None:
+        if getattr(self, "reader", None) is not None:
+            self.reader.close()
         super().teardown()
         if getattr(self, "writer", None) is not None:  # the counts after the last flush, for whoever listens
             self.health.put(self.status(self.clock.now()))
 
     @service("blackbox/records")
     def _records(self, request: RecordRange) -> RecordBatch:
-        wanted = [r for r in self.memory if request.start_epoch_s <= int(r.time.timestamp()) < request.end_epoch_s]
-        oldest = int(self.memory[0].time.timestamp()) if self.memory else None
-        return RecordBatch(t=self.clock.now(), records=wanted, oldest_epoch_s=oldest)
+        batch, why_not = answer_range(
+            self.clock.now(),
+            self.memory,
+            self._answer_store(),
+            self.vehicle_id,
+            request,
+            self.params.answer_max_records,
+        )
+        if why_not:
+            self.reader_retry_at = time.monotonic() + self.params.answer_store_retry_s
+            self.log.warning("gap request answered from memory only: %s", why_not)
+        return batch
+
+    def _answer_store(self) -> RecordStore | None:
+        """The answers' handle on the store, with reads bounded to answer_read_timeout_s; None
+        while a store that failed is left alone."""
+        if time.monotonic() < self.reader_retry_at:
+            return None
+        if self.reader is None:
+            bound_s = self.params.answer_read_timeout_s
+            bound_ms = max(int(bound_s * 1000), 1)
+            quick = self.store_settings.model_copy(
+                update={
+                    "busy_timeout_s": min(self.store_settings.busy_timeout_s, bound_s),
+                    "query_timeout_s": min(self.store_settings.query_timeout_s, bound_s),
+                    "mongo_server_selection_timeout_ms": bound_ms,
+                    "mongo_connect_timeout_ms": bound_ms,
+                    "mongo_socket_timeout_ms": bound_ms,
+                    "mongo_timeout_ms": bound_ms,
+                }
+            )
+            try:
+                self.reader = open_configured_store(quick)
+            except StoreUnavailable as exc:
+                self.reader_retry_at = time.monotonic() + self.params.answer_store_retry_s
+                self.log.warning("the store cannot be opened for the fleet's answers: %s", exc)
+                return None
+        return self.reader
 
     def snapshot(self, now: float) -> Snapshot:
         window = self.params.sensor_window_s
