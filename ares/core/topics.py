@@ -157,7 +157,7 @@ SERVICE_TABLE: list[Service] = [
         "blackbox/records",
         m.RecordRange,
         m.RecordBatch,
-        "the black-box seconds of a range the recorder still holds in memory: the fleet's store fills a gap",
+        "the black-box seconds of a range the recorder holds (memory, then its store): the fleet's store fills a gap",
     ),
     Service(
         "mission/body",

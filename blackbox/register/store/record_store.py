@@ -57,7 +57,7 @@ class StoreSettings(Params):
     )
     keep_until_acknowledged: bool = param(
         False,
-        "the purge deletes only seconds the fleet acknowledged holding (a vehicle with a fleet: on); off: 7 days",
+        "the purge deletes only seconds past the retention that the fleet acknowledged holding; off: 7 days",
     )
     page_size: int = param(16384, "new files only: a ~1.4 kB record fits its b-tree page", unit="B", ge=512)
     mmap_size_mb: int = param(256, "reads map the file instead of copying pages", unit="MiB", ge=0)
