@@ -44,6 +44,7 @@ LEASE_MS = 2000  # as the stack's bus.lease_ms: a cut link is noticed within it
 FLEET_SERVICES = (
     "supervisor/status",
     "blackbox/records",
+    "blackbox/acknowledge",
 )
 
 PUBLISH = ["put", "delete", "liveliness_token", "declare_queryable", "reply"]
