@@ -101,3 +101,30 @@ def test_a_store_that_cannot_be_read_leaves_the_seconds_open_to_ask_again(tmp_pa
     finally:
         recorder.teardown()
         recorder.bus.close()
+
+
+def test_the_fleets_acknowledgement_is_kept_and_one_naming_the_future_or_the_past_is_refused(tmp_path):
+    from ares.core.messages import Acknowledgement
+
+    store_path = tmp_path / "vehicle.sqlite"
+    _stored_outage(store_path)
+    recorder = _recorder(tmp_path, store_path)
+    try:
+        recorder.clock.advance(3.0)
+        recorder.step_once(recorder.clock.now())  # seconds NOW+1 .. NOW+3 recorded
+        newest = recorder.newest_recorded
+        assert newest == NOW + 3
+        asked = recorder._acknowledge(Acknowledgement(t=0.0))
+        assert (asked.acknowledged_epoch_s, asked.oldest_held_epoch_s, asked.refused) == (None, NOW - OUTAGE_S, "")
+        assert recorder._acknowledge(Acknowledgement(t=0.0, upto_epoch_s=NOW - 100)).acknowledged_epoch_s == NOW - 100
+        future = recorder._acknowledge(Acknowledgement(t=0.0, upto_epoch_s=NOW + 10**9))
+        assert future.acknowledged_epoch_s == newest and "ahead of the newest second recorded" in future.refused
+        past = recorder._acknowledge(Acknowledgement(t=0.0, upto_epoch_s=NOW - 5000))
+        assert past.acknowledged_epoch_s == newest and "behind the mark" in past.refused
+        assert recorder.acknowledgements_refused == 2
+    finally:
+        recorder.teardown()
+        recorder.bus.close()
+    reopened = SqliteStore(str(store_path))
+    assert reopened.acknowledged(VEHICLE) == newest  # in the file: it outlives the recorder
+    reopened.close()

@@ -835,3 +835,19 @@ class RecordBatch(Msg):
     records: list[VehicleRecord] = Field(default_factory=list)
     oldest_epoch_s: int | None = None
     complete_to_epoch_s: int | None = Field(default=None, ge=0)
+
+
+class Acknowledgement(Msg):
+    """The fleet's store holds every record of this vehicle up to `upto_epoch_s` (UTC epoch s),
+    contiguous, nothing open before it; None: the fleet only asks for the vehicle's mark."""
+
+    upto_epoch_s: int | None = Field(default=None, ge=0)
+
+
+class AcknowledgementReply(Msg):
+    """The mark the vehicle's store holds now, the oldest second it holds, and why the
+    acknowledgement was not taken as sent ('' when it was)."""
+
+    acknowledged_epoch_s: int | None = None
+    oldest_held_epoch_s: int | None = None
+    refused: str = ""

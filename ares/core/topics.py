@@ -160,6 +160,12 @@ SERVICE_TABLE: list[Service] = [
         "the black-box seconds of a range the recorder holds (memory, then its store): the fleet's store fills a gap",
     ),
     Service(
+        "blackbox/acknowledge",
+        m.Acknowledgement,
+        m.AcknowledgementReply,
+        "the fleet's store holds every second of the vehicle up to a mark: the vehicle's purge may go that far",
+    ),
+    Service(
         "mission/body",
         m.BodyRequest,
         m.MissionReply,

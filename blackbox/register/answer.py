@@ -1,4 +1,5 @@
-"""The vehicle's answer to the fleet's gap request (`blackbox/records`): from memory where it
+"""The vehicle's answers to the fleet: its acknowledgement taken into the store (the purge may
+then delete up to it), and its gap request (`blackbox/records`): from memory where it
 holds the seconds, from the vehicle's own store for any older second it still keeps.
 
 An answer is bounded (at most `max_records`, a range of at most what the fleet asks for) and says
@@ -14,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from datetime import UTC, datetime
 
-from ares.core.messages import RecordBatch, RecordRange, VehicleRecord
+from ares.core.messages import Acknowledgement, AcknowledgementReply, RecordBatch, RecordRange, VehicleRecord
 from blackbox.register.store.record_store import RecordStore, StoreUnavailable
 
 
@@ -54,3 +55,29 @@ def answer_range(
     records = ordered[:max_records]
     complete = end if len(ordered) <= max_records else int(records[-1].time.timestamp()) + 1
     return RecordBatch(t=t, records=records, oldest_epoch_s=memory_oldest, complete_to_epoch_s=complete), ""
+
+
+def take_acknowledgement(
+    t: float, store: RecordStore | None, vehicle_id: str, request: Acknowledgement, newest_recorded: int | None
+) -> AcknowledgementReply:
+    """The fleet's acknowledgement, kept in the store: one naming a second this recorder has not
+    recorded yet (a fleet's clock or bookkeeping gone wrong) is cut to the newest it recorded,
+    one behind the mark does not lower it, and either is said in `refused` for the caller to count."""
+    if store is None:
+        return AcknowledgementReply(t=t, refused="the store cannot be read now")
+    refused = ""
+    try:
+        mark = store.acknowledged(vehicle_id)
+        upto = request.upto_epoch_s
+        if upto is not None and (newest_recorded is None or upto > newest_recorded):
+            refused = f"acknowledged up to {upto}, ahead of the newest second recorded ({newest_recorded})"
+            upto = newest_recorded
+        if upto is not None and mark is not None and upto < mark:
+            refused = refused or f"acknowledged up to {upto}, behind the mark {mark}: the mark stays"
+        elif upto is not None:
+            mark = store.acknowledge(vehicle_id, upto)
+        return AcknowledgementReply(
+            t=t, acknowledged_epoch_s=mark, oldest_held_epoch_s=store.oldest_second(vehicle_id), refused=refused
+        )
+    except StoreUnavailable as exc:
+        return AcknowledgementReply(t=t, refused=f"the store cannot be written now: {exc}")

@@ -22,9 +22,18 @@ import uuid
 
 from ares.core import topics
 from ares.core.geodesy import LocalFrame
-from ares.core.messages import BlackboxRecord, BlackboxStatus, EventLevel, RecordBatch, RecordRange, VehicleRecord
+from ares.core.messages import (
+    Acknowledgement,
+    AcknowledgementReply,
+    BlackboxRecord,
+    BlackboxStatus,
+    EventLevel,
+    RecordBatch,
+    RecordRange,
+    VehicleRecord,
+)
 from ares.core.node import Input, InputGroup, Output, service
-from blackbox.register.answer import answer_range
+from blackbox.register.answer import answer_range, take_acknowledgement
 from blackbox.register.blackbox_node import BlackboxNode
 from blackbox.register.recorder import (
     SENSOR_TOPICS,
@@ -75,6 +84,8 @@ class Recorder(BlackboxNode):
         self._events_overflowed = 0
         self.reader: RecordStore | None = None  # the answers' own handle on the store, opened when first needed
         self.reader_retry_at = 0.0
+        self.newest_recorded: int | None = None  # the newest second recorded (UTC epoch s)
+        self.acknowledgements_refused = 0
         self.log.info(
             "recording %s to %s (spool %s)", self.vehicle_id, store_uri(self.store_settings), self.writer.spool.path
         )
@@ -113,6 +124,7 @@ class Recorder(BlackboxNode):
             if self.params.fleet_memory_s > 0:
                 self.memory.append(record)
             self.published.put(BlackboxRecord(t=float(k), record=record))
+            self.newest_recorded = math.floor(record.time.timestamp())
             self.next_k = k + 1
             crossed = True
         self.publish_notices()
@@ -143,6 +155,18 @@ class Recorder(BlackboxNode):
             self.reader_retry_at = time.monotonic() + self.params.answer_store_retry_s
             self.log.warning("gap request answered from memory only: %s", why_not)
         return batch
+
+    @service("blackbox/acknowledge")
+    def _acknowledge(self, request: Acknowledgement) -> AcknowledgementReply:
+        reply = take_acknowledgement(
+            self.clock.now(), self._answer_store(), self.vehicle_id, request, self.newest_recorded
+        )
+        if reply.refused:
+            self.acknowledgements_refused += 1
+            self.log.warning(
+                "the fleet's acknowledgement (%s refused so far): %s", self.acknowledgements_refused, reply.refused
+            )
+        return reply
 
     def _answer_store(self) -> RecordStore | None:
         """The answers' handle on the store, with reads bounded to answer_read_timeout_s; None
