@@ -1,0 +1,39 @@
+"""The vehicle router's per-process access control, made from the contracts (ares/deploy/local_acl.py):
+every key a contract declares is allowed to its process, and a key no contract declares to no one."""
+
+from __future__ import annotations
+
+from ares.app import contracts
+from ares.core import config
+from ares.deploy import local_acl
+
+
+def _allowed(rules: list[dict], process: str, kind: str) -> set[str]:
+    return {k for r in rules if r["id"] == f"{process}_{kind}" for k in r["key_exprs"]}
+
+
+def test_every_declared_output_and_service_is_allowed_to_its_process():
+    cfg = config.core_defaults()
+    rules = local_acl.rules(cfg)
+    for c in contracts.all_contracts(cfg):
+        puts = _allowed(rules, c["process"], "put")
+        assert {f"ares/*/{o['topic']}" for o in c["outputs"]} <= puts
+        assert f"ares/*/heartbeat/{c['process']}" in puts and "ares/*/events" in puts
+        assert {f"ares/*/srv/{s['name']}" for s in c["services"]} <= _allowed(rules, c["process"], "serve")
+        assert {f"ares/*/srv/{name}" for name in c["calls"]} <= _allowed(rules, c["process"], "call")
+        assert _allowed(rules, c["process"], "alive") == {f"ares/*/alive/{c['process']}"}
+
+
+def test_the_api_may_neither_command_the_car_nor_serve_a_mission():
+    rules = local_acl.rules(config.core_defaults())
+    assert "ares/*/control/setpoint" not in _allowed(rules, "api", "put")
+    assert not any(k.startswith("ares/*/dbw/") for k in _allowed(rules, "api", "put"))
+    assert "ares/*/srv/mission/goal" not in _allowed(rules, "api", "serve")
+    assert "ares/*/srv/mission/goal" in _allowed(rules, "api", "call")
+
+
+def test_a_key_no_contract_declares_is_allowed_to_no_one():
+    rules = local_acl.rules(config.core_defaults())
+    every_key = {k for r in rules for k in r["key_exprs"]}
+    assert "ares/*/probe/acl" not in every_key and "**" not in every_key
+    assert all(k.startswith("ares/*/") and "**" not in k for k in every_key)
