@@ -8,6 +8,11 @@ is allowed to no one. The supervisor (not a node) gets what ares/app/supervisor.
 Keys are `ares/*/<topic>`: the template serves every vehicle, and the fleet router admits a
 vehicle's data only under its own id (router_config.fleet_router).
 
+Measured with eclipse-zenoh 1.x in router mode (default deny, usernames as subjects): a client
+publisher that is not sent the subscribers' declarations (egress declare_subscriber) stops sending
+after its first samples (2 of 40 delivered; all 40 with it), so the egress rules still to be
+written must pass declarations toward a publisher, as well as the samples toward a subscriber.
+
 Not yet wired into router_config.vehicle_router, pki and the rehearsal (see docs/security.md).
 """
 
