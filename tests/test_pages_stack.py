@@ -193,8 +193,15 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     pg.wait_for_selector("#refused:not([hidden])")
     assert "operator role" in pg.inner_text("#refused")
     shot(pg, "operator_refused_to_an_auditor")
+    token = pg.evaluate("JSON.parse(sessionStorage.getItem('ares.session')).token")
     pg.click("#logout")
+    pg.wait_for_selector("#login:not([hidden])")  # the token revoked, then the page reloaded
     login(pg, stack["url"] + "/operator", "operator1")
+    # the logout revoked the auditor's token at the API: a copy of it is refused
+    events = f"{stack['url']}/api/v1/vehicles/{VEHICLE}/events"
+    refused = httpx.get(events, headers={"Authorization": f"Bearer {token}"}, verify=False, timeout=10)
+    assert refused.status_code == 401, refused.text
+    assert rest(stack, "auditor1").get(f"/vehicles/{VEHICLE}/events").status_code == 200  # a new login is served
     pg.wait_for_selector("#app:not([hidden])")
     # live values change from frame to frame
     wait_for(lambda: field(pg, "speed_mps") not in ("", "0"), 15, "a speed on the page")

@@ -123,7 +123,16 @@ const ARES = (() => {
     const who = document.getElementById("who");
     const why = sessionStorage.getItem("ares.why");
     sessionStorage.removeItem("ares.why");
-    document.getElementById("logout").addEventListener("click", () => logout());
+    document.getElementById("logout").addEventListener("click", async () => {
+      // the token refused from now on, not only forgotten here: a copy of it (a shared screen, a
+      // proxy's log) is worth nothing after the logout
+      const s = session();
+      if (s) {
+        await fetch(API + "/auth/revoke", {method: "POST", headers: {Authorization: "Bearer " + s.token}})
+          .catch(() => null);   // the server unreachable: the token still lapses at its expiry
+      }
+      logout();
+    });
     const s = session();
     if (!s || s.expires < Date.now()) {
       loginEl.hidden = false;
