@@ -40,3 +40,16 @@ def test_a_nonce_is_forgotten_only_once_its_command_is_stale():
     assert "replayed" in verifier.check("mission/pause", pause)[1]
     wall[0] = 1011.0
     assert "stale" in verifier.check("mission/pause", pause)[1]
+
+
+def test_a_command_captured_before_a_managers_restart_is_not_obeyed_after_it():
+    """The nonces live in memory: a restarted manager has forgotten them, so it obeys only what was
+    signed after it started (the replay of a fresh command captured just before is refused)."""
+    key, wall = b"k" * 32, [1000.0]
+    pause = sign(key, "mission/pause", MissionRequest(operator="ana"), "ana", wall=lambda: 1000.0)
+    assert CommandVerifier(key, max_age_s=10.0, wall=lambda: wall[0]).check("mission/pause", pause)[0] == "ana"
+    wall[0] = 1002.0  # the manager restarted 2 s later: the command is still fresh
+    restarted = CommandVerifier(key, max_age_s=10.0, wall=lambda: wall[0])
+    assert "before this manager started" in restarted.check("mission/pause", pause)[1]
+    again = sign(key, "mission/pause", MissionRequest(operator="ana"), "ana", wall=lambda: 1002.5)
+    assert restarted.check("mission/pause", again) == ("ana", "")

@@ -12,8 +12,9 @@ The payload is the request without its `t` and its signature, so a signature mad
 not start a tour, and one made for `mission/pause` does not cancel. The manager records the signed
 operator, never a name of the payload. A command older than `max_age_s` (wall clock: the API and the
 managers run on one vehicle) is stale; a nonce seen before is a replay. The nonces are kept as long
-as they could still be fresh, in memory: a manager restarted within `max_age_s` of a command could be
-replayed that command once (docs/security.md).
+as they could still be fresh, in memory; what a restarted manager no longer remembers it need not:
+it obeys only commands signed after it started, so a command captured before a restart cannot be
+replayed after it (an operator whose command met the restart sends it again).
 
 The key: `commands.key_file` (a compose secret on a vehicle), else the file `command_key` in the
 user's state directory, made at first use by whichever process needs it first, so that on a
@@ -107,6 +108,7 @@ class CommandVerifier:
         self.max_age_s = max_age_s
         self.wall = wall
         self._seen: dict[str, float] = {}  # nonce -> when issued, while it could still be fresh
+        self.started_at = wall()  # the nonces seen before this are not remembered: nor obeyed
 
     def check(self, service: str, request: Any) -> tuple[str | None, str]:
         """(the signed operator, "") for a command to obey, else (None, why it is refused)."""
@@ -120,6 +122,8 @@ class CommandVerifier:
         age = now - signature.issued_at
         if not -self.max_age_s <= age <= self.max_age_s:
             return None, f"refused: a stale command (signed {age:.0f} s ago; at most {self.max_age_s:g} s)"
+        if signature.issued_at < self.started_at:
+            return None, "refused: a command signed before this manager started (sent again if it is meant)"
         self._seen = {n: at for n, at in self._seen.items() if now - at <= self.max_age_s}
         if signature.nonce in self._seen:
             return None, "refused: a replayed command (its nonce was used already)"
