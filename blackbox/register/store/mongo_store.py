@@ -3,11 +3,13 @@
 Collections (database blackbox_store.mongo_db):
 - records: a time-series collection (timeField "time", metaField "vehicle_id", granularity
   "seconds") expiring after RETENTION; MongoDB stores it in per-vehicle buckets, compressed.
-  Time-series collections cannot have unique indexes, so "one record per vehicle per second"
-  is kept by the writer: insert_records first reads which seconds of the batch's range are
-  already stored for the vehicle and inserts only the others. That is exact for one writer
-  per vehicle (the event register); two concurrent writers of one vehicle could both insert a
-  second;
+  Time-series collections cannot have unique indexes, so "one record per vehicle, second and
+  run" is kept by the writer: insert_records first reads which seconds and runs of the batch's
+  range are already stored for the vehicle and inserts only the others; a second another run
+  holds (a clock set back between two runs) is stored beside it with `dup` 1, 2, ..., and the
+  reads (latest, records, count) give the first only, as the embedded store does. That is exact
+  for one writer per vehicle (the event register); two concurrent writers of one vehicle could
+  both insert a second;
 - events: a plain collection (events are few, and a plain collection allows any delete), a TTL
   index on time (RETENTION) and an index on (vehicle_id, time);
 - users: unique index on name;
@@ -33,7 +35,7 @@ is tz_aware, so every datetime read back is aware UTC.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from typing import Any
@@ -167,26 +169,24 @@ class MongoStore(RecordStore):
     # ---- records -----------------------------------------------------------------------------
 
     def insert_records(self, records: Sequence[VehicleRecord]) -> int:
-        # per vehicle, one document per whole second (the first of a batch's duplicates wins)
-        by_vehicle: dict[str, dict[datetime, dict]] = {}
+        # per vehicle, one document per whole second and run (the first of a batch's duplicates wins)
+        by_vehicle: dict[str, dict[tuple[datetime, str], dict]] = {}
         for record in records:
             t = _utc(record.time).replace(microsecond=0)
             doc = record.model_dump(mode="json")
             doc["time"] = t
-            by_vehicle.setdefault(record.vehicle_id, {}).setdefault(t, doc)
+            by_vehicle.setdefault(record.vehicle_id, {}).setdefault((t, record.run or ""), doc)
         if not by_vehicle:
             return 0
         new: list[dict] = []
         with self._call():
             for vehicle_id, docs in by_vehicle.items():
-                stored = {
-                    d["time"]
-                    for d in self._records.find(
-                        {"vehicle_id": vehicle_id, "time": {"$gte": min(docs), "$lte": max(docs)}},
-                        {"_id": 0, "time": 1},
-                    )
-                }
-                new.extend(doc for t, doc in docs.items() if t not in stored)
+                times = [t for t, _ in docs]
+                held = self._records.find(
+                    {"vehicle_id": vehicle_id, "time": {"$gte": min(times), "$lte": max(times)}},
+                    {"_id": 0, "time": 1, "run": 1, "dup": 1},
+                )
+                new.extend(_new_documents(docs, held))
             if new:
                 self._records.insert_many(new, ordered=False)
         self._purge_if_due()
@@ -208,7 +208,9 @@ class MongoStore(RecordStore):
 
     def latest(self, vehicle_id: str) -> dict | None:
         with self._call():
-            return self._records.find_one({"vehicle_id": vehicle_id}, _PROJECTION, sort=[("time", DESCENDING)])
+            return self._records.find_one(
+                {"vehicle_id": vehicle_id, "dup": {"$exists": False}}, _PROJECTION, sort=[("time", DESCENDING)]
+            )
 
     def records(
         self, vehicle_id: str, start: datetime, end: datetime, *, skip: int = 0, limit: int = 1000
@@ -371,7 +373,32 @@ class MongoStore(RecordStore):
 
 
 def _range(vehicle_id: str, start: datetime, end: datetime) -> dict:
-    return {"vehicle_id": vehicle_id, "time": {"$gte": _utc(start), "$lt": _utc(end)}}
+    """A vehicle's records of [start, end) as the API reads them: one per second, the first stored
+    (a second held twice, by two runs, keeps its second record with `dup`, as the embedded store)."""
+    return {"vehicle_id": vehicle_id, "time": {"$gte": _utc(start), "$lt": _utc(end)}, "dup": {"$exists": False}}
+
+
+def _new_documents(docs: dict[tuple[datetime, str], dict], held: Iterable[dict]) -> list[dict]:
+    """Of a batch's documents (by second and run), those to insert: a (second, run) stored already
+    is a retried batch's and skipped; a second another run holds (a clock set back between two runs)
+    is kept beside it, numbered `dup` after the ones there, so no run's record is dropped."""
+    runs_at: dict[datetime, set[str]] = {}
+    dups_at: dict[datetime, int] = {}
+    for doc in held:
+        t = _utc(doc["time"])
+        runs_at.setdefault(t, set()).add(doc.get("run") or "")
+        dups_at[t] = max(dups_at.get(t, 0), int(doc.get("dup") or 0))
+    out = []
+    for (t, run), doc in docs.items():
+        if run in runs_at.get(t, set()):
+            continue
+        if t in runs_at:
+            dups_at[t] += 1
+            doc["dup"] = dups_at[t]
+        runs_at.setdefault(t, set()).add(run)
+        dups_at.setdefault(t, 0)
+        out.append(doc)
+    return out
 
 
 def _user(doc: dict) -> User:
