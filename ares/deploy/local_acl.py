@@ -10,8 +10,10 @@ vehicle's data only under its own id (router_config.fleet_router).
 
 Measured with eclipse-zenoh 1.x in router mode (default deny, usernames as subjects): a client
 publisher that is not sent the subscribers' declarations (egress declare_subscriber) stops sending
-after its first samples (2 of 40 delivered; all 40 with it), so the egress rules still to be
-written must pass declarations toward a publisher, as well as the samples toward a subscriber.
+after its first samples (2 of 40 delivered; all 40 with it), so the egress rules pass the
+subscriber declarations of a process's own outputs toward it, as well as the samples of its inputs,
+the queries of its services and the replies of its calls. The supervisor watches every process's
+liveliness token (`alive/*`: its liveliness subscriber and query in, the tokens out).
 
 Not yet wired into router_config.vehicle_router, pki and the rehearsal (see docs/security.md).
 """
@@ -61,8 +63,25 @@ def fleet_inputs(cfg: Mapping[str, Any]) -> dict[str, set[str]]:
     return out
 
 
+# what flows toward a process, by kind of its rights: samples of what it subscribes to, the
+# subscribers' declarations of what it puts (without them a client publisher stops sending), the
+# queries of its services, the replies of its calls
+EGRESS = {
+    "put": ["declare_subscriber"],
+    "subscribe": ["put", "delete"],
+    "serve": ["query"],
+    "call": ["reply"],
+}
+WATCH_ALIVE = "alive/*"  # the supervisor's liveliness subscriber and query (bus.watch_alive, alive())
+
+
+def _rule(rule_id: str, messages: list[str], flow: str, keys: list[str]) -> dict[str, Any]:
+    return {"id": rule_id, "permission": "allow", "messages": messages, "flows": [flow], "key_exprs": keys}
+
+
 def rules(cfg: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """One ingress rule per process and kind of message, with the keys its contract allows."""
+    """One ingress rule per process and kind of message, with the keys its contract allows, and
+    one egress rule per process and kind for what flows back to it (EGRESS)."""
     messages = {
         "put": ["put", "delete"],
         "subscribe": ["declare_subscriber"],
@@ -79,8 +98,18 @@ def rules(cfg: Mapping[str, Any]) -> list[dict[str, Any]]:
                 continue
             prefix = "srv/" if kind in ("serve", "call") else "alive/" if kind == "alive" else ""
             keys = sorted(_key(prefix + t) for t in topics)
-            out.append(
-                {"id": f"{process}_{kind}", "permission": "allow", "messages": messages[kind],
-                 "flows": ["ingress"], "key_exprs": keys}
-            )  # fmt: skip
+            out.append(_rule(f"{process}_{kind}", messages[kind], "ingress", keys))
+            if kind in EGRESS:
+                out.append(_rule(f"{process}_{kind}_back", EGRESS[kind], "egress", keys))
+    watch = [_key(WATCH_ALIVE)]
+    sup = contracts.SUPERVISOR
+    out.append(_rule(f"{sup}_watch", ["declare_liveliness_subscriber", "liveliness_query"], "ingress", watch))
+    out.append(_rule(f"{sup}_watch_back", ["liveliness_token"], "egress", watch))
     return out
+
+
+def rule_ids(cfg: Mapping[str, Any]) -> dict[str, list[str]]:
+    """process -> the ids of its rules, for its policy (its subject: its user name)."""
+    suffixes = [*KINDS, *(f"{kind}_back" for kind in EGRESS), "watch", "watch_back"]
+    every = {r["id"] for r in rules(cfg)}
+    return {p: [f"{p}_{s}" for s in suffixes if f"{p}_{s}" in every] for p in allowed_topics(cfg)}
