@@ -37,3 +37,14 @@ def test_a_key_no_contract_declares_is_allowed_to_no_one():
     every_key = {k for r in rules for k in r["key_exprs"]}
     assert "ares/*/probe/acl" not in every_key and "**" not in every_key
     assert all(k.startswith("ares/*/") and "**" not in k for k in every_key)
+
+
+def test_each_process_of_the_table_has_its_own_password_on_its_router(tmp_path):
+    from ares.app.processes import PROCESSES
+    from ares.deploy import pki
+
+    issued = pki.issue_vehicle(tmp_path / "ca", "shuttle01", ["localhost"])
+    users = pki.read_users(issued.vehicle_dir / "zenoh_local_users")
+    assert {p.name for p in PROCESSES} | {"supervisor", "observer"} <= set(users)
+    assert len(set(users.values())) == len(users)  # no two processes share a password
+    assert set(users) <= set(local_acl.rule_ids(config.core_defaults())) | {"observer", "vehicle"}

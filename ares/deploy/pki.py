@@ -17,8 +17,9 @@ Layout of the CA folder (`ares deploy certs --fleet-ca DIR`):
         zenoh_ca                       the CA's certificate
         zenoh_router_cert, _key        its router's certificate (CN = <id>)
         zenoh_user, zenoh_password     its router's Zenoh credentials on the fleet router
-        zenoh_local_users              `vehicle:<password>`: its router's dictionary, for its own processes
-        zenoh_local_password           that password, for the processes (bus.password_file)
+        zenoh_local_users              its router's dictionary: `user:password` per process of the table
+                                       (its name), the supervisor, the read-only observer, and `vehicle`
+        zenoh_local_password           `vehicle`'s password, for the processes (bus.password_file)
         zenoh_router.json5             its router's config with the credentials (router_config.py)
     and in both folders the black box's:
         api_tls_cert, api_tls_key      the REST API's HTTPS certificate (names: the id or `fleet`, --api-host)
@@ -51,7 +52,10 @@ VEHICLE_ID_RE = re.compile(r"^[a-z0-9][a-z0-9_-]{0,62}$")  # a key-expression ch
 CA_DAYS = 3650
 LEAF_DAYS = 825  # the longest validity clients commonly accept; rotate before (docs/deploy.md)
 FLEET_USER = "fleet"
-LOCAL_USER = "vehicle"  # a vehicle's processes on its own router
+# a vehicle's processes on its own router, all of them under one user: kept until the vehicle
+# router's per-process access control (local_acl.py) is wired in and the stack logs in per process
+LOCAL_USER = "vehicle"
+OBSERVER = "observer"  # `ares topics` / `ares echo` on the vehicle's computer: subscribe only
 
 
 class PkiError(ValueError):
@@ -224,6 +228,14 @@ def issue_blackbox(
             _write(out / password, secrets.token_urlsafe(24).encode(), private=True)
 
 
+def local_users_of_the_table() -> list[str]:
+    """The vehicle router's users: one per process of the table (its name), the supervisor, the observer."""
+    from ares.app.contracts import SUPERVISOR
+    from ares.app.processes import PROCESSES
+
+    return sorted({p.name for p in PROCESSES} | {SUPERVISOR, OBSERVER, LOCAL_USER})
+
+
 def issue_vehicle(
     ca_dir: Path, vehicle_id: str, fleet_hosts: list[str] | None = None, api_hosts: list[str] | None = None
 ) -> Issued:
@@ -239,9 +251,9 @@ def issue_vehicle(
     password = secrets.token_urlsafe(24)
     _write(out / "zenoh_user", vehicle_id.encode(), private=True)
     _write(out / "zenoh_password", password.encode(), private=True)
-    local_password = secrets.token_urlsafe(24)
-    write_users(out / "zenoh_local_users", {LOCAL_USER: local_password})
-    _write(out / "zenoh_local_password", local_password.encode(), private=True)
+    local_users = {user: secrets.token_urlsafe(24) for user in local_users_of_the_table()}
+    write_users(out / "zenoh_local_users", local_users)
+    _write(out / "zenoh_local_password", local_users[LOCAL_USER].encode(), private=True)
     users_path = ca_dir / "fleet" / "zenoh_users"
     users = read_users(users_path)
     users[vehicle_id] = password
