@@ -391,3 +391,47 @@ def test_user_and_password_file_come_together():
     with pytest.raises(pydantic.ValidationError, match="set mode: client"):
         BusSettings(user="vehicle", password_file="/run/secrets/x")
     assert BusSettings(user="vehicle", password_file="/run/secrets/x", mode="client").mode == "client"
+
+
+def test_each_process_logs_in_with_its_own_line_of_the_credentials_file(run_config, tmp_path):
+    """bus.credentials_file (one compose secret for a stack's container): each process logs in as its
+    own name with its line; a process without a line is told so, naming the file; a wrong password
+    on a line is refused by the router."""
+    from ares.core.bus import BusError
+    from ares.core.localhost import free_port
+
+    port = free_port()
+    (tmp_path / "users").write_text("pub:pub-password\nsub:sub-password\n")
+    (tmp_path / "credentials").write_text("pub:pub-password\nsub:sub-password\nintruder:sub-password\n")
+    router_cfg = {
+        "mode": "router",
+        "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"auth": {"usrpwd": {"dictionary_file": str(tmp_path / "users")}}},
+    }
+    router = zenoh.open(zenoh.Config.from_json5(json.dumps(router_cfg)))
+    made: list[Bus] = []
+    try:
+        bus_section = {**run_config["bus"], "router": f"tcp/127.0.0.1:{port}", "mode": "client"}
+        cfg = {**run_config, "bus": {**bus_section, "credentials_file": str(tmp_path / "credentials")}}
+        made += [Bus(cfg, "pub", mode="client"), Bus(cfg, "sub", mode="client")]
+        sub = made[1].subscribe("heartbeat/*", queue=50)
+        connected(made[0], sub, "heartbeat/pub", lambda: hb("pub"))
+        with pytest.raises(BusError, match=r"credentials.*no line `lost:<password>`"):
+            Bus(cfg, "lost", mode="client")
+        with pytest.raises(zenoh.ZError):  # a line the router's dictionary does not hold: refused
+            Bus(cfg, "intruder", mode="client")
+    finally:
+        for bus in made:
+            bus.close()
+        router.close()
+
+
+def test_credentials_file_is_instead_of_user_and_password_file():
+    from ares.core.config.run import BusSettings
+
+    with pytest.raises(pydantic.ValidationError, match="not both"):
+        BusSettings(user="vehicle", password_file="/run/secrets/x", credentials_file="/run/secrets/y", mode="client")
+    with pytest.raises(pydantic.ValidationError, match="set mode: client"):
+        BusSettings(credentials_file="/run/secrets/y")
+    assert BusSettings(credentials_file="/run/secrets/y", mode="client").credentials_file == "/run/secrets/y"

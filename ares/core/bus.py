@@ -674,9 +674,29 @@ class BaseBus:
 # ---- Zenoh ------------------------------------------------------------------------------------
 
 
-def zenoh_config(settings: BusSettings, mode: str | None = None, listen: list[str] | None = None) -> zenoh.Config:
-    """A Zenoh config from the stack's `bus:` section. Multicast scouting is always off: a
-    fleet shares one network, and vehicles must only meet through their routers."""
+def _credentials(settings: BusSettings, process: str | None) -> tuple[str, str] | None:
+    """(user, password) for a router that asks for credentials: bus.user and its password_file, or
+    the process's own line of bus.credentials_file (its user is its name)."""
+    try:
+        if settings.user is not None and settings.password_file is not None:
+            return settings.user, read_secret(settings.password_file, "bus.password_file")
+        if settings.credentials_file is None or process is None:
+            return None
+        for line in read_secret(settings.credentials_file, "bus.credentials_file").splitlines():
+            user, sep, password = line.partition(":")
+            if sep and user.strip() == process and password.strip():
+                return process, password.strip()
+    except ConfigError as exc:
+        raise BusError(str(exc)) from None
+    raise BusError(f"bus.credentials_file {settings.credentials_file}: no line `{process}:<password>` for this process")
+
+
+def zenoh_config(
+    settings: BusSettings, mode: str | None = None, listen: list[str] | None = None, process: str | None = None
+) -> zenoh.Config:
+    """A Zenoh config from the stack's `bus:` section, logged in as `process` with
+    bus.credentials_file. Multicast scouting is always off: a fleet shares one network, and
+    vehicles must only meet through their routers."""
     import json
 
     import zenoh
@@ -686,13 +706,10 @@ def zenoh_config(settings: BusSettings, mode: str | None = None, listen: list[st
     cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_ms)))
-    if settings.user is not None and settings.password_file is not None:
-        # a deployment's router asks every link for credentials (docs/deploy.md)
-        try:
-            password = read_secret(settings.password_file, "bus.password_file")
-        except ConfigError as exc:
-            raise BusError(str(exc)) from None
-        cfg.insert_json5("transport/auth/usrpwd", json.dumps({"user": settings.user, "password": password}))
+    # a deployment's router asks every link for credentials (docs/deploy.md)
+    credentials = None if mode == "router" and settings.credentials_file else _credentials(settings, process)
+    if credentials is not None:
+        cfg.insert_json5("transport/auth/usrpwd", json.dumps({"user": credentials[0], "password": credentials[1]}))
     if mode == "router":
         cfg.insert_json5("listen/endpoints", json.dumps(listen or [settings.router]))
     else:
@@ -723,7 +740,7 @@ class Bus(BaseBus):
         settings = bus_settings(cfg)
         super().__init__(cfg["vehicle_id"], process, clock, settings)
         self.cfg = cfg
-        self.session = session or zenoh.open(zenoh_config(settings, mode=mode))
+        self.session = session or zenoh.open(zenoh_config(settings, mode=mode, process=process))
         self._owns_session = session is None
         self._token: zenoh.LivelinessToken | None = None
         self._zenoh_publishers: dict[str, zenoh.Publisher] = {}

@@ -73,12 +73,19 @@ class BusSettings(Params):
     password_file: str | None = param(
         None, "file holding that user's password (a compose secret); never the password itself in a config"
     )
+    credentials_file: str | None = param(
+        None,
+        "a `user:password` dictionary (a compose secret): each process logs in as its own name, the "
+        "supervisor as `supervisor`; instead of user and password_file",
+    )
 
     @model_validator(mode="after")
     def _user_and_password(self) -> BusSettings:
         if (self.user is None) != (self.password_file is None):
             raise ValueError("bus: give both user and password_file, or neither")
-        if self.user is not None and self.mode == "peer":
+        if self.credentials_file is not None and self.user is not None:
+            raise ValueError("bus: give credentials_file, or user and password_file, not both")
+        if (self.user is not None or self.credentials_file is not None) and self.mode == "peer":
             # peers link to each other directly, past the router that checks the credentials, and
             # such links are refused: every process must go through the router
             raise ValueError("bus: with user and password_file (a router that asks for credentials) set mode: client")
