@@ -110,3 +110,18 @@ def test_the_supervisor_sees_the_processes_liveliness(bus):
     assert "ares/v1/alive/mission_manager" not in alive
     for t in (token, forged, own):
         t.undeclare()
+
+
+def test_the_supervisor_taps_every_key_and_may_not_forge_one(bus):
+    tapped: list[tuple[str, bytes]] = []
+    bus["supervisor"].declare_subscriber("ares/v1/**", lambda s: tapped.append((str(s.key_expr), s.payload.to_bytes())))
+    recorded: list[bytes] = []
+    for topic in ("dbw/car_state", "supervisor/state"):
+        bus["blackbox"].declare_subscriber(f"ares/v1/{topic}", lambda s: recorded.append(s.payload.to_bytes()))
+    assert _wait_for(lambda: bus["api"].put("ares/v1/events", b"tapped") or ("ares/v1/events", b"tapped") in tapped)
+    # reading everything is not writing it (its own tap hears it: a session delivers to itself)
+    assert _wait_for(lambda: bus["supervisor"].put("ares/v1/supervisor/state", b"own") or b"own" in recorded)
+    bus["supervisor"].put("ares/v1/dbw/car_state", b"forged")
+    bus["supervisor"].put("ares/v1/supervisor/state", b"after")  # its own output, sent after it
+    assert _wait_for(lambda: b"after" in recorded)
+    assert b"forged" not in recorded

@@ -51,6 +51,7 @@ def allowed_topics(cfg: Mapping[str, Any]) -> dict[str, dict[str, set[str]]]:
     sup["put"] |= set(supervisor.OUTPUTS)
     sup["subscribe"] |= set(supervisor.INPUTS)
     sup["serve"].add("supervisor/status")
+    sup["call"] |= set(SUPERVISOR_DRIVE_CALLS)
     sup["alive"].add(contracts.SUPERVISOR)
     return allowed
 
@@ -72,6 +73,13 @@ EGRESS = {
     "serve": ["query"],
     "call": ["reply"],
 }
+# `ares run`'s drive, in the supervisor's session: it starts the simulated driver and automatic mode
+SUPERVISOR_DRIVE_CALLS = ("sim/driver", "set_automatic_mode")
+# ...and its taps: `--record` and `--foxglove` subscribe to every key, its report reads sim/truth,
+# dbw/car_state, mission/status and blackbox/status. The supervisor may read everything: it starts
+# and stops every process, so reading their data gives it nothing it does not already hold, and a
+# tap's list of keys would change with every contract; what it may put and call stays exact
+SUPERVISOR_READS = "**"
 WATCH_ALIVE = "alive/*"  # the supervisor's liveliness subscriber and query (bus.watch_alive, alive())
 
 
@@ -105,11 +113,14 @@ def rules(cfg: Mapping[str, Any]) -> list[dict[str, Any]]:
     sup = contracts.SUPERVISOR
     out.append(_rule(f"{sup}_watch", ["declare_liveliness_subscriber", "liveliness_query"], "ingress", watch))
     out.append(_rule(f"{sup}_watch_back", ["liveliness_token"], "egress", watch))
+    taps = [_key(SUPERVISOR_READS)]
+    out.append(_rule(f"{sup}_tap", ["declare_subscriber"], "ingress", taps))
+    out.append(_rule(f"{sup}_tap_back", ["put", "delete"], "egress", taps))
     return out
 
 
 def rule_ids(cfg: Mapping[str, Any]) -> dict[str, list[str]]:
     """process -> the ids of its rules, for its policy (its subject: its user name)."""
-    suffixes = [*KINDS, *(f"{kind}_back" for kind in EGRESS), "watch", "watch_back"]
+    suffixes = [*KINDS, *(f"{kind}_back" for kind in EGRESS), "watch", "watch_back", "tap", "tap_back"]
     every = {r["id"] for r in rules(cfg)}
     return {p: [f"{p}_{s}" for s in suffixes if f"{p}_{s}" in every] for p in allowed_topics(cfg)}
