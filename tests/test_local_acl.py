@@ -34,7 +34,7 @@ def test_the_api_may_neither_command_the_car_nor_serve_a_mission():
 
 def test_a_key_no_contract_declares_is_allowed_to_no_one():
     rules = local_acl.rules(config.core_defaults())
-    every_key = {k for r in rules if not r["id"].startswith("supervisor_tap") for k in r["key_exprs"]}
+    every_key = {k for r in rules if not r["id"].endswith(("_tap", "_tap_back")) for k in r["key_exprs"]}
     assert "ares/*/probe/acl" not in every_key and "**" not in every_key
     assert all(k.startswith("ares/*/") and "**" not in k for k in every_key)
 
@@ -47,7 +47,7 @@ def test_each_process_of_the_table_has_its_own_password_on_its_router(tmp_path):
     users = pki.read_users(issued.vehicle_dir / "zenoh_local_users")
     assert {p.name for p in PROCESSES} | {"supervisor", "observer"} <= set(users)
     assert len(set(users.values())) == len(users)  # no two processes share a password
-    assert set(users) <= set(local_acl.rule_ids(config.core_defaults())) | {"observer", "vehicle"}
+    assert set(users) <= set(local_acl.rule_ids(config.core_defaults())) | {"vehicle"}
 
 
 def test_the_supervisor_reads_every_key_but_puts_and_calls_only_its_own():

@@ -16,7 +16,7 @@ from ares.core.localhost import free_port
 from ares.deploy import local_acl, pki
 from ares.deploy.router import open_router
 
-USERS = ("api", "blackbox", "supervisor")
+USERS = ("api", "blackbox", "supervisor", "observer")
 
 
 def _router_config(port: int, dictionary: str) -> dict:
@@ -123,5 +123,18 @@ def test_the_supervisor_taps_every_key_and_may_not_forge_one(bus):
     assert _wait_for(lambda: bus["supervisor"].put("ares/v1/supervisor/state", b"own") or b"own" in recorded)
     bus["supervisor"].put("ares/v1/dbw/car_state", b"forged")
     bus["supervisor"].put("ares/v1/supervisor/state", b"after")  # its own output, sent after it
+    assert _wait_for(lambda: b"after" in recorded)
+    assert b"forged" not in recorded
+
+
+def test_the_observer_reads_but_cannot_write(bus):
+    watched: list[bytes] = []
+    bus["observer"].declare_subscriber("ares/v1/**", lambda s: watched.append(s.payload.to_bytes()))
+    assert _wait_for(lambda: bus["api"].put("ares/v1/events", b"seen") or b"seen" in watched)
+    recorded: list[bytes] = []
+    bus["blackbox"].declare_subscriber("ares/v1/events", lambda s: recorded.append(s.payload.to_bytes()))
+    assert _wait_for(lambda: bus["api"].put("ares/v1/events", b"api") or b"api" in recorded)
+    bus["observer"].put("ares/v1/events", b"forged")
+    bus["api"].put("ares/v1/events", b"after")  # sent after it, on another link: the router has both
     assert _wait_for(lambda: b"after" in recorded)
     assert b"forged" not in recorded

@@ -81,6 +81,7 @@ SUPERVISOR_DRIVE_CALLS = ("sim/driver", "set_automatic_mode")
 # tap's list of keys would change with every contract; what it may put and call stays exact
 SUPERVISOR_READS = "**"
 WATCH_ALIVE = "alive/*"  # the supervisor's liveliness subscriber and query (bus.watch_alive, alive())
+OBSERVER = "observer"  # `ares topics` / `ares echo` on the vehicle's computer: it reads, never puts nor calls
 
 
 def _rule(rule_id: str, messages: list[str], flow: str, keys: list[str]) -> dict[str, Any]:
@@ -116,6 +117,8 @@ def rules(cfg: Mapping[str, Any]) -> list[dict[str, Any]]:
     taps = [_key(SUPERVISOR_READS)]
     out.append(_rule(f"{sup}_tap", ["declare_subscriber"], "ingress", taps))
     out.append(_rule(f"{sup}_tap_back", ["put", "delete"], "egress", taps))
+    out.append(_rule(f"{OBSERVER}_tap", ["declare_subscriber"], "ingress", taps))
+    out.append(_rule(f"{OBSERVER}_tap_back", ["put", "delete"], "egress", taps))
     return out
 
 
@@ -123,4 +126,5 @@ def rule_ids(cfg: Mapping[str, Any]) -> dict[str, list[str]]:
     """process -> the ids of its rules, for its policy (its subject: its user name)."""
     suffixes = [*KINDS, *(f"{kind}_back" for kind in EGRESS), "watch", "watch_back", "tap", "tap_back"]
     every = {r["id"] for r in rules(cfg)}
-    return {p: [f"{p}_{s}" for s in suffixes if f"{p}_{s}" in every] for p in allowed_topics(cfg)}
+    users = [*allowed_topics(cfg), OBSERVER]
+    return {p: [f"{p}_{s}" for s in suffixes if f"{p}_{s}" in every] for p in users}
