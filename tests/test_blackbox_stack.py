@@ -1,7 +1,7 @@
 """The black box in the whole stack: `ares run --headless` with every process (recorder and REST
 API included) and the embedded store in the test's directory (`--store`).
 
-- at five times real time, the store and its spool on a 4 MB filesystem that fills up mid-run for
+- at five times real time, the store and its spool on a 16 MB filesystem that fills up mid-run for
   25 s of vehicle time (the clock tied to the wall's): the writer holds the seconds in memory, the
   shuttle drives on, and once the disk has room every second is there (the headless run's
   `blackbox` object: written == in_store, store_faults > 0; blackbox_store_down and _up events).
@@ -158,12 +158,13 @@ def test_the_api_process_beats_from_its_event_loop_and_waits_for_a_taken_port(ro
 
 @pytest.fixture
 def small_disk(tmp_path):
-    """A 4 MB filesystem of its own for the store and its spool, unmounted after the test."""
+    """A 16 MB filesystem of its own for the store and its spool (room for SQLite's write-ahead log,
+    up to 4 MB before a checkpoint), unmounted after the test."""
     if os.geteuid() != 0:
         pytest.skip("mounting a tmpfs needs root")
     mount = tmp_path / "disk"
     mount.mkdir()
-    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mount)], check=True)
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=16m", "tmpfs", str(mount)], check=True)
     try:
         yield mount
     finally:
@@ -185,13 +186,18 @@ def fill(folder):
 @pytest.mark.timeout(240)
 @pytest.mark.whole_stack
 def test_a_store_on_a_disk_that_fills_up_keeps_every_second_and_the_shuttle_drives_on(small_disk):
-    """The store and its spool on a 4 MB filesystem filled mid-run: the writer holds the seconds in
+    """The store and its spool on a 16 MB filesystem filled mid-run: the writer holds the seconds in
     memory, says the store is down, the shuttle drives on (a store down holding every record is no
     awareness cause), and once the disk has room again every second of the run is in the store."""
     path = small_disk / "blackbox.sqlite"
+
+    def driving_since() -> int | None:  # the newest second, once the records show the shuttle under way
+        latest = path.exists() and records_of(path)[-1:]
+        return int(latest[0]["t"]) if latest and latest[0]["speed_mps"] > 1.0 else None
+
     run = start_headless("--seconds", "60", "--store", str(path))
     try:
-        before = wait_until(lambda: (t := latest_t(path)) is not None and t >= 10 and t, 120, "10 s of records", 0.2)
+        before = wait_until(driving_since, 120, "records of the shuttle driving", 0.2)
         filler = fill(small_disk)
         full_since = time.monotonic()
         # the full disk for 25 s of vehicle time (5 s of wall time at SPEED): nothing reaches the store
@@ -199,6 +205,8 @@ def test_a_store_on_a_disk_that_fills_up_keeps_every_second_and_the_shuttle_driv
         stuck = latest_t(path)
         os.unlink(filler)
         full_s = time.monotonic() - full_since
+        # room again: the writer's next retry (at most retry_max_s of wall time) writes the backlog
+        wait_until(lambda: (t := latest_t(path)) is not None and t > (stuck or before) + 5, 60, "the backlog", 0.2)
         result = finish(run)
     finally:
         if run.poll() is None:

@@ -112,6 +112,7 @@ TOPIC_TABLE: list[Topic] = [
         "blackbox/status",
         m.BlackboxStatus,
         "the black box's own health each second: store up, records written, dropped, faults, what waits",
+        reliable=True,  # its last word, after the final flush, is the run's count of what was kept
     ),
     Topic("awareness/state", m.AwarenessState, "self-awareness level (0, 1 critical, 2 low) and its causes"),
     Topic("control/status", m.ControllerStatus, "the controller in charge, why, and the errors along the route"),

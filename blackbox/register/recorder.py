@@ -458,6 +458,8 @@ class StoreWriter:
             stopping = self._stopping.is_set()
             items = self._take(0.0 if stopping else self.batch_wait_s)
             if stopping and not items:
+                if self.spool.pending or self._held:
+                    self._flush_backlog()  # the last chance for what waits: the store may be back
                 return
             self._inflight = items
             try:
