@@ -193,7 +193,7 @@ def test_a_store_on_a_disk_that_fills_up_keeps_every_second_and_the_shuttle_driv
 
     def driving_since() -> int | None:  # the newest second, once the records show the shuttle under way
         latest = path.exists() and records_of(path)[-1:]
-        return int(latest[0]["t"]) if latest and latest[0]["speed_mps"] > 1.0 else None
+        return int(latest[0]["t"]) if latest and (latest[0]["speed_mps"] or 0.0) > 1.0 else None
 
     run = start_headless("--seconds", "60", "--store", str(path))
     try:
