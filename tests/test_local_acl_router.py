@@ -102,11 +102,13 @@ def test_the_supervisor_sees_the_processes_liveliness(bus):
     forged = bus["api"].liveliness().declare_token("ares/v1/alive/mission_manager")  # another's name: refused
     own = bus["blackbox"].liveliness().declare_token("ares/v1/alive/blackbox")  # declared after it
     assert _wait_for(lambda: "ares/v1/alive/api" in alive and "ares/v1/alive/blackbox" in alive)
-    replies = bus["supervisor"].liveliness().get("ares/v1/alive/*", timeout=2.0)
-    assert sorted(str(r.ok.key_expr) for r in replies if r.ok is not None) == [
-        "ares/v1/alive/api",
-        "ares/v1/alive/blackbox",
-    ]
+
+    def answered() -> list[str]:
+        replies = bus["supervisor"].liveliness().get("ares/v1/alive/*", timeout=2.0)
+        return sorted(str(r.ok.key_expr) for r in replies if r.ok is not None)
+
+    # asked again when a loaded machine lets the query lapse before the router's answer (seen once: [])
+    assert _wait_for(lambda: answered() == ["ares/v1/alive/api", "ares/v1/alive/blackbox"], 20), answered()
     assert "ares/v1/alive/mission_manager" not in alive
     for t in (token, forged, own):
         t.undeclare()

@@ -204,7 +204,7 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     assert rest(stack, "auditor1").get(f"/vehicles/{VEHICLE}/events").status_code == 200  # a new login is served
     pg.wait_for_selector("#app:not([hidden])")
     # live values change from frame to frame
-    wait_for(lambda: field(pg, "speed_mps") not in ("", "0"), 15, "a speed on the page")
+    wait_for_the_shuttle(stack, lambda: field(pg, "speed_mps") not in ("", "0"), 30, "a speed on the page")
     first = (field(pg, "speed_mps"), field(pg, "steering_wheel_deg"))
     wait_for(lambda: (field(pg, "speed_mps"), field(pg, "steering_wheel_deg")) != first, 10, "live values to change")
     assert field(pg, "mode") == "AUTOMATIC" and field(pg, "controller")
@@ -277,6 +277,7 @@ def test_the_auditor_exports_the_window_the_rest_api_returns(page, stack):
     pg.wait_for_selector("#refused:not([hidden])")
     assert "auditor role" in pg.inner_text("#refused") and pg.locator("#app").is_hidden()
     pg.click("#logout")
+    pg.wait_for_selector("#login:not([hidden])")
     login(pg, stack["url"] + "/blackbox", "auditor1")
     pg.wait_for_selector("#app:not([hidden])")
     wait_for(lambda: pg.get_attribute("#query-status", "data-state") == "confirmed", 20, "the records shown")
@@ -308,6 +309,7 @@ def test_the_fleet_page_shows_the_vehicle_and_refuses_an_operator(page, stack):
     login(pg, stack["url"] + "/fleet", "operator1")
     pg.wait_for_selector("#refused:not([hidden])")
     pg.click("#logout")
+    pg.wait_for_selector("#login:not([hidden])")
     login(pg, stack["url"] + "/fleet", "fleet1")
     pg.wait_for_selector(f"#vehicles tr[data-vehicle='{VEHICLE}']")
     wait_for(lambda: pg.locator("#events li").count() > 0, 10, "the fleet's events")

@@ -126,7 +126,10 @@ const ARES = (() => {
     document.getElementById("logout").addEventListener("click", async () => {
       // the token refused from now on, not only forgotten here: a copy of it (a shared screen, a
       // proxy's log) is worth nothing after the logout
+      // forgotten here first: a navigation before the revocation answers must not find it again
       const s = session();
+      sessionStorage.removeItem(KEY);
+      clearTimeout(renewTimer);
       if (s) {
         await fetch(API + "/auth/revoke", {method: "POST", headers: {Authorization: "Bearer " + s.token}})
           .catch(() => null);   // the server unreachable: the token still lapses at its expiry
