@@ -275,7 +275,7 @@ def test_the_stack_is_not_mongodbs_root(tmp_path, fleet_ca):
     _expect(folder, "config 'ares_config' signs in to 'mongo' as its root user 'ares'")
     compose.write_text(
         original.replace(
-            "[zenoh_local_password, mongo_password,", "[zenoh_local_password, mongo_password, mongo_root_password,"
+            "[zenoh_local_users, mongo_password,", "[zenoh_local_users, mongo_password, mongo_root_password,"
         )
     )
     _expect(folder, "'stack' is given 'mongo''s root password (mongo_root_password)")

@@ -39,6 +39,8 @@ def test_the_light_rehearsal_shows_every_figure_and_leaves_nothing_behind(tmp_pa
     assert "under shuttle02's id" in figures["acl_refusal_event"]
     # the fleet's credentials cannot start a mission: shuttle01's router refuses their mission/goal
     assert figures["fleet_command_refused"] is True
+    # each vehicle process only its contract's keys: the API's put of the car's state is not delivered
+    assert figures["local_acl_refused"] is True
     # marked unreachable while the link was still cut (after 3 s of silence, blackbox.fleet.sync: how
     # much later the API shows it is the machine's business, docs/deploy.md)
     assert 0 < figures["unreachable_after_s"] < figures["partition_s"]

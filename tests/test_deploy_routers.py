@@ -132,18 +132,26 @@ class Deployment:
         self.sessions.append(session)
         return session
 
-    def vehicle_router(self, vehicle_id: str, secrets: Path | None = None, password: str | None = None):
+    def vehicle_router(
+        self, vehicle_id: str, secrets: Path | None = None, password: str | None = None, user: str = "dbw_bridge"
+    ):
         """The vehicle's router (deploy/vehicle's file with the vehicle's credentials) and one of
-        its processes logged in on it."""
+        its processes logged in on it (`user`: the drive-by-wire bridge, which puts dbw/car_state)."""
         secrets = secrets or self.ca / "vehicles" / vehicle_id
         cfg = router_config.load(VEHICLE_FILE)
-        user = (secrets / "zenoh_user").read_text()
-        cfg = router_config.with_credentials(cfg, user, password or (secrets / "zenoh_password").read_text())
+        cfg = router_config.with_credentials(
+            cfg, (secrets / "zenoh_user").read_text(), password or (secrets / "zenoh_password").read_text()
+        )
         port = free_port()
         cfg = localize(cfg, secrets, listen=[f"tcp/127.0.0.1:{port}"], connect=[f"tls/127.0.0.1:{self.tls_port}"])
         router = self.keep(open_router(cfg))
-        process = self.keep(_client(f"tcp/127.0.0.1:{port}", "vehicle", (secrets / "zenoh_local_password").read_text()))
-        return router, process
+        self.local = (port, pki.read_users(secrets / "zenoh_local_users"))
+        return router, self.login(user)
+
+    def login(self, user: str) -> zenoh.Session:
+        """A session of the last vehicle router's process `user`, with its own password."""
+        port, passwords = self.local
+        return self.keep(_client(f"tcp/127.0.0.1:{port}", user, passwords[user]))
 
     def close(self) -> None:
         for session in reversed(self.sessions):
@@ -176,18 +184,32 @@ def test_a_vehicle_reaches_the_fleet_only_under_its_own_id(deployment):
     process.put("ares/shuttle01/dbw/car_state", b"after")  # the same link, sent after it
     assert _wait_for(seen, ("ares/shuttle01/dbw/car_state", b"after"))
     assert all(payload != b"spoofed" for _, payload in seen)
+    # a process outside its contract: the API may not put the car's state, under its own id either
+    deployment.fleet.declare_subscriber("ares/*/events", lambda s: seen.append((str(s.key_expr), s.payload.to_bytes())))
+    api = deployment.login("api")
+    deadline = time.monotonic() + LINK_WAIT_S
+    while ("ares/shuttle01/events", b"api") not in seen and time.monotonic() < deadline:
+        api.put("ares/shuttle01/events", b"api")  # its own output: delivered
+        time.sleep(0.1)
+    api.put("ares/shuttle01/dbw/car_state", b"forged by the api")
+    api.put("ares/shuttle01/events", b"api after")  # the same link, sent after it
+    assert _wait_for(seen, ("ares/shuttle01/events", b"api after"))
+    assert all(payload != b"forged by the api" for _, payload in seen)
 
 
 def test_the_fleet_calls_only_its_services(deployment):
-    router, process = deployment.vehicle_router("shuttle01")
+    router, _ = deployment.vehicle_router("shuttle01")
     assert _linked(router, LINK_WAIT_S)
-    process.declare_queryable("ares/shuttle01/srv/supervisor/status", lambda q: q.reply(q.key_expr, b"status"))
-    process.declare_queryable("ares/shuttle01/srv/movement/rearm", lambda q: q.reply(q.key_expr, b"rearmed"))
+    supervisor, movement, mission, api, observer = (
+        deployment.login(user) for user in ("supervisor", "movement_manager", "mission_manager", "api", "observer")
+    )
+    supervisor.declare_queryable("ares/shuttle01/srv/supervisor/status", lambda q: q.reply(q.key_expr, b"status"))
+    movement.declare_queryable("ares/shuttle01/srv/movement/rearm", lambda q: q.reply(q.key_expr, b"rearmed"))
     commands = ("mission/goal", "mission/pause", "mission/resume", "mission/cancel")
     for command in commands:
-        process.declare_queryable(f"ares/shuttle01/srv/{command}", lambda q: q.reply(q.key_expr, b"commanded"))
+        mission.declare_queryable(f"ares/shuttle01/srv/{command}", lambda q: q.reply(q.key_expr, b"commanded"))
     received: list[str] = []
-    process.declare_subscriber("ares/shuttle01/**", lambda s: received.append(str(s.key_expr)))
+    observer.declare_subscriber("ares/shuttle01/**", lambda s: received.append(str(s.key_expr)))
 
     def call(service: str) -> list[bytes]:
         replies = deployment.fleet.get(f"ares/shuttle01/srv/{service}", timeout=2.0)
@@ -198,11 +220,11 @@ def test_the_fleet_calls_only_its_services(deployment):
         time.sleep(0.1)
     assert call("supervisor/status") == [b"status"]
     assert call("movement/rearm") == []  # re-arming is for someone at the vehicle
-    # the fleet's credentials start no mission, nor pause, resume or cancel one (the vehicle's own
-    # processes, through the same router, are answered: the services are there)
+    # the fleet's credentials start no mission, nor pause, resume or cancel one (the vehicle's API,
+    # through the same router, is answered: the services are there)
     for command in commands:
         assert call(command) == [], command
-        local = process.get(f"ares/shuttle01/srv/{command}", timeout=2.0)
+        local = api.get(f"ares/shuttle01/srv/{command}", timeout=2.0)
         assert [r.ok.payload.to_bytes() for r in local if r.ok is not None] == [b"commanded"], command
     deployment.fleet.put("ares/shuttle01/movement/status", b"forged")  # the fleet never publishes to a vehicle
     assert call("supervisor/status") == [b"status"]

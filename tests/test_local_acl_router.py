@@ -114,6 +114,20 @@ def test_the_supervisor_sees_the_processes_liveliness(bus):
         t.undeclare()
 
 
+def test_the_supervisor_hears_every_heartbeat_through_its_wildcard_subscription(bus):
+    """A subscriber's key wider than the publisher's output (heartbeat/* against heartbeat/api): the
+    publisher is told of it and keeps sending (with only its own outputs' declarations passed, a
+    whole stack's heartbeats stopped after their first and the supervisor restarted everything)."""
+    beats: list[bytes] = []
+    bus["supervisor"].declare_subscriber("ares/v1/heartbeat/*", lambda s: beats.append(s.payload.to_bytes()))
+    assert _wait_for(lambda: bus["api"].put("ares/v1/heartbeat/api", b"first") or b"first" in beats)
+    for n in range(40):
+        bus["api"].put("ares/v1/heartbeat/api", b"beat %d" % n)
+        time.sleep(0.01)
+    assert _wait_for(lambda: b"beat 39" in beats)
+    assert all(b"beat %d" % n in beats for n in range(40))
+
+
 def test_the_supervisor_taps_every_key_and_may_not_forge_one(bus):
     tapped: list[tuple[str, bytes]] = []
     bus["supervisor"].declare_subscriber("ares/v1/**", lambda s: tapped.append((str(s.key_expr), s.payload.to_bytes())))

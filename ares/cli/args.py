@@ -102,8 +102,9 @@ def add_connection_args(p: argparse.ArgumentParser) -> None:
     )
 
 
-def connect(args: argparse.Namespace, process: str):
-    """A client-mode Bus on the running stack's router."""
+def connect(args: argparse.Namespace, process: str, login: str | None = None):
+    """A client-mode Bus on the running stack's router (on a deployed vehicle, logged in as
+    `login` of bus.credentials_file, else as `process`)."""
     import zenoh
 
     from ares.core import config
@@ -119,7 +120,7 @@ def connect(args: argparse.Namespace, process: str):
         cfg["bus"]["router"] = args.router
     router = cfg["bus"]["router"]
     try:
-        return Bus(cfg, process, mode="client")
+        return Bus(cfg, process, mode="client", login=login)
     except zenoh.ZError as exc:
         raise CliError(
             f"no Zenoh router reachable at {router} ({str(exc).split(' at ')[0].strip()}). "

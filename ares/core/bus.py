@@ -734,13 +734,16 @@ class Bus(BaseBus):
         clock: Clock | None = None,
         session: zenoh.Session | None = None,
         mode: str | None = None,
+        login: str | None = None,
     ):
+        """`login`: the user of bus.credentials_file to log in as, when not the process's name (the
+        read-only tools log in as the observer)."""
         import zenoh
 
         settings = bus_settings(cfg)
         super().__init__(cfg["vehicle_id"], process, clock, settings)
         self.cfg = cfg
-        self.session = session or zenoh.open(zenoh_config(settings, mode=mode, process=process))
+        self.session = session or zenoh.open(zenoh_config(settings, mode=mode, process=login or process))
         self._owns_session = session is None
         self._token: zenoh.LivelinessToken | None = None
         self._zenoh_publishers: dict[str, zenoh.Publisher] = {}

@@ -10,12 +10,17 @@ vehicle's data only under its own id (router_config.fleet_router).
 
 Measured with eclipse-zenoh 1.x in router mode (default deny, usernames as subjects): a client
 publisher that is not sent the subscribers' declarations (egress declare_subscriber) stops sending
-after its first samples (2 of 40 delivered; all 40 with it), so the egress rules pass the
-subscriber declarations of a process's own outputs toward it, as well as the samples of its inputs,
-the queries of its services and the replies of its calls. The supervisor watches every process's
+after its first samples (2 of 40 delivered; all 40 with it), and a declaration whose key is wider
+than the rule's (the supervisor's `heartbeat/*` against `heartbeat/api`) does not pass it: a whole
+stack's heartbeats stopped after their first. So every subscriber's declaration flows toward every
+process (SUBSCRIBERS_DECLARED: nothing to read, no right to put), beside the samples of its
+inputs, the queries of its services and the replies of its calls. The supervisor watches every process's
 liveliness token (`alive/*`: its liveliness subscriber and query in, the tokens out).
 
-Not yet wired into router_config.vehicle_router, pki and the rehearsal (see docs/security.md).
+router_config.vehicle_router makes the vehicle router's access control from these rules, one
+subject per user; pki.issue_vehicle gives each user its password (`zenoh_local_users`, which the
+stack reads as bus.credentials_file), and `ares deploy rehearse` shows a process refused a key
+outside its contract (`local_acl_refused`).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from typing import Any
 from ares.app import contracts, supervisor
 from ares.app.processes import PROCESSES
 from ares.core.node import IMPLICIT_OUTPUTS
+from ares.deploy.pki import OBSERVER  # `ares topics` / `ares echo` on the vehicle's computer: it reads only
 
 KINDS = ("put", "subscribe", "serve", "call", "alive")
 
@@ -65,14 +71,13 @@ def fleet_inputs(cfg: Mapping[str, Any]) -> dict[str, set[str]]:
 
 
 # what flows toward a process, by kind of its rights: samples of what it subscribes to, the
-# subscribers' declarations of what it puts (without them a client publisher stops sending), the
 # queries of its services, the replies of its calls
 EGRESS = {
-    "put": ["declare_subscriber"],
     "subscribe": ["put", "delete"],
     "serve": ["query"],
     "call": ["reply"],
 }
+SUBSCRIBERS_DECLARED = "subscribers_declared"
 # `ares run`'s drive, in the supervisor's session: it starts the simulated driver and automatic mode
 SUPERVISOR_DRIVE_CALLS = ("sim/driver", "set_automatic_mode")
 # ...and its taps: `--record` and `--foxglove` subscribe to every key, its report reads sim/truth,
@@ -81,7 +86,6 @@ SUPERVISOR_DRIVE_CALLS = ("sim/driver", "set_automatic_mode")
 # tap's list of keys would change with every contract; what it may put and call stays exact
 SUPERVISOR_READS = "**"
 WATCH_ALIVE = "alive/*"  # the supervisor's liveliness subscriber and query (bus.watch_alive, alive())
-OBSERVER = "observer"  # `ares topics` / `ares echo` on the vehicle's computer: it reads, never puts nor calls
 
 
 def _rule(rule_id: str, messages: list[str], flow: str, keys: list[str]) -> dict[str, Any]:
@@ -119,6 +123,15 @@ def rules(cfg: Mapping[str, Any]) -> list[dict[str, Any]]:
     out.append(_rule(f"{sup}_tap_back", ["put", "delete"], "egress", taps))
     out.append(_rule(f"{OBSERVER}_tap", ["declare_subscriber"], "ingress", taps))
     out.append(_rule(f"{OBSERVER}_tap_back", ["put", "delete"], "egress", taps))
+    # `ares topics` lists the processes alive beside the keys: it may watch the tokens too
+    out.append(_rule(f"{OBSERVER}_watch", ["declare_liveliness_subscriber", "liveliness_query"], "ingress", watch))
+    out.append(_rule(f"{OBSERVER}_watch_back", ["liveliness_token"], "egress", watch))
+    # toward every process, the subscribers' declarations of every key: a client publisher not told
+    # of its subscribers stops sending, and a subscriber's key may be wider than any process's
+    # output (the supervisor's heartbeat/*, a tap's **: the router checks a declaration against the
+    # rule's key as a whole, so `heartbeat/api` would not pass heartbeat/*). A declaration gives a
+    # process nothing to read and no right to put
+    out.append(_rule(SUBSCRIBERS_DECLARED, ["declare_subscriber"], "egress", [_key("**")]))
     return out
 
 
@@ -127,4 +140,4 @@ def rule_ids(cfg: Mapping[str, Any]) -> dict[str, list[str]]:
     suffixes = [*KINDS, *(f"{kind}_back" for kind in EGRESS), "watch", "watch_back", "tap", "tap_back"]
     every = {r["id"] for r in rules(cfg)}
     users = [*allowed_topics(cfg), OBSERVER]
-    return {p: [f"{p}_{s}" for s in suffixes if f"{p}_{s}" in every] for p in users}
+    return {p: [*(f"{p}_{s}" for s in suffixes if f"{p}_{s}" in every), SUBSCRIBERS_DECLARED] for p in users}

@@ -18,8 +18,8 @@ Layout of the CA folder (`ares deploy certs --fleet-ca DIR`):
         zenoh_router_cert, _key        its router's certificate (CN = <id>)
         zenoh_user, zenoh_password     its router's Zenoh credentials on the fleet router
         zenoh_local_users              its router's dictionary: `user:password` per process of the table
-                                       (its name), the supervisor, the read-only observer, and `vehicle`
-        zenoh_local_password           `vehicle`'s password, for the processes (bus.password_file)
+                                       (its name), the supervisor and the read-only observer; the stack
+                                       reads its own lines from it (bus.credentials_file)
         zenoh_router.json5             its router's config with the credentials (router_config.py)
     and in both folders the black box's:
         api_tls_cert, api_tls_key      the REST API's HTTPS certificate (names: the id or `fleet`, --api-host)
@@ -47,15 +47,13 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from ares.core import certificates
 from ares.core.certificates import matches_key  # also the deployment check's (pki.matches_key)
+from ares.core.config.run import OBSERVER_USER
 
 VEHICLE_ID_RE = re.compile(r"^[a-z0-9][a-z0-9_-]{0,62}$")  # a key-expression chunk, a CN, a user name
 CA_DAYS = 3650
 LEAF_DAYS = 825  # the longest validity clients commonly accept; rotate before (docs/deploy.md)
 FLEET_USER = "fleet"
-# a vehicle's processes on its own router, all of them under one user: kept until the vehicle
-# router's per-process access control (local_acl.py) is wired in and the stack logs in per process
-LOCAL_USER = "vehicle"
-OBSERVER = "observer"  # `ares topics` / `ares echo` on the vehicle's computer: subscribe only
+OBSERVER = OBSERVER_USER  # `ares topics` / `ares echo` on the vehicle's computer: subscribe only
 
 
 class PkiError(ValueError):
@@ -233,7 +231,7 @@ def local_users_of_the_table() -> list[str]:
     from ares.app.contracts import SUPERVISOR
     from ares.app.processes import PROCESSES
 
-    return sorted({p.name for p in PROCESSES} | {SUPERVISOR, OBSERVER, LOCAL_USER})
+    return sorted({p.name for p in PROCESSES} | {SUPERVISOR, OBSERVER})
 
 
 def issue_vehicle(
@@ -253,7 +251,7 @@ def issue_vehicle(
     _write(out / "zenoh_password", password.encode(), private=True)
     local_users = {user: secrets.token_urlsafe(24) for user in local_users_of_the_table()}
     write_users(out / "zenoh_local_users", local_users)
-    _write(out / "zenoh_local_password", local_users[LOCAL_USER].encode(), private=True)
+    (out / "zenoh_local_password").unlink(missing_ok=True)  # one user for every process: retired
     users_path = ca_dir / "fleet" / "zenoh_users"
     users = read_users(users_path)
     users[vehicle_id] = password

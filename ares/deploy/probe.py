@@ -3,7 +3,9 @@ python -m ares.deploy.probe ...`), each printing one JSON line:
 
     link CONFIG SECONDS           does a router of CONFIG link to a router within SECONDS? {"linked": ...}
     put CONFIG KEY COUNT          COUNT puts on KEY, 0.1 s apart, from a session of CONFIG
-    listen CONFIG SECONDS KEY...  how many samples of each KEY arrive within SECONDS {"received": {...}}
+    listen CONFIG SECONDS KEY...  how many probe samples ({"probe": n}, as put sends) of each KEY
+                                  arrive within SECONDS {"received": {...}} (a running stack's own
+                                  samples on the same keys are not counted)
     serve CONFIG SECONDS KEY...   answer queries on each KEY for SECONDS {"queried": {...}}
     call CONFIG PAYLOAD KEY...    query each KEY with PAYLOAD: how many answers {"answered": {...}}
 
@@ -64,7 +66,12 @@ def put(config: str, key: str, count: int) -> dict:
 def listen(config: str, seconds: float, keys: list[str]) -> dict:
     received = dict.fromkeys(keys, 0)
     session = _open(config)
-    subs = [session.declare_subscriber(key, lambda s, k=key: received.__setitem__(k, received[k] + 1)) for key in keys]
+
+    def heard(sample, key: str) -> None:
+        if sample.payload.to_bytes().startswith(b'{"probe"'):
+            received[key] += 1
+
+    subs = [session.declare_subscriber(key, lambda s, k=key: heard(s, k)) for key in keys]
     try:
         print(json.dumps({"listening": keys}), flush=True)
         time.sleep(seconds)

@@ -15,7 +15,9 @@ What it shows, in order: both vehicles reachable on the fleet API; a router with
 and one with a certificate of another CA refused; a vehicle publishing under the other's id
 refused by access control (the fleet hears nothing of it, and an `acl_refused` event reaches the
 fleet's black box); the fleet's credentials calling `mission/goal` on shuttle01, refused by its
-router (`fleet_command_refused`); shuttle01's link cut for `partition_s` (the fleet marks it unreachable; it
+router (`fleet_command_refused`); shuttle01's API putting the car's state, a key outside its
+contract, refused by its own router (`local_acl_refused`: every process logs in as its name and
+may use only its contract's keys); shuttle01's link cut for `partition_s` (the fleet marks it unreachable; it
 drives on; after the link returns every second its black box recorded reaches the fleet's store);
 the fleet router killed and started again (both vehicles back on the fleet, no vehicle process
 restarted). One JSON object of figures. Every namespace, link and process it made is removed at
@@ -307,8 +309,7 @@ class Rehearsal:
                     "router": f"tcp/127.0.0.1:{router_config.LOCAL_PORT}",
                     "embedded_router": False,
                     "mode": "client",
-                    "user": pki.LOCAL_USER,
-                    "password_file": str(folder / "zenoh_local_password"),
+                    "credentials_file": str(folder / "zenoh_local_users"),  # each process as its name
                 },
                 "blackbox_store": {"uri": str(self.work / f"{vehicle}.sqlite")},
                 "api": {"port": API_PORT, "state_dir": str(self.work / f"{vehicle}-api")},
@@ -382,33 +383,17 @@ class Rehearsal:
         )
         self.figures["refused_wrong_password"] &= right_linked
         self.figures["refused_wrong_ca"] &= right_linked
-        # shuttle01's processes publish under shuttle02's id and their own: the fleet hears only theirs
+        # shuttle01's API (it may put events) publishes under shuttle02's id and its own: the fleet hears only its own
         v1 = self.hosts[VEHICLES[0]]
-        local = (self.ca / "vehicles" / VEHICLES[0] / "zenoh_local_password").read_text().strip()
-        speaker = self._client("speaker.json5", f"tcp/127.0.0.1:{router_config.LOCAL_PORT}", pki.LOCAL_USER, local)
+        speaker = self._local_client(VEHICLES[0], "api")
         ear = self._client(
             "ear.json5", f"tcp/127.0.0.1:{router_config.LOCAL_PORT}", pki.FLEET_USER, self.fleet_password
         )
-        own, other_key = f"ares/{VEHICLES[0]}/probe/acl", f"ares/{VEHICLES[1]}/probe/acl"
-        listener = subprocess.Popen(
-            ["ip", "netns", "exec", self.fleet.name, sys.executable, "-m", "ares.deploy.probe", "listen",
-             str(ear), "9", own, other_key],
-            stdout=subprocess.PIPE, stderr=open(self.work / "logs" / "probe-listen.log", "w"), text=True,  # noqa: SIM115
-            start_new_session=True,
-        )  # fmt: skip
-        self.procs.append(listener)
-        listener.name = "probe-listen"  # type: ignore[attr-defined]
-        assert listener.stdout is not None
-        listener.stdout.readline()  # listening
+        own, other_key = f"ares/{VEHICLES[0]}/events", f"ares/{VEHICLES[1]}/events"
+        listener = self._probe(self.fleet.name, "listen", ear, "9", own, other_key)
         for key in (other_key, own):
             self._run(v1.name, "-m", "ares.deploy.probe", "put", str(speaker), key, "10")
-        out = listener.communicate(timeout=30)[0].strip().splitlines()
-        if not out:
-            raise RehearsalError(
-                f"the fleet's listening probe said nothing (exit {listener.returncode}; logs/probe-listen.log)"
-            )
-        heard = json.loads(out[-1])["received"]
-        self.procs.remove(listener)
+        heard = self._said(listener)["received"]
         refused_event = self._wait("the acl_refused event in the fleet's black box", self._acl_event, 15.0, 0.5)
         self.figures["refused_acl"] = heard[other_key] == 0 and heard[own] > 0 and bool(refused_event)
         self.figures["acl_refusal_event"] = refused_event
@@ -420,32 +405,62 @@ class Rehearsal:
         answered."""
         vehicle, v1 = VEHICLES[0], self.hosts[VEHICLES[0]]
         goal, status = f"ares/{vehicle}/srv/mission/goal", f"ares/{vehicle}/srv/supervisor/status"
-        local = (self.ca / "vehicles" / vehicle / "zenoh_local_password").read_text().strip()
-        server = self._client("server.json5", f"tcp/127.0.0.1:{router_config.LOCAL_PORT}", pki.LOCAL_USER, local)
         fleet = self._client(
             "fleet-caller.json5", f"tcp/127.0.0.1:{router_config.LOCAL_PORT}", pki.FLEET_USER, self.fleet_password
         )
-        serving = subprocess.Popen(
-            ["ip", "netns", "exec", v1.name, sys.executable, "-m", "ares.deploy.probe", "serve", str(server), "10",
-             goal, status],
-            stdout=subprocess.PIPE, stderr=open(self.work / "logs" / "probe-serve.log", "w"), text=True,  # noqa: SIM115
-            start_new_session=True,
-        )  # fmt: skip
-        self.procs.append(serving)
-        serving.name = "probe-serve"  # type: ignore[attr-defined]
-        assert serving.stdout is not None
-        serving.stdout.readline()  # serving
+        # each service served by the process whose contract declares it, logged in as that process
+        serving = [
+            self._probe(v1.name, "serve", self._local_client(vehicle, "mission_manager"), "10", goal),
+            self._probe(v1.name, "serve", self._local_client(vehicle, "supervisor"), "10", status),
+        ]
         time.sleep(1.0)  # the queryables' declarations reach the fleet router
         drive = json.dumps({"t": 0.0, "operator": "fleet", "drive": True})
         answered = self._run(self.fleet.name, "-m", "ares.deploy.probe", "call", str(fleet), drive, goal, status)
-        out = serving.communicate(timeout=30)[0].strip().splitlines()
-        self.procs.remove(serving)
-        if not out:
-            raise RehearsalError(f"the vehicle's serving probe said nothing (exit {serving.returncode})")
-        queried = json.loads(out[-1])["queried"]
+        queried = {k: v for probe in serving for k, v in self._said(probe)["queried"].items()}
         refused = answered["answered"][goal] == 0 and queried[goal] == 0
         self.figures["fleet_command_refused"] = refused and answered["answered"][status] > 0
         self.progress(f"the fleet's mission/goal on {vehicle}: answered {answered['answered']}, heard {queried}")
+
+    def check_local_acl(self) -> None:
+        """On shuttle01's own router: its API puts the car's state (outside its contract) and then
+        an event (its own output); the black box's recorder, which reads both, hears only the event."""
+        vehicle, v1 = VEHICLES[0], self.hosts[VEHICLES[0]]
+        forged, own = f"ares/{vehicle}/dbw/car_state", f"ares/{vehicle}/events"
+        listener = self._probe(v1.name, "listen", self._local_client(vehicle, "blackbox"), "7", forged, own)
+        speaker = self._local_client(vehicle, "api")
+        for key in (forged, own):
+            self._run(v1.name, "-m", "ares.deploy.probe", "put", str(speaker), key, "10")
+        heard = self._said(listener)["received"]
+        self.figures["local_acl_refused"] = heard[forged] == 0 and heard[own] > 0
+        self.progress(f"{vehicle}'s API outside its contract ({forged}), then inside it ({own}): heard {heard}")
+
+    def _local_client(self, vehicle: str, user: str) -> Path:
+        """A session config of the vehicle's process `user` on its own router, with its password."""
+        passwords = pki.read_users(self.ca / "vehicles" / vehicle / "zenoh_local_users")
+        endpoint = f"tcp/127.0.0.1:{router_config.LOCAL_PORT}"
+        return self._client(f"{vehicle}-{user}.json5", endpoint, user, passwords[user])
+
+    def _probe(self, ns: str, what: str, cfg: Path, *args: str) -> subprocess.Popen:
+        """A listening or serving probe, started and ready (its first line said)."""
+        name = f"probe-{what}-{cfg.stem}"
+        probe = subprocess.Popen(
+            ["ip", "netns", "exec", ns, sys.executable, "-m", "ares.deploy.probe", what, str(cfg), *args],
+            stdout=subprocess.PIPE, stderr=open(self.work / "logs" / f"{name}.log", "w"), text=True,  # noqa: SIM115
+            start_new_session=True,
+        )  # fmt: skip
+        probe.name = name  # type: ignore[attr-defined]
+        self.procs.append(probe)
+        assert probe.stdout is not None
+        probe.stdout.readline()  # listening / serving
+        return probe
+
+    def _said(self, probe: subprocess.Popen) -> dict:
+        """A probe's last line, once it has ended."""
+        out = probe.communicate(timeout=30)[0].strip().splitlines()
+        self.procs.remove(probe)
+        if not out:
+            raise RehearsalError(f"{probe.name} said nothing (exit {probe.returncode}; logs/{probe.name}.log)")  # type: ignore[attr-defined]
+        return json.loads(out[-1])
 
     def _acl_event(self) -> str | None:
         from datetime import UTC, datetime, timedelta
@@ -457,8 +472,10 @@ class Rehearsal:
                     "kinds": "acl_refused"},
         )  # fmt: skip
         events = r.json().get("events", []) if r.status_code == 200 else []
-        under_other = [e["message"] for e in events if f"under {VEHICLES[1]}'s id" in e["message"]]
-        return under_other[0] if under_other else None
+        # the probe's own refusal: a running stack may have had others under that id (a reply routed there)
+        said = f"under {VEHICLES[1]}'s id (ares/{VEHICLES[1]}/events)"
+        probe = [e["message"] for e in events if said in e["message"]]
+        return probe[0] if probe else None
 
     def check_partition(self) -> None:
         vehicle, host = VEHICLES[0], self.hosts[VEHICLES[0]]
@@ -568,6 +585,7 @@ class Rehearsal:
         self.check_seen(started)
         self.check_refusals()
         self.check_fleet_commands()
+        self.check_local_acl()
         self.check_partition()
         self.check_router_restart()
         self.figures["light"] = self.light

@@ -13,7 +13,10 @@ ways, each checked by the fleet router and the vehicle's router alike:
 
 The fleet's own services (API, recorder) reach the fleet router over plain TCP on the fleet
 server's private network, with the user `fleet`; that router publishes its TLS port only. A
-vehicle's processes reach its router the same way, with the user `vehicle` (LOCAL_USER).
+vehicle's processes reach its router the same way, each with its own user (its process name) and
+password; the vehicle router's access control allows each exactly the keys its contract declares
+(ares/deploy/local_acl.py: the rules are made from the contracts, so a new output is allowed by
+declaring it, and a key no contract declares is allowed to no one).
 
 Files are plain JSON (valid JSON5) written by `render`; `deploy/fleet/zenoh-router.json5` and
 `deploy/vehicle/zenoh-router.json5` are this module's output (a test keeps them so). zenohd reads
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import copy
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +37,6 @@ from ares.deploy import pki
 SECRETS = "/run/secrets"  # where compose mounts secrets in a container
 ROUTER_PORT = 7447  # TLS: vehicles to the fleet
 LOCAL_PORT = 7448  # TCP: a host's own processes to its router
-LOCAL_USER = pki.LOCAL_USER
 LEASE_MS = 2000  # as the stack's bus.lease_ms: a cut link is noticed within it
 
 # the services the fleet may call on a vehicle: its state and the black-box seconds a lost link kept
@@ -131,11 +134,21 @@ def fleet_router(vehicles: list[str]) -> dict[str, Any]:
     return cfg
 
 
-def vehicle_router(fleet_endpoint: str = f"tls/fleet-router:{ROUTER_PORT}") -> dict[str, Any]:
-    """A vehicle's router, without its credentials (`with_credentials` adds them)."""
+def vehicle_router(
+    fleet_endpoint: str = f"tls/fleet-router:{ROUTER_PORT}", cfg: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """A vehicle's router, without its credentials (`with_credentials` adds them); its processes'
+    rights from the contracts of the process table under the configuration `cfg` (the defaults
+    when None: a vehicle whose configuration changes its topics, other LiDARs for one, makes its
+    own with `ares deploy router-config vehicle --config ...`)."""
+    from ares.core import config
+    from ares.deploy import local_acl
+
+    cfg = config.core_defaults() if cfg is None else cfg
+    ids = local_acl.rule_ids(cfg)
     services = [f"ares/*/srv/{s}" for s in FLEET_SERVICES]
     rules = [
-        _rule("vehicle_processes", ALL_MESSAGES, ["ingress", "egress"], ["**"]),
+        *local_acl.rules(cfg),
         # from the fleet: its subscriptions and its allowed calls; to the fleet: the vehicle's data
         _rule("fleet_subscribes", SUBSCRIBE, ["ingress"], ["ares/**"]),
         _rule("fleet_calls", ["query"], ["ingress"], services),
@@ -146,7 +159,7 @@ def vehicle_router(fleet_endpoint: str = f"tls/fleet-router:{ROUTER_PORT}") -> d
     cfg["connect"] = {"endpoints": [fleet_endpoint], "timeout_ms": -1, "exit_on_failure": False}
     cfg["transport"] = {
         "link": {"tx": {"lease": LEASE_MS}, "tls": _tls()},
-        # the vehicle's own processes log in too (user `vehicle`): a router with credentials asks every link
+        # the vehicle's own processes log in too, each as its name: a router with credentials asks every link
         "auth": {"usrpwd": {"dictionary_file": f"{SECRETS}/zenoh_local_users"}},
     }
     cfg["access_control"] = {
@@ -154,11 +167,11 @@ def vehicle_router(fleet_endpoint: str = f"tls/fleet-router:{ROUTER_PORT}") -> d
         "default_permission": "deny",
         "rules": rules,
         "subjects": [
-            {"id": "vehicle_processes", "link_protocols": ["tcp"]},
+            *({"id": user, "link_protocols": ["tcp"], "usernames": [user]} for user in sorted(ids)),
             {"id": "fleet", "link_protocols": ["tls"], "cert_common_names": ["fleet"]},
         ],
         "policies": [
-            {"id": "vehicle_processes", "rules": ["vehicle_processes"], "subjects": ["vehicle_processes"]},
+            *({"id": user, "rules": ids[user], "subjects": [user]} for user in sorted(ids)),
             {"id": "fleet", "rules": ["fleet_subscribes", "fleet_calls", "to_fleet"], "subjects": ["fleet"]},
         ],
     }

@@ -47,6 +47,9 @@ VEHICLE_ID_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"  # one key segment of ares/<vehic
 Section = TypeVar("Section", bound=Params)
 
 
+OBSERVER_USER = "observer"  # the read-only tools' user on a deployed vehicle's router (bus.credentials_file)
+
+
 class BusSettings(Params):
     mode: Literal["peer", "client"] = param(
         "peer",
@@ -76,7 +79,8 @@ class BusSettings(Params):
     credentials_file: str | None = param(
         None,
         "a `user:password` dictionary (a compose secret): each process logs in as its own name, the "
-        "supervisor as `supervisor`; instead of user and password_file",
+        "supervisor as `supervisor`, `ares topics` and `ares echo` as `observer` (read only); instead of "
+        "user and password_file",
     )
 
     @model_validator(mode="after")
