@@ -45,6 +45,8 @@ def test_the_light_rehearsal_shows_every_figure_and_leaves_nothing_behind(tmp_pa
     # much later the API shows it is the machine's business, docs/deploy.md)
     assert 0 < figures["unreachable_after_s"] < figures["partition_s"]
     assert figures["blackbox_seconds_lost"] == 0 and figures["blackbox_seconds_checked"] >= 20
+    # the fleet acknowledged past the cut, and no second the mark covers is missing at the fleet
+    assert figures["acknowledged_after_s"] is not None and figures["acknowledged_not_at_fleet"] == 0
     assert figures["router_restart_recovered_s"] is not None and figures["vehicle_restarts_during_router_restart"] == 0
     assert figures["namespaces_left"] == [] and figures["links_left"] == []
     after = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, check=True).stdout

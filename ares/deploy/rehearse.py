@@ -311,7 +311,8 @@ class Rehearsal:
                     "mode": "client",
                     "credentials_file": str(folder / "zenoh_local_users"),  # each process as its name
                 },
-                "blackbox_store": {"uri": str(self.work / f"{vehicle}.sqlite")},
+                # as deploy/vehicle/ares.yaml: nothing purged that the fleet has not acknowledged
+                "blackbox_store": {"uri": str(self.work / f"{vehicle}.sqlite"), "keep_until_acknowledged": True},
                 "api": {"port": API_PORT, "state_dir": str(self.work / f"{vehicle}-api")},
             }
             self._write_json(f"{vehicle}.yaml", vehicle_yaml)
@@ -518,6 +519,42 @@ class Rehearsal:
             f"checked, {len(missing)} missing at the fleet; it drove {self.figures['partition_moving_share']:.0%} "
             "of the partition"
         )
+        self.check_acknowledged(vehicle, healed_wall)
+
+    def check_acknowledged(self, vehicle: str, healed_wall: float) -> None:
+        """The fleet's acknowledgement passes the cut, and covers no second the fleet lacks."""
+        path = self.work / f"{vehicle}.sqlite"
+        try:
+            self._wait(
+                f"{vehicle}'s mark past the cut", lambda: (self._mark(path, vehicle) or 0) >= healed_wall, 60.0, 0.5
+            )
+            self.figures["acknowledged_after_s"] = round(time.time() - healed_wall, 2)
+        except RehearsalError:
+            self.figures["acknowledged_after_s"] = None
+        mark = self._mark(path, vehicle)
+        covered = {k for k in self._seconds(path, vehicle) if mark is not None and k <= mark}
+        self.figures["acknowledged_not_at_fleet"] = len(covered - set(self._seconds(self.fleet_store, vehicle)))
+        self.progress(
+            f"{vehicle}'s store acknowledged by the fleet {self.figures['acknowledged_after_s']} s after the link "
+            f"returned; of the {len(covered)} seconds it covers, {self.figures['acknowledged_not_at_fleet']} "
+            "missing at the fleet"
+        )
+
+    @staticmethod
+    def _mark(path: Path, vehicle: str) -> int | None:
+        from blackbox.register.store.record_store import StoreUnavailable
+        from blackbox.register.store.sqlite_store import SqliteStore
+
+        try:
+            store = SqliteStore(str(path))
+        except StoreUnavailable:
+            return None
+        try:
+            return store.acknowledged(vehicle)
+        except StoreUnavailable:
+            return None
+        finally:
+            store.close()
 
     def check_router_restart(self) -> None:
         restarts_before = self._restarts()

@@ -23,13 +23,14 @@ class StampWindow:
     oldest_s: float  # how far behind the wall a stamp may be
     future_tolerance_s: float  # how far ahead of it
 
-    def why_refused(self, epoch_s: float, wall: float) -> str | None:
-        """None if `epoch_s` (UTC epoch seconds) is inside the window around `wall`, else why not."""
+    def why_refused(self, epoch_s: float, wall: float, any_age: bool = False) -> str | None:
+        """None if `epoch_s` (UTC epoch seconds) is inside the window around `wall` (with
+        `any_age`, only its future bound: an answer to a range the fleet asked for), else why not."""
         if not math.isfinite(epoch_s):
             return f"a time that is no number ({epoch_s})"
         if epoch_s > wall + self.future_tolerance_s:
             return f"a time {epoch_s - wall:.0f} s ahead of the fleet's clock"
-        if epoch_s < wall - self.oldest_s:
+        if not any_age and epoch_s < wall - self.oldest_s:
             return f"a time {wall - epoch_s:.0f} s behind the fleet's clock (older than the store keeps)"
         return None
 

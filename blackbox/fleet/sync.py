@@ -10,6 +10,14 @@ says up to where it is complete: a second before that which it did not send was 
 vehicle answers it. Only a recorder from before such answers (memory only) leaves a second older
 than its memory as `left_on_vehicle`.
 
+Acknowledgements (`blackbox/acknowledge`) let a vehicle that keeps its records until the fleet
+holds them (`keep_until_acknowledged`) purge: the ledger learns each vehicle's mark first (what
+the fleet acknowledged before, kept in the vehicle's store) and opens as a gap every second
+after it that this run has not seen arrive, then acknowledges, at most every
+`acknowledge_every_s`, up to the last second with nothing open before it. The node sends an
+acknowledgement only once its writer has put every record behind it into the store, and opens
+the range again if the writer lost any item meanwhile (sync_node.py).
+
 Reachability is judged on the wall clock: a vehicle from which nothing arrived for
 `unreachable_after_s` is unreachable until the next message. Nothing here does I/O.
 """
@@ -44,6 +52,12 @@ class FleetSyncParams(StoreWriterParams):
         unit="s",
         gt=0,
     )
+    acknowledge_every_s: float = param(
+        10.0,
+        "each vehicle is told up to where the fleet's store holds all its records at most this often (wall)",
+        unit="s",
+        gt=0,
+    )
     refusal_report_s: float = param(
         60.0, "refused messages of one vehicle and cause are reported as one event at most this often", unit="s", gt=0
     )
@@ -51,7 +65,7 @@ class FleetSyncParams(StoreWriterParams):
 
 @dataclass
 class VehicleLedger:
-    newest: int | None = None  # the newest second stored (UTC epoch s)
+    newest: int | None = None  # the newest second accounted for: stored, or open in a gap (UTC epoch s)
     gaps: list[list[int]] = field(default_factory=list)  # [start, end) ranges, oldest first
     heard_wall: float = 0.0
     reachable: bool = False
@@ -61,6 +75,11 @@ class VehicleLedger:
     filled: int = 0
     left_on_vehicle: int = 0
     never_recorded: int = 0
+    mark_known: bool = False  # the vehicle said what the fleet acknowledged before
+    acknowledged: int | None = None  # the vehicle's mark, as it last said it
+    accountable_from: int | None = None  # the first second after the mark when it was learned
+    acknowledge_wall: float = -1e18  # when an acknowledgement was last due
+    acknowledging: bool = False  # one waits for the writer or for the vehicle's reply
 
 
 @dataclass
@@ -157,6 +176,78 @@ class FleetLedger:
         ledger.never_recorded += len(rest - before_memory)
         self._fill(ledger, rest, count=False)
         ledger.asked_wall = -1e18  # the next gap at once
+
+    def acknowledgements(self, wall: float) -> list[tuple[str, int | None]]:
+        """(vehicle, up to) to acknowledge now, once per acknowledge_every_s per reachable
+        vehicle with none pending: the last second with nothing open at or before it, when it
+        is past the vehicle's mark; None while the mark is not known (the question comes first)."""
+        out: list[tuple[str, int | None]] = []
+        for vehicle_id, ledger in self.vehicles.items():
+            if not ledger.reachable or ledger.acknowledging:
+                continue
+            if wall - ledger.acknowledge_wall < self.p.acknowledge_every_s:
+                continue
+            upto = self.complete_to(vehicle_id) if ledger.mark_known else None
+            behind_mark = upto is not None and ledger.acknowledged is not None and upto <= ledger.acknowledged
+            if ledger.mark_known and (upto is None or behind_mark):
+                continue
+            ledger.acknowledging, ledger.acknowledge_wall = True, wall
+            out.append((vehicle_id, upto))
+        return out
+
+    def complete_to(self, vehicle_id: str) -> int | None:
+        """The newest second with nothing open at or before it (None: nothing accounted for)."""
+        ledger = self.vehicle(vehicle_id)
+        if ledger.gaps:
+            return ledger.gaps[0][0] - 1
+        return ledger.newest
+
+    def acknowledged(self, vehicle_id: str, mark: int | None, oldest_held: int | None) -> None:
+        """The vehicle's reply: its mark now, and the oldest second it holds. The first reply
+        of this run opens every second after the mark (from the oldest held, when none) up to
+        the newest accounted for: what this run did not see arrive is asked for again."""
+        ledger = self.vehicle(vehicle_id)
+        ledger.acknowledging = False
+        if not ledger.mark_known:
+            ledger.mark_known = True
+            start = oldest_held if mark is None else max(mark + 1, oldest_held if oldest_held is not None else 0)
+            ledger.accountable_from = start
+            if start is not None:
+                self.reopen(vehicle_id, start, None if ledger.newest is None else ledger.newest + 1)
+        ledger.acknowledged = mark
+
+    def lost_before(self, vehicle_id: str, upto: int) -> int:
+        """The writer lost items before an acknowledgement up to `upto` was sent: every second
+        after the mark up to it is open again (the first second asked for is returned)."""
+        ledger = self.vehicle(vehicle_id)
+        ledger.acknowledging = False
+        if ledger.acknowledged is not None:
+            start = ledger.acknowledged + 1
+        else:
+            start = ledger.accountable_from if ledger.accountable_from is not None else upto + 1
+        self.reopen(vehicle_id, start, upto + 1)
+        return start
+
+    def acknowledgement_failed(self, vehicle_id: str) -> None:
+        """Unanswered or not taken: due again after acknowledge_every_s."""
+        self.vehicle(vehicle_id).acknowledging = False
+
+    def reopen(self, vehicle_id: str, start: int, end: int | None) -> None:
+        """Seconds [start, end) are open again (asked for from the vehicle); end None: nothing
+        accounted for yet, the first record opens the gap from `start`."""
+        ledger = self.vehicle(vehicle_id)
+        if end is None:
+            ledger.newest = start - 1 if ledger.newest is None else ledger.newest
+            return
+        if end <= start:
+            return
+        merged: list[list[int]] = []
+        for gap in sorted([*ledger.gaps, [start, end]], key=_start):
+            if merged and gap[0] <= merged[-1][1]:
+                merged[-1][1] = max(merged[-1][1], gap[1])
+            else:
+                merged.append(list(gap))
+        ledger.gaps = merged
 
     def failed(self, vehicle_id: str) -> None:
         """The request in flight went unanswered: asked again after backfill_retry_s."""

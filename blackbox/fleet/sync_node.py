@@ -10,6 +10,14 @@ second, so a record that arrives twice is stored once. After a lost link the led
 the loop never waits on a vehicle. A vehicle silent for `unreachable_after_s` gets a
 `vehicle_unreachable` event in its black box, and `vehicle_reachable` when it is heard again.
 
+The fleet also tells each vehicle up to where its store holds every record
+(`blackbox/acknowledge`, ledger.acknowledgements): an acknowledgement waits until the writer has
+settled every item submitted before it was due (the writer keeps their order), and is not sent,
+the range opened again instead, if the writer lost any item meanwhile; so a vehicle that keeps
+its records until they are acknowledged deletes none that the fleet's store does not hold.
+Answers to the fleet's own requests are taken however old (the door's future bound still
+holds): a vehicle that kept a week of unacknowledged seconds gets them acknowledged.
+
 A vehicle's events carry its stack time; they are stored at the UTC time its records map that
 stack time to (before its first record, at the time they arrive). Events that a cut link kept
 from the fleet stay in the vehicle's own store: only records are filled in.
@@ -24,7 +32,16 @@ import time
 from datetime import UTC, datetime
 
 from ares.core.bus import ServiceError
-from ares.core.messages import BlackboxRecord, Event, EventLevel, RecordRange, StoredEvent, VehicleRecord
+from ares.core.messages import (
+    Acknowledgement,
+    AcknowledgementReply,
+    BlackboxRecord,
+    Event,
+    EventLevel,
+    RecordRange,
+    StoredEvent,
+    VehicleRecord,
+)
 from blackbox.fleet.door import Refusals, StampWindow, epoch_or_none
 from blackbox.fleet.sync import FleetLedger, FleetSyncParams, Reachability, epoch_of
 from blackbox.register.blackbox_node import BlackboxNode
@@ -39,7 +56,7 @@ class FleetSync(BlackboxNode):
     Params = FleetSyncParams
     sections = {"blackbox_store": StoreSettings}
     fleet_inputs = ("blackbox/record", "events")
-    calls = ("blackbox/records",)
+    calls = ("blackbox/records", "blackbox/acknowledge")
 
     def setup(self) -> None:
         p = self.params
@@ -51,10 +68,15 @@ class FleetSync(BlackboxNode):
         self.arrived: queue.SimpleQueue[tuple[str, float, object]] = queue.SimpleQueue()
         self._known_from_store(settings)
         self.start_writer(settings, self.core.vehicle_id)
-        self.asks: queue.SimpleQueue[tuple[str, int, int] | None] = queue.SimpleQueue()
+        self.asks: queue.SimpleQueue[tuple[str, int, int] | tuple[str, int | None] | None] = queue.SimpleQueue()
         self.answers: queue.SimpleQueue[tuple[str, list[VehicleRecord] | None, int | None, int | None, str]] = (
             queue.SimpleQueue()
         )
+        self.replies: queue.SimpleQueue[tuple[str, AcknowledgementReply | None, str]] = queue.SimpleQueue()
+        # acknowledgements waiting for the writer: (vehicle, up to, items submitted, losses then)
+        self.unsettled: list[tuple[str, int, int, int]] = []
+        self.acknowledgements_refused = 0
+        self.acknowledgements_withheld = 0  # the writer lost items before them: the range asked again
         self.asker = threading.Thread(target=self._ask_vehicles, name="fleet-backfill", daemon=True)
         self.asker.start()
         for topic in self.fleet_inputs:
@@ -110,10 +132,12 @@ class FleetSync(BlackboxNode):
                 self.log.info("gap of %s not filled yet: %s", vehicle_id, error)
                 continue
             self._answer(vehicle_id, records, oldest, complete_to, wall)
+        self._take_replies()
         for change in self.ledger.silent(wall):
             self._reachability(change)
         for ask in self.ledger.requests(wall):
             self.asks.put(ask)
+        self._acknowledge(wall)
         for vehicle_id, cause, count, example in self.refusals.due(wall):
             self.event(
                 "fleet_record_refused",
@@ -151,7 +175,7 @@ class FleetSync(BlackboxNode):
             return
         seconds = set()
         for record in records:
-            epoch = self._accepted_second(vehicle_id, record, wall)
+            epoch = self._accepted_second(vehicle_id, record, wall, asked=True)
             if epoch is None:
                 continue
             if not asked[0] <= epoch < asked[1]:
@@ -169,9 +193,49 @@ class FleetSync(BlackboxNode):
             ledger.left_on_vehicle,
         )
 
-    def _accepted_second(self, vehicle_id: str, record: VehicleRecord, wall: float) -> int | None:
+    def _acknowledge(self, wall: float) -> None:
+        """Acknowledgements due wait for the writer; those it settled without a loss are sent."""
+        for vehicle_id, upto in self.ledger.acknowledgements(wall):
+            if upto is None:
+                self.asks.put((vehicle_id, None))  # the vehicle's mark: nothing is stored by asking
+            else:
+                self.unsettled.append((vehicle_id, upto, self.writer.accepted, self.writer.losses + self.lost))
+        waiting = []
+        for vehicle_id, upto, submitted, losses in self.unsettled:
+            if not self.writer.settled_through(submitted):
+                waiting.append((vehicle_id, upto, submitted, losses))
+            elif self.writer.losses + self.lost == losses:
+                self.asks.put((vehicle_id, upto))
+            else:  # an item of those behind it may be one of this vehicle's records: asked again
+                start = self.ledger.lost_before(vehicle_id, upto)
+                self.acknowledgements_withheld += 1
+                self.log.warning(
+                    "the writer lost items before %s's acknowledgement up to %d: seconds from %d asked for again",
+                    vehicle_id,
+                    upto,
+                    start,
+                )
+        self.unsettled = waiting
+
+    def _take_replies(self) -> None:
+        while True:
+            try:
+                vehicle_id, reply, error = self.replies.get_nowait()
+            except queue.Empty:
+                return
+            if reply is None or (reply.refused and reply.acknowledged_epoch_s is None):
+                self.ledger.acknowledgement_failed(vehicle_id)
+                self.log.info("no acknowledgement taken by %s yet: %s", vehicle_id, error or reply.refused)
+                continue
+            if reply.refused:
+                self.acknowledgements_refused += 1
+                self.log.warning("%s's store kept its own mark: %s", vehicle_id, reply.refused)
+            self.ledger.acknowledged(vehicle_id, reply.acknowledged_epoch_s, reply.oldest_held_epoch_s)
+
+    def _accepted_second(self, vehicle_id: str, record: VehicleRecord, wall: float, asked: bool = False) -> int | None:
         """The second a vehicle's record stands for, or None (the refusal counted) when the fleet
-        does not take it: another vehicle's, or stamped outside the window."""
+        does not take it: another vehicle's, or stamped outside the window (of any age when the
+        fleet `asked` for its range)."""
         if record.vehicle_id != vehicle_id:  # the key's id is the one access control checked
             self.refusals.note(
                 vehicle_id,
@@ -183,15 +247,18 @@ class FleetSync(BlackboxNode):
             self.refusals.note(vehicle_id, "record stack time", f"a record at stack time {record.t!r}")
             return None
         epoch = epoch_or_none(record.time)
-        why = "a time out of range" if epoch is None else self.window.why_refused(epoch, wall)
+        why = "a time out of range" if epoch is None else self.window.why_refused(epoch, wall, any_age=asked)
         if epoch is None or why is not None:
             self.refusals.note(vehicle_id, "record time", f"a record stamped {record.time.isoformat()}: {why}")
             return None
         return int(epoch)
 
     def _ask_vehicles(self) -> None:
-        """The backfill calls, one at a time, off the loop."""
+        """The backfill and acknowledgement calls, one at a time, off the loop."""
         while (ask := self.asks.get()) is not None:
+            if len(ask) == 2:
+                self._send_acknowledgement(*ask)
+                continue
             vehicle_id, start, end = ask
             try:
                 batch = self.bus.call(
@@ -203,6 +270,18 @@ class FleetSync(BlackboxNode):
                 self.answers.put((vehicle_id, list(batch.records), batch.oldest_epoch_s, batch.complete_to_epoch_s, ""))
             except ServiceError as exc:
                 self.answers.put((vehicle_id, None, None, None, str(exc)))
+
+    def _send_acknowledgement(self, vehicle_id: str, upto: int | None) -> None:
+        try:
+            reply = self.bus.call(
+                "blackbox/acknowledge",
+                Acknowledgement(t=self.clock.now(), upto_epoch_s=upto),
+                timeout_s=self.params.backfill_timeout_s,
+                vehicle_id=vehicle_id,
+            )
+            self.replies.put((vehicle_id, reply, ""))
+        except ServiceError as exc:
+            self.replies.put((vehicle_id, None, str(exc)))
 
     def _reachability(self, change: Reachability | None) -> None:
         if change is None:

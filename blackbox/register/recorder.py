@@ -160,6 +160,13 @@ class RecorderParams(StoreWriterParams):
         unit="s",
         gt=0,
     )
+    unacknowledged_check_s: float = param(
+        600.0,
+        "with keep_until_acknowledged: how often (stack s) the store is asked how many records past the "
+        "retention wait for the fleet's acknowledgement (a blackbox_unacknowledged_kept warning if any)",
+        unit="s",
+        gt=0,
+    )
 
 
 # ---- where the store and the spool are --------------------------------------------------------
@@ -359,6 +366,12 @@ class StoreWriter:
         self.records_dropped = 0  # records and events lost: memory full while store and spool failed
         self.events_dropped = 0
         self.store_faults = 0  # failed store calls, failed spool appends, writer errors
+        # in the order taken: items that left the writer's keeping (stored, refused by the store,
+        # or dropped), an earlier run's spool first; with `accepted` this says what is settled
+        self.settled = 0
+        self.accepted = 0  # items submit() took this run
+        self.spool_dropped = 0  # the spool's oldest entries dropped to stay within its bound
+        self._backlog_at_start = 0
         self._held: collections.deque[Item] = collections.deque()  # in order, after the spool's entries
         self.memory_max_entries = int(memory_max_entries)
         self._dropped_reported_at = -math.inf
@@ -394,6 +407,7 @@ class StoreWriter:
     def start(self) -> None:
         """Claim the spool (SpoolBusy if another writer has it) and start the thread."""
         self.lock.acquire()
+        self._backlog_at_start = len(self.spool)
         self._thread.start()
 
     def status(self, t: float = 0.0, lost: int = 0) -> BlackboxStatus:
@@ -417,9 +431,21 @@ class StoreWriter:
         """Queue one record or event; False if the queue is full (never waits)."""
         try:
             self._queue.put_nowait(item)
-            return True
         except queue.Full:
             return False
+        self.accepted += 1
+        return True
+
+    def settled_through(self, accepted: int) -> bool:
+        """Whether the first `accepted` items submitted this run have all left the writer's
+        keeping: in the store, unless `losses` grew meanwhile. The writer keeps the order of
+        what it takes (queue, spool, memory, oldest first), so a count says it."""
+        return self.settled - self._backlog_at_start >= accepted
+
+    @property
+    def losses(self) -> int:
+        """Items taken and not stored: dropped from memory or from the spool."""
+        return self.records_dropped + self.events_dropped + self.spool_dropped
 
     @property
     def store_up(self) -> bool:
@@ -515,11 +541,13 @@ class StoreWriter:
             return
         self.records_written += len(records)
         self.events_written += len(events)
+        self.settled += len(items)
 
     def _insert_one_by_one(self, items: Sequence[Item], exc: Exception) -> None:
         """A data error (not an unreachable store): find the items the store refuses and drop
         only those, so that one bad document cannot stall the black box forever."""
         log.warning("the store refused a batch (%r): inserting one by one", exc)
+        settled_before = self.settled
         for item in items:
             try:
                 if isinstance(item, VehicleRecord):
@@ -528,9 +556,12 @@ class StoreWriter:
                 else:
                     self.store.insert_events([item])
                     self.events_written += 1
+                self.settled += 1
             except (ValueError, TypeError) as item_exc:
                 if isinstance(item_exc, StoreUnavailable):
+                    self.settled = settled_before  # the whole batch is kept and taken again
                     raise
+                self.settled += 1
                 self._notify(
                     "blackbox_rejected",
                     f"the store refused a {type(item).__name__} at t={item.t}: {item_exc!r}; dropped",
@@ -552,6 +583,7 @@ class StoreWriter:
             self._fault(f"spooling {len(items)} items to {self.spool.path}", exc)
             self._hold(items)
             return
+        self._spool_dropped(dropped)
         if dropped:
             self._notify(
                 "blackbox_spool_overflow",
@@ -571,6 +603,7 @@ class StoreWriter:
             records += isinstance(self._held.popleft(), VehicleRecord)
         self.records_dropped += records
         self.events_dropped += over - records
+        self.settled += over
         now = time.monotonic()
         if now - self._dropped_reported_at >= DROPPED_REPORT_EVERY_S:
             self._dropped_reported_at = now
@@ -593,6 +626,7 @@ class StoreWriter:
             self._fault(f"spooling {len(held)} items held in memory", exc)
             return
         self._held.clear()
+        self._spool_dropped(dropped)
         if dropped:
             self._notify(
                 "blackbox_spool_overflow",
@@ -610,6 +644,7 @@ class StoreWriter:
         self._held.clear()
         self.records_dropped += records
         self.events_dropped += events
+        self.settled += records + events
         self._notify(
             "blackbox_fault",
             f"stopping with the store and the spool refusing: {records} records and {events} events held in "
@@ -618,6 +653,10 @@ class StoreWriter:
             dropped=records,
             events_dropped=events,
         )
+
+    def _spool_dropped(self, dropped: int) -> None:
+        self.spool_dropped += dropped
+        self.settled += dropped
 
     def _fault(self, what: str, exc: Exception) -> None:
         """A failure of the black box's own keeping (not the store's answer): a FAULT event, and the
@@ -655,11 +694,13 @@ class StoreWriter:
         while self.spool.pending:
             if self._stopping.is_set() and time.monotonic() >= self._deadline:
                 return
+            settled_before = self.settled
             try:
                 upto, chunk = self.spool.peek(self.batch_max)
                 self._insert(chunk)
                 self.spool.ack(upto)
             except Exception as exc:
+                self.settled = settled_before  # still in the spool: taken again
                 self._went_down(exc)
                 return
             flushed += len(chunk)

@@ -11,6 +11,12 @@ the fleet's store when it asks for the seconds a lost link kept from it (blackbo
 an older second is read from the vehicle's own store (blackbox.register.answer), through a
 handle of its own whose every read is bounded by `answer_read_timeout_s`; a store that failed
 is left alone for `answer_store_retry_s`, memory answering meanwhile.
+
+A store that keeps what the fleet has not acknowledged (`keep_until_acknowledged`) grows past the
+retention while the fleet is away: every `unacknowledged_check_s` the recorder asks it how many
+records wait so, and says it (`blackbox_unacknowledged_kept`, a warning the awareness manager and
+the pages see) until the fleet's acknowledgement lets the purge take them; a disk that fills up
+meanwhile is the writer's fault event.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import collections
 import math
 import time
 import uuid
+from datetime import UTC, datetime
 
 from ares.core import topics
 from ares.core.geodesy import LocalFrame
@@ -86,6 +93,7 @@ class Recorder(BlackboxNode):
         self.reader_retry_at = 0.0
         self.newest_recorded: int | None = None  # the newest second recorded (UTC epoch s)
         self.acknowledgements_refused = 0
+        self.unacknowledged_check_at = self.clock.now()  # the first loop asks
         self.log.info(
             "recording %s to %s (spool %s)", self.vehicle_id, store_uri(self.store_settings), self.writer.spool.path
         )
@@ -130,6 +138,32 @@ class Recorder(BlackboxNode):
         self.publish_notices()
         if crossed:
             self.health.put(self.status(now))
+        if self.store_settings.keep_until_acknowledged and now >= self.unacknowledged_check_at:
+            self.unacknowledged_check_at = now + self.params.unacknowledged_check_s
+            self._tell_unacknowledged()
+
+    def _tell_unacknowledged(self) -> None:
+        """How many records the purge keeps past the retention for want of an acknowledgement."""
+        store = self._answer_store()
+        if store is None:
+            return
+        try:
+            count, oldest = store.unacknowledged_expired(self.vehicle_id)
+            mark = store.acknowledged(self.vehicle_id)
+        except StoreUnavailable as exc:
+            self.log.warning("the store cannot say what waits for the fleet's acknowledgement: %s", exc)
+            return
+        if not count:
+            return
+        since = "nothing" if mark is None else f"up to {datetime.fromtimestamp(mark, UTC).isoformat()}"
+        self.event(
+            "blackbox_unacknowledged_kept",
+            f"{count} records older than the retention kept: the fleet has acknowledged {since}",
+            EventLevel.WARNING,
+            kept=count,
+            oldest_epoch_s=oldest,
+            acknowledged_epoch_s=mark,
+        )
 
     def status(self, now: float) -> BlackboxStatus:
         return self.writer.status(now, self.lost)
