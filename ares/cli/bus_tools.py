@@ -11,8 +11,6 @@ import sys
 import threading
 import time
 
-from ares.core.config.run import OBSERVER_USER as OBSERVER
-
 from .args import CliError, Command, add_connection_args, connect, positive_float, positive_int
 
 
@@ -74,8 +72,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
 
 def cmd_topics(args: argparse.Namespace) -> int:
     from ares.core import topics
+    from ares.core.config.run import OBSERVER_USER  # the observer reads; --help stays light
 
-    bus = connect(args, "cli_topics", login=OBSERVER)
+    bus = connect(args, "cli_topics", login=OBSERVER_USER)
     seen: dict[str, list] = {}  # key -> [count, encoding, bytes]
     lock = threading.Lock()
 
@@ -224,7 +223,9 @@ def cmd_echo(args: argparse.Namespace) -> int:
     key_arg = args.key.strip().strip("/")
     if not key_arg:
         raise CliError("empty key")
-    bus = connect(args, "cli_echo", login=OBSERVER)
+    from ares.core.config.run import OBSERVER_USER  # the observer reads; --help stays light
+
+    bus = connect(args, "cli_echo", login=OBSERVER_USER)
     key = key_arg if key_arg == "ares" or key_arg.startswith("ares/") else bus.key(key_arg)
     inbox: queue.Queue = queue.Queue(maxsize=10000)
     dropped = [0]
