@@ -107,9 +107,13 @@
     ares deploy router --config FILE [--secrets DIR] [--listen ENDPOINT] [--connect ENDPOINT]
                        [--report-refusals-as ID]
                                    run a router from a deployment's JSON5 file (stands in for zenohd)
-    ares deploy rehearse [--json] [--light] [--partition-s S] [--work DIR]
+    ares deploy rehearse [--json] [--light] [--partition-s S] [--work DIR] [--containers [--base B]]
                                    as root: the fleet and two vehicles across network namespaces, a
-                                   partition, the refusals, a restart (docs/deploy.md)
+                                   partition, the refusals, a restart (docs/deploy.md); --containers:
+                                   the compose stacks under a Docker engine
+    ares deploy images [--base debootstrap|python] [--json]
+                                   the base and the ares image built (an engine started if none runs);
+                                   each step's time, each image's size
     ares deploy check DIR [--json] a deployment folder checked before `docker compose up` (compose file,
                                    secrets, certificates, ARES configs)
     ares deploy manifest --key KEY --out MANIFEST

@@ -83,12 +83,29 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         "publishing under another's id, a cut link (unreachable, no black-box second lost), a fleet "
         "router restart. Removes everything it made at the end.",
     )
+    rehearse.add_argument(
+        "--containers",
+        action="store_true",
+        help="under a Docker engine: the images, the fleet's and two vehicles' compose stacks (root)",
+    )
+    rehearse.add_argument(
+        "--base", choices=["debootstrap", "python"], default="debootstrap", help="--containers: the images' base"
+    )
     rehearse.add_argument("--json", action="store_true", help="one JSON line of figures")
     rehearse.add_argument(
         "--light", action="store_true", help="each vehicle runs its black-box recorder only (no simulated stack)"
     )
     rehearse.add_argument("--partition-s", type=float, default=60.0, metavar="S", help="the link cut's length")
     rehearse.add_argument("--work", metavar="DIR", help="where the run's secrets, stores and logs go")
+    images = sub.add_parser(
+        "images",
+        help="build the deployment's images under a Docker engine (started here if none runs; root)",
+        description="Build the base (debootstrap: Debian bookworm from Debian's packages, imported; python: the "
+        "official image, pulled) and the ares image from deploy/Dockerfile on it. Says how long each step took "
+        "and how large each image is. Starts a Docker engine of its own when none answers, and stops it after.",
+    )
+    images.add_argument("--base", choices=["debootstrap", "python"], default="debootstrap")
+    images.add_argument("--json", action="store_true", help="one JSON object instead of lines")
     chk = sub.add_parser(
         "check",
         help="validate a deployment folder (compose file, secrets, certificates, ARES configs)",
@@ -125,7 +142,26 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         return _rehearse(args)
     if action == "manifest":
         return _manifest(args)
-    raise CliError("ares deploy: give an action (certs, router-config, router, check, rehearse, manifest)")
+    if action == "images":
+        return _images(args)
+    raise CliError("ares deploy: give an action (certs, router-config, router, check, rehearse, manifest, images)")
+
+
+def _images(args: argparse.Namespace) -> int:
+    from ares.deploy.images import build_images
+
+    result = build_images(args.base, lambda text: print(f"[images] {text}", file=sys.stderr, flush=True))
+    if args.json:
+        print(json.dumps(result.as_dict()))
+    else:
+        for image in result.images:
+            print(f"{image.tag}: {image.size_mb:.0f} MB, built in {image.seconds:.0f} s")
+            for step in image.steps:
+                if step.cached or step.seconds >= 1.0:
+                    print(f"  {'cached' if step.cached else f'{step.seconds:6.1f} s'}  {step.name[:100]}")
+        if not result.ok:
+            print(f"ares deploy images: {result.error}", file=sys.stderr)
+    return 0 if result.ok else 1
 
 
 def _manifest(args: argparse.Namespace) -> int:
@@ -157,7 +193,12 @@ def _rehearse(args: argparse.Namespace) -> int:
     from ares.deploy.rehearse import rehearse
 
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="ares-rehearsal-"))
-    figures = rehearse(work, light=args.light, partition_s=args.partition_s)
+    if args.containers:
+        from ares.deploy.container_rehearsal import rehearse_containers
+
+        figures = rehearse_containers(work, base=args.base, partition_s=args.partition_s)
+    else:
+        figures = rehearse(work, light=args.light, partition_s=args.partition_s)
     if args.json:
         print(json.dumps(figures))
     else:
