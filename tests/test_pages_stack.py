@@ -232,7 +232,7 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     events = wait_for(
         lambda: [
             e
-            for e in auditor.get(f"/vehicles/{VEHICLE}/events", params={"kinds": "mission_command"}).json()["events"]
+            for e in auditor.get(f"/vehicles/{VEHICLE}/events", params={"kind": "mission_command"}).json()["events"]
             if e["data"].get("operator") == "operator1"
         ],
         10,

@@ -222,7 +222,7 @@ class ContainerRehearsal:
         r = self.api.get(
             "/vehicles/fleet/events",
             params={"start": (now - timedelta(minutes=10)).isoformat(), "end": (now + timedelta(minutes=1)).isoformat(),
-                    "kinds": "acl_refused"},
+                    "kind": "acl_refused", "page_size": 1000},
         )  # fmt: skip
         events = r.json().get("events", []) if r.status_code == 200 else []
         said = f"under {VEHICLES[1]}'s id (ares/{VEHICLES[1]}/events)"

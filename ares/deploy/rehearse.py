@@ -470,7 +470,7 @@ class Rehearsal:
         r = self.api.get(
             f"/vehicles/{FLEET_ID}/events",
             params={"start": (now - timedelta(minutes=10)).isoformat(), "end": (now + timedelta(minutes=1)).isoformat(),
-                    "kinds": "acl_refused"},
+                    "kind": "acl_refused", "page_size": 1000},
         )  # fmt: skip
         events = r.json().get("events", []) if r.status_code == 200 else []
         # the probe's own refusal: a running stack may have had others under that id (a reply routed there)
