@@ -320,6 +320,7 @@ class ContainerRehearsal:
         healthy = {"fleet": self.up("fleet")}
         self._add_fleet_user()
         self.api = self._wait("the fleet's API", self._api_client, 60.0, 1.0)
+        self.vehicles_started = time.monotonic()
         for vehicle in VEHICLES:
             self.progress(f"{vehicle}: router, stack (compose up, waiting for its healthchecks)")
             healthy[vehicle] = self.up(vehicle)
@@ -394,6 +395,7 @@ class ContainerRehearsal:
         began = time.monotonic()
         self._wait("both vehicles on the fleet API", lambda: self.reachable() >= set(VEHICLES), 120.0)
         self.figures["vehicles_seen"] = len(self.reachable() & set(VEHICLES))
+        self.figures["seen_within_s"] = round(time.monotonic() - self.vehicles_started, 2)  # from their compose up
         self.figures["seen_after_healthy_s"] = round(time.monotonic() - began, 2)
         self.progress(f"both vehicles on the fleet's API ({self.figures['seen_after_healthy_s']} s after healthy)")
 
@@ -491,12 +493,42 @@ class ContainerRehearsal:
             pass
         self.figures["blackbox_seconds_lost"] = len(lost())
         self.figures["blackbox_seconds_checked"] = len({k for k in self.seconds(vehicle, vehicle) if k <= until})
-        during = {k for k in self.seconds(vehicle, vehicle) if cut_wall <= k <= healed}
+        records = self._records(vehicle)
+        during = [speed for k, speed in records.items() if cut_wall <= k <= healed]
         self.figures["partition_vehicle_seconds"] = len(during)
+        moving = [speed for speed in during if (speed or 0.0) > 0.3]
+        self.figures["partition_moving_share"] = round(len(moving) / max(len(during), 1), 3)
         self.progress(
             f"after the link returned: {self.figures['blackbox_seconds_checked']} seconds checked, "
-            f"{self.figures['blackbox_seconds_lost']} missing at the fleet ({len(during)} recorded during the cut)"
+            f"{self.figures['blackbox_seconds_lost']} missing at the fleet ({len(during)} recorded during the cut, "
+            f"moving in {self.figures['partition_moving_share']:.0%})"
         )
+        self.check_acknowledged(vehicle, healed)
+
+    def check_acknowledged(self, vehicle: str, healed_wall: float) -> None:
+        """The fleet's acknowledgement passes the cut in the vehicle's own store (in its volume),
+        and covers no second the fleet's store lacks."""
+        from ares.deploy.rehearse import Rehearsal
+
+        path = self.store_path(vehicle)
+        try:
+            self._wait("the mark past the cut", lambda: (Rehearsal._mark(path, vehicle) or 0) >= healed_wall, 90.0, 1.0)
+            self.figures["acknowledged_after_s"] = round(time.time() - healed_wall, 2)
+        except ContainerRehearsalError:
+            self.figures["acknowledged_after_s"] = None
+        mark = Rehearsal._mark(path, vehicle)
+        covered = {k for k in self.seconds(vehicle, vehicle) if mark is not None and k <= mark}
+        self.figures["acknowledged_not_at_fleet"] = len(covered - self.seconds("fleet", vehicle))
+        self.progress(
+            f"{vehicle}'s store acknowledged {self.figures['acknowledged_after_s']} s after the link returned; "
+            f"{self.figures['acknowledged_not_at_fleet']} of the {len(covered)} seconds it covers missing at the fleet"
+        )
+
+    def _records(self, vehicle: str) -> dict[int, float | None]:
+        from ares.deploy.rehearse import Rehearsal, _epoch
+
+        rows = Rehearsal._store_records(self.store_path(vehicle), vehicle)
+        return {int(_epoch(r["time"])): r.get("speed_mps") for r in rows}
 
     def check_router_restart(self) -> None:
         restarts = self._vehicle_restarts()
@@ -602,10 +634,14 @@ class ContainerRehearsal:
 MUST_HOLD = (
     "secrets_ok", "limits_in_force", "only_loopback_published", "stack_closed_to_other_networks",
     "refused_wrong_password", "refused_wrong_ca", "refused_acl", "fleet_command_refused", "local_acl_refused",
+    "acknowledged_after_s", "partition_moving_share",
 )  # fmt: skip
 
 
-MUST_BE_NONE = ("blackbox_seconds_lost", "restart_lost_s", "kill_lost_s", "vehicle_restarts_during_router_restart")
+MUST_BE_NONE = (
+    "blackbox_seconds_lost", "acknowledged_not_at_fleet", "restart_lost_s", "kill_lost_s",
+    "vehicle_restarts_during_router_restart",
+)  # fmt: skip
 
 
 def _session(endpoint: str, user: str, password: str) -> dict:
