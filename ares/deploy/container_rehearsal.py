@@ -694,6 +694,8 @@ def rehearse_containers(work: Path, base: str = "debootstrap", partition_s: floa
         figures["ok"] = True
     except (ContainerRehearsalError, EngineError, subprocess.TimeoutExpired, OSError, ValueError, KeyError) as exc:
         figures = {**rehearsal.figures, "ok": False, "error": str(exc)}
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: cleaned up below, and said
+        figures = {**rehearsal.figures, "ok": False, "error": "interrupted (SIGINT or SIGTERM)"}
     finally:
         left = rehearsal.cleanup()
         signal.signal(signal.SIGTERM, previous)
