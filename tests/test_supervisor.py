@@ -316,14 +316,16 @@ def test_status_service_answers_and_a_signal_stops_the_run_loop(harness):
 
 
 def test_process_without_a_first_heartbeat_is_failed_after_the_grace(harness):
-    h = harness("mute", overrides={"supervisor": {"start_grace_s": 1.5}}, commands={"mute": "sleep"})
+    # a grace a loaded machine's start of the restarted process fits in (1.5 s did not, in a CI
+    # rehearsal with a core busy: the restarted process failed its grace again, 2 restarts)
+    h = harness("mute", overrides={"supervisor": {"start_grace_s": 5.0}}, commands={"mute": "sleep"})
     old, spawned = h.child("mute").pid, h.child("mute").started_at
     h.drive(lambda: h.child("mute").state is RESTARTING, what="the mute process failed")
     failed_at = time.monotonic()
     h.control("mute", None)
     # not before its grace, counted from its spawn (how much later is the machine's business)
-    assert failed_at - spawned > 1.5
-    assert h.child("mute").last_failure == "no heartbeat within 1.5 s of start"
+    assert failed_at - spawned > 5.0
+    assert h.child("mute").last_failure == "no heartbeat within 5 s of start"
     assert not pid_alive(old)
     h.drive(lambda: h.child("mute").state is RUNNING, what="restarted")
     assert h.child("mute").restarts == 1
