@@ -101,6 +101,7 @@ class ContainerRehearsal:
         self._probe_configs()
         for folder in (self.ca, self.work / "release", self.work / "other-ca", self.probes):
             _chown_tree(folder, IMAGE_UID)
+        os.chown(self.work, IMAGE_UID, IMAGE_UID)  # the probes (uid 10001) read their configs from it
         self._overrides()
 
     def _release_manifest(self) -> None:
@@ -141,17 +142,25 @@ class ContainerRehearsal:
             _write_json(self.probes / f"{VEHICLES[0]}-{process}.json5", session)
 
     def _probe(self, network: str, *args: str) -> subprocess.Popen:
-        """A probe (ares.deploy.probe) in a container of its own on `network`, started."""
-        return subprocess.Popen(
-            [self.engine.client, "run", "--rm", "--network", network, "-v", f"{self.work}:/w:ro",
-             "--entrypoint", "python", ARES_IMAGE, "-m", "ares.deploy.probe", *args],
-            env=self.engine.env(), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-        )  # fmt: skip
+        """A probe (ares.deploy.probe) in a container of its own on `network`, started; what it
+        says on stderr goes to logs/probes.log."""
+        logs = self.work / "logs"
+        logs.mkdir(exist_ok=True)
+        with open(logs / "probes.log", "a") as err:
+            err.write(f"---- {' '.join(args[:3])}\n")
+            err.flush()
+            return subprocess.Popen(
+                [self.engine.client, "run", "--rm", "--network", network, "-v", f"{self.work}:/w:ro",
+                 "--entrypoint", "python", ARES_IMAGE, "-m", "ares.deploy.probe", *args],
+                env=self.engine.env(), stdout=subprocess.PIPE, stderr=err, text=True,
+            )  # fmt: skip
 
     def _probe_says(self, network: str, *args: str) -> dict:
         out = self._probe(network, *args).communicate(timeout=120)[0].strip().splitlines()
         if not out:
-            raise ContainerRehearsalError(f"probe {' '.join(args[:2])} said nothing")
+            raise ContainerRehearsalError(
+                f"probe {' '.join(args[:2])} said nothing ({self.work / 'logs' / 'probes.log'})"
+            )
         return json.loads(out[-1])
 
     def _ready(self, probe: subprocess.Popen) -> subprocess.Popen:

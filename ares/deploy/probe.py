@@ -36,6 +36,7 @@ def _open(config: str, attempts: int = 3):
 
 
 def link(config: str, seconds: float) -> dict:
+    Path(config).read_text()  # a config that cannot be read is an error, never a refused link
     try:
         session = _open(config, attempts=1)
     except Exception as exc:  # zenoh refuses at open when a connect must succeed
