@@ -59,7 +59,7 @@ def cloud(t: float, n: int = 500) -> PointCloud:
     )
 
 
-def record_drive(path, cfg, route, *, node_cfg=None, lockstep=False, steps=40):
+def record_drive(path, cfg, route, *, node_cfg=None, lockstep=False, steps=40, stopped_at_a_tick=False):
     """A path manager driven along the route on the in-memory bus, everything recorded; the
     simulator's part (poses, a cloud, the grid, the ticks) played by a feeder."""
     clock = ManualClock()
@@ -88,6 +88,11 @@ def record_drive(path, cfg, route, *, node_cfg=None, lockstep=False, steps=40):
         node.step_once(t)
         if lockstep:
             feeder.publish("clock/done", ClockDone(t=t, process="path_manager", next_due=round(t + 0.05, 9)))
+    if stopped_at_a_tick:  # the run stopped (`--seconds`) with the last tick recorded, not the step's outputs
+        t = round((steps + 1) * 0.05, 9)
+        clock.set(t)
+        feeder.publish("localization/pose", pose_on(route, 2.0 + 0.1 * (steps + 1), t))
+        feeder.publish("sim/clock/path_manager", ClockTick(t=t))
     node.teardown()
     return recorder.close()
 
@@ -225,6 +230,17 @@ def test_replaying_a_node_reproduces_its_recorded_outputs(tmp_path, cfg, route, 
     result = mcap_replay.replay_node(path, "path_manager")
     assert result.ok, [str(m) for m in result.mismatches[:3]]
     assert result.steps == 40 and result.outputs >= 40
+
+
+def test_a_recording_stopped_at_a_tick_replays_without_a_mismatch(tmp_path, cfg, route):
+    """A run stopped by `--seconds` records the last tick but not the step's outputs: that step
+    could not have been recorded, so it is stepped and counted, not compared."""
+    run_cfg = {**cfg, "lockstep": {**cfg["lockstep"], "participants": ["path_manager"]}}
+    path = tmp_path / "run.mcap"
+    record_drive(path, run_cfg, route, lockstep=True, steps=20, stopped_at_a_tick=True)
+    result = mcap_replay.replay_node(path, "path_manager")
+    assert result.ok, [str(m) for m in result.mismatches[:3]]
+    assert result.unrecorded_steps == 1 and result.outputs >= 20
 
 
 @pytest.mark.parametrize("lockstep", [False, True], ids=["by output stamps", "by lockstep ticks"])

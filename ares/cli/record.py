@@ -169,6 +169,7 @@ def _report_node(path: str, result, seconds: float, as_json: bool) -> int:
                     "searched_steps": result.searched_steps,
                     "latched_otherwise": result.latched_otherwise,
                     "undecided": result.undecided,
+                    "unrecorded_steps": getattr(result, "unrecorded_steps", 0),
                     "first_mismatches": [str(m) for m in result.mismatches[:5]],
                     "seconds": round(seconds, 2),
                 }
@@ -177,7 +178,13 @@ def _report_node(path: str, result, seconds: float, as_json: bool) -> int:
     elif result.ok:
         print(
             f"{path}: {result.node}, {result.steps} steps, {result.outputs} outputs: identical "
-            f"({result.latched_otherwise} of {result.searched_steps} steps latched otherwise than the recorder heard)"
+            f"({result.latched_otherwise} of {result.searched_steps} steps latched otherwise than the recorder heard"
+            + (
+                f"; {result.unrecorded_steps} at the end not compared: the recording stopped before the node reported them"
+                if getattr(result, "unrecorded_steps", 0)
+                else ""
+            )
+            + ")"
         )
     else:
         print(f"{path}: {result.node}: {len(result.mismatches)} mismatches, first:", file=sys.stderr)

@@ -51,6 +51,7 @@ class BusReplayResult(ReplayResult):
     searched_steps: int = 0  # steps with inputs since the previous one: which of them it latched was searched
     latched_otherwise: int = 0  # of them, steps that latched more or fewer than had reached the recorder at the tick
     undecided: int = 0  # searched steps whose node state could not be copied to try the alternatives
+    unrecorded_steps: int = 0  # steps the recording ended before the node reported done: replayed, not compared
 
 
 def replay_from_bus(
@@ -163,6 +164,7 @@ class _LockstepSteps:
     def resolve(self, upto: float) -> None:
         """Settle the steps up to `upto` whose window is closed: an input stamped after the step has
         come (the node may still have latched one stamped before it that reached the recorder late)."""
+        tail = self._unrecorded_tail() if upto == float("inf") else []
         while True:
             ticks = [i for i, e in enumerate(self.timeline) if e[0] == "tick" and e[1] <= upto + 1e-9]
             if not ticks:
@@ -179,6 +181,35 @@ class _LockstepSteps:
                 else:
                     self.matcher.expect(e[1], e[2])
             self.timeline = []
+            self.matcher.settle(float("inf"), inclusive=True)
+            self._step_unrecorded(tail)
+
+    def _unrecorded_tail(self) -> list[tuple[Any, ...]]:
+        """At the end: cut off the steps the node never reported done before the recording ended
+        (a run stopped, a file cut). What they published may not have reached the recorder, so
+        they are not compared; they are returned to be stepped after the rest."""
+        first = next(
+            (
+                i
+                for i, e in enumerate(self.timeline)
+                if e[0] == "tick" and (self.settled is None or e[1] > self.settled + 1e-9)
+            ),
+            None,
+        )
+        if first is None:
+            return []
+        tail, self.timeline = self.timeline[first:], self.timeline[:first]
+        cut_from = round(tail[0][1], 9)
+        self.timeline += [e for e in tail if e[0] == "out" and e[1] < cut_from]  # an earlier step's, late
+        return [e for e in tail if e[0] != "out"]
+
+    def _step_unrecorded(self, tail: list[tuple[Any, ...]]) -> None:
+        for e in tail:
+            if e[0] == "in":
+                self.engine.deliver([e[1]])
+            else:
+                self.engine.step(round(e[1], 9))
+                self.result.unrecorded_steps += 1
 
     def _resolve_first(self, at: int) -> None:
         t = round(self.timeline[at][1], 9)
