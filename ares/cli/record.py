@@ -180,7 +180,8 @@ def _report_node(path: str, result, seconds: float, as_json: bool) -> int:
             f"{path}: {result.node}, {result.steps} steps, {result.outputs} outputs: identical "
             f"({result.latched_otherwise} of {result.searched_steps} steps latched otherwise than the recorder heard"
             + (
-                f"; {result.unrecorded_steps} at the end not compared: the recording stopped before the node reported them"
+                f"; {result.unrecorded_steps} at the end not compared: "
+                "the recording stopped before the node reported them"
                 if getattr(result, "unrecorded_steps", 0)
                 else ""
             )
