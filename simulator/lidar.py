@@ -16,6 +16,10 @@ the world, the moving obstacles and the shuttle's own body; what a real sensor a
   minimum range, so the point count falls to about zero, as the paper observed.
 
 Points are in the sensor's frame (x forward, y left, z up); rings numbered from the lowest laser.
+A point lies on the sensor's sampling grid (ares/core/cloud_grid.py), as a real sensor reports it:
+its azimuth in 0.01° steps (a turn's firing offset drawn in those steps), its range in 2 mm, its
+intensity a byte; so a recording stores it as those integers and gives it back exactly. Given
+`directions` (a packet format's rays), the points are left as cast: the packets quantise them.
 Motion during the 100 ms sweep is not modelled: each sweep is taken from one pose.
 """
 
@@ -26,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ares.core import cloud_grid
 from ares.core.config import LidarMount, Params, VehicleProfile, param
 from simulator.world import MATERIAL_IDS, REFLECTIVITY, Mesh, box_mesh, cylinder_mesh, open3d
 
@@ -179,6 +184,8 @@ class SimulatedLidar:
             self.ring = np.asarray(rings, dtype=np.uint8)
             self.elevation = np.arcsin(np.clip(self.dirs0[:, 2], -1.0, 1.0)).astype(np.float64)
             self.azimuth = np.arctan2(self.dirs0[:, 1], self.dirs0[:, 0]).astype(np.float64) % (2 * math.pi)
+        self.grid = cloud_grid.SensorGrid(tuple(self.sheet.elevations_deg()))
+        self.azimuth_steps = cloud_grid.azimuth_steps(self.azimuth).astype(np.int64)
         self.blocked = False
         others = [housing(m) for n, m in vehicle.lidars.items() if n != name]
         body = Mesh.join(body_parts(vehicle) + others)
@@ -243,7 +250,9 @@ class SimulatedLidar:
         if self.blocked:
             return self._empty()
         rng = self.rng
-        spin = rotation(0.0, 0.0, rng.uniform(0.0, self.step))  # firing azimuths vary a little per turn
+        # firing azimuths vary a little per turn, in the sensor's azimuth steps
+        spin_steps = int(cloud_grid.azimuth_steps(rng.uniform(0.0, self.step)))
+        spin = rotation(0.0, 0.0, spin_steps * cloud_grid.AZIMUTH_UNIT_RAD)
         if self.fixed_rays:  # the rays are a packet format's: exactly those (the draw keeps the stream)
             spin = np.eye(3)
         to_world = (vehicle_rotation @ self.rotation @ spin).astype(np.float32)
@@ -308,6 +317,8 @@ class SimulatedLidar:
         noise += 1.0
         intensity *= noise
         ghosts = self._ghosts()
+        if not self.fixed_rays:
+            return self._on_grid(source, np.take(r, keep), intensity, spin_steps, ghosts)
         kept, total = len(keep), len(keep) + len(ghosts[0])
         columns = [np.empty(total, dtype=np.float32) for _ in range(3)]
         d0, d1, d2 = (np.take(self.all_columns[i], source) for i in range(3))
@@ -329,6 +340,24 @@ class SimulatedLidar:
         if self.fixed_rays:
             slot = np.concatenate([np.take(self.all_index, source), np.full(len(ghosts[0]), -1)])
         return Sweep(x=columns[0], y=columns[1], z=columns[2], intensity=out_intensity, ring=ring, slot=slot)
+
+    def _on_grid(self, source, range_kept, intensity, spin_steps: int, ghosts) -> Sweep:
+        """The returns (rays `source`, their ranges and intensities) and the ghosts as the sensor
+        reports them: on its grid of azimuth steps, range steps and intensity bytes."""
+        gx, gy, gz, gi, gring = ghosts
+        ring = np.concatenate([np.take(self.all_ring, source), gring.astype(np.uint8)])
+        azimuth = np.concatenate(
+            [
+                np.take(self.azimuth_steps, np.take(self.all_index, source)) + spin_steps,
+                cloud_grid.azimuth_steps(np.arctan2(gy, gx)).astype(np.int64),
+            ]
+        )
+        azimuth = np.mod(azimuth, cloud_grid.AZIMUTH_STEPS).astype(np.uint16)
+        ranges = np.concatenate([range_kept, np.sqrt(gx * gx + gy * gy + gz * gz)])
+        x, y, z = cloud_grid.place(self.grid, ring, azimuth, cloud_grid.range_steps(ranges))
+        brightness = np.concatenate([np.clip(intensity, 0.0, 1.0), gi])
+        out_intensity = cloud_grid.intensity_of(cloud_grid.intensity_steps(brightness))
+        return Sweep(x=x, y=y, z=z, intensity=out_intensity, ring=ring)
 
     def _ghosts(self):
         p, rng = self.params, self.rng

@@ -109,7 +109,7 @@ def test_a_channel_per_key_with_its_schema_and_foxglove_views(tmp_path, cfg, rou
     assert (pose["schema"], pose["schema_encoding"], pose["message_encoding"]) == ("Pose", "jsonschema", "json")
     assert pose["messages"] == 40
     points = channels[f"{prefix}/lidar/roof/points"]
-    assert (points["schema"], points["message_encoding"], points["messages"]) == ("PointCloud", "ares.bulk", 4)
+    assert (points["schema"], points["message_encoding"], points["messages"]) == ("PointCloud", "ares.cloud-grid", 4)
     assert channels[f"{prefix}/path/match"]["messages"] == 40
     known = {
         "foxglove/pose/location": "foxglove.LocationFix",

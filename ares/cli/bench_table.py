@@ -153,6 +153,30 @@ def _perception_show(result: dict, out: TextIO) -> None:
         format_perception_result(result, out)
 
 
+# ---- record ------------------------------------------------------------------------------------
+
+
+def _record_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--recording",
+        type=Path,
+        metavar="FILE.mcap",
+        help="a run's recording to measure on (default: a 20 s headless run at --speed max, made first)",
+    )
+
+
+def _record_run(args: argparse.Namespace, progress: Progress) -> dict:
+    from ares.tools.bench.record import run_record_bench
+
+    return run_record_bench(args.recording, progress)
+
+
+def _record_show(result: dict, out: TextIO) -> None:
+    from ares.tools.bench.record import format_record_result
+
+    format_record_result(result, out)
+
+
 # ---- mpc, obstacle-zone ----------------------------------------------------------------------
 
 
@@ -320,6 +344,16 @@ BENCHES = (
         _perception_arguments,
         _perception_run,
         _perception_show,
+    ),
+    Bench(
+        "record",
+        "what a recording costs: bytes per second, the writer's CPU, per profile, cloud encoding and topic class",
+        "A run's recording read back and offered again to the recorder with each profile, cloud encoding and "
+        "chunk compression (and each topic class alone): the file's MB per second of stack time, the writer's "
+        "share of a core at real time, the file against the bytes received.",
+        _record_arguments,
+        _record_run,
+        _record_show,
     ),
     Bench(
         "mpc",

@@ -143,9 +143,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
         "--record",
         nargs="?",
         const="",
-        metavar="FILE.mcap",
-        help="record the whole bus of the run to an MCAP file (default: bus.mcap in the run folder); "
-        "it opens in Foxglove, and `ares replay FILE.mcap` plays it back (docs/recording.md)",
+        metavar="[full|light][:FILE.mcap]",
+        help="record the run's bus to an MCAP file: `full` (every message, the default: "
+        "`recording.profile`) or `light` (a few per second of each topic, no clouds), to FILE "
+        "(default: bus.mcap or bus-light.mcap in the run folder); it opens in Foxglove, and "
+        "`ares replay FILE.mcap` plays it back (docs/recording.md)",
     )
     run.add_argument(
         "--foxglove",

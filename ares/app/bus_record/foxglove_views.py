@@ -131,6 +131,9 @@ class FoxgloveViews:
     def handles(self, schema: type[Msg]) -> bool:
         return schema in self._makers
 
+    def cloud_preview(self, topic: str, cloud: m.PointCloud, stride: int) -> list[View]:
+        return self._cloud(topic, cloud, stride)
+
     def views(self, topic: str, msg: Msg) -> list[View]:
         maker = self._makers.get(type(msg))
         if maker is None:
@@ -197,9 +200,11 @@ class FoxgloveViews:
         )
         return [View("foxglove/gnss/location", SCHEMAS["LocationFix"], location.encode())]
 
-    def _cloud(self, topic: str, cloud: m.PointCloud) -> list[View]:
-        packed = np.empty((cloud.size, 4), dtype="<f4")
-        packed[:, 0], packed[:, 1], packed[:, 2], packed[:, 3] = cloud.x, cloud.y, cloud.z, cloud.intensity
+    def _cloud(self, topic: str, cloud: m.PointCloud, stride: int = 1) -> list[View]:
+        """The sweep as Foxglove draws it; with `stride`, every n-th point (a recording's preview)."""
+        x, y, z, intensity = (a[::stride] for a in (cloud.x, cloud.y, cloud.z, cloud.intensity))
+        packed = np.empty((len(x), 4), dtype="<f4")
+        packed[:, 0], packed[:, 1], packed[:, 2], packed[:, 3] = x, y, z, intensity
         message = fg.PointCloud(
             timestamp=timestamp(self.utc_epoch, cloud.t),
             frame_id=cloud.frame,

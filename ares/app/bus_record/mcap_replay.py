@@ -25,8 +25,9 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from ares.app import processes
-from ares.app.bus_record.recorder import ENCODING_META, RUN_METADATA, TOPIC_META
-from ares.core import schema, topics
+from ares.app.bus_record import cloud_payload
+from ares.app.bus_record.recorder import ENCODING_META, GRID_META, RUN_METADATA, TOPIC_META
+from ares.core import cloud_grid, schema, topics
 from ares.core.bus import BaseBus
 from ares.core.bus_replay import BusReplayResult, replay_from_bus
 
@@ -96,14 +97,30 @@ class Recording:
                 log.warning("%s: cut short (%s): read up to its last complete record", self.path, self.cut_short)
 
     def messages(self) -> Iterator[Recorded]:
-        """The raw bus messages (not the Foxglove views), in the order the recorder received them."""
+        """The raw bus messages (not the Foxglove views), in the order the recorder received them,
+        each payload as it travelled (a compact cloud restored on its sensor's grid)."""
+        grids: dict[int, cloud_grid.SensorGrid | None] = {}
         for _schema, channel, message in self.records():
             topic = channel.metadata.get(TOPIC_META)
-            if topic is not None:
-                yield Recorded(
-                    topic, channel.metadata.get(ENCODING_META, ""), message.data, message.log_time,
-                    message.publish_time / 1e9,
-                )  # fmt: skip
+            if topic is None:
+                continue
+            payload = message.data
+            if channel.message_encoding == cloud_payload.ENCODING:
+                if channel.id not in grids:
+                    grids[channel.id] = _grid_of(channel)
+                payload = cloud_payload.restore(payload, grids[channel.id])
+            yield Recorded(
+                topic, channel.metadata.get(ENCODING_META, ""), payload, message.log_time, message.publish_time / 1e9
+            )
+
+
+def _grid_of(channel: Channel) -> cloud_grid.SensorGrid | None:
+    try:
+        described = json.loads(channel.metadata[GRID_META])
+        return cloud_grid.SensorGrid(tuple(float(e) for e in described["elevations_deg"]))
+    except (KeyError, ValueError, TypeError):
+        log.warning("%s: a compact cloud channel without a readable grid", channel.topic)
+        return None
 
 
 def open_recording(path: str | Path) -> Recording:

@@ -9,6 +9,12 @@ the `foxglove/...` channels carry the views of ares.app.bus_record.foxglove_view
 Foxglove's own schemas). A message's log time is when the recorder received it (wall clock, ns),
 its publish time its own stamp `t` (stack seconds, in ns); the file keeps the order of receipt.
 
+A LiDAR's sweeps are stored once, compactly: as integers on the sensor's grid (message encoding
+`ares.cloud-grid`, the grid in the channel's metadata `ares.grid`; ares.app.bus_record.cloud_payload
+gives back the payload byte for byte), with a Foxglove preview of each LiDAR every
+`recording.cloud_view_every_s`. The light profile keeps only the topics of
+`recording.light_rates_hz`, each at most at its rate (by the messages' own stamps), no clouds.
+
 Zenoh's callbacks only queue the payload (bounded in bytes: beyond `max_queued_bytes` a message
 is dropped and counted, never waited for); one writer thread decodes what Foxglove needs, writes
 and compresses. The file is chunked (zstd) and flushed every `flush_every_s`: closed normally it
@@ -32,8 +38,10 @@ import orjson
 import pydantic
 from mcap.writer import CompressionType, Writer
 
+from ares.app.bus_record import cloud_payload
 from ares.app.bus_record.foxglove_views import FoxgloveViews, View
-from ares.core import schema, topics
+from ares.core import cloud_grid, config, messages, schema, topics
+from ares.core.config import RecordingSettings
 from ares.core.route import Route
 from ares.core.schema import MAGIC, BulkMsg, Msg
 
@@ -44,6 +52,8 @@ RAW_ENCODING_BULK = "ares.bulk"
 RUN_METADATA = "ares.run"  # the metadata record holding the run's configuration
 TOPIC_META = "ares.topic"  # a raw channel's metadata: its topic and its encoding on the bus
 ENCODING_META = "ares.encoding"
+STAMP_TOLERANCE_S = 1e-6  # stamps of a 20 Hz topic are 0.05 s apart, give or take a float's rounding
+GRID_META = "ares.grid"  # a compact cloud channel's sensor grid: {"elevations_deg": [...]}
 
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
@@ -53,18 +63,25 @@ class RecorderStats:
     messages: int = 0  # raw messages written
     views: int = 0  # Foxglove messages written
     bytes_in: int = 0  # raw payload bytes received
+    bytes_stored: int = 0  # raw payload bytes written, before the chunks' compression
+    skipped: int = 0  # messages the light profile leaves out (by topic or rate)
+    off_grid_points: int = 0  # cloud points kept as float32 (not on their sensor's grid)
     dropped: int = 0  # messages dropped because the writer was too far behind
     undecodable: int = 0  # payloads with no view (malformed for their topic)
     writer_cpu_s: float = 0.0  # CPU time of the writer thread
     started_wall: float = 0.0
     closed_wall: float = 0.0
     by_topic: dict[str, int] = field(default_factory=dict)
+    stored_by_topic: dict[str, int] = field(default_factory=dict)  # bytes written per topic
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "messages": self.messages,
             "views": self.views,
             "bytes_in": self.bytes_in,
+            "bytes_stored": self.bytes_stored,
+            "skipped": self.skipped,
+            "off_grid_points": self.off_grid_points,
             "dropped": self.dropped,
             "writer_cpu_s": round(self.writer_cpu_s, 3),
             "wall_s": round(self.closed_wall - self.started_wall, 3),
@@ -107,6 +124,31 @@ def schema_record(msg_schema: type[Msg]) -> tuple[str, bytes, str]:
     return "jsonschema", json.dumps(msg_schema.model_json_schema()).encode(), RAW_ENCODING_JSON
 
 
+def lidar_grids(cfg: dict[str, Any]) -> dict[str, cloud_grid.SensorGrid]:
+    """Each LiDAR's cloud topic and its sensor's grid, from the run's vehicle profile."""
+    try:
+        profile = config.core(cfg).vehicle_profile
+    except config.ConfigError:
+        return {}  # not a whole run's configuration (a test's, say): clouds stored as they travel
+    if profile is None:
+        return {}
+    return {
+        f"lidar/{name}/points": cloud_grid.SensorGrid(tuple(mount.datasheet().elevations_deg()))
+        for name, mount in profile.lidars.items()
+    }
+
+
+def light_rate(settings: RecordingSettings, topic: str) -> float | None:
+    """The most the light profile keeps of a topic per second (0: every message); None: not kept."""
+    rate = settings.light_rates_hz.get(topic)
+    if rate is not None:
+        return rate
+    for pattern, value in settings.light_rates_hz.items():
+        if topics.covers(pattern, topic):
+            return value
+    return None
+
+
 class McapRecorder:
     """Records a bus to `path`: attach() to one or more buses, start(), ..., close()."""
 
@@ -123,6 +165,7 @@ class McapRecorder:
         chunk_size: int = 4 << 20,
         flush_every_s: float = 1.0,
         max_queued_bytes: int = 512 << 20,
+        settings: RecordingSettings | None = None,
     ):
         self.path = Path(path)
         self.cfg = cfg
@@ -133,6 +176,18 @@ class McapRecorder:
         self.flush_every_s = flush_every_s
         self.max_queued_bytes = max_queued_bytes
         self.stats = RecorderStats()
+        if settings is None:
+            try:
+                settings = config.core(cfg).recording
+            except config.ConfigError:
+                settings = RecordingSettings()
+        self.settings = settings
+        self.light = settings.profile == "light"
+        self._grids = lidar_grids(cfg) if settings.cloud_encoding == "grid" and not self.light else {}
+        self._rates: dict[str, float | None] = {}  # topic -> its light rate (cached)
+        self._last_kept: dict[str, float] = {}  # topic -> stamp of the last message the light profile kept
+        self._viewed: dict[str, topics.Topic | None] = {}  # topic -> its table entry if Foxglove views it
+        self._last_preview: dict[str, float] = {}  # cloud topic -> stamp of its last Foxglove preview
         self._compression = COMPRESSIONS[compression]
         self._chunk_size = chunk_size
         self._queue: queue.SimpleQueue[tuple[int, str, str, bytes] | None] = queue.SimpleQueue()
@@ -153,6 +208,9 @@ class McapRecorder:
             self._handles.append(bus.subscribe_raw(key, self.offer))
 
     def offer(self, topic: str, encoding: str, payload: bytes) -> None:
+        if self.light and self._light_rate(topic) is None:
+            self.stats.skipped += 1  # a topic the light log leaves out: not even queued
+            return
         size = len(payload)
         with self._lock:
             if self._queued_bytes + size > self.max_queued_bytes:
@@ -173,6 +231,7 @@ class McapRecorder:
                 "vehicle_id": str(self.cfg.get("vehicle_id", "")),
                 "utc_epoch": repr(self.utc_epoch),
                 "keys": json.dumps(list(self.keys)),
+                "profile": self.settings.profile,
                 "config": json.dumps(self.cfg),
             },
         )
@@ -216,21 +275,71 @@ class McapRecorder:
         if channel is None:
             channel = self._raw_channel(key, topic, encoding)
         stamp = stamp_of(payload)
-        publish_ns = int(round(stamp * 1e9)) if stamp is not None and stamp >= 0 else log_time
-        self._writer.add_message(channel, log_time=log_time, data=payload, publish_time=publish_ns)
-        self.stats.messages += 1
         self.stats.bytes_in += len(payload)
+        if self.light and not self._light_keeps(topic, stamp, log_time):
+            self.stats.skipped += 1
+            return
+        publish_ns = int(round(stamp * 1e9)) if stamp is not None and stamp >= 0 else log_time
+        grid = self._grids.get(topic)
+        stored = payload
+        if grid is not None:
+            stored, off_grid = cloud_payload.compact(payload, grid)
+            self.stats.off_grid_points += off_grid
+        self._writer.add_message(channel, log_time=log_time, data=stored, publish_time=publish_ns)
+        self.stats.messages += 1
+        self.stats.bytes_stored += len(stored)
         self.stats.by_topic[topic] = self.stats.by_topic.get(topic, 0) + 1
+        self.stats.stored_by_topic[topic] = self.stats.stored_by_topic.get(topic, 0) + len(stored)
         if self.views is not None:
-            entry = topics.find(topic)
-            if entry is not None and self.views.handles(entry.schema):
+            entry = self._viewed.get(topic, False)
+            if entry is False:
+                found = topics.find(topic)
+                entry = self._viewed[topic] = found if found is not None and self.views.handles(found.schema) else None
+            if entry is not None:
+                if entry.schema is messages.PointCloud and not self._preview_due(topic, stamp, log_time):
+                    return
                 try:
                     msg = schema.decode(payload, entry.schema)
                 except ValueError:  # pydantic's ValidationError and BulkDecodeError are ValueErrors
                     self.stats.undecodable += 1
                     return
-                for view in self.views.views(topic, msg):
+                if isinstance(msg, messages.PointCloud):
+                    views = self.views.cloud_preview(topic, msg, self.settings.cloud_view_stride)
+                else:
+                    views = self.views.views(topic, msg)
+                for view in views:
                     self._write_view(view, log_time)
+
+    def _light_rate(self, topic: str) -> float | None:
+        if topic not in self._rates:
+            self._rates[topic] = light_rate(self.settings, topic)
+        return self._rates[topic]
+
+    def _light_keeps(self, topic: str, stamp: float | None, log_time: int) -> bool:
+        """Whether the light profile keeps this message: at most its topic's rate, by its own stamp
+        (the receipt's time if it has none); a stamp gone back (a clock jump) starts the count again."""
+        rate = self._light_rate(topic)
+        if rate is None:
+            return False
+        if rate <= 0:
+            return True
+        now = stamp if stamp is not None else log_time / 1e9
+        last = self._last_kept.get(topic)
+        if last is not None and last <= now < last + 1.0 / rate - STAMP_TOLERANCE_S:
+            return False
+        self._last_kept[topic] = now
+        return True
+
+    def _preview_due(self, topic: str, stamp: float | None, log_time: int) -> bool:
+        every = self.settings.cloud_view_every_s
+        if every <= 0:
+            return False
+        now = stamp if stamp is not None else log_time / 1e9
+        last = self._last_preview.get(topic)
+        if last is not None and last <= now < last + every - STAMP_TOLERANCE_S:
+            return False
+        self._last_preview[topic] = now
+        return True
 
     def _raw_channel(self, key: str, topic: str, encoding: str) -> int:
         assert self._writer is not None
@@ -248,8 +357,13 @@ class McapRecorder:
                 message_encoding = RAW_ENCODING_BULK if schema.is_bulk(entry.schema) else RAW_ENCODING_JSON
         else:  # a key the topic table does not know: kept, without a schema
             schema_id, message_encoding = 0, encoding.partition(";")[0] or "application/octet-stream"
+        metadata = {TOPIC_META: topic, ENCODING_META: encoding}
+        grid = self._grids.get(topic)
+        if grid is not None:  # restored to the bulk payload its schema describes (cloud_payload.restore)
+            message_encoding = cloud_payload.ENCODING
+            metadata[GRID_META] = json.dumps({"elevations_deg": list(grid.elevations_deg)})
         channel = self._channels[key] = self._writer.register_channel(
-            key, message_encoding, schema_id, metadata={TOPIC_META: topic, ENCODING_META: encoding}
+            key, message_encoding, schema_id, metadata=metadata
         )
         return channel
 

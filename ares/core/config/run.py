@@ -169,6 +169,66 @@ class ReplaySettings(Params):
     dir: str | None = param(None, "where the recordings go (default: <run dir>/replay)")
 
 
+# The light log's rates (`recording.light_rates_hz`), as openpilot's qlog decimates its rlog: what an
+# engineer reads after a day's driving (where it was, what it was told, how sure it was, why it
+# stopped), a few per second; every event and every black-box second; no clouds, no grid.
+LIGHT_RATES_HZ: dict[str, float] = {
+    "events": 0,  # 0: every message
+    "blackbox/record": 0,
+    "blackbox/status": 0,
+    "supervisor/state": 0,
+    "vehicle/panel": 0,
+    "body/command": 0,
+    "body/state": 1,
+    "mission/status": 1,
+    "localization/pose": 5,
+    "gnss/fix": 1,
+    "gnss/corrections": 1,
+    "odometry/score": 2,
+    "awareness/state": 2,
+    "path/match": 1,
+    "speed/limits": 2,
+    "obstacle/state": 2,
+    "control/status": 2,
+    "control/setpoint": 5,
+    "movement/status": 2,
+    "dbw/car_state": 5,
+    "dbw/actuators": 5,
+    "perception/road": 1,
+    "perception/lidar_status": 1,
+    "drivers/status": 0.2,
+    "heartbeat/*": 0.2,
+    "sim/truth": 5,
+}
+
+
+class RecordingSettings(Params):
+    """What `ares run` records of its bus (docs/recording.md)."""
+
+    profile: Literal["full", "light"] = param(
+        "full", "what `--record` keeps: full (every message) or light (decimated per topic, no clouds)"
+    )
+    light_always: bool = param(
+        False, "every run writes the light log (bus-light.mcap in its folder), with or without `--record`"
+    )
+    cloud_encoding: Literal["grid", "float32"] = param(
+        "grid", "clouds as integers on the sensor's grid (exact, 1.8 B a point) or as they travelled (17 B)"
+    )
+    cloud_view_every_s: float = param(
+        1.0,
+        "a full recording's Foxglove preview of each LiDAR (foxglove.PointCloud) this often; 0: none "
+        "(every sweep stays in the raw channel, exact)",
+        unit="s",
+        ge=0,
+    )
+    cloud_view_stride: int = param(4, "... with every n-th point of the sweep", ge=1)
+    light_rates_hz: dict[str, float] = param(
+        doc="the light profile's topics (patterns allowed) and the most it keeps of each per second (0: every "
+        "message); a topic not named is not kept",
+        factory=lambda: dict(LIGHT_RATES_HZ),
+    )
+
+
 class CpuSettings(Params):
     """Which CPUs (Linux's numbering) each part of a run may use; null: any. A way to give the
     vehicle's own processes one computer's share of a bigger machine, with the simulated shuttle
@@ -238,6 +298,9 @@ class CoreConfig(Params):
     heartbeat: HeartbeatSettings = param(doc="process heartbeats", factory=HeartbeatSettings)
     lockstep: LockstepSettings = param(doc="the simulator-driven clock of `--speed max`", factory=LockstepSettings)
     replay: ReplaySettings = param(doc="process replay recordings", factory=ReplaySettings)
+    recording: RecordingSettings = param(
+        doc="the bus recorded to MCAP (`ares run --record`)", factory=RecordingSettings
+    )
     cpus: CpuSettings = param(doc="which CPUs each part of a run may use", factory=CpuSettings)
     vehicle_profile: VehicleProfile | None = param(
         None, "the profile named by `vehicle`, resolved by `ares run`; its fields may be overridden here"

@@ -1,0 +1,250 @@
+"""Recordings a fleet can keep (docs/recording.md): a LiDAR's sweep stored as integers on its sensor's
+grid and given back byte for byte (ares.core.cloud_grid, ares.app.bus_record.cloud_payload), the
+recorder's compact clouds and Foxglove previews, and the light profile's decimation. In memory."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ares.app import run_config
+from ares.app.bus_record import cloud_payload, mcap_replay
+from ares.app.bus_record.foxglove_views import FoxgloveViews
+from ares.app.bus_record.recorder import McapRecorder, lidar_grids, light_rate
+from ares.core import cloud_grid, schema
+from ares.core.clock import ManualClock
+from ares.core.config import RecordingSettings, load_vehicle
+from ares.core.membus import MemoryNetwork
+from ares.core.messages import Event, PointCloud, Pose
+from ares.core.route import Route
+from simulator.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
+from simulator.params import SimParams
+from simulator.road import roughness_for
+from simulator.world import World
+
+UTC_EPOCH = 1_790_000_000.0
+GRID64 = cloud_grid.SensorGrid(tuple(load_vehicle("ares_shuttle").lidars["roof"].datasheet().elevations_deg()))
+
+
+def on_grid_cloud(t: float, n: int = 2000, grid: cloud_grid.SensorGrid = GRID64) -> PointCloud:
+    """A sweep as a sensor reports it: rings in order, azimuths rising, ranges and intensity bytes."""
+    rng = np.random.default_rng(int(t * 100))
+    ring = np.tile(np.arange(grid.rings, dtype=np.uint8), n // grid.rings + 1)[:n]
+    azimuth = np.sort(rng.integers(0, cloud_grid.AZIMUTH_STEPS, n)).astype(np.uint16)
+    range_ = rng.integers(300, 40000, n).astype(np.uint16)
+    x, y, z = cloud_grid.place(grid, ring, azimuth, range_)
+    intensity = cloud_grid.intensity_of(rng.integers(0, 256, n).astype(np.uint8))
+    return PointCloud(t=t, sensor="roof", frame="lidar/roof", x=x, y=y, z=z, intensity=intensity, ring=ring)
+
+
+def payload_of(cloud: PointCloud) -> bytes:
+    return bytes(schema.encode(cloud))
+
+
+# ---- the grid and the payload ---------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def simulated_sweep() -> tuple[PointCloud, cloud_grid.SensorGrid]:
+    """A roof sweep of the simulated shuttle on the default tour, ghosts and all."""
+    tour = Route.from_tour("default")
+    world = World(tour, roughness_for(tour, SimParams(), 2.8))
+    shuttle = load_vehicle("ares_shuttle")
+    params = LidarSimParams(azimuth_decimation=4)
+    sensor = SimulatedLidar("roof", shuttle.lidars["roof"], shuttle, params, np.random.default_rng(3))
+    x, y, _, yaw = tour.point_at(120.0)
+    rotation, position = vehicle_pose(x, y, float(world.centre_height(120.0)), yaw, 0.0)
+    sweep = sensor.sweep(world.scene, rotation, position, None, world.material_of)
+    cloud = PointCloud(
+        t=1.0, sensor="roof", frame="lidar/roof", x=sweep.x, y=sweep.y, z=sweep.z, intensity=sweep.intensity,
+        ring=sweep.ring,
+    )  # fmt: skip
+    return cloud, sensor.grid
+
+
+def test_a_simulated_sweep_is_stored_on_its_grid_and_comes_back_byte_for_byte(simulated_sweep):
+    cloud, grid = simulated_sweep
+    payload = payload_of(cloud)
+    stored, off_grid = cloud_payload.compact(payload, grid)
+    assert cloud.size > 5000 and off_grid == 0  # the simulator places every point on the sensor's grid
+    assert stored[:4] == cloud_payload.GRID_MAGIC and len(stored) < len(payload) / 2.5
+    assert cloud_payload.restore(stored, grid) == payload
+
+
+def test_points_off_the_grid_are_kept_as_they_are_and_come_back_too():
+    cloud = on_grid_cloud(1.0)
+    moved = np.array(cloud.x)
+    moved[[3, 700, 1999]] += np.float32(1e-3)  # a driver's calibration, say: off the grid
+    payload = payload_of(cloud.model_copy(update={"x": moved}))
+    stored, off_grid = cloud_payload.compact(payload, GRID64)
+    assert off_grid == 3 and stored[:4] == cloud_payload.GRID_MAGIC
+    assert cloud_payload.restore(stored, GRID64) == payload
+
+
+def test_a_cloud_mostly_off_the_grid_or_not_a_cloud_is_stored_as_it_travelled():
+    rng = np.random.default_rng(0)
+    n = 300
+    scattered = PointCloud(
+        t=1.0, sensor="roof", frame="lidar/roof", x=rng.normal(size=n).astype("<f4"),
+        y=rng.normal(size=n).astype("<f4"), z=rng.normal(size=n).astype("<f4"),
+        intensity=rng.random(n).astype("<f4"), ring=rng.integers(0, 64, n).astype("u1"),
+    )  # fmt: skip
+    for payload in (payload_of(scattered), b'{"t": 1.0}', b"ARB1\x05\x00\x00\x00{bad}", b""):
+        stored, _ = cloud_payload.compact(payload, GRID64)
+        assert stored == payload and cloud_payload.restore(stored, GRID64) == payload
+
+
+def test_an_empty_sweep_and_a_ring_the_grid_does_not_have_come_back_exactly():
+    empty = on_grid_cloud(1.0, n=0)
+    stored, _ = cloud_payload.compact(payload_of(empty), GRID64)
+    assert cloud_payload.restore(stored, GRID64) == payload_of(empty)
+    small_grid = cloud_grid.SensorGrid(GRID64.elevations_deg[:16])
+    stored, off_grid = cloud_payload.compact(payload_of(on_grid_cloud(2.0, n=64)), small_grid)
+    assert off_grid == 48  # rings 16..63 are not the small sensor's: kept as float32 (too many: as is)
+    assert cloud_payload.restore(stored, small_grid) == payload_of(on_grid_cloud(2.0, n=64))
+
+
+def test_a_damaged_compact_cloud_is_a_clear_error():
+    stored, _ = cloud_payload.compact(payload_of(on_grid_cloud(1.0)), GRID64)
+    with pytest.raises(cloud_payload.CloudPayloadError, match="names no grid"):
+        cloud_payload.restore(stored, None)
+    with pytest.raises(cloud_payload.CloudPayloadError, match="malformed"):
+        cloud_payload.restore(stored[: len(stored) // 2], GRID64)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    ring=st.lists(st.integers(0, 63), min_size=1, max_size=80),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_any_point_placed_on_the_grid_comes_back_with_the_same_bits(ring, seed):
+    rng = np.random.default_rng(seed)
+    n = len(ring)
+    rings = np.asarray(ring, dtype=np.uint8)
+    azimuth = rng.integers(0, cloud_grid.AZIMUTH_STEPS, n).astype(np.uint16)
+    range_ = rng.integers(0, cloud_grid.MAX_RANGE_STEPS + 1, n).astype(np.uint16)
+    x, y, z = cloud_grid.place(GRID64, rings, azimuth, range_)
+    intensity = cloud_grid.intensity_of(rng.integers(0, 256, n).astype(np.uint8))
+    on_grid = cloud_grid.to_grid(GRID64, x, y, z, intensity, rings)
+    back = cloud_grid.from_grid(GRID64, on_grid)
+    for before, after in zip((x, y, z, intensity), back, strict=True):
+        assert before.view(np.uint32).tolist() == after.view(np.uint32).tolist()
+
+
+def test_the_azimuth_of_any_angle_is_a_step_of_one_turn():
+    steps = cloud_grid.azimuth_steps(np.array([-math.pi, -1e-9, 0.0, 2 * math.pi - 1e-9, 7 * math.pi]))
+    assert steps.tolist() == [18000, 0, 0, 0, 18000]
+
+
+# ---- the recorder ------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return run_config.build((), {"lidars": True})
+
+
+def pose(t: float) -> Pose:
+    return Pose(
+        t=t, x=t, y=0.0, z=0.0, yaw=0.0, v=2.0, yaw_rate=0.0, cov_xx=0.01, cov_xy=0.0, cov_yy=0.01,
+        var_yaw=1e-4, var_v=0.01, position_std_m=0.1, rtk=True, gnss_age_s=0.1,
+    )  # fmt: skip
+
+
+def record(path, cfg, settings: RecordingSettings, seconds: float = 3.0, jump_back_at: float | None = None):
+    """Poses at 20 Hz, roof sweeps at 10 Hz, an event a second, through a MemoryNetwork; the
+    payloads published, by topic."""
+    clock = ManualClock()
+    network = MemoryNetwork(cfg["vehicle_id"])
+    recorder = McapRecorder(path, cfg, utc_epoch=UTC_EPOCH, views=FoxgloveViews(cfg, UTC_EPOCH), settings=settings)
+    recorder.attach(network.bus("recorder", clock))
+    recorder.start()
+    feeder = network.bus("sim", clock)
+    sent: dict[str, list[bytes]] = {}
+    for k in range(1, round(seconds * 20) + 1):
+        t = round(k * 0.05, 9)
+        clock.set(t)
+        if jump_back_at is not None and t > jump_back_at:
+            t = round(t - 1.0, 9)  # the stamps stepped back a second (a clock set back)
+        outgoing: list[tuple[str, object]] = [("localization/pose", pose(t))]
+        if k % 2 == 0:
+            outgoing.append(("lidar/roof/points", on_grid_cloud(t)))
+        if k % 20 == 0:
+            outgoing.append(("events", Event(t=t, source="test", kind="tick", message="a second")))
+        for topic, msg in outgoing:
+            feeder.publish(topic, msg)
+            sent.setdefault(topic, []).append(bytes(schema.encode(msg)))
+    return recorder.close(), sent
+
+
+def test_the_full_profile_stores_each_sweep_once_on_its_grid_and_replays_it_exactly(tmp_path, cfg):
+    path = tmp_path / "full.mcap"
+    stats, sent = record(path, cfg, RecordingSettings(), seconds=3.0)
+    assert stats.dropped == 0 and stats.off_grid_points == 0
+    channels = {c["topic"]: c for c in mcap_replay.info(path)["channels"]}
+    raw = channels[f"ares/{cfg['vehicle_id']}/lidar/roof/points"]
+    assert (raw["schema"], raw["message_encoding"], raw["messages"]) == ("PointCloud", "ares.cloud-grid", 30)
+    assert channels["foxglove/lidar/roof/points"]["messages"] == 3  # a preview a second
+    assert stats.stored_by_topic["lidar/roof/points"] < sum(map(len, sent["lidar/roof/points"])) / 2.5
+    recorded: dict[str, list[bytes]] = {}
+    for message in mcap_replay.open_recording(path).messages():
+        recorded.setdefault(message.topic, []).append(message.payload)
+    assert recorded == sent
+
+
+def test_float32_clouds_and_no_previews_when_asked(tmp_path, cfg):
+    path = tmp_path / "float.mcap"
+    stats, sent = record(path, cfg, RecordingSettings(cloud_encoding="float32", cloud_view_every_s=0), seconds=1.0)
+    channels = {c["topic"]: c for c in mcap_replay.info(path)["channels"]}
+    assert channels[f"ares/{cfg['vehicle_id']}/lidar/roof/points"]["message_encoding"] == "ares.bulk"
+    assert "foxglove/lidar/roof/points" not in channels
+    assert stats.stored_by_topic["lidar/roof/points"] == sum(map(len, sent["lidar/roof/points"]))
+
+
+def test_the_light_profile_keeps_each_topic_at_its_rate_and_no_clouds(tmp_path, cfg):
+    path = tmp_path / "light.mcap"
+    settings = RecordingSettings(profile="light")
+    stats, sent = record(path, cfg, settings, seconds=3.0)
+    recorded: dict[str, list[bytes]] = {}
+    for message in mcap_replay.open_recording(path).messages():
+        recorded.setdefault(message.topic, []).append(message.payload)
+    assert set(recorded) == {"localization/pose", "events"}
+    assert recorded["events"] == sent["events"]  # every event
+    assert settings.light_rates_hz["localization/pose"] == 5
+    assert recorded["localization/pose"] == sent["localization/pose"][::4]  # 20 Hz kept at 5 Hz
+    assert stats.skipped == 30 + 45 and stats.dropped == 0
+
+
+def test_the_light_profile_starts_its_count_again_after_the_clock_went_back(tmp_path, cfg):
+    path = tmp_path / "light.mcap"
+    _, sent = record(path, cfg, RecordingSettings(profile="light"), seconds=2.0, jump_back_at=1.0)
+    stamps = [m.stamp for m in mcap_replay.open_recording(path).messages() if m.topic == "localization/pose"]
+    assert stamps == [0.05, 0.25, 0.45, 0.65, 0.85, 0.05, 0.25, 0.45, 0.65, 0.85]
+
+
+def test_light_rates_name_topics_or_families_and_leave_out_the_rest(cfg):
+    settings = RecordingSettings()
+    assert light_rate(settings, "heartbeat/path_manager") == 0.2
+    assert light_rate(settings, "events") == 0
+    assert light_rate(settings, "lidar/roof/points") is None and light_rate(settings, "perception/grid") is None
+
+
+def test_every_lidar_of_the_profile_has_its_grid(cfg):
+    grids = lidar_grids(cfg)
+    assert set(grids) == {"lidar/roof/points", "lidar/front_left/points", "lidar/front_right/points"}
+    assert grids["lidar/roof/points"].rings == 64 and grids["lidar/front_left/points"].rings == 16
+
+
+def test_the_record_option_names_a_profile_a_file_or_both():
+    from ares.app.bus_record.in_run import record_target
+
+    assert record_target("") == (None, "")
+    assert record_target("full") == ("full", "")
+    assert record_target("light") == ("light", "")
+    assert record_target("light:/tmp/day.mcap") == ("light", "/tmp/day.mcap")
+    assert record_target("run.mcap") == (None, "run.mcap")
+    assert record_target("weird:name.mcap") == (None, "weird:name.mcap")
