@@ -66,6 +66,8 @@ class LidarPerception(Node):
 
     name = "lidar_perception"
     Params = LidarPerceptionParams
+    replay_ignores = ("perception/lidar_status.stage_ms",)  # the pipeline's own wall and CPU times
+    stamps_outputs_with = "data"  # the grid and the road carry their sweep's stamp
     sweeps = InputGroup(
         {name: f"lidar/{name}/points" for name in LIDAR_NAMES},
         max_age="max_age_s",

@@ -41,6 +41,7 @@ import httpx
 import pytest
 
 from ares.core.localhost import free_port
+from ares.core.messages import EventLevel, StoredEvent
 from blackbox.api.credentials import Argon2Settings, Passwords, add_user
 from blackbox.api.models import LoginForm
 from tests.helpers.api import (
@@ -66,6 +67,10 @@ ONE_USER = (
     *(f"/api/v1/users/{{name}}/{what}" for what in ("role", "password", "disable", "enable")),
 )
 ONE_USER_PINNED = {path: {"path.name": "carol"} for path in ONE_USER}
+# the incident snapshot the seeded black box lists (its file beside the store: each test's)
+SNAPSHOT = "20261204T080000Z_shuttle01_emergency_stop_1.mcap"
+SNAPSHOT_PATH = "/api/v1/vehicles/{vehicle_id}/snapshots/{name}"
+SNAPSHOT_PINNED = {SNAPSHOT_PATH: {"path.vehicle_id": VEHICLE_ID, "path.name": SNAPSHOT}}
 RUN_TIMEOUT_S = 240
 
 
@@ -83,7 +88,26 @@ def seeded(tmp_path_factory) -> Path:
     example = LoginForm.model_json_schema()["examples"][0]
     add_user(store, passwords, example["username"], "fleet", example["password"], 10)
     add_user(store, passwords, ONE_USER_PINNED[ONE_USER[0]]["path.name"], "auditor", PASSWORD, 10)  # the admin's
+    now = store.now()
+    store.insert_events(
+        [
+            StoredEvent(
+                vehicle_id=VEHICLE_ID, time=now - timedelta(minutes=5), t=100.0, source="recorder", kind="snapshot",
+                level=EventLevel.INFO, message="snapshot of emergency_stop",
+                data={"file": SNAPSHOT, "cause": "emergency_stop"},
+            )
+        ]
+    )  # fmt: skip
     store.close()
+    return db
+
+
+def copy_of(seeded: Path, tmp_path: Path) -> Path:
+    """The seeded store in the test's folder, the snapshot's file beside it."""
+    db = tmp_path / "blackbox.sqlite"
+    shutil.copy(seeded, db)
+    (tmp_path / "snapshots").mkdir()
+    (tmp_path / "snapshots" / SNAPSHOT).write_bytes(b"\x89MCAP0\r\n" + bytes(4096))
     return db
 
 
@@ -166,8 +190,7 @@ def blacklistings(db: Path) -> list[dict]:
 
 @pytest.mark.timeout(RUN_TIMEOUT_S + 60)
 def test_live_api_as_its_schema_says_at_45_per_s(tmp_path, seeded):
-    db = tmp_path / "blackbox.sqlite"
-    shutil.copy(seeded, db)
+    db = copy_of(seeded, tmp_path)
     port = free_port()
     server = start_api_process(tmp_path, db, port)  # the production rate limits and blacklist
     base = f"https://127.0.0.1:{port}"
@@ -186,7 +209,7 @@ def test_live_api_as_its_schema_says_at_45_per_s(tmp_path, seeded):
                 LOGIN,
                 "--exclude-path",
                 REVOKE,
-                pinned=ONE_USER_PINNED,
+                pinned=ONE_USER_PINNED | SNAPSHOT_PINNED,
             )
             assert run.returncode == 0, report(run)
             summary = run.stdout[run.stdout.index("Test Phases:") :]
@@ -204,8 +227,7 @@ def test_live_api_as_its_schema_says_at_45_per_s(tmp_path, seeded):
 
 @pytest.mark.timeout(RUN_TIMEOUT_S + 60)
 def test_login_form_as_its_schema_says(tmp_path, seeded):
-    db = tmp_path / "blackbox.sqlite"
-    shutil.copy(seeded, db)
+    db = copy_of(seeded, tmp_path)
     port = free_port()
     # every generated login is a failed one: the failed-login limits are raised out of the way
     server = start_api_process(
@@ -259,8 +281,7 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
     ]
     for node in managers:
         node.setup()
-    db = tmp_path / "blackbox.sqlite"
-    shutil.copy(seeded, db)
+    db = copy_of(seeded, tmp_path)
     store = open_test_store(db)
     # the production limits are the store-only run's to prove; here the limits are out of the way
     # and the pace faster, so that this run costs the test command less
@@ -273,6 +294,7 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
         live=LiveHub(LiveSettings()),
         route=route_view(config.core(cfg)),
         command_key=load_command_key(config.core(cfg).commands),
+        snapshots_dir=tmp_path / "snapshots",
     )
     add_role_users(store, app)
     try:
@@ -302,7 +324,7 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
                 "--exclude-path-regex",
                 "^/api/v1/live/",
                 # a command to another vehicle is a 404 whatever its body: the bodies are what to explore
-                pinned={path: {"path.vehicle_id": VEHICLE_ID} for path in commands} | ONE_USER_PINNED,
+                pinned={path: {"path.vehicle_id": VEHICLE_ID} for path in commands} | ONE_USER_PINNED | SNAPSHOT_PINNED,
                 rate="150/s",
             )
             assert run.returncode == 0, report(run)
@@ -346,8 +368,7 @@ def test_the_fleet_servers_api_as_its_schema_says(tmp_path, seeded):
     from blackbox.console.live_hub import LiveHub, LiveSettings
     from tests.helpers.api import add_role_users, api_settings
 
-    db = tmp_path / "blackbox.sqlite"
-    shutil.copy(seeded, db)
+    db = copy_of(seeded, tmp_path)
     store = open_test_store(db)
     settings = api_settings(state_dir=str(tmp_path / "state"))
     live = LiveHub(LiveSettings())
@@ -364,7 +385,7 @@ def test_the_fleet_servers_api_as_its_schema_says(tmp_path, seeded):
             steering_wheel_deg=0.0,
         )
         live.put(vehicle_id, "dbw/car_state", car)
-    app = create_app(store, settings, "fleet", live=live)
+    app = create_app(store, settings, "fleet", live=live, snapshots_dir=tmp_path / "snapshots")
     add_role_users(store, app)
     try:
         with (
@@ -389,7 +410,7 @@ def test_the_fleet_servers_api_as_its_schema_says(tmp_path, seeded):
                 REVOKE,
                 "--exclude-path-regex",
                 "^/api/v1/live/",
-                pinned=ONE_USER_PINNED,
+                pinned=ONE_USER_PINNED | SNAPSHOT_PINNED,
                 rate="150/s",
                 max_examples=15,  # the same read operations as the store-only run, which explores them at 30
             )

@@ -19,7 +19,7 @@ from ares.core import cloud_grid, schema
 from ares.core.clock import ManualClock
 from ares.core.config import RecordingSettings, load_vehicle
 from ares.core.membus import MemoryNetwork
-from ares.core.messages import Event, PointCloud, Pose
+from ares.core.messages import ClockDone, ClockTick, Event, PointCloud, Pose
 from ares.core.route import Route
 from simulator.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
 from simulator.params import SimParams
@@ -49,21 +49,34 @@ def payload_of(cloud: PointCloud) -> bytes:
 
 
 @pytest.fixture(scope="module")
-def simulated_sweep() -> tuple[PointCloud, cloud_grid.SensorGrid]:
-    """A roof sweep of the simulated shuttle on the default tour, ghosts and all."""
+def tour_world() -> tuple[Route, World]:
     tour = Route.from_tour("default")
-    world = World(tour, roughness_for(tour, SimParams(), 2.8))
+    return tour, World(tour, roughness_for(tour, SimParams(), 2.8))
+
+
+def simulated_frame(tour_world, s: float, t: float, decimation: int = 4, names=("roof",)) -> dict[str, PointCloud]:
+    """The simulated shuttle's LiDARs at `s` along the default tour, ghosts and all, stamped t."""
+    tour, world = tour_world
     shuttle = load_vehicle("ares_shuttle")
-    params = LidarSimParams(azimuth_decimation=4)
-    sensor = SimulatedLidar("roof", shuttle.lidars["roof"], shuttle, params, np.random.default_rng(3))
-    x, y, _, yaw = tour.point_at(120.0)
-    rotation, position = vehicle_pose(x, y, float(world.centre_height(120.0)), yaw, 0.0)
-    sweep = sensor.sweep(world.scene, rotation, position, None, world.material_of)
-    cloud = PointCloud(
-        t=1.0, sensor="roof", frame="lidar/roof", x=sweep.x, y=sweep.y, z=sweep.z, intensity=sweep.intensity,
-        ring=sweep.ring,
-    )  # fmt: skip
-    return cloud, sensor.grid
+    params = LidarSimParams(azimuth_decimation=decimation)
+    x, y, _, yaw = tour.point_at(s)
+    rotation, position = vehicle_pose(x, y, float(world.centre_height(s)), yaw, 0.0)
+    frame = {}
+    for k, name in enumerate(names):
+        sensor = SimulatedLidar(name, shuttle.lidars[name], shuttle, params, np.random.default_rng(int(t * 10) + k))
+        sweep = sensor.sweep(world.scene, rotation, position, None, world.material_of)
+        frame[name] = PointCloud(
+            t=t, sensor=name, frame=f"lidar/{name}", x=sweep.x, y=sweep.y, z=sweep.z, intensity=sweep.intensity,
+            ring=sweep.ring,
+        )  # fmt: skip
+    return frame
+
+
+@pytest.fixture(scope="module")
+def simulated_sweep(tour_world) -> tuple[PointCloud, cloud_grid.SensorGrid]:
+    """A roof sweep of the simulated shuttle on the default tour, ghosts and all."""
+    cloud = simulated_frame(tour_world, 120.0, 1.0)["roof"]
+    return cloud, lidar_grids(run_config.build((), {"lidars": True}))["lidar/roof/points"]
 
 
 def test_a_simulated_sweep_is_stored_on_its_grid_and_comes_back_byte_for_byte(simulated_sweep):
@@ -248,3 +261,37 @@ def test_the_record_option_names_a_profile_a_file_or_both():
     assert record_target("light:/tmp/day.mcap") == ("light", "/tmp/day.mcap")
     assert record_target("run.mcap") == (None, "run.mcap")
     assert record_target("weird:name.mcap") == (None, "weird:name.mcap")
+
+
+def test_the_lidar_perception_replays_identically_from_a_compact_recording(tmp_path, cfg, tour_world):
+    """As at --speed max: the node steps at its ticks, the simulator's sweeps of a tick reach it
+    after its step (it perceives them at the next and stamps its grid with the sweep's time); the
+    clouds recorded on their grid, the node replayed from the file."""
+    from perception.lidar_perception_node import LidarPerception
+
+    run_cfg = {**cfg, "lockstep": {**cfg["lockstep"], "participants": ["lidar_perception"]}}
+    path = tmp_path / "perception.mcap"
+    clock = ManualClock()
+    network = MemoryNetwork(run_cfg["vehicle_id"])
+    recorder = McapRecorder(path, run_cfg, utc_epoch=UTC_EPOCH, settings=RecordingSettings())
+    recorder.attach(network.bus("recorder", clock))
+    recorder.start()
+    node = LidarPerception(run_cfg, clock=clock, bus=network.bus("lidar_perception", clock))
+    feeder = network.bus("sim", clock)
+    node.setup()
+    feeder.publish("clock/done", ClockDone(t=0.0, process="lidar_perception", next_due=0.1))
+    names = ("roof", "front_left", "front_right")
+    for k in range(1, 7):
+        t = round(k * 0.1, 9)
+        clock.set(t)
+        feeder.publish("sim/clock/lidar_perception", ClockTick(t=t))
+        node.step_once(t)
+        feeder.publish("clock/done", ClockDone(t=t, process="lidar_perception", next_due=round(t + 0.1, 9)))
+        for name, sweep in simulated_frame(tour_world, 200.0 + 0.3 * k, t, decimation=8, names=names).items():
+            feeder.publish(f"lidar/{name}/points", sweep)
+    node.teardown()
+    stats = recorder.close()
+    assert stats.off_grid_points == 0 and stats.dropped == 0
+    result = mcap_replay.replay_node(path, "lidar_perception")
+    assert result.ok, result.mismatches[:3]
+    assert result.steps == 6 and result.outputs == 5 * 3  # grid, road and status from the second step on

@@ -27,7 +27,7 @@ import pytest
 from ares.core.bus import Bus
 from ares.core.clock import WallClock
 from ares.core.localhost import free_port, stop_process
-from ares.core.messages import LidarFault
+from ares.core.messages import LidarFault, SnapshotRequest
 from ares.tools.bench.live import BrowserCalmer, chromium_path
 from blackbox.api.credentials import Argon2Settings, Passwords, add_user
 from blackbox.register.store.sqlite_store import SqliteStore
@@ -79,7 +79,11 @@ def stack(tmp_path_factory, browser):
         add_user(store, passwords, f"{role}1", role, PASSWORD, 10)
     store.close()
     # the tests log in often; the pages need the LiDARs' faults, not their detail: half the light rays
-    (tmp / "pages.yaml").write_text("api:\n  rate_limit:\n    token_burst: 30\nlidar_sim:\n  azimuth_decimation: 8\n")
+    # and incident snapshots of a few seconds (the auditor downloads one)
+    (tmp / "pages.yaml").write_text(
+        "api:\n  rate_limit:\n    token_burst: 30\nlidar_sim:\n  azimuth_decimation: 8\n"
+        "recording:\n  snapshots:\n    enabled: true\n    before_s: 3\n    after_s: 1\n"
+    )
     port, router = free_port(), f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
         [
@@ -128,6 +132,7 @@ def stack(tmp_path_factory, browser):
             "log": tmp / "stdout.log",
             "url": f"https://127.0.0.1:{port}",
             "store": store_path,
+            "snapshots": tmp / "snapshots",  # beside the store
         }
     finally:
         bus.close()
@@ -278,9 +283,31 @@ def test_the_auditor_exports_the_window_the_rest_api_returns(page, stack):
     assert "auditor role" in pg.inner_text("#refused") and pg.locator("#app").is_hidden()
     pg.click("#logout")
     pg.wait_for_selector("#login:not([hidden])")
+    # an operator asks for a snapshot (`ares snapshot`): the recorder saves it, the black box lists it
+    asked = SnapshotRequest(t=stack["truth"].latest.t, requested_by="operator1", reason="page test", request_id="pg1")
+    events = stack["bus"].subscribe("events", queue=1000)
+    stack["bus"].publish("recording/snapshot_request", asked)
+    saved = []
+    wait_for(
+        lambda: (
+            saved.extend(e for _, e in events.drain() if e.kind == "snapshot" and e.data["request_id"] == "pg1")
+            or saved
+        ),
+        30,
+        "the snapshot saved",
+    )
+    name = str(saved[0].data["file"])
+    auditor = rest(stack, "auditor1")
+    listed = lambda: auditor.get(f"/vehicles/{VEHICLE}/snapshots").json()["snapshots"]  # noqa: E731
+    wait_for(lambda: any(s["data"]["file"] == name for s in listed()), 10, "the snapshot in the black box")
     login(pg, stack["url"] + "/blackbox", "auditor1")
     pg.wait_for_selector("#app:not([hidden])")
     wait_for(lambda: pg.get_attribute("#query-status", "data-state") == "confirmed", 20, "the records shown")
+    wait_for(lambda: pg.locator("#snapshots tr:has-text('request')").count() >= 1, 10, "the snapshot listed")
+    with pg.expect_download() as got:
+        pg.locator("#snapshots tr:has-text('request') button").last.click()
+    assert got.value.suggested_filename == name
+    assert Path(got.value.path()).read_bytes() == (stack["snapshots"] / name).read_bytes()
     shown = int(pg.get_attribute("#query-status", "data-count"))
     assert shown > 10 and pg.locator("#records tr").count() == shown + 1  # a header and a row per record
     assert pg.locator("#plots .uplot").count() >= 4  # speed, steering, scores, ...

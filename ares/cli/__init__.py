@@ -4,7 +4,7 @@
              [--scenario NAME|FILE] [--mission tour|drive|none] [--controller auto|mpc|rrc|pure_pursuit] [--wire]
              [--vehicle-io FILE] [--vehicle NAME] [--passengers N] [--vehicle-id ID] [--router ENDPOINT]
              [--listen ENDPOINT] [--vehicle-cpus LIST] [--run-dir DIR] [--api-port PORT] [--store URI]
-             [--fleet N] [--seconds S] [--record [FILE.mcap]] [--foxglove [[HOST:]PORT]]
+             [--fleet N] [--seconds S] [--record [[full|light][:FILE.mcap]]] [--foxglove [[HOST:]PORT]]
                                    the whole stack (simulated shuttle, embedded router), or a headless run
     ares node NAME                 run one process of the stack in the foreground
     ares compare [--controllers LIST] [--route NAME|FILE] [--vehicle NAME] [--scenario NAME|FILE] [--laps N]
@@ -42,6 +42,8 @@
     ares record [KEY ...] [--out FILE.mcap] [--seconds S] [--compression zstd|lz4|none] [--no-views]
                 [--router ENDPOINT] [--vehicle-id ID]
                                    the running stack's bus to MCAP (opens in Foxglove; docs/recording.md)
+    ares snapshot [--reason TEXT] [--by NAME] [--wait S] [--router ENDPOINT] [--vehicle-id ID]
+                                   an incident snapshot now: the seconds before and after, saved in the black box
     ares mission start [POI ...] [--drive] [--repeat] | pause | resume | cancel | status [--operator NAME]
                  [--seconds S] [--router ENDPOINT] [--vehicle-id ID]
                                    the mission manager's action: a goal of POIs (all of the route's if none
@@ -65,6 +67,8 @@
                                    how far the operator page lags the bus, with N browsers (the whole stack)
     ares bench drivers [--json] [--check] [--repeats N] [--seconds S]
                                    Velodyne decode per rotation (every model), CAN frames per second
+    ares bench record [--json] [--check] [--recording FILE.mcap]
+                                   a recording's cost per profile, cloud encoding and topic class: MB/s, writer CPU
     ares bench stack [--json] [--check] [--laps N] [--seconds S] [--config FILE] [--wire] [--vehicle-cpus LIST]
                      [--speed max|paced|FACTOR] [--profile DIR]
                                    a lap of the whole stack: speed-up, CPU per process, perception and MPC

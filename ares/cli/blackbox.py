@@ -103,15 +103,19 @@ def _open_store(uri: str, settings):
 
 
 def cmd_api(args: argparse.Namespace) -> int:
+    from ares.core import config
     from blackbox.api import serve
+    from blackbox.register import snapshot_files
 
     cfg, settings, store_settings, uri = _api_context(args)
+    beside = store_settings.model_copy(update={"uri": uri})  # --store: the snapshots are beside it
     try:
         serve(
             settings,
             uri,
             vehicle_id=cfg["vehicle_id"],
             store_settings=store_settings,
+            snapshots_dir=snapshot_files.folder(config.core(cfg).recording.snapshots, beside),
             insecure_http=args.insecure_http,
             host=args.host,
             port=args.port,

@@ -33,7 +33,56 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     )
     record.add_argument("--no-views", action="store_true", help="only the bus's own channels, no Foxglove views")
     add_connection_args(record)
-    return {"record": cmd_record}
+    snapshot = subparsers.add_parser(
+        "snapshot",
+        help="save an incident snapshot now: the seconds before and after, as MCAP in the black box",
+        description="Ask the running stack's recorder (recording.snapshots.enabled) for an incident snapshot: "
+        "the ring of the last seconds of the bus and the seconds after, saved as an MCAP file beside the "
+        "black box and listed with its event (GET /api/v1/vehicles/ID/snapshots). Waits for the file.",
+    )
+    snapshot.add_argument("--reason", default="", metavar="TEXT", help="why, kept in the snapshot's event")
+    snapshot.add_argument("--by", default="", metavar="NAME", help="who asks (default: the user running it)")
+    snapshot.add_argument(
+        "--wait", type=positive_float, default=90.0, metavar="S", help="wall seconds to wait for the file (default 90)"
+    )
+    add_connection_args(snapshot)
+    return {"record": cmd_record, "snapshot": cmd_snapshot}
+
+
+def cmd_snapshot(args: argparse.Namespace) -> int:
+    import getpass
+
+    from ares.app.bus_record.snapshots import EVENT_KIND, FAILED_KIND, REQUEST_TOPIC, request_id
+    from ares.core.messages import Event, SnapshotRequest
+
+    bus = connect(args, "cli_snapshot")
+    wanted = request_id()
+    answers: list[Event] = []
+    done = threading.Event()
+
+    def on_event(_topic: str, msg) -> None:
+        if isinstance(msg, Event) and msg.kind in (EVENT_KIND, FAILED_KIND) and msg.data.get("request_id") == wanted:
+            answers.append(msg)
+            done.set()
+
+    try:
+        bus.subscribe("events", on_message=on_event)
+        by = args.by or getpass.getuser()
+        bus.publish(
+            REQUEST_TOPIC, SnapshotRequest(t=bus.clock.now(), requested_by=by, reason=args.reason, request_id=wanted)
+        )
+        print(f"snapshot asked for ({wanted}): waiting for the seconds after and the file", file=sys.stderr)
+        done.wait(args.wait)
+    finally:
+        bus.close()
+    if not answers:
+        raise CliError(
+            f"no snapshot within {args.wait:g} s: is recording.snapshots.enabled true in the running stack's "
+            "configuration?"
+        )
+    answer = answers[0]
+    print(json.dumps({"kind": answer.kind, "message": answer.message, **answer.data}))
+    return 0 if answer.kind == EVENT_KIND else 1
 
 
 def cmd_record(args: argparse.Namespace) -> int:

@@ -70,7 +70,11 @@ def replay_from_bus(
     engine = NodeReplay(node_class, cfg, name, result, max_mismatches=max_mismatches)
     engine.set_up()
     matcher = _StepMatcher(engine, engine.published())
-    lockstep = _LockstepSteps(engine, matcher, result) if in_lockstep else None
+    lockstep = (
+        _LockstepSteps(engine, matcher, result, by_done=node_class.stamps_outputs_with == "data")
+        if in_lockstep
+        else None
+    )
     for rec in messages:
         topic = rec.topic
         if lockstep is not None and topic == tick_topic:
@@ -114,10 +118,14 @@ class _LockstepSteps:
     stamped after the step: the step latched a prefix of them, which the engine searches for
     (NodeReplay.step_latching_a_prefix) from what had reached the recorder at the tick. What a step
     did not latch stays for the next. A step is settled once the node has reported it done (after
-    publishing its outputs) and an input stamped after it has come."""
+    publishing its outputs) and an input stamped after it has come. A node whose outputs carry the
+    stamp of their data, not of the step (`by_done`), published them at the step it reports done
+    next: that step's time is theirs."""
 
-    def __init__(self, engine: NodeReplay, matcher: _StepMatcher, result: BusReplayResult):
+    def __init__(self, engine: NodeReplay, matcher: _StepMatcher, result: BusReplayResult, by_done: bool = False):
         self.engine, self.matcher, self.result = engine, matcher, result
+        self.by_done = by_done
+        self.awaiting_done: list[list[Any]] = []  # by_done: outputs of the step not yet reported done
         self.next_due: float | None = None
         self.last_tick: float | None = None
         self.timeline: list[tuple[Any, ...]] = []  # ("tick", t) | ("in", BusMessage) | ("out", stamp, message)
@@ -144,6 +152,9 @@ class _LockstepSteps:
             self.resolve(self.settled)
 
     def output(self, stamp: float, message: list[Any]) -> None:
+        if self.by_done and self.last_tick is not None:
+            self.awaiting_done.append(message)
+            return
         self._stepped_unseen(stamp)
         if self.last_tick is None:
             self.matcher.expect(stamp, message)  # published while setting up
@@ -152,6 +163,9 @@ class _LockstepSteps:
 
     def done(self, t: float, next_due: float) -> None:
         self._stepped_unseen(t)
+        for message in self.awaiting_done:
+            self.timeline.append(("out", round(t, 9), message))
+        self.awaiting_done = []
         self.next_due = next_due
         self.settled = t if self.settled is None else max(self.settled, t)
         self.resolve(self.settled)

@@ -76,6 +76,15 @@ class Event(Msg):
     data: dict[str, str | float | int | bool | None] = Field(default_factory=dict)
 
 
+class SnapshotRequest(Msg):
+    """Someone asks for an incident snapshot now (`ares snapshot`): the recorder saves its ring and
+    the seconds after, and says so in a `snapshot` event carrying `request_id`."""
+
+    requested_by: str
+    reason: str = ""
+    request_id: str = ""
+
+
 # ---- simulator: ground truth, sensors, control panel --------------------------------------
 
 

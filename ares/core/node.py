@@ -49,7 +49,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Generic, Self, TypeVar, cast, overload
+from typing import Any, ClassVar, Generic, Literal, Self, TypeVar, cast, overload
 
 from ares.core import config, topics
 from ares.core.bus import BaseBus, Bus, Publisher, PublisherFamily, RejectCounter, Subscription, SubscriptionState
@@ -195,6 +195,13 @@ class Node:
     rate: ClassVar[float | str] = "rate_hz"  # loop rate: Hz, or the name of a parameter
     steps: ClassVar[bool] = True  # works in periodic steps (latched inputs; a --speed max participant)
     calls: ClassVar[tuple[str, ...]] = ()  # the services it calls (any other call is refused)
+    # fields of its outputs that are measured, not computed (a stage's wall time): a replay does
+    # not compare them, as openpilot's process replay ignores its timings ("topic.field.path")
+    replay_ignores: ClassVar[tuple[str, ...]] = ()
+    # what its outputs' stamps are: the step's time, or the time of the data they describe (a
+    # perception stamps its grid with the sweep's); a replay of a recording of the bus then pairs
+    # outputs with the step the node reported done after them
+    stamps_outputs_with: ClassVar[Literal["step", "data"]] = "step"
     fleet_inputs: ClassVar[tuple[str, ...]] = ()  # topics it reads from every vehicle (bus.subscribe_fleet)
     # device wires (wire/gnss, wire/can, wire/lidar) it reads or writes instead of the bus: a driver
     # reads what the simulator writes with --wire, so the lockstep waits for it as for a subscriber

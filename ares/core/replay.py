@@ -148,6 +148,7 @@ class NodeReplay:
         self.result = result
         self.max_mismatches = max_mismatches
         self._compared = 0  # steps compared so far: a mismatch names its step by this count
+        self.ignores = node_class.replay_ignores
 
     def _capture(self, topic: str, payload: Payload) -> None:
         self._published.append([topic, as_record(payload)])
@@ -198,7 +199,7 @@ class NodeReplay:
         for latched in tries:
             self.deliver(candidates[:latched])
             outputs = self._step(t)
-            if not _mismatches(0, t, expected, outputs):
+            if not _mismatches(0, t, expected, outputs, self.ignores):
                 self.result.steps += 1
                 return SearchedStep(outputs, latched, undecided=False)
             self.node.restore_state(state)
@@ -210,7 +211,7 @@ class NodeReplay:
         result; the steps are numbered in the order they are compared."""
         self.result.outputs += len(got)
         if len(self.result.mismatches) < self.max_mismatches:
-            self.result.mismatches += _mismatches(self._compared, t, expected, got)
+            self.result.mismatches += _mismatches(self._compared, t, expected, got, self.ignores)
         self.result.replayed.append(got)
         self._compared += 1
 
@@ -256,7 +257,9 @@ def update(path: str | Path) -> ReplayResult:
     return result
 
 
-def _mismatches(step: int, t: float | None, expected: Published, got: Published) -> list[Mismatch]:
+def _mismatches(
+    step: int, t: float | None, expected: Published, got: Published, ignores: tuple[str, ...] = ()
+) -> list[Mismatch]:
     if len(expected) != len(got):
         return [Mismatch(step, t, "number of messages", [e[0] for e in expected], [g[0] for g in got])]
     found = []
@@ -264,8 +267,16 @@ def _mismatches(step: int, t: float | None, expected: Published, got: Published)
         if e_topic != g_topic:
             found.append(Mismatch(step, t, "topic", e_topic, g_topic))
         else:
-            found += [Mismatch(step, t, f"{e_topic}.{where}", a, b) for where, a, b in _differences(e_msg, g_msg)]
+            found += [
+                Mismatch(step, t, f"{e_topic}.{where}", a, b)
+                for where, a, b in _differences(e_msg, g_msg)
+                if not _ignored(f"{e_topic}.{where}", ignores)
+            ]
     return found
+
+
+def _ignored(path: str, ignores: tuple[str, ...]) -> bool:
+    return any(path == i or path.startswith((i + ".", i + "[")) for i in ignores)
 
 
 def _differences(a: Any, b: Any, where: str = "") -> list[tuple[str, Any, Any]]:

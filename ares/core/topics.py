@@ -114,6 +114,12 @@ TOPIC_TABLE: list[Topic] = [
         "the black box's own health each second: store up, records written, dropped, faults, what waits",
         reliable=True,  # its last word, after the final flush, is the run's count of what was kept
     ),
+    Topic(
+        "recording/snapshot_request",
+        m.SnapshotRequest,
+        "an incident snapshot asked for now (`ares snapshot`); the recorder's `snapshot` event answers",
+        reliable=True,
+    ),
     Topic("awareness/state", m.AwarenessState, "self-awareness level (0, 1 critical, 2 low) and its causes"),
     Topic("control/status", m.ControllerStatus, "the controller in charge, why, and the errors along the route"),
     Topic("dbw/actuators", m.ActuatorCommand, "efforts to the steering motor and traction/brake"),

@@ -14,8 +14,8 @@ handlers are thin: they check the caller's role and the parameters, then ask the
     security.py        rate limits, the blacklist and account locks (kept across restarts), report
                        slots per role, security headers
     live_hub.py        the live gateway: the bus state the pages show, kept in memory
-    routes/            one router per resource: health, auth, vehicles, records, events, users,
-                       commands, live, pages
+    routes/            one router per resource: health, auth, vehicles, records, events, snapshots,
+                       users, commands, live, pages
     app.py             create_app: services, middleware, error handlers, routers
     uvicorn_server.py  uvicorn_config, serve; tls.py: the self-signed certificate
     connections.py     what a caller's connections may hold: a cap per address, TLS handshake,
@@ -46,6 +46,8 @@ Endpoints, all under /api/v1 (roles: ROLES_* in dependencies.py):
     GET  /vehicles/{id}/export?start&end&format=jsonl|csv          auditor (streamed)
     GET  /vehicles/{id}/events?start&end&kind&page&page_size       auditor, operator, fleet
     GET  /vehicles/{id}/reliability?start&end&t_hours              auditor, operator, fleet
+    GET  /vehicles/{id}/snapshots?start&end&page&page_size          auditor, operator (its own vehicle's)
+    GET  /vehicles/{id}/snapshots/{name}           auditor, operator (its own vehicle's): the MCAP file, streamed
     POST /vehicles/{id}/rearm                      operator
     POST /vehicles/{id}/mission                    operator (a goal: POIs, or a drive)
     POST /vehicles/{id}/mission/{pause|resume|cancel}              operator

@@ -34,6 +34,7 @@ from ares.core.route import RouteError, load_route
 from ares.core.signed_command import load_command_key
 from blackbox.api import PREFIX, ApiSettings, create_app, uvicorn_config
 from blackbox.console.live_hub import GATEWAY_TOPICS, LiveHub
+from blackbox.register import snapshot_files
 from blackbox.register.recorder import open_configured_store, store_uri
 from blackbox.register.store.record_store import StoreSettings
 
@@ -138,6 +139,7 @@ class ApiServer(AsyncNode):
             live=self.live,
             route=route_view(self.core),
             command_key=load_command_key(self.core.commands),
+            snapshots_dir=snapshot_files.folder(self.core.recording.snapshots, self.shared["blackbox_store"]),
         )
 
     async def serve(self) -> None:

@@ -4,6 +4,7 @@ handlers and routers."""
 import logging
 from collections.abc import Callable
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -18,7 +19,7 @@ from blackbox.api.credentials import Accounts, Passwords, Tokens, load_secret
 from blackbox.api.dependencies import Services
 from blackbox.api.models import STORE_RETRY_AFTER_S
 from blackbox.api.repository import Repository
-from blackbox.api.routes import auth, commands, events, health, pages, records, users, vehicles
+from blackbox.api.routes import auth, commands, events, health, pages, records, snapshots, users, vehicles
 from blackbox.api.routes import live as live_routes
 from blackbox.api.security import BAN_FILE, Guard, SecurityMiddleware, security_headers
 from blackbox.api.settings import PREFIX, TOKEN_PATH, ApiSettings, state_dir
@@ -37,6 +38,7 @@ def create_app(
     live: LiveHub | None = None,
     route: dict | None = None,
     command_key: bytes | None = None,
+    snapshots_dir: Path | None = None,
 ) -> FastAPI:
     """The API over `store`, serving the black box of `vehicle_id` (whose events the API's own events
     are; stack time from `clock`); `call`: the stack's services on its bus (blocking; the command
@@ -57,6 +59,7 @@ def create_app(
         command_key=command_key,
         live=live,
         route=route,
+        snapshots=snapshots_dir,
     )
 
     app = FastAPI(
@@ -120,7 +123,7 @@ def include_routes(app: FastAPI, services: Services, *, commands_offered: bool, 
     methods: dict[str, set[str]] = {}  # path -> its methods
     # what this API can serve where it runs: the commands need the vehicle's bus, the live routes
     # its live hub; an API over a store alone offers neither (not a 503: they are not in its schema)
-    offered = [health, auth, vehicles, records, events, users]
+    offered = [health, auth, vehicles, records, events, snapshots, users]
     if commands_offered:
         offered.append(commands)
     if live_offered:

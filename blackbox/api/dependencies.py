@@ -5,6 +5,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from pathlib import Path as FilePath
 from typing import Annotated, Any
 
 from fastapi import HTTPException, Path, Query, Security
@@ -24,6 +25,7 @@ ROLES_LIVE = ("fleet", "auditor", "operator")  # vehicles and their latest state
 ROLES_RECORDS = ("auditor", "operator")  # browse records
 ROLES_EXPORT = ("auditor",)  # export records (the black box interface)
 ROLES_EVENTS = ("auditor", "operator", "fleet")  # events and reliability summaries
+ROLES_SNAPSHOTS = ("auditor", "operator")  # incident snapshots (an operator: its own vehicle's only)
 ROLES_ADMIN = ("admin",)
 ROLES_COMMAND = ("operator",)  # the vehicle's services: re-arm, the mission's goal and actions, doors and ramp
 
@@ -51,6 +53,7 @@ class Services:
     command_key: bytes | None = None
     live: LiveHub | None = None  # the live gateway (None outside a stack: its routes answer 503)
     route: dict | None = None  # the vehicle's route for the maps (None outside a stack)
+    snapshots: FilePath | None = None  # where the incident snapshots' files are (None: none served)
 
 
 # ---- authentication ------------------------------------------------------------------------------

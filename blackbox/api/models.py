@@ -121,6 +121,24 @@ class EventsPage(BaseModel):
     events: list[StoredEvent]
 
 
+class SnapshotEntry(StoredEvent):
+    """A `snapshot` event (data: file, cause, cause_t, from_t, to_t, messages, bytes) and its file."""
+
+    available: bool = Field(description="the file is still kept (retention: as the records')")
+    download: str = Field(description="the file's path under the API (GET, auditor; operator: this vehicle's)")
+
+
+class SnapshotsPage(BaseModel):
+    vehicle_id: str
+    start: datetime = Field(description=WINDOW_DOC)
+    end: datetime
+    clipped: bool = Field(description=CLIPPED_DOC)
+    page: int
+    page_size: int
+    has_more: bool
+    snapshots: list[SnapshotEntry]
+
+
 class ReliabilityReport(BaseModel):
     vehicle_id: str
     start: datetime = Field(description=WINDOW_DOC)

@@ -193,6 +193,19 @@ class Repository:
             "events": [{k: e.get(k) for k in fields} for e in rows[:page_size]],
         }
 
+    def snapshot_event(self, vehicle_id: str, name: str) -> dict | None:
+        """The `snapshot` event of the vehicle that names this file, within the retention; None if none."""
+        now = _utc(self.store.now())
+        skip, batch = 0, self.limits.export_batch
+        while True:
+            rows = self.store.events(vehicle_id, now - RETENTION, now, kinds=["snapshot"], skip=skip, limit=batch)
+            for row in rows:
+                if (row.get("data") or {}).get("file") == name:
+                    return row
+            if len(rows) < batch:
+                return None
+            skip += batch
+
     def fault_times(self, vehicle_id: str, start: datetime, end: datetime) -> list[datetime]:
         out, skip, batch = [], 0, self.limits.reliability_batch
         while True:

@@ -1,6 +1,7 @@
 """Running the API under uvicorn: over HTTPS unless plain HTTP is asked for explicitly."""
 
 import logging
+from pathlib import Path
 
 from fastapi import FastAPI
 
@@ -58,13 +59,15 @@ def serve(
     insecure_http: bool = False,
     host: str | None = None,
     port: int | None = None,
+    snapshots_dir: Path | None = None,
 ) -> None:
-    """Run the API in the foreground until interrupted (uvicorn handles SIGINT/SIGTERM)."""
+    """Run the API in the foreground until interrupted (uvicorn handles SIGINT/SIGTERM); the
+    incident snapshots it serves are in `snapshots_dir`."""
     import uvicorn
 
     store = open_store(store_uri, settings=store_settings)
     try:
-        app = create_app(store, settings, vehicle_id)
+        app = create_app(store, settings, vehicle_id, snapshots_dir=snapshots_dir)
         config = uvicorn_config(app, settings, insecure_http=insecure_http, host=host, port=port)
         if insecure_http:
             log.warning("REST API over plain HTTP (--insecure-http): tokens and records travel in clear")

@@ -19,6 +19,7 @@ from ares.core.route import Route
 if TYPE_CHECKING:  # imported when asked for: a run without --record or --foxglove loads neither mcap nor foxglove
     from ares.app.bus_record.foxglove_live import FoxgloveBridge
     from ares.app.bus_record.recorder import McapRecorder
+    from ares.app.bus_record.snapshots import SnapshotKeeper
 
 log = logging.getLogger("ares.app.bus_record.in_run")
 
@@ -54,6 +55,7 @@ class RunTaps:
 
     recorder: McapRecorder | None = None
     light_log: McapRecorder | None = None  # `recording.light_always`: beside a full --record, or alone
+    snapshots: SnapshotKeeper | None = None  # `recording.snapshots.enabled`
     bridge: FoxgloveBridge | None = None
     bus: Any = None
     closed: dict[str, Any] = field(default_factory=dict)
@@ -66,6 +68,20 @@ class RunTaps:
         if self.recorder is not None:
             self.closed = _figures(self.recorder)
             self.recorder = None
+        if self.snapshots is not None:
+            kept = self.snapshots.close()
+            self.closed = {
+                **self.closed,
+                "snapshots": {
+                    "folder": str(self.snapshots.folder),
+                    "triggered": kept.triggered,
+                    "saved": kept.saved,
+                    "failed": kept.failed,
+                    "files": kept.saved_files,
+                    "evicted_early": kept.evicted_early,
+                },
+            }
+            self.snapshots = None
         if self.light_log is not None:
             self.closed = (
                 {**self.closed, "light_log": _figures(self.light_log)} if self.closed else _figures(self.light_log)
@@ -97,7 +113,7 @@ def start(
     `bus` and started."""
     taps = RunTaps(bus=bus)
     settings = config.core(cfg).recording
-    if record is None and foxglove is None and not settings.light_always:
+    if record is None and foxglove is None and not settings.light_always and not settings.snapshots.enabled:
         return taps
     from ares.app.bus_record.foxglove_live import FoxgloveBridge
     from ares.app.bus_record.foxglove_views import FoxgloveViews
@@ -122,6 +138,16 @@ def start(
         taps.recorder = recorder(Path(file) if file else Path(run_dir) / default_name, profile)
     if settings.light_always and (taps.recorder is None or taps.recorder.settings.profile != "light"):
         taps.light_log = recorder(Path(run_dir) / LIGHT_LOG_NAME, "light")
+    if settings.snapshots.enabled:
+        from ares.app.bus_record.snapshots import SnapshotKeeper
+        from blackbox.register import snapshot_files
+        from blackbox.register.store.record_store import StoreSettings
+
+        where = snapshot_files.folder(settings.snapshots, config.section(cfg, "blackbox_store", StoreSettings))
+        taps.snapshots = SnapshotKeeper(cfg, settings.snapshots, where, utc_epoch=utc_epoch, route=route)
+        taps.snapshots.attach(bus)
+        taps.snapshots.start()
+        print(f"ares run: incident snapshots to {where}", file=sys.stderr, flush=True)
     if foxglove is not None:
         host, port = host_port(foxglove)
         try:

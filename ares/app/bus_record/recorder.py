@@ -220,7 +220,9 @@ class McapRecorder:
         self._queue.put((time.time_ns(), topic, encoding, payload))
 
     # ---- the writer thread ------------------------------------------------------------------------
-    def start(self) -> McapRecorder:
+    def start(self, threaded: bool = True) -> McapRecorder:
+        """Open the file; with `threaded`, the writer thread that takes what offer() queues (else
+        the caller writes, write(), from its own thread: an incident snapshot's)."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")  # closed by close()
         self._writer = Writer(self._file, chunk_size=self._chunk_size, compression=self._compression)
@@ -239,8 +241,9 @@ class McapRecorder:
         self.stats.started_wall = time.monotonic()
         if self.views is not None and self.route is not None:
             self._write_view(self.views.route_view(self.route), time.time_ns())
-        self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
-        self._thread.start()
+        if threaded:
+            self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
+            self._thread.start()
         return self
 
     def _run(self) -> None:
@@ -255,7 +258,9 @@ class McapRecorder:
                 if item is None:
                     break
                 if item:
-                    self._write(*item)
+                    with self._lock:
+                        self._queued_bytes -= len(item[3])
+                    self.write(*item)
                 if time.monotonic() >= next_flush:
                     assert self._file is not None
                     self._file.flush()
@@ -266,9 +271,8 @@ class McapRecorder:
         finally:
             self.stats.writer_cpu_s = time.thread_time() - started_cpu
 
-    def _write(self, log_time: int, topic: str, encoding: str, payload: bytes) -> None:
-        with self._lock:
-            self._queued_bytes -= len(payload)
+    def write(self, log_time: int, topic: str, encoding: str, payload: bytes) -> None:
+        """One bus message into the file (the writer thread's, or the caller's without one)."""
         assert self._writer is not None
         key = f"ares/{self.cfg.get('vehicle_id', '')}/{topic}"
         channel = self._channels.get(key)

@@ -202,6 +202,39 @@ LIGHT_RATES_HZ: dict[str, float] = {
 }
 
 
+class SnapshotTrigger(Params):
+    """An event that saves a snapshot: its kind, and the values its data must have (all of them)."""
+
+    kind: str = param(doc="the event's kind (`emergency_stop`, `mode_change`, ...)")
+    where: dict[str, str | int | float | bool] = param(doc="data the event must carry, key: value", factory=dict)
+
+
+DEFAULT_SNAPSHOT_TRIGGERS = (
+    SnapshotTrigger(kind="emergency_stop"),
+    SnapshotTrigger(kind="mode_change", where={"from": "AUTOMATIC", "to": "MANUAL"}),  # a manual takeover
+    SnapshotTrigger(kind="awareness", where={"level_to": 1}),  # level 1: critical
+    SnapshotTrigger(kind="controller_switch", where={"to": "stop"}),
+)
+
+
+class SnapshotSettings(Params):
+    """Incident snapshots: the last seconds of the whole bus kept in memory, saved with the seconds
+    after when something happens (docs/recording.md)."""
+
+    enabled: bool = param(False, "keep the ring and save snapshots (`ares run`'s process)")
+    before_s: float = param(20.0, "stack seconds kept before the event", unit="s", gt=0)
+    after_s: float = param(10.0, "stack seconds saved after it", unit="s", ge=0)
+    max_ring_mb: float = param(
+        800.0, "the ring's bound in memory (three full LiDARs: ~24 MB a second); beyond, the oldest go", unit="MB", gt=0
+    )
+    dir: str | None = param(None, "where snapshots are kept (null: `snapshots/` beside the black box's store)")
+    retention_days: float = param(7.0, "kept as long as the black box keeps its records", unit="d", gt=0)
+    triggers: list[SnapshotTrigger] = param(
+        doc="the events that save one; an operator's `ares snapshot` always does",
+        factory=lambda: [t.model_copy() for t in DEFAULT_SNAPSHOT_TRIGGERS],
+    )
+
+
 class RecordingSettings(Params):
     """What `ares run` records of its bus (docs/recording.md)."""
 
@@ -222,6 +255,7 @@ class RecordingSettings(Params):
         ge=0,
     )
     cloud_view_stride: int = param(4, "... with every n-th point of the sweep", ge=1)
+    snapshots: SnapshotSettings = param(doc="incident snapshots", factory=SnapshotSettings)
     light_rates_hz: dict[str, float] = param(
         doc="the light profile's topics (patterns allowed) and the most it keeps of each per second (0: every "
         "message); a topic not named is not kept",

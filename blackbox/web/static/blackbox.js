@@ -1,6 +1,8 @@
 // The black box page (auditors): a vehicle and a window inside the last 7 days, the fields to
 // see, a table and plots over time, and the window exported as CSV or JSON lines. Everything
-// comes from the REST API the page's token may read; the export is the API's own file.
+// comes from the REST API the page's token may read; the export is the API's own file. The window's
+// incident snapshots (the bus around an emergency stop, a takeover, ...) are listed with their
+// cause and downloaded as the API streams them.
 "use strict";
 
 ARES.page(["auditor"], "black box", async () => {
@@ -75,6 +77,44 @@ ARES.page(["auditor"], "black box", async () => {
     statusEl.dataset.count = String(rows.length);
     render(rows, fields);
     plot(rows, fields);
+    snapshots(w);
+  }
+
+  const snapshotsEl = document.getElementById("snapshots");
+  const snapshotsStatus = document.getElementById("snapshots-status");
+  async function snapshots(w) {
+    const q = new URLSearchParams({start: w.start, end: w.end, page_size: 1000});
+    let j;
+    try { j = await ARES.json("/vehicles/" + encodeURIComponent(w.vehicle) + "/snapshots?" + q); }
+    catch (e) { snapshotsStatus.textContent = e.message; return; }
+    snapshotsEl.replaceChildren();
+    const head = snapshotsEl.insertRow();
+    for (const h of ["time", "cause", "covers (stack s)", "size", ""]) head.append(Object.assign(document.createElement("th"), {textContent: h}));
+    for (const s of j.snapshots) {
+      const row = snapshotsEl.insertRow();
+      const d = s.data;
+      for (const text of [s.time, d.cause, Number(d.from_t).toFixed(1) + " – " + Number(d.to_t).toFixed(1),
+                          (Number(d.bytes) / 1e6).toFixed(1) + " MB"]) row.insertCell().textContent = text;
+      const cell = row.insertCell();
+      if (s.available) {
+        const b = Object.assign(document.createElement("button"), {type: "button", textContent: "Download"});
+        b.addEventListener("click", () => download(s.download, String(d.file)));
+        cell.append(b);
+      } else cell.textContent = "no longer kept";
+    }
+    snapshotsStatus.textContent = j.snapshots.length + " snapshot" + (j.snapshots.length === 1 ? "" : "s") + " in the window";
+    snapshotsStatus.dataset.count = String(j.snapshots.length);
+  }
+
+  async function download(path, name) {
+    const r = await ARES.api(path.replace(/^\/api\/v1/, ""));
+    if (!r.ok) { const j = await r.json().catch(() => ({})); snapshotsStatus.textContent = "download: " + (j.detail || r.status); return; }
+    const url = URL.createObjectURL(await r.blob());
+    const a = document.createElement("a");
+    a.href = url; a.download = name;
+    document.body.append(a); a.click(); a.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 10000);
+    snapshotsStatus.textContent = "downloaded " + name;
   }
 
   function flat(record, fields) {
