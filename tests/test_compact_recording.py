@@ -5,6 +5,7 @@ recorder's compact clouds and Foxglove previews, and the light profile's decimat
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -295,3 +296,68 @@ def test_the_lidar_perception_replays_identically_from_a_compact_recording(tmp_p
     result = mcap_replay.replay_node(path, "lidar_perception")
     assert result.ok, result.mismatches[:3]
     assert result.steps == 6 and result.outputs == 5 * 3  # grid, road and status from the second step on
+
+
+# ---- a driver's clouds: real captures ----------------------------------------------------------------
+
+LIDAR_CAPTURES = Path(__file__).parent / "data" / "lidar"
+
+
+def driver_rotations(name: str, model: str, count: int = 2) -> list[PointCloud]:
+    """Whole rotations of a real capture (tests/data/lidar), decoded by the driver's own assembler,
+    as the driver publishes them."""
+    from ares.core.wire.pcap import udp_datagrams
+    from ares.core.wire.velodyne import RotationAssembler, load_calibration
+
+    assembler = RotationAssembler(load_calibration(model), rate_hz=5.0)
+    clouds: list[PointCloud] = []
+    for datagram in udp_datagrams(LIDAR_CAPTURES / name):
+        if datagram.port != 2368:
+            continue
+        for rotation in assembler.add(datagram.payload, datagram.time):
+            if not rotation.truncated and len(clouds) < count:
+                p = rotation.points
+                clouds.append(
+                    PointCloud(t=float(len(clouds)), sensor="roof", frame="lidar/roof", x=p.x, y=p.y, z=p.z,
+                               intensity=p.intensity, ring=p.ring)
+                )  # fmt: skip
+        if len(clouds) >= count:
+            break
+    return clouds
+
+
+@pytest.mark.parametrize(
+    ("name", "model"),
+    [("VLP-16_dual.pcap", "VLP-16"), ("HDL-32E.pcap", "HDL-32E"), ("VLP-32C_fov.pcap", "VLP-32C"),
+     ("VLS-128.pcap", "VLS-128")],
+)  # fmt: skip
+def test_a_drivers_clouds_of_real_captures_are_stored_as_their_packets_integers(name, model):
+    from ares.core.wire.velodyne import load_calibration
+    from ares.core.wire.velodyne_grid import VelodyneGrid
+
+    grid = VelodyneGrid(load_calibration(model))
+    again = cloud_payload.grid_from(grid.describe())  # as a recording's channel describes it
+    for cloud in driver_rotations(name, model):
+        payload = payload_of(cloud)
+        stored, off_grid = cloud_payload.compact(payload, grid)
+        assert cloud.size > 10_000 and off_grid == 0, (cloud.size, off_grid)
+        assert len(stored) < len(payload) / 2.5
+        assert cloud_payload.restore(stored, again) == payload
+
+
+@pytest.mark.parametrize(
+    ("payload", "stamp"),
+    [
+        (b'{"t":1.25,"x":1.0}', 1.25),
+        (b'{"t":3}', 3.0),
+        (b'{"t":null,"x":1}', None),
+        (b'{"t":"soon","x":1}', None),
+        (b'{"x":1.0,"t":2.5}', 2.5),  # not first: the whole message read
+        (b'{"t":1.0', None),  # cut short
+        (b"not json", None),
+    ],
+)
+def test_a_payloads_stamp_is_read_without_decoding_it(payload, stamp):
+    from ares.app.bus_record.recorder import stamp_of
+
+    assert stamp_of(payload) == stamp

@@ -7,8 +7,12 @@ point of such a sensor is therefore three small integers and a byte, about 6 byt
 points a cloud carries. The simulator places its points with it, as a real sensor's firmware
 does; a recorder turns a cloud back into its integers (`to_grid`) and checks, point by point,
 that placing them gives the very same float32 bits, so a cloud stored as integers comes back
-exactly. A point off the grid (a driver that applies a calibration's corrections, say) is kept
-apart as float32: still exact, only larger.
+exactly. A point off the grid is kept apart as float32: still exact, only larger.
+
+A grid is anything that places integers and finds the nearest integers of a point (`Grid`):
+`SensorGrid` below is the simulator's (its datasheet's elevations, float32 arithmetic); a Velodyne
+driver's is its calibration with the decoder's own arithmetic (ares/core/wire/velodyne_grid.py),
+so the clouds a driver decodes are stored as the integers of their packets.
 
     r = range · RANGE_UNIT_M,   x = r cos(el[ring]) cos(az),   y = r cos(el[ring]) sin(az),
     z = r sin(el[ring]),        az = azimuth · 2π / AZIMUTH_STEPS,   intensity = byte / 255
@@ -19,6 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cache
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -27,7 +32,7 @@ AZIMUTH_UNIT_RAD = 2 * math.pi / AZIMUTH_STEPS
 RANGE_UNIT_M = 0.002  # 2 mm, the HDL-64E's and the VLP-16's range resolution
 MAX_RANGE_STEPS = 65535  # a u16: 131 m
 INTENSITY_STEPS = 255
-_INTENSITY_UNIT = np.float32(1.0 / INTENSITY_STEPS)
+_INTENSITY_STEPS32 = np.float32(INTENSITY_STEPS)
 _RANGE_UNIT = np.float32(RANGE_UNIT_M)
 
 
@@ -35,6 +40,25 @@ _RANGE_UNIT = np.float32(RANGE_UNIT_M)
 def _azimuth_table() -> tuple[np.ndarray, np.ndarray]:
     angle = np.arange(AZIMUTH_STEPS, dtype=np.float64) * AZIMUTH_UNIT_RAD
     return np.cos(angle).astype(np.float32), np.sin(angle).astype(np.float32)
+
+
+class Grid(Protocol):
+    """Where a sensor's points can lie: `rings` lasers, points placed from (ring, azimuth step,
+    range step) as float32 x, y, z, and the nearest steps of a point (which `place` may or may not
+    give back to the bit: to_grid checks)."""
+
+    @property
+    def rings(self) -> int: ...
+
+    def place(
+        self, ring: np.ndarray, azimuth: np.ndarray, range_: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    def nearest(
+        self, x: np.ndarray, y: np.ndarray, z: np.ndarray, ring: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def describe(self) -> dict[str, Any]: ...
 
 
 @dataclass(frozen=True)
@@ -53,6 +77,31 @@ class SensorGrid:
     @property
     def rings(self) -> int:
         return len(self.elevations_deg)
+
+    def place(
+        self, ring: np.ndarray, azimuth: np.ndarray, range_: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return place(self, ring, azimuth, range_)
+
+    def nearest(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, ring: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # float32 is enough to find the nearest step (errors ~1e-7 rad and ~10 µm against steps of
+        # 1.7e-4 rad and 2 mm), and to_grid's check catches a point it would round the wrong way
+        turns = np.arctan2(y, x)
+        turns *= np.float32(1.0 / AZIMUTH_UNIT_RAD)
+        np.rint(turns, out=turns)
+        whole = turns.astype(np.int32)  # -18000 ... 18000
+        whole[whole < 0] += AZIMUTH_STEPS
+        whole[whole >= AZIMUTH_STEPS] -= AZIMUTH_STEPS
+        r = np.square(x)
+        r += np.square(y)
+        r += np.square(z)
+        np.sqrt(r, out=r)
+        r *= np.float32(1.0 / RANGE_UNIT_M)
+        np.rint(r, out=r)
+        return whole.astype(np.uint16), np.clip(r, 0, MAX_RANGE_STEPS).astype(np.uint16)
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": "sensor", "elevations_deg": list(self.elevations_deg)}
 
 
 def azimuth_steps(angle_rad: np.ndarray | float) -> np.ndarray:
@@ -86,8 +135,9 @@ def place(
 
 
 def intensity_of(steps: np.ndarray) -> np.ndarray:
+    """The byte as 0..1 in float32, divided as a Velodyne decoder divides it."""
     out = steps.astype(np.float32)
-    out *= _INTENSITY_UNIT
+    out /= _INTENSITY_STEPS32
     return out
 
 
@@ -109,7 +159,7 @@ class GridCloud:
 
 
 def to_grid(
-    grid: SensorGrid, x: np.ndarray, y: np.ndarray, z: np.ndarray, intensity: np.ndarray, ring: np.ndarray
+    grid: Grid, x: np.ndarray, y: np.ndarray, z: np.ndarray, intensity: np.ndarray, ring: np.ndarray
 ) -> GridCloud:
     """The cloud's integers on the grid, each point checked to place back to the same float32 bits."""
     ring = np.asarray(ring, dtype=np.uint8)
@@ -117,24 +167,9 @@ def to_grid(
     i32 = np.asarray(intensity, dtype=np.float32)
     known_ring = ring < grid.rings
     safe_ring = np.where(known_ring, ring, 0).astype(np.uint8)
-    # float32 is enough to find the nearest step (errors ~1e-7 rad and ~10 µm against steps of
-    # 1.7e-4 rad and 2 mm), and the check below catches a point it would round the wrong way
-    turns = np.arctan2(y32, x32)
-    turns *= np.float32(1.0 / AZIMUTH_UNIT_RAD)
-    np.rint(turns, out=turns)
-    whole = turns.astype(np.int32)  # -18000 ... 18000
-    whole[whole < 0] += AZIMUTH_STEPS
-    whole[whole >= AZIMUTH_STEPS] -= AZIMUTH_STEPS
-    azimuth = whole.astype(np.uint16)
-    r = np.square(x32)
-    r += np.square(y32)
-    r += np.square(z32)
-    np.sqrt(r, out=r)
-    r *= np.float32(1.0 / RANGE_UNIT_M)
-    np.rint(r, out=r)
-    range_ = np.clip(r, 0, MAX_RANGE_STEPS).astype(np.uint16)
+    azimuth, range_ = grid.nearest(x32, y32, z32, safe_ring)
     steps = intensity_steps(i32)
-    px, py, pz = place(grid, safe_ring, azimuth, range_)
+    px, py, pz = grid.place(safe_ring, azimuth, range_)
     same = known_ring & _same_bits(px, x32) & _same_bits(py, y32) & _same_bits(pz, z32)
     same &= _same_bits(intensity_of(steps), i32)
     off = np.flatnonzero(~same).astype(np.uint32)
@@ -142,10 +177,10 @@ def to_grid(
     return GridCloud(ring=ring, azimuth=azimuth, range=range_, intensity=steps, off=off, off_xyzi=off_xyzi)
 
 
-def from_grid(grid: SensorGrid, cloud: GridCloud) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def from_grid(grid: Grid, cloud: GridCloud) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """float32 x, y, z, intensity of a GridCloud, exactly those to_grid was given."""
     safe_ring = np.where(cloud.ring < grid.rings, cloud.ring, 0).astype(np.uint8)
-    x, y, z = place(grid, safe_ring, cloud.azimuth, cloud.range)
+    x, y, z = grid.place(safe_ring, cloud.azimuth, cloud.range)
     intensity = intensity_of(cloud.intensity)
     if len(cloud.off):
         for column, values in zip((x, y, z, intensity), cloud.off_xyzi.T, strict=True):

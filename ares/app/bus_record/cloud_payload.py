@@ -76,7 +76,22 @@ def _join(low: np.ndarray, high: np.ndarray) -> np.ndarray:
     return np.cumsum(delta, dtype=np.uint16)  # the sum wraps as the differences did
 
 
-def compact(payload: bytes | bytearray | memoryview, grid: cloud_grid.SensorGrid) -> tuple[bytes, int]:
+def grid_from(described: dict) -> cloud_grid.Grid:
+    """The grid a channel's metadata describes (Grid.describe); ValueError for one it does not."""
+    kind = described.get("kind", "sensor")
+    try:
+        if kind == "sensor":
+            return cloud_grid.SensorGrid(tuple(float(e) for e in described["elevations_deg"]))
+        if kind == "velodyne":
+            from ares.core.wire.velodyne_grid import VelodyneGrid
+
+            return VelodyneGrid.from_description(described)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"a {kind} grid described without {exc}") from None
+    raise ValueError(f"an unknown kind of grid: {kind!r}")
+
+
+def compact(payload: bytes | bytearray | memoryview, grid: cloud_grid.Grid) -> tuple[bytes, int]:
     """(what the recording stores, points off the grid); the payload itself when it does not pay."""
     view = memoryview(payload)
     if view.nbytes < 8 or bytes(view[:4]) != MAGIC:
@@ -111,7 +126,7 @@ def compact(payload: bytes | bytearray | memoryview, grid: cloud_grid.SensorGrid
     return b"".join(parts), len(on_grid.off)
 
 
-def restore(stored: bytes | memoryview, grid: cloud_grid.SensorGrid | None) -> bytes:
+def restore(stored: bytes | memoryview, grid: cloud_grid.Grid | None) -> bytes:
     """The payload as it travelled on the bus."""
     view = memoryview(stored)
     if bytes(view[:4]) != GRID_MAGIC:

@@ -99,7 +99,7 @@ class Recording:
     def messages(self) -> Iterator[Recorded]:
         """The raw bus messages (not the Foxglove views), in the order the recorder received them,
         each payload as it travelled (a compact cloud restored on its sensor's grid)."""
-        grids: dict[int, cloud_grid.SensorGrid | None] = {}
+        grids: dict[int, cloud_grid.Grid | None] = {}
         for _schema, channel, message in self.records():
             topic = channel.metadata.get(TOPIC_META)
             if topic is None:
@@ -114,11 +114,10 @@ class Recording:
             )
 
 
-def _grid_of(channel: Channel) -> cloud_grid.SensorGrid | None:
+def _grid_of(channel: Channel) -> cloud_grid.Grid | None:
     try:
-        described = json.loads(channel.metadata[GRID_META])
-        return cloud_grid.SensorGrid(tuple(float(e) for e in described["elevations_deg"]))
-    except (KeyError, ValueError, TypeError):
+        return cloud_payload.grid_from(json.loads(channel.metadata[GRID_META]))
+    except (KeyError, ValueError, TypeError, AttributeError):
         log.warning("%s: a compact cloud channel without a readable grid", channel.topic)
         return None
 

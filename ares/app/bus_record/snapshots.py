@@ -45,7 +45,6 @@ REQUEST_TOPIC = "recording/snapshot_request"
 EVENT_KIND = "snapshot"
 FAILED_KIND = "snapshot_failed"
 SOURCE = "recorder"
-STALL_S = 5.0  # a snapshot still short of its end this long after the last message came is saved as it is
 
 
 @dataclass(frozen=True)
@@ -67,6 +66,7 @@ class Pending:
     request_id: str = ""
     ring_short: bool = False  # the ring had lost some of the seconds before (its bound in memory)
     items: list[Item] = field(default_factory=list)
+    also: list[tuple[str, float]] = field(default_factory=list)  # later triggers it covers: (kind, stamp)
 
 
 @dataclass
@@ -78,11 +78,17 @@ class KeeperStats:
     saved: int = 0
     failed: int = 0
     pruned: int = 0
+    ring_cpu_s: float = 0.0  # CPU time of the thread keeping the ring and watching the events
+    saver_cpu_s: float = 0.0  # ... of the thread writing the snapshots
     saved_files: list[str] = field(default_factory=list)
 
 
 def matches(trigger: SnapshotTrigger, kind: str, data: dict[str, Any]) -> bool:
-    return kind == trigger.kind and all(data.get(key) == value for key, value in trigger.where.items())
+    return (
+        kind == trigger.kind
+        and all(data.get(key) == value for key, value in trigger.where.items())
+        and not any(data.get(key) == value for key, value in trigger.unless.items())
+    )
 
 
 class SnapshotKeeper:
@@ -112,7 +118,6 @@ class SnapshotKeeper:
         self._to_save: queue.SimpleQueue[Pending | None] = queue.SimpleQueue()
         self._latest_stamp = 0.0
         self._first_stamp: float | None = None
-        self._last_arrival = time.monotonic()
         self._number = 0
         self._bus: Any = None
         self._handles: list[object] = []
@@ -137,12 +142,17 @@ class SnapshotKeeper:
         return self
 
     def _keep(self) -> None:
+        started = time.thread_time()
+        try:
+            self._keep_until_closed()
+        finally:
+            self.stats.ring_cpu_s = time.thread_time() - started
+
+    def _keep_until_closed(self) -> None:
+        # a snapshot waits for its seconds after by the stack's clock: if that clock stands still (a
+        # lockstep waiting for a process), so does the snapshot, and the end of the run saves it
         while True:
-            try:
-                raw = self._inbox.get(timeout=0.5)
-            except queue.Empty:
-                self._save_stalled()
-                continue
+            raw = self._inbox.get()
             if raw is None:
                 break
             assert isinstance(raw, tuple)
@@ -160,7 +170,6 @@ class SnapshotKeeper:
         self._latest_stamp = max(self._latest_stamp, stamp)
         if self._first_stamp is None:
             self._first_stamp = stamp
-        self._last_arrival = time.monotonic()
         item = Item(log_time, topic, encoding, payload, stamp)
         self._ring.append(item)
         self.stats.ring_bytes += len(payload)
@@ -191,8 +200,17 @@ class SnapshotKeeper:
             return
         if kind in (EVENT_KIND, FAILED_KIND) or not isinstance(data, dict):
             return
-        if any(matches(trigger, kind, data) for trigger in self.settings.triggers):
-            self._begin(kind, stamp, str(event.get("message", "")))
+        if not any(matches(trigger, kind, data) for trigger in self.settings.triggers):
+            return
+        self.stats.triggered += 1
+        under_way = next((p for p in self._pending if p.cause != "request" and stamp <= p.until_t), None)
+        if under_way is not None and stamp - under_way.cause_t <= self.settings.before_s:
+            # the same incident (an emergency stop and the level-1 event that caused it): one
+            # snapshot covers both, its end moved to cover the later one's seconds after
+            under_way.also.append((kind, stamp))
+            under_way.until_t = max(under_way.until_t, stamp + self.settings.after_s)
+            return
+        self._begin(kind, stamp, str(event.get("message", "")))
 
     def _on_request(self, payload: bytes, stamp: float) -> None:
         try:
@@ -200,11 +218,11 @@ class SnapshotKeeper:
             by, reason, request_id = request["requested_by"], request.get("reason", ""), request.get("request_id", "")
         except (orjson.JSONDecodeError, KeyError, TypeError):
             return
+        self.stats.triggered += 1
         self._begin("request", stamp, f"asked for by {by}" + (f": {reason}" if reason else ""), str(request_id))
 
     def _begin(self, cause: str, cause_t: float, detail: str, request_id: str = "") -> None:
         self._number += 1
-        self.stats.triggered += 1
         start = cause_t - self.settings.before_s
         items = [item for item in self._ring if item.stamp >= start]
         # the ring no longer reaches back to the start, though the run does: its memory bound
@@ -220,19 +238,17 @@ class SnapshotKeeper:
             self._pending.remove(pending)
             self._to_save.put(pending)
 
-    def _save_stalled(self) -> None:
-        if self._pending and time.monotonic() - self._last_arrival > STALL_S:
-            for pending in self._pending:
-                self._to_save.put(pending)
-            self._pending = []
-
     # ---- the saver ------------------------------------------------------------------------------------
     def _save_all(self) -> None:
-        while True:
-            pending = self._to_save.get()
-            if pending is None:
-                break
-            self.save(pending)
+        started = time.thread_time()
+        try:
+            while True:
+                pending = self._to_save.get()
+                if pending is None:
+                    break
+                self.save(pending)
+        finally:
+            self.stats.saver_cpu_s = time.thread_time() - started
 
     def save(self, pending: Pending) -> Path | None:
         """Write one snapshot (temporary name, renamed once complete) and announce it."""
@@ -276,13 +292,16 @@ class SnapshotKeeper:
         self.stats.saved_files.append(name)
         self._announce(
             EVENT_KIND,
-            f"snapshot of {pending.cause} at {pending.cause_t:.1f} s ({pending.detail}): {name}, "
+            f"snapshot of {pending.cause} at {pending.cause_t:.1f} s ({pending.detail})"
+            + "".join(f", and of {kind} at {t:.1f} s" for kind, t in pending.also)
+            + f": {name}, "
             f"{first:.1f} to {last:.1f} s, {size / 1e6:.1f} MB",
             EventLevel.INFO,
             {
                 "file": name,
                 "cause": pending.cause,
                 "cause_t": round(pending.cause_t, 6),
+                "also": ", ".join(f"{kind} at {t:.2f} s" for kind, t in pending.also),
                 "from_t": round(first, 6),
                 "to_t": round(last, 6),
                 "messages": len(items),

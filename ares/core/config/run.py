@@ -203,16 +203,21 @@ LIGHT_RATES_HZ: dict[str, float] = {
 
 
 class SnapshotTrigger(Params):
-    """An event that saves a snapshot: its kind, and the values its data must have (all of them)."""
+    """An event that saves a snapshot: its kind, the values its data must have (all of them) and
+    those it must not (any). A trigger within `before_s` of one under way is covered by that one."""
 
     kind: str = param(doc="the event's kind (`emergency_stop`, `mode_change`, ...)")
     where: dict[str, str | int | float | bool] = param(doc="data the event must carry, key: value", factory=dict)
+    unless: dict[str, str | int | float | bool] = param(
+        doc="data that makes it no trigger (any of them): `level_from: 1` for a level-1 event already at level 1",
+        factory=dict,
+    )
 
 
 DEFAULT_SNAPSHOT_TRIGGERS = (
     SnapshotTrigger(kind="emergency_stop"),
     SnapshotTrigger(kind="mode_change", where={"from": "AUTOMATIC", "to": "MANUAL"}),  # a manual takeover
-    SnapshotTrigger(kind="awareness", where={"level_to": 1}),  # level 1: critical
+    SnapshotTrigger(kind="awareness", where={"level_to": 1}, unless={"level_from": 1}),  # entering level 1
     SnapshotTrigger(kind="controller_switch", where={"to": "stop"}),
 )
 
@@ -255,6 +260,13 @@ class RecordingSettings(Params):
         ge=0,
     )
     cloud_view_stride: int = param(4, "... with every n-th point of the sweep", ge=1)
+    views_max_hz: float = param(
+        10.0,
+        "the other Foxglove views (pose, frames, plan, grid) at most this often per topic; 0: one per message "
+        "(the raw channels keep every message whatever this is)",
+        unit="Hz",
+        ge=0,
+    )
     snapshots: SnapshotSettings = param(doc="incident snapshots", factory=SnapshotSettings)
     light_rates_hz: dict[str, float] = param(
         doc="the light profile's topics (patterns allowed) and the most it keeps of each per second (0: every "
