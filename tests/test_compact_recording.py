@@ -20,32 +20,15 @@ from ares.core import cloud_grid, schema
 from ares.core.clock import ManualClock
 from ares.core.config import RecordingSettings, load_vehicle
 from ares.core.membus import MemoryNetwork
-from ares.core.messages import ClockDone, ClockTick, Event, PointCloud, Pose
+from ares.core.messages import ClockDone, ClockTick, Event, PointCloud
 from ares.core.route import Route
 from simulator.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
 from simulator.params import SimParams
 from simulator.road import roughness_for
 from simulator.world import World
+from tests.helpers.recording import ROOF_GRID, on_grid_cloud, payload_of, pose
 
 UTC_EPOCH = 1_790_000_000.0
-GRID64 = cloud_grid.SensorGrid(tuple(load_vehicle("ares_shuttle").lidars["roof"].datasheet().elevations_deg()))
-
-
-def on_grid_cloud(t: float, n: int = 2000, grid: cloud_grid.SensorGrid = GRID64) -> PointCloud:
-    """A sweep as a sensor reports it: rings in order, azimuths rising, ranges and intensity bytes."""
-    rng = np.random.default_rng(int(t * 100))
-    ring = np.tile(np.arange(grid.rings, dtype=np.uint8), n // grid.rings + 1)[:n]
-    azimuth = np.sort(rng.integers(0, cloud_grid.AZIMUTH_STEPS, n)).astype(np.uint16)
-    range_ = rng.integers(300, 40000, n).astype(np.uint16)
-    x, y, z = cloud_grid.place(grid, ring, azimuth, range_)
-    intensity = cloud_grid.intensity_of(rng.integers(0, 256, n).astype(np.uint8))
-    return PointCloud(t=t, sensor="roof", frame="lidar/roof", x=x, y=y, z=z, intensity=intensity, ring=ring)
-
-
-def payload_of(cloud: PointCloud) -> bytes:
-    return bytes(schema.encode(cloud))
-
-
 # ---- the grid and the payload ---------------------------------------------------------------------
 
 
@@ -94,9 +77,9 @@ def test_points_off_the_grid_are_kept_as_they_are_and_come_back_too():
     moved = np.array(cloud.x)
     moved[[3, 700, 1999]] += np.float32(1e-3)  # a driver's calibration, say: off the grid
     payload = payload_of(cloud.model_copy(update={"x": moved}))
-    stored, off_grid = cloud_payload.compact(payload, GRID64)
+    stored, off_grid = cloud_payload.compact(payload, ROOF_GRID)
     assert off_grid == 3 and stored[:4] == cloud_payload.GRID_MAGIC
-    assert cloud_payload.restore(stored, GRID64) == payload
+    assert cloud_payload.restore(stored, ROOF_GRID) == payload
 
 
 def test_a_cloud_mostly_off_the_grid_or_not_a_cloud_is_stored_as_it_travelled():
@@ -108,26 +91,26 @@ def test_a_cloud_mostly_off_the_grid_or_not_a_cloud_is_stored_as_it_travelled():
         intensity=rng.random(n).astype("<f4"), ring=rng.integers(0, 64, n).astype("u1"),
     )  # fmt: skip
     for payload in (payload_of(scattered), b'{"t": 1.0}', b"ARB1\x05\x00\x00\x00{bad}", b""):
-        stored, _ = cloud_payload.compact(payload, GRID64)
-        assert stored == payload and cloud_payload.restore(stored, GRID64) == payload
+        stored, _ = cloud_payload.compact(payload, ROOF_GRID)
+        assert stored == payload and cloud_payload.restore(stored, ROOF_GRID) == payload
 
 
 def test_an_empty_sweep_and_a_ring_the_grid_does_not_have_come_back_exactly():
     empty = on_grid_cloud(1.0, n=0)
-    stored, _ = cloud_payload.compact(payload_of(empty), GRID64)
-    assert cloud_payload.restore(stored, GRID64) == payload_of(empty)
-    small_grid = cloud_grid.SensorGrid(GRID64.elevations_deg[:16])
+    stored, _ = cloud_payload.compact(payload_of(empty), ROOF_GRID)
+    assert cloud_payload.restore(stored, ROOF_GRID) == payload_of(empty)
+    small_grid = cloud_grid.SensorGrid(ROOF_GRID.elevations_deg[:16])
     stored, off_grid = cloud_payload.compact(payload_of(on_grid_cloud(2.0, n=64)), small_grid)
     assert off_grid == 48  # rings 16..63 are not the small sensor's: kept as float32 (too many: as is)
     assert cloud_payload.restore(stored, small_grid) == payload_of(on_grid_cloud(2.0, n=64))
 
 
 def test_a_damaged_compact_cloud_is_a_clear_error():
-    stored, _ = cloud_payload.compact(payload_of(on_grid_cloud(1.0)), GRID64)
+    stored, _ = cloud_payload.compact(payload_of(on_grid_cloud(1.0)), ROOF_GRID)
     with pytest.raises(cloud_payload.CloudPayloadError, match="names no grid"):
         cloud_payload.restore(stored, None)
     with pytest.raises(cloud_payload.CloudPayloadError, match="malformed"):
-        cloud_payload.restore(stored[: len(stored) // 2], GRID64)
+        cloud_payload.restore(stored[: len(stored) // 2], ROOF_GRID)
 
 
 @settings(max_examples=60, deadline=None)
@@ -141,10 +124,10 @@ def test_any_point_placed_on_the_grid_comes_back_with_the_same_bits(ring, seed):
     rings = np.asarray(ring, dtype=np.uint8)
     azimuth = rng.integers(0, cloud_grid.AZIMUTH_STEPS, n).astype(np.uint16)
     range_ = rng.integers(0, cloud_grid.MAX_RANGE_STEPS + 1, n).astype(np.uint16)
-    x, y, z = cloud_grid.place(GRID64, rings, azimuth, range_)
+    x, y, z = cloud_grid.place(ROOF_GRID, rings, azimuth, range_)
     intensity = cloud_grid.intensity_of(rng.integers(0, 256, n).astype(np.uint8))
-    on_grid = cloud_grid.to_grid(GRID64, x, y, z, intensity, rings)
-    back = cloud_grid.from_grid(GRID64, on_grid)
+    on_grid = cloud_grid.to_grid(ROOF_GRID, x, y, z, intensity, rings)
+    back = cloud_grid.from_grid(ROOF_GRID, on_grid)
     for before, after in zip((x, y, z, intensity), back, strict=True):
         assert before.view(np.uint32).tolist() == after.view(np.uint32).tolist()
 
@@ -160,13 +143,6 @@ def test_the_azimuth_of_any_angle_is_a_step_of_one_turn():
 @pytest.fixture(scope="module")
 def cfg():
     return run_config.build((), {"lidars": True})
-
-
-def pose(t: float) -> Pose:
-    return Pose(
-        t=t, x=t, y=0.0, z=0.0, yaw=0.0, v=2.0, yaw_rate=0.0, cov_xx=0.01, cov_xy=0.0, cov_yy=0.01,
-        var_yaw=1e-4, var_v=0.01, position_std_m=0.1, rtk=True, gnss_age_s=0.1,
-    )  # fmt: skip
 
 
 def record(path, cfg, settings: RecordingSettings, seconds: float = 3.0, jump_back_at: float | None = None):

@@ -10,24 +10,23 @@ import os
 import subprocess
 from datetime import UTC, datetime, timedelta
 
-import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
 from ares.app import run_config
 from ares.app.bus_record import mcap_replay
 from ares.app.bus_record.snapshots import EVENT_KIND, FAILED_KIND, REQUEST_TOPIC, SnapshotKeeper, matches
-from ares.core import cloud_grid, schema
+from ares.core import schema
 from ares.core.clock import ManualClock
-from ares.core.config import SnapshotSettings, SnapshotTrigger, load_vehicle
+from ares.core.config import SnapshotSettings, SnapshotTrigger
 from ares.core.membus import MemoryNetwork
-from ares.core.messages import Event, EventLevel, PointCloud, Pose, SnapshotRequest, StoredEvent, VehicleRecord
+from ares.core.messages import Event, EventLevel, PointCloud, SnapshotRequest, StoredEvent, VehicleRecord
 from blackbox.api import create_app
 from blackbox.register import snapshot_files
 from tests.helpers.api import OTHER, VEHICLE, VEHICLE_ID, add_role_users, api_settings, auth, open_test_store, token_for
+from tests.helpers.recording import on_grid_cloud, pose
 
 UTC_EPOCH = 1_790_000_000.0
-GRID = cloud_grid.SensorGrid(tuple(load_vehicle("ares_shuttle").lidars["roof"].datasheet().elevations_deg()))
 
 
 @pytest.fixture(scope="module")
@@ -35,20 +34,8 @@ def cfg():
     return run_config.build((), {"lidars": True})
 
 
-def pose(t: float) -> Pose:
-    return Pose(
-        t=t, x=t, y=0.0, z=0.0, yaw=0.0, v=2.0, yaw_rate=0.0, cov_xx=0.01, cov_xy=0.0, cov_yy=0.01,
-        var_yaw=1e-4, var_v=0.01, position_std_m=0.1, rtk=True, gnss_age_s=0.1,
-    )  # fmt: skip
-
-
-def sweep(t: float, n: int = 640) -> PointCloud:
-    rng = np.random.default_rng(int(t * 10))
-    ring = np.tile(np.arange(64, dtype=np.uint8), n // 64)
-    azimuth = np.sort(rng.integers(0, cloud_grid.AZIMUTH_STEPS, n)).astype(np.uint16)
-    x, y, z = cloud_grid.place(GRID, ring, azimuth, rng.integers(500, 30000, n).astype(np.uint16))
-    intensity = cloud_grid.intensity_of(rng.integers(0, 256, n).astype(np.uint8))
-    return PointCloud(t=t, sensor="roof", frame="lidar/roof", x=x, y=y, z=z, intensity=intensity, ring=ring)
+def sweep(t: float) -> PointCloud:
+    return on_grid_cloud(t, n=640)
 
 
 def event(t: float, kind: str, **data) -> Event:

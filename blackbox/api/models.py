@@ -110,7 +110,9 @@ class RecordsPage(BaseModel):
     records: list[VehicleRecordFields]  # type: ignore[valid-type]
 
 
-class EventsPage(BaseModel):
+class EventPageHead(BaseModel):
+    """What a page of a vehicle's events says besides its items: the window served and the page."""
+
     vehicle_id: str
     start: datetime = Field(description=WINDOW_DOC)
     end: datetime
@@ -118,6 +120,9 @@ class EventsPage(BaseModel):
     page: int
     page_size: int
     has_more: bool
+
+
+class EventsPage(EventPageHead):
     events: list[StoredEvent]
 
 
@@ -128,14 +133,7 @@ class SnapshotEntry(StoredEvent):
     download: str = Field(description="the file's path under the API (GET, auditor; operator: this vehicle's)")
 
 
-class SnapshotsPage(BaseModel):
-    vehicle_id: str
-    start: datetime = Field(description=WINDOW_DOC)
-    end: datetime
-    clipped: bool = Field(description=CLIPPED_DOC)
-    page: int
-    page_size: int
-    has_more: bool
+class SnapshotsPage(EventPageHead):
     snapshots: list[SnapshotEntry]
 
 

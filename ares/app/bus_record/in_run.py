@@ -79,6 +79,7 @@ class RunTaps:
                     "failed": kept.failed,
                     "files": kept.saved_files,
                     "evicted_early": kept.evicted_early,
+                    "pruned": kept.pruned,
                     "ring_cpu_s": round(kept.ring_cpu_s, 2),
                     "saver_cpu_s": round(kept.saver_cpu_s, 2),
                 },

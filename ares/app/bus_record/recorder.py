@@ -363,26 +363,18 @@ class McapRecorder:
         return self._rates[topic]
 
     def _light_keeps(self, topic: str, stamp: float | None, log_time: int) -> bool:
-        """Whether the light profile keeps this message: at most its topic's rate, by its own stamp
-        (the receipt's time if it has none); a stamp gone back (a clock jump) starts the count again."""
+        """Whether the light profile keeps this message: at most its topic's rate (0: every one)."""
         rate = self._light_rate(topic)
-        if rate is None:
-            return False
-        if rate <= 0:
-            return True
-        now = stamp if stamp is not None else log_time / 1e9
-        last = self._last_kept.get(topic)
-        if last is not None and last <= now < last + 1.0 / rate - STAMP_TOLERANCE_S:
-            return False
-        self._last_kept[topic] = now
-        return True
+        every = None if rate is None else (1.0 / rate if rate > 0 else 0.0)
+        return self._due(self._last_kept, every, topic, stamp, log_time)
 
     @staticmethod
     def _due(
         last_by_topic: dict[str, float], every: float | None, topic: str, stamp: float | None, log_time: int
     ) -> bool:
-        """Whether a view of this topic is due: `every` seconds after the last (0: every message;
-        None: never), by the messages' own stamps."""
+        """Whether a message of this topic is due: `every` seconds after the last kept (0: every
+        message; None: never), by the messages' own stamps (the receipt's time if it has none); a
+        stamp gone back (a clock jump) starts the count again."""
         if every is None:
             return False
         if every <= 0:

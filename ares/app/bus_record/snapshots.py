@@ -71,7 +71,6 @@ class Pending:
 
 @dataclass
 class KeeperStats:
-    ring_messages: int = 0
     ring_bytes: int = 0
     evicted_early: int = 0  # messages the memory bound removed while still within before_s
     triggered: int = 0
@@ -112,7 +111,7 @@ class SnapshotKeeper:
         self.stats = KeeperStats()
         self._recording = config.core(cfg).recording.model_copy(update={"profile": "full"})
         self._max_ring_bytes = int(settings.max_ring_mb * 1e6)
-        self._inbox: queue.SimpleQueue[Item | tuple[int, str, str, bytes] | None] = queue.SimpleQueue()
+        self._inbox: queue.SimpleQueue[tuple[int, str, str, bytes] | None] = queue.SimpleQueue()
         self._ring: deque[Item] = deque()
         self._pending: list[Pending] = []
         self._to_save: queue.SimpleQueue[Pending | None] = queue.SimpleQueue()
@@ -155,7 +154,6 @@ class SnapshotKeeper:
             raw = self._inbox.get()
             if raw is None:
                 break
-            assert isinstance(raw, tuple)
             self.take(*raw)
         for pending in self._pending:  # the run ended: what came is what they cover
             self._to_save.put(pending)
@@ -181,7 +179,6 @@ class SnapshotKeeper:
         elif topic == REQUEST_TOPIC:
             self._on_request(payload, stamp)
         self._save_finished()
-        self.stats.ring_messages = len(self._ring)
 
     def _evict(self) -> None:
         horizon = self._latest_stamp - self.settings.before_s - self.settings.after_s

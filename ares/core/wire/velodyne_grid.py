@@ -22,6 +22,11 @@ from ares.core.wire.velodyne import Calibration
 _STEP_RAD = np.radians(0.01)
 _TURN = 36000
 _MAX_RAW = 65535
+# the calibration's per-laser arrays, as a recording's channel describes them
+CORRECTIONS = (
+    "rot_correction", "vert_correction", "dist_correction", "dist_correction_x", "dist_correction_y",
+    "vert_offset", "horiz_offset",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -61,34 +66,12 @@ class VelodyneGrid:
             "kind": "velodyne",
             "model": cal.model,
             "distance_resolution": cal.distance_resolution,
-            **{
-                name: getattr(cal, name).tolist()
-                for name in (
-                    "rot_correction",
-                    "vert_correction",
-                    "dist_correction",
-                    "dist_correction_x",
-                    "dist_correction_y",
-                    "vert_offset",
-                    "horiz_offset",
-                )  # fmt: skip
-            },
+            **{name: getattr(cal, name).tolist() for name in CORRECTIONS},
         }
 
     @classmethod
     def from_description(cls, described: dict[str, Any]) -> VelodyneGrid:
-        arrays = {
-            name: np.asarray(described[name], dtype=np.float64)
-            for name in (
-                "rot_correction",
-                "vert_correction",
-                "dist_correction",
-                "dist_correction_x",
-                "dist_correction_y",
-                "vert_offset",
-                "horiz_offset",
-            )  # fmt: skip
-        }
+        arrays = {name: np.asarray(described[name], dtype=np.float64) for name in CORRECTIONS}
         return cls(
             Calibration(
                 model=str(described["model"]),
