@@ -4,18 +4,21 @@ Every 100 ms it takes the vehicle's true pose (sim/truth), moves the scenario's 
 applies the scenario's faults (a covered sensor) and casts each sensor's rays (simulator/lidar.py)
 into the world (simulator/world.py). It runs beside the physics process so that the two share the
 machine's cores; at --speed max it is one more participant of the lockstep. What the obstacles
-really are goes out on sim/world, for the evaluation only.
+really are goes out on sim/world, for the evaluation only; when the body's footprint first
+overlaps one, a `collision` event (a fault: an incident snapshot's trigger) says which and how
+fast.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ares.core.messages import Ack, EventLevel, LidarFault, PointCloud, VehicleTruth, WorldTruth
+from ares.core.geometry import rectangle_corners
+from ares.core.messages import Ack, EventLevel, LidarFault, ObstacleBox, PointCloud, VehicleTruth, WorldTruth
 from ares.core.node import Input, Node, Output, service
 from ares.core.route import load_route
 from simulator.lidar import LidarSimParams, SimulatedLidar, vehicle_pose
-from simulator.obstacles import ObstacleField
+from simulator.obstacles import ObstacleField, touching
 from simulator.params import SimParams
 from simulator.road import roughness_for
 from simulator.scenario import Scenario, load_scenario
@@ -50,6 +53,7 @@ class LidarSimulator(Node):
         self.sensors = self.make_sensors()
         self.outputs_by_sensor = {"roof": self.roof, "front_left": self.front_left, "front_right": self.front_right}
         self.faults_done: set[int] = set()
+        self.in_contact: set[str] = set()  # the obstacles the body overlaps now
         if not self.sensors:
             self.log.warning("vehicle profile %s has no lidars: nothing to simulate", self.vehicle.name)
 
@@ -114,13 +118,29 @@ class LidarSimulator(Node):
             obstacle_scene = open3d().t.geometry.RaycastingScene()
             obstacle_scene.add_triangles(open3d().core.Tensor(mesh.vertices), open3d().core.Tensor(mesh.triangles))
         self.send_sweeps(stamp, rotation, position, obstacle_scene)
+        boxes = self.obstacles.boxes(stamp)
         self.world_truth.put(
-            WorldTruth(
-                t=stamp,
-                obstacles=self.obstacles.boxes(stamp),
-                blocked_lidars=[n for n, s in self.sensors.items() if s.blocked],
-            )
+            WorldTruth(t=stamp, obstacles=boxes, blocked_lidars=[n for n, s in self.sensors.items() if s.blocked])
         )
+        self._collisions(truth, boxes)
+
+    def _collisions(self, truth: VehicleTruth, boxes: list[ObstacleBox]) -> None:
+        v = self.vehicle
+        body = rectangle_corners(
+            truth.x, truth.y, truth.yaw, v.front_bumper_m, v.length_m - v.front_bumper_m, v.width_m / 2
+        )
+        now_touching = touching(boxes, body)
+        kinds = {box.name: box.kind for box in boxes}
+        for name in sorted(now_touching - self.in_contact):
+            self.event(
+                "collision",
+                f"the shuttle touches {name} ({kinds[name]}) at {truth.v:.2f} m/s",
+                EventLevel.FAULT,
+                obstacle=name,
+                obstacle_kind=kinds[name],
+                v_mps=round(truth.v, 3),
+            )
+        self.in_contact = now_touching
 
     def sweep_pose(self, now: float, truth: VehicleTruth) -> VehicleTruth:
         """The pose a sweep is cast from: the latest true pose as it is."""

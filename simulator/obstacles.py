@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ares.core.geometry import convex_gap, rectangle_corners
 from ares.core.messages import ObstacleBox
 from ares.core.route import OPEN_ZONES, Route
 from simulator.scenario import OBSTACLE_SIZES, Scenario, ScenarioAlongTour, ScenarioObstacle, ScenarioPlace
@@ -162,4 +163,17 @@ def along_tour(route: Route, spec: ScenarioAlongTour) -> list[ScenarioObstacle]:
         offset = side * (spec.clearance_m + OBSTACLE_SIZES[kind][1] / 2)
         out.append(ScenarioObstacle(name=f"{kind}_{round(s)}", kind=kind, path=[ScenarioPlace(s=s, offset_m=offset)]))
         k += 1
+    return out
+
+
+def touching(boxes: list[ObstacleBox], body: np.ndarray) -> set[str]:
+    """The names of the obstacles whose footprint overlaps the body's (its corners, in order)."""
+    centre, reach = body.mean(axis=0), float(np.max(np.hypot(*(body - body.mean(axis=0)).T)))
+    out = set()
+    for box in boxes:
+        if math.hypot(box.x - centre[0], box.y - centre[1]) > reach + math.hypot(box.length_m, box.width_m) / 2:
+            continue  # the circles around the two footprints do not meet
+        corners = rectangle_corners(box.x, box.y, box.yaw, box.length_m / 2, box.length_m / 2, box.width_m / 2)
+        if convex_gap(body, corners) <= 0.0:
+            out.add(box.name)
     return out

@@ -130,7 +130,53 @@ def test_on_a_bus_the_writes_are_logging_in_users_and_the_commands(vehicle):
         ("/api/v1/vehicles/{vehicle_id}/mission", "post"),
         ("/api/v1/vehicles/{vehicle_id}/mission/{action}", "post"),
         ("/api/v1/vehicles/{vehicle_id}/body", "post"),
+        ("/api/v1/vehicles/{vehicle_id}/snapshots", "post"),
     }
+
+
+def test_an_operator_asks_this_vehicles_recorder_for_a_snapshot(run_config, tmp_path):
+    """POST /vehicles/{id}/snapshots publishes the operator's request on recording/snapshot_request
+    (the recorder's `snapshot` event then lists the file: tests/test_pages_stack.py); 409 where the
+    vehicle keeps no snapshots."""
+    clock, network = ManualClock(), MemoryNetwork()
+    api_bus, feed = network.bus("api", clock), network.bus("test", clock)
+    asked = feed.subscribe("recording/snapshot_request", queue=10)
+    store = open_test_store(tmp_path / "bb.sqlite")
+    key = load_command_key(config.core(with_command_key(run_config, tmp_path)).commands)
+
+    def publish(request) -> None:
+        api_bus.publish("recording/snapshot_request", request)
+
+    app = create_app(
+        store, api_settings(), VEHICLE_ID, clock, call=api_bus.call, command_key=key, request_snapshot=publish
+    )
+    add_role_users(store, app)
+    client = TestClient(app)
+    tokens = {role: token_for(client, role) for role in ("operator", "auditor", "fleet")}
+    url = f"/api/v1/vehicles/{VEHICLE_ID}/snapshots"
+    clock.set(42.5)
+    r = client.post(url, json={"reason": "a kerb too close"}, headers=auth(tokens["operator"]))
+    assert r.status_code == 202 and r.json()["accepted"] and r.json()["operator"] == "operator", r.text
+    [(_, request)] = asked.drain()
+    assert (request.requested_by, request.reason, request.request_id, request.t) == (
+        "operator",
+        "a kerb too close",
+        r.json()["request_id"],
+        42.5,
+    )
+    for role in ("auditor", "fleet"):
+        assert client.post(url, json={}, headers=auth(tokens[role])).status_code == 403
+    assert client.post(url, json={}).status_code == 401
+    foreign = client.post("/api/v1/vehicles/shuttle99/snapshots", json={}, headers=auth(tokens["operator"]))
+    assert foreign.status_code == 404
+    too_long = client.post(url, json={"reason": "x" * 201}, headers=auth(tokens["operator"]))
+    assert too_long.status_code == 422
+    assert client.post(url, json={"why": "?"}, headers=auth(tokens["operator"])).status_code == 422
+    assert asked.drain() == []  # none of them asked
+    off = create_app(store, api_settings(), VEHICLE_ID, clock, call=api_bus.call, command_key=key)
+    refused = TestClient(off).post(url, json={}, headers=auth(tokens["operator"]))
+    assert refused.status_code == 409 and "keeps no incident snapshots" in refused.json()["reason"]
+    store.close()
 
 
 def test_without_a_bus_the_commands_are_not_offered(tmp_path):

@@ -286,15 +286,17 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
     # the production limits are the store-only run's to prove; here the limits are out of the way
     # and the pace faster, so that this run costs the test command less
     settings = api_settings(state_dir=str(tmp_path / "state"))
+    api_bus = network.bus("api", clock)
     app = create_app(
         store,
         settings,
         VEHICLE_ID,
-        call=network.bus("api", clock).call,
+        call=api_bus.call,
         live=LiveHub(LiveSettings()),
         route=route_view(config.core(cfg)),
         command_key=load_command_key(config.core(cfg).commands),
         snapshots_dir=tmp_path / "snapshots",
+        request_snapshot=lambda request: api_bus.publish("recording/snapshot_request", request),
     )
     add_role_users(store, app)
     try:
@@ -309,7 +311,7 @@ def test_the_api_in_a_vehicles_stack_as_its_schema_says(tmp_path, seeded, run_co
                 for p in paths
                 if p.startswith("/api/v1/vehicles/{vehicle_id}/") and any(m == "post" for m in paths[p])
             ]
-            assert len(commands) == 4 and "/api/v1/route" in paths
+            assert len(commands) == 5 and "/api/v1/route" in paths  # and an operator's snapshot request
             run = schemathesis(
                 tmp_path,
                 f"{base}/openapi.json",

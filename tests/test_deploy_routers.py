@@ -200,10 +200,13 @@ def test_a_vehicle_reaches_the_fleet_only_under_its_own_id(deployment):
 def test_the_fleet_calls_only_its_services(deployment):
     router, _ = deployment.vehicle_router("shuttle01")
     assert _linked(router, LINK_WAIT_S)
-    supervisor, movement, mission, api, observer = (
-        deployment.login(user) for user in ("supervisor", "movement_manager", "mission_manager", "api", "observer")
+    supervisor, movement, mission, api, recorder, observer = (
+        deployment.login(user)
+        for user in ("supervisor", "movement_manager", "mission_manager", "api", "blackbox", "observer")
     )
     supervisor.declare_queryable("ares/shuttle01/srv/supervisor/status", lambda q: q.reply(q.key_expr, b"status"))
+    for copying in ("blackbox/snapshots", "blackbox/snapshot_part"):
+        recorder.declare_queryable(f"ares/shuttle01/srv/{copying}", lambda q: q.reply(q.key_expr, b"snapshot"))
     movement.declare_queryable("ares/shuttle01/srv/movement/rearm", lambda q: q.reply(q.key_expr, b"rearmed"))
     commands = ("mission/goal", "mission/pause", "mission/resume", "mission/cancel")
     for command in commands:
@@ -219,6 +222,8 @@ def test_the_fleet_calls_only_its_services(deployment):
     while not call("supervisor/status") and time.monotonic() < deadline:
         time.sleep(0.1)
     assert call("supervisor/status") == [b"status"]
+    # the fleet copies the incident snapshots (blackbox/fleet/snapshot_copy.py)
+    assert call("blackbox/snapshots") == [b"snapshot"] and call("blackbox/snapshot_part") == [b"snapshot"]
     assert call("movement/rearm") == []  # re-arming is for someone at the vehicle
     # the fleet's credentials start no mission, nor pause, resume or cancel one (the vehicle's API,
     # through the same router, is answered: the services are there)

@@ -185,3 +185,68 @@ def test_scenarios_load_and_a_bad_one_says_what_is_wrong(tmp_path):
         load_scenario(str(bad))
     with pytest.raises(ConfigError, match="unknown scenario 'nope'"):
         load_scenario("nope")
+
+
+def test_the_simulator_reports_a_collision_once_per_contact(tmp_path):
+    """A crate on the path: the `collision` event (a fault: an incident snapshot's trigger) when the body
+    first touches it, none while it stays in contact, one more after it has left and come back."""
+    from ares.app import run_config as stack_config
+    from ares.core.clock import ManualClock
+    from ares.core.membus import MemoryNetwork
+    from ares.core.messages import VehicleTruth
+    from ares.core.route import load_route
+    from simulator.lidar_node import LidarSimulator
+
+    scenario = tmp_path / "crate.yaml"
+    scenario.write_text(
+        "name: crate_on_the_path\ndescription: a crate in the lane\n"
+        "obstacles:\n  - {name: crate1, kind: crate, path: [{s: 100.0}]}\n"
+    )
+    cfg = stack_config.build(
+        overrides={
+            "scenario": str(scenario),
+            "lidar_sim": {"azimuth_decimation": 16},
+            "bus": {"router": "tcp/127.0.0.1:1"},
+        }
+    )
+    clock, network = ManualClock(), MemoryNetwork()
+    node = LidarSimulator(cfg, clock=clock, bus=network.bus("lidar_sim", clock))
+    node.setup()
+    route = load_route(node.core)
+    bus = network.bus("test", clock)
+    events = bus.subscribe("events", queue=100)
+    bumper = node.vehicle.front_bumper_m
+
+    def at(t: float, s_bumper: float) -> None:  # the truth with the front bumper at s_bumper
+        clock.set(t)
+        x, y, z, yaw = route.point_at(s_bumper - bumper)
+        bus.publish(
+            "sim/truth",
+            VehicleTruth(
+                t=t,
+                x=x,
+                y=y,
+                z=z,
+                yaw=yaw,
+                v=1.2,
+                steering_wheel_deg=0.0,
+                wheel_angle_rad=0.0,
+                s=s_bumper - bumper,
+                odometer_m=0.0,
+            ),
+        )
+        node.step_once(t)
+
+    def collisions() -> list:
+        return [e for _, e in events.drain() if e.kind == "collision"]
+
+    at(0.1, 95.0)  # short of the crate
+    assert collisions() == []
+    at(0.2, 100.0)  # the bumper in the crate
+    hit = collisions()
+    assert [e.data["obstacle"] for e in hit] == ["crate1"] and hit[0].level == "fault", hit
+    at(0.3, 100.1)  # still touching: no second event
+    assert collisions() == []
+    at(0.4, 90.0)  # backed away, then in again: a new contact
+    at(0.5, 100.0)
+    assert [e.data["obstacle"] for e in collisions()] == ["crate1"]

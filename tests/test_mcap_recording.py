@@ -21,6 +21,7 @@ from ares.core import config
 from ares.core.clock import ManualClock
 from ares.core.membus import MemoryNetwork
 from ares.core.messages import ClockDone, ClockTick, OccupancyGrid, PointCloud, Pose
+from ares.core.node import Input, Node
 from ares.core.route import load_route
 from managers.path_node import PathManager
 
@@ -323,3 +324,44 @@ def test_the_command_line_lists_and_replays_a_recording(tmp_path, cfg, route, ca
     assert main(["replay", str(path), "--node", "no_such_process"]) == 1
     assert "unknown process" in capsys.readouterr().err
     assert main(["replay", str(tmp_path / "missing.mcap")]) == 1
+
+
+class _TwoInputs(Node):
+    """A node that says which pose and which car state it latched: its outputs tell the latchings apart."""
+
+    name = "two_inputs"
+    rate = 20.0
+    pose = Input("localization/pose")
+    car = Input("dbw/car_state")
+
+    def step(self, now: float) -> None:
+        pose, car = self.pose.latest, self.car.latest
+        self.event("latched", f"pose {pose and pose.t} car {car and car.t}")
+
+
+def test_a_step_that_latched_the_topics_in_another_order_than_the_recorder_heard_is_found(cfg, route):
+    """The recorder heard a pose, then a car state; the node latched the car state but not the
+    pose (it reached the node after the step): no prefix of the arrival order explains the step,
+    a prefix of each topic's does, and the pose is left to the next step."""
+    from ares.core.messages import CarState, DriveMode
+    from ares.core.replay import LatchedInput, NodeReplay, ReplayResult
+    from ares.core.schema import encode_json
+
+    def car(t: float) -> CarState:
+        return CarState(
+            t=t, mode=DriveMode.AUTOMATIC, engaged=True, watchdog_tripped=False, setpoint_age_s=0.02,
+            v_command=2.0, kappa_command=0.0, speed_mps=2.0, steering_wheel_deg=0.0,
+        )  # fmt: skip
+
+    pose = LatchedInput("localization/pose", encode_json(pose_on(route, 5.0, 0.04)))
+    state = LatchedInput("dbw/car_state", encode_json(car(0.04)))
+
+    def engine() -> NodeReplay:
+        one = NodeReplay(_TwoInputs, cfg, "two_inputs", ReplayResult(node="two_inputs", steps=0, outputs=0))
+        one.set_up()
+        return one
+
+    expected = engine().step(0.05, [state])  # what the node published in the run: the car state alone
+    searched = engine().step_latching_a_prefix(0.05, [pose, state], 2, expected)
+    assert searched.outputs == expected and searched.per_topic and searched.left == [pose]
+    assert searched.latched == 1 and not searched.undecided

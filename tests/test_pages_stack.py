@@ -27,7 +27,7 @@ import pytest
 from ares.core.bus import Bus
 from ares.core.clock import WallClock
 from ares.core.localhost import free_port, stop_process
-from ares.core.messages import LidarFault, SnapshotRequest
+from ares.core.messages import LidarFault
 from ares.tools.bench.live import BrowserCalmer, chromium_path
 from blackbox.api.credentials import Argon2Settings, Passwords, add_user
 from blackbox.register.store.sqlite_store import SqliteStore
@@ -270,6 +270,11 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     wait_for(rearmed, 30, "the re-arm confirmed", step_s=1.0)
     assert field(pg, "movement.latched") == "false"
     wait_for_the_shuttle(stack, lambda: truth.latest.v > 0.5, 30, "the shuttle moving after the re-arm")
+    # the operator's snapshot: confirmed on the page by the recorder's event that lists the file
+    pg.click("[data-command=snapshot]")
+    wait_for(lambda: pg.get_attribute("#command-status", "data-state") == "confirmed", 30, "the snapshot saved")
+    listed = auditor.get(f"/vehicles/{VEHICLE}/snapshots").json()["snapshots"]
+    assert any("operator page" in s["message"] and s["available"] for s in listed), listed
     shot(pg, "operator")
     assert not [p for p in pg.problems if "favicon" not in p], pg.problems
 
@@ -283,14 +288,19 @@ def test_the_auditor_exports_the_window_the_rest_api_returns(page, stack):
     assert "auditor role" in pg.inner_text("#refused") and pg.locator("#app").is_hidden()
     pg.click("#logout")
     pg.wait_for_selector("#login:not([hidden])")
-    # an operator asks for a snapshot (`ares snapshot`): the recorder saves it, the black box lists it
-    asked = SnapshotRequest(t=stack["truth"].latest.t, requested_by="operator1", reason="page test", request_id="pg1")
+    # an operator asks for a snapshot through the API: the recorder saves it, the black box lists it
     events = stack["bus"].subscribe("events", queue=1000)
-    stack["bus"].publish("recording/snapshot_request", asked)
+    operator = rest(stack, "operator1")
+    foreign = operator.post("/vehicles/shuttle99/snapshots", json={"reason": "page test"})
+    assert foreign.status_code == 404, foreign.text  # another vehicle's recorder is not this API's to ask
+    asked = operator.post(f"/vehicles/{VEHICLE}/snapshots", json={"reason": "page test"})
+    assert asked.status_code == 202 and asked.json()["operator"] == "operator1", asked.text
+    assert rest(stack, "auditor1").post(f"/vehicles/{VEHICLE}/snapshots", json={}).status_code == 403
+    wanted = asked.json()["request_id"]
     saved = []
     wait_for(
         lambda: (
-            saved.extend(e for _, e in events.drain() if e.kind == "snapshot" and e.data["request_id"] == "pg1")
+            saved.extend(e for _, e in events.drain() if e.kind == "snapshot" and e.data["request_id"] == wanted)
             or saved
         ),
         30,

@@ -95,6 +95,11 @@ def test_each_triggering_event_is_covered_by_one_snapshot_of_the_seconds_around_
         expected = [item for item in sent if cause_t - 4.0 <= item[0] <= end]
         assert got == expected  # every message of the window, the sweeps given back exactly
         assert announced.data["messages"] >= len(expected)
+        file = tmp_path / str(announced.data["file"])  # the fleet's copy is checked against its digest
+        assert (
+            announced.data["sha256"] == snapshot_files.sha256_of(file)
+            and announced.data["bytes"] == file.stat().st_size
+        )
     channels = {c["topic"]: c for c in mcap_replay.info(tmp_path / str(heard[0].data["file"]))["channels"]}
     assert channels[f"ares/{cfg['vehicle_id']}/lidar/roof/points"]["message_encoding"] == "ares.cloud-grid"
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(str(e.data["file"]) for e in heard)
@@ -166,6 +171,7 @@ def test_a_full_disk_is_a_clear_failure_and_leaves_no_half_written_file(small_di
         ("awareness", {"level_from": 1, "level_to": 0}, False),
         ("controller_switch", {"from": "mpc", "to": "stop"}, True),
         ("controller_switch", {"from": "mpc", "to": "rrc"}, False),
+        ("collision", {"obstacle": "crate1", "obstacle_kind": "crate"}, True),  # the simulator's
         ("controlled_stop", {}, False),
         ("snapshot", {"file": "x.mcap"}, False),
     ],
@@ -277,7 +283,7 @@ def test_a_snapshot_not_in_the_black_box_or_no_longer_kept_is_not_served(api):
     # the file of another vehicle, asked for as this vehicle's: its event is not this vehicle's
     assert client.get(f"/api/v1/vehicles/{VEHICLE}/snapshots/theirs.mcap", headers=h).status_code == 404
     gone = client.get(f"/api/v1/vehicles/{VEHICLE}/snapshots/gone.mcap", headers=h)
-    assert gone.status_code == 404 and "no longer kept" in gone.json()["detail"]
+    assert gone.status_code == 404 and "not kept here" in gone.json()["detail"]
     assert client.get(f"/api/v1/vehicles/{VEHICLE}/snapshots/..%2Fblackbox.sqlite", headers=h).status_code in (
         404,
         422,

@@ -217,6 +217,7 @@ def _report_node(path: str, result, seconds: float, as_json: bool) -> int:
                     "mismatches": len(result.mismatches),
                     "searched_steps": result.searched_steps,
                     "latched_otherwise": result.latched_otherwise,
+                    "latched_per_topic": getattr(result, "latched_per_topic", 0),
                     "undecided": result.undecided,
                     "unrecorded_steps": getattr(result, "unrecorded_steps", 0),
                     "first_mismatches": [str(m) for m in result.mismatches[:5]],
@@ -228,6 +229,11 @@ def _report_node(path: str, result, seconds: float, as_json: bool) -> int:
         print(
             f"{path}: {result.node}, {result.steps} steps, {result.outputs} outputs: identical "
             f"({result.latched_otherwise} of {result.searched_steps} steps latched otherwise than the recorder heard"
+            + (
+                f", {result.latched_per_topic} of them in another order of topics"
+                if getattr(result, "latched_per_topic", 0)
+                else ""
+            )
             + (
                 f"; {result.unrecorded_steps} at the end not compared: "
                 "the recording stopped before the node reported them"

@@ -50,6 +50,7 @@ class BusMessage(Protocol):
 class BusReplayResult(ReplayResult):
     searched_steps: int = 0  # steps with inputs since the previous one: which of them it latched was searched
     latched_otherwise: int = 0  # of them, steps that latched more or fewer than had reached the recorder at the tick
+    latched_per_topic: int = 0  # ... of those, steps that latched no prefix of the arrival order, but of each topic's
     undecided: int = 0  # searched steps whose node state could not be copied to try the alternatives
     unrecorded_steps: int = 0  # steps the recording ended before the node reported done: replayed, not compared
 
@@ -250,10 +251,12 @@ class _LockstepSteps:
             self.result.searched_steps += 1
             if step.undecided:
                 self.result.undecided += 1
-            elif step.latched != len(before):
+            elif step.latched != len(before) or step.per_topic:
                 self.result.latched_otherwise += 1
+            if step.per_topic:
+                self.result.latched_per_topic += 1
         # reached the node after this step latched: the next step's, most likely
-        self.timeline = [("in", rec) for rec in window[step.latched :]] + self.timeline
+        self.timeline = [("in", rec) for rec in step.left] + self.timeline
         self.matcher.stepped(t, step.outputs)
         for message in expected:
             self.matcher.expect(t, message)

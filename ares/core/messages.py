@@ -860,3 +860,47 @@ class AcknowledgementReply(Msg):
     acknowledged_epoch_s: int | None = None
     oldest_held_epoch_s: int | None = None
     refused: str = ""
+
+
+# an incident snapshot's file name (blackbox/register/snapshot_files.py)
+SNAPSHOT_NAME = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,150}\.mcap"
+SNAPSHOT_PART_MAX_BYTES = 1 << 20
+
+
+class SnapshotListRequest(Msg):
+    """The fleet asks a vehicle which incident snapshots it keeps."""
+
+
+class KeptSnapshot(BaseModel):
+    """A snapshot's file as the vehicle keeps it, and the `snapshot` event that lists it."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    name: str = Field(pattern=f"^{SNAPSHOT_NAME}$")
+    size_bytes: int = Field(ge=0)
+    event: StoredEvent
+
+
+class SnapshotList(Msg):
+    """The snapshots a vehicle keeps: those its black box lists (newest first, at most a hundred)."""
+
+    snapshots: list[KeptSnapshot] = Field(default_factory=list)
+
+
+class SnapshotPartRequest(Msg):
+    """The bytes [offset, offset + max_bytes) of a snapshot's file."""
+
+    name: str = Field(pattern=f"^{SNAPSHOT_NAME}$")
+    offset: int = Field(ge=0)
+    max_bytes: int = Field(gt=0, le=SNAPSHOT_PART_MAX_BYTES)
+
+
+class SnapshotPart(BulkMsg):
+    """A piece of a snapshot's file from `offset`, and the file's whole size; `missing`: the
+    vehicle keeps no such file (gone with the retention, or never one)."""
+
+    name: str
+    offset: int = Field(ge=0)
+    size_bytes: int = Field(ge=0)
+    missing: bool = False
+    data: Annotated[np.ndarray, Array("u1", doc="the file's bytes from offset")]

@@ -23,6 +23,7 @@ within `REL_TOL`). Two kinds of recording feed it:
 from __future__ import annotations
 
 import gzip
+import itertools
 import logging
 import math
 import zlib
@@ -117,8 +118,16 @@ class SearchedStep:
     """A step replayed not knowing which of its candidate inputs it latched (NodeReplay.step_latching_a_prefix)."""
 
     outputs: Published
-    latched: int  # how many of the candidates (a prefix) the kept try latched
+    latched: int  # how many of the candidates the kept try latched
     undecided: bool  # the node's state could not be copied: only the likely prefix was tried
+    left: list[Any] = field(default_factory=list)  # the candidates it did not latch, in their order
+    per_topic: bool = False  # what it latched was not a prefix of the arrival order, but of each topic's
+
+
+# a step no prefix explains tries at most this many latchings of a prefix of each topic's candidates,
+# chosen among at most PER_TOPIC_SPACE of them (beyond: a node of many inputs, no such search)
+PER_TOPIC_TRIES = 64
+PER_TOPIC_SPACE = 4096
 
 
 class NodeReplay:
@@ -183,16 +192,19 @@ class NodeReplay:
         """One step at `t` of a recording that does not say what it latched (one of the bus): a
         prefix of `candidates` (the inputs since the previous step, in order of arrival), most
         likely the first `likely`. Tried latching those, then all, then fewer, then more, the
-        node's state put back between tries; the first try that publishes `expected` is kept, or,
-        if none does, the likely one (whose mismatches `compare` then reports). What the kept try
-        did not latch is the caller's: the next step's, most likely."""
+        node's state put back between tries; the first try that publishes `expected` is kept.
+        If none does, the inputs of several topics may have reached the node in another order
+        than the recorder (each topic's own order holds: one publisher, one key): a prefix of each
+        topic's candidates, nearest the likely ones first, at most PER_TOPIC_TRIES of them. If
+        none does either, the likely prefix is kept (its mismatches `compare` then reports). What
+        the kept try did not latch is the caller's: the next step's, most likely."""
         if not candidates:
             return SearchedStep(self.step(t), 0, undecided=False)
         try:
             state = self.node.copy_state()
         except Exception:  # a state that cannot be copied (a solver's handle): the likely ones
             self.deliver(candidates[:likely])
-            return SearchedStep(self.step(t), likely, undecided=True)
+            return SearchedStep(self.step(t), likely, undecided=True, left=list(candidates[likely:]))
         tries = dict.fromkeys(
             [likely, len(candidates), *range(likely - 1, -1, -1), *range(likely + 1, len(candidates))]
         )
@@ -201,10 +213,18 @@ class NodeReplay:
             outputs = self._step(t)
             if not _mismatches(0, t, expected, outputs, self.ignores):
                 self.result.steps += 1
-                return SearchedStep(outputs, latched, undecided=False)
+                return SearchedStep(outputs, latched, undecided=False, left=list(candidates[latched:]))
+            self.node.restore_state(state)
+        for chosen in _per_topic_latchings(candidates, likely):
+            self.deliver([c for i, c in enumerate(candidates) if i in chosen])
+            outputs = self._step(t)
+            if not _mismatches(0, t, expected, outputs, self.ignores):
+                self.result.steps += 1
+                left = [c for i, c in enumerate(candidates) if i not in chosen]
+                return SearchedStep(outputs, len(chosen), undecided=False, left=left, per_topic=True)
             self.node.restore_state(state)
         self.deliver(candidates[:likely])
-        return SearchedStep(self.step(t), likely, undecided=False)
+        return SearchedStep(self.step(t), likely, undecided=False, left=list(candidates[likely:]))
 
     def compare(self, t: float | None, expected: Published, got: Published) -> None:
         """A recorded step's outputs against the replayed ones (t None: the set-up's), into the
@@ -220,6 +240,32 @@ class NodeReplay:
         self.deliver(inputs)
         self.node.step_once(t)
         return self.published()
+
+
+def _per_topic_latchings(candidates: Sequence[RecordedInput], likely: int) -> list[set[int]]:
+    """The latchings that take a prefix of each topic's candidates and are no prefix of them all,
+    as sets of indices: those that differ least from the likely prefix first, at most
+    PER_TOPIC_TRIES (none where there are more than PER_TOPIC_SPACE)."""
+    by_topic: dict[str, list[int]] = {}
+    for i, candidate in enumerate(candidates):
+        by_topic.setdefault(candidate.topic, []).append(i)
+    if len(by_topic) < 2:
+        return []
+    topics = list(by_topic)
+    if math.prod(len(by_topic[topic]) + 1 for topic in topics) > PER_TOPIC_SPACE:
+        return []
+    likely_counts = [sum(1 for i in by_topic[topic] if i < likely) for topic in topics]
+    counts = itertools.product(*(range(len(by_topic[topic]) + 1) for topic in topics))
+    ranked = sorted(counts, key=lambda ks: sum(abs(k - k0) for k, k0 in zip(ks, likely_counts, strict=True)))
+    out = []
+    for ks in ranked:
+        chosen = {i for topic, k in zip(topics, ks, strict=True) for i in by_topic[topic][:k]}
+        if chosen == set(range(len(chosen))):  # a prefix of the arrival order: tried already
+            continue
+        out.append(chosen)
+        if len(out) == PER_TOPIC_TRIES:
+            break
+    return out
 
 
 def replay(

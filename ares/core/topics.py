@@ -173,6 +173,18 @@ SERVICE_TABLE: list[Service] = [
         "the fleet's store holds every second of the vehicle up to a mark: the vehicle's purge may go that far",
     ),
     Service(
+        "blackbox/snapshots",
+        m.SnapshotListRequest,
+        m.SnapshotList,
+        "the incident snapshots the vehicle keeps, with their events: the fleet copies those it lacks",
+    ),
+    Service(
+        "blackbox/snapshot_part",
+        m.SnapshotPartRequest,
+        m.SnapshotPart,
+        "a piece of a snapshot's file: the fleet's copy goes on from where it stopped",
+    ),
+    Service(
         "mission/body",
         m.BodyRequest,
         m.MissionReply,

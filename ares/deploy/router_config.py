@@ -39,15 +39,17 @@ ROUTER_PORT = 7447  # TLS: vehicles to the fleet
 LOCAL_PORT = 7448  # TCP: a host's own processes to its router
 LEASE_MS = 2000  # as the stack's bus.lease_ms: a cut link is noticed within it
 
-# the services the fleet may call on a vehicle: its state and the black-box seconds a lost link kept
-# from the fleet's store. No command: every process holding the fleet's Zenoh password (the
-# network-facing fleet API among them) would otherwise send any shuttle driving; a mission's goal,
-# pause, resume and cancel, the re-arm, the doors, automatic mode and the simulator are the vehicle's
-# own API's, for an operator it has authenticated
+# the services the fleet may call on a vehicle: its state, the black-box seconds a lost link kept
+# from the fleet's store and the incident snapshots it copies. No command: every process holding
+# the fleet's Zenoh password (the network-facing fleet API among them) would otherwise send any
+# shuttle driving; a mission's goal, pause, resume and cancel, the re-arm, the doors, automatic mode
+# and the simulator are the vehicle's own API's, for an operator it has authenticated
 FLEET_SERVICES = (
     "supervisor/status",
     "blackbox/records",
     "blackbox/acknowledge",
+    "blackbox/snapshots",
+    "blackbox/snapshot_part",
 )
 
 PUBLISH = ["put", "delete", "liveliness_token", "declare_queryable", "reply"]

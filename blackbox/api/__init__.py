@@ -52,6 +52,7 @@ Endpoints, all under /api/v1 (roles: ROLES_* in dependencies.py):
     POST /vehicles/{id}/mission                    operator (a goal: POIs, or a drive)
     POST /vehicles/{id}/mission/{pause|resume|cancel}              operator
     POST /vehicles/{id}/body                       operator (doors, ramp)
+    POST /vehicles/{id}/snapshots                  operator (an incident snapshot now, published to the recorder)
     GET  /live/vehicles/{id}                       operator, auditor (Server-Sent Events)
     GET  /live/fleet                               fleet, operator, auditor (Server-Sent Events)
     GET  /fleet                                    fleet, operator, auditor (the same, once)

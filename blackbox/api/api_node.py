@@ -29,7 +29,7 @@ import numpy as np
 
 from ares.core import config
 from ares.core.messages import EventLevel
-from ares.core.node import AsyncNode
+from ares.core.node import AsyncNode, Output
 from ares.core.route import RouteError, load_route
 from ares.core.signed_command import load_command_key
 from blackbox.api import PREFIX, ApiSettings, create_app, uvicorn_config
@@ -105,6 +105,10 @@ class ApiServer(AsyncNode):
     sections = {"blackbox_store": StoreSettings}
     # an operator's re-arm, mission and body commands (blackbox/api/routes/commands.py)
     calls = ("movement/rearm", "mission/goal", "mission/pause", "mission/resume", "mission/cancel", "mission/body")
+    # an operator's request for an incident snapshot (POST /vehicles/{id}/snapshots), to the recorder
+    snapshot_requests: Output | None = Output(
+        "recording/snapshot_request", doc="an operator asks for an incident snapshot"
+    )
     # the live gateway's view of every vehicle on the router (blackbox/console/live_hub.py), for the pages
     fleet_inputs = tuple(GATEWAY_TOPICS)
 
@@ -140,6 +144,9 @@ class ApiServer(AsyncNode):
             route=route_view(self.core),
             command_key=load_command_key(self.core.commands),
             snapshots_dir=snapshot_files.folder(self.core.recording.snapshots, self.shared["blackbox_store"]),
+            request_snapshot=self.snapshot_requests.put
+            if self.core.recording.snapshots.enabled and self.snapshot_requests is not None
+            else None,
         )
 
     async def serve(self) -> None:
@@ -204,6 +211,7 @@ class FleetApiServer(ApiServer):
 
     name = "fleet_api"
     calls = ()
+    snapshot_requests = None  # a snapshot is asked of the vehicle's own API
     # and each vehicle's black-box seconds: a vehicle is heard at least once a second, whatever it runs
     fleet_inputs = (*GATEWAY_TOPICS, "blackbox/record")
 
@@ -215,4 +223,12 @@ class FleetApiServer(ApiServer):
         return frozenset({self.core.vehicle_id})  # the fleet server's own processes: their events only
 
     def make_app(self):
-        return create_app(self.store, self.params, self.core.vehicle_id, self.clock, live=self.live)
+        return create_app(
+            self.store,
+            self.params,
+            self.core.vehicle_id,
+            self.clock,
+            live=self.live,
+            # the vehicles' snapshots as the fleet's black box copies them (a folder per vehicle)
+            snapshots_dir=snapshot_files.folder(self.core.recording.snapshots, self.shared["blackbox_store"]),
+        )

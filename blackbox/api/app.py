@@ -39,12 +39,15 @@ def create_app(
     route: dict | None = None,
     command_key: bytes | None = None,
     snapshots_dir: Path | None = None,
+    request_snapshot: Callable[[Any], None] | None = None,
 ) -> FastAPI:
     """The API over `store`, serving the black box of `vehicle_id` (whose events the API's own events
     are; stack time from `clock`); `call`: the stack's services on its bus (blocking; the command
     routes run it in a thread); `live`: the bus state for the pages; `route`: the vehicle's route
     for their maps; `command_key`: the vehicle's, with which the command routes sign each command
-    (needed with `call`). Holds no global state: tests build as many as they like."""
+    (needed with `call`); `request_snapshot`: publishes an operator's SnapshotRequest to the
+    vehicle's recorder (None: the vehicle keeps no snapshots). Holds no global state: tests build
+    as many as they like."""
     sdir = state_dir(settings, store)
     services = Services(
         repository=Repository(store, settings.limits, vehicle_id, (clock or Clock.from_env()).now),
@@ -60,6 +63,7 @@ def create_app(
         live=live,
         route=route,
         snapshots=snapshots_dir,
+        request_snapshot=request_snapshot,
     )
 
     app = FastAPI(

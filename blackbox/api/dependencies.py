@@ -54,6 +54,9 @@ class Services:
     live: LiveHub | None = None  # the live gateway (None outside a stack: its routes answer 503)
     route: dict | None = None  # the vehicle's route for the maps (None outside a stack)
     snapshots: FilePath | None = None  # where the incident snapshots' files are (None: none served)
+    # an operator's request for an incident snapshot, onto the vehicle's bus (recording/snapshot_request);
+    # None where the vehicle keeps no snapshots (recording.snapshots.enabled false) or outside a stack
+    request_snapshot: Callable[[Any], None] | None = None
 
 
 # ---- authentication ------------------------------------------------------------------------------

@@ -199,6 +199,8 @@ class LiveHub:
                         "kind": msg.kind,
                         "level": msg.level.value if hasattr(msg.level, "value") else str(msg.level),
                         "message": msg.message,
+                        # a snapshot's event answers the request that asked for it (the operator page)
+                        "request_id": str((msg.data or {}).get("request_id", "")),
                     }
                 )
                 return

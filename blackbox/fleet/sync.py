@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 
 from ares.core.config import param
+from ares.core.messages import SNAPSHOT_PART_MAX_BYTES
 from blackbox.register.recorder import StoreWriterParams
 from blackbox.register.store.record_store import RETENTION
 
@@ -61,6 +62,17 @@ class FleetSyncParams(StoreWriterParams):
     refusal_report_s: float = param(
         60.0, "refused messages of one vehicle and cause are reported as one event at most this often", unit="s", gt=0
     )
+    snapshot_copy: bool = param(True, "copy each vehicle's incident snapshots into the fleet's snapshots folder")
+    snapshot_bytes_per_s: float = param(
+        1.0e6, "the copies' average bandwidth, all vehicles together (1 MB/s: 8 Mbit/s)", unit="B/s", gt=0
+    )
+    snapshot_part_bytes: int = param(
+        256 * 1024, "bytes asked for in one piece of a copy", unit="B", gt=0, le=SNAPSHOT_PART_MAX_BYTES
+    )
+    snapshot_list_every_s: float = param(
+        30.0, "each reachable vehicle is asked which snapshots it keeps this often (wall)", unit="s", gt=0
+    )
+    snapshot_retry_s: float = param(5.0, "a copy the link stopped is tried again after this (wall)", unit="s", gt=0)
 
 
 @dataclass

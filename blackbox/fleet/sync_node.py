@@ -18,6 +18,10 @@ its records until they are acknowledged deletes none that the fleet's store does
 Answers to the fleet's own requests are taken however old (the door's future bound still
 holds): a vehicle that kept a week of unacknowledged seconds gets them acknowledged.
 
+Incident snapshots are copied from every reachable vehicle into the fleet's snapshots folder, one
+folder per vehicle (blackbox/fleet/snapshot_copy.py: resumable, paced to a bandwidth), on a
+thread of their own; the events of those saved while the link was cut come with the listing.
+
 A vehicle's events carry its stack time; they are stored at the UTC time its records map that
 stack time to (before its first record, at the time they arrive). Events that a cut link kept
 from the fleet stay in the vehicle's own store: only records are filled in.
@@ -43,10 +47,12 @@ from ares.core.messages import (
     VehicleRecord,
 )
 from blackbox.fleet.door import Refusals, StampWindow, epoch_or_none
+from blackbox.fleet.snapshot_copy import SnapshotCopier
 from blackbox.fleet.sync import FleetLedger, FleetSyncParams, Reachability, epoch_of
+from blackbox.register import snapshot_files
 from blackbox.register.blackbox_node import BlackboxNode
 from blackbox.register.recorder import open_configured_store, store_uri, stored_event
-from blackbox.register.store.record_store import StoreSettings, StoreUnavailable
+from blackbox.register.store.record_store import RETENTION, StoreSettings, StoreUnavailable
 
 
 class FleetSync(BlackboxNode):
@@ -56,7 +62,7 @@ class FleetSync(BlackboxNode):
     Params = FleetSyncParams
     sections = {"blackbox_store": StoreSettings}
     fleet_inputs = ("blackbox/record", "events")
-    calls = ("blackbox/records", "blackbox/acknowledge")
+    calls = ("blackbox/records", "blackbox/acknowledge", "blackbox/snapshots", "blackbox/snapshot_part")
 
     def setup(self) -> None:
         p = self.params
@@ -79,6 +85,21 @@ class FleetSync(BlackboxNode):
         self.acknowledgements_withheld = 0  # the writer lost items before them: the range asked again
         self.asker = threading.Thread(target=self._ask_vehicles, name="fleet-backfill", daemon=True)
         self.asker.start()
+        self.snapshots_dir = snapshot_files.folder(self.core.recording.snapshots, settings)
+        self.snapshots_listed: set[tuple[str, str]] = self._snapshot_events_stored(settings)  # (vehicle, file)
+        self.copier: SnapshotCopier | None = None
+        if p.snapshot_copy:
+            self.copier = SnapshotCopier(
+                self.bus.call,
+                self.snapshots_dir,
+                bytes_per_s=p.snapshot_bytes_per_s,
+                part_bytes=p.snapshot_part_bytes,
+                list_every_s=p.snapshot_list_every_s,
+                retry_s=p.snapshot_retry_s,
+                timeout_s=p.backfill_timeout_s,
+                retention_days=self.core.recording.snapshots.retention_days,
+            )
+            threading.Thread(target=self.copier.run, name="fleet-snapshots", daemon=True).start()
         for topic in self.fleet_inputs:
             self.bus.subscribe_fleet(topic, self._arrived)
         self.log.info("fleet black box to %s", store_uri(settings))
@@ -106,6 +127,24 @@ class FleetSync(BlackboxNode):
                     self.log.warning("the newest second stored of %s is not taken as its newest: %s", vehicle_id, why)
         except StoreUnavailable as exc:
             self.log.warning("store unavailable at start (%s): gaps from before this start are not known", exc)
+        finally:
+            store.close()
+
+    def _snapshot_events_stored(self, settings: StoreSettings) -> set[tuple[str, str]]:
+        """The snapshots the fleet's store lists already (its `snapshot` events within the retention)."""
+        try:
+            store = open_configured_store(settings)
+        except StoreUnavailable:
+            return set()
+        try:
+            end = datetime.now(UTC)
+            return {
+                (vehicle_id, str((row.get("data") or {}).get("file", "")))
+                for vehicle_id in store.vehicles()
+                for row in store.events(vehicle_id, end - RETENTION, end, kinds=["snapshot"], limit=100_000)
+            }
+        except StoreUnavailable:
+            return set()
         finally:
             store.close()
 
@@ -138,6 +177,7 @@ class FleetSync(BlackboxNode):
         for ask in self.ledger.requests(wall):
             self.asks.put(ask)
         self._acknowledge(wall)
+        self._snapshots()
         for vehicle_id, cause, count, example in self.refusals.due(wall):
             self.event(
                 "fleet_record_refused",
@@ -165,6 +205,38 @@ class FleetSync(BlackboxNode):
             self.refusals.note(vehicle_id, "event time", f"an event at stack time {msg.t!r}: {why}")
             return
         self.submit(stored_event(vehicle_id, datetime.fromtimestamp(stamp, UTC), msg))
+        if msg.kind == "snapshot" and vehicle_id != self.core.vehicle_id:
+            self.snapshots_listed.add((vehicle_id, str(msg.data.get("file", ""))))
+            if self.copier is not None:
+                self.copier.soon(vehicle_id)
+
+    def _snapshots(self) -> None:
+        """The copier's news into the store: events of snapshots the store does not list yet (saved
+        while the link was cut), and its copies done or failed, in the vehicles' events."""
+        if self.copier is None:
+            return
+        self.copier.reachable = frozenset(v for v, ledger in self.ledger.vehicles.items() if ledger.reachable)
+        listings, copies = self.copier.take()
+        for vehicle_id, kept in listings:
+            if (vehicle_id, kept.name) not in self.snapshots_listed:
+                self.snapshots_listed.add((vehicle_id, kept.name))
+                self.submit(kept.event)
+        for copy in copies:
+            ledger = self.ledger.vehicle(copy.vehicle_id)
+            wall = self.wall()
+            stack_t = wall - ledger.utc_offset_s if ledger.utc_offset_s is not None else 0.0
+            self.submit(
+                StoredEvent(
+                    vehicle_id=copy.vehicle_id,
+                    time=datetime.fromtimestamp(wall, UTC),
+                    t=stack_t,
+                    source=self.name,
+                    kind=copy.kind,
+                    level=copy.level,
+                    message=copy.message,
+                    data=copy.data,
+                )
+            )
 
     def _answer(
         self, vehicle_id: str, records: list[VehicleRecord], oldest: int | None, complete_to: int | None, wall: float
@@ -315,4 +387,7 @@ class FleetSync(BlackboxNode):
         asks = getattr(self, "asks", None)
         if asks is not None:
             asks.put(None)
+        copier = getattr(self, "copier", None)
+        if copier is not None:
+            copier.stop()
         super().teardown()

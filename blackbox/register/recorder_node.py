@@ -17,6 +17,10 @@ retention while the fleet is away: every `unacknowledged_check_s` the recorder a
 records wait so, and says it (`blackbox_unacknowledged_kept`, a warning the awareness manager and
 the pages see) until the fleet's acknowledgement lets the purge take them; a disk that fills up
 meanwhile is the writer's fault event.
+
+The fleet also copies the incident snapshots the vehicle keeps: `blackbox/snapshots` lists them
+with their events (from the store), `blackbox/snapshot_part` answers a piece of one's file
+(blackbox.register.snapshot_answer).
 """
 
 from __future__ import annotations
@@ -37,9 +41,14 @@ from ares.core.messages import (
     EventLevel,
     RecordBatch,
     RecordRange,
+    SnapshotList,
+    SnapshotListRequest,
+    SnapshotPart,
+    SnapshotPartRequest,
     VehicleRecord,
 )
 from ares.core.node import Input, InputGroup, Output, service
+from blackbox.register import snapshot_files
 from blackbox.register.answer import answer_range, take_acknowledgement
 from blackbox.register.blackbox_node import BlackboxNode
 from blackbox.register.recorder import (
@@ -51,6 +60,7 @@ from blackbox.register.recorder import (
     store_uri,
     stored_event,
 )
+from blackbox.register.snapshot_answer import kept_snapshots, snapshot_part
 from blackbox.register.store.record_store import RecordStore, StoreSettings, StoreUnavailable
 
 
@@ -94,6 +104,7 @@ class Recorder(BlackboxNode):
         self.newest_recorded: int | None = None  # the newest second recorded (UTC epoch s)
         self.acknowledgements_refused = 0
         self.unacknowledged_check_at = self.clock.now()  # the first loop asks
+        self.snapshots_dir = snapshot_files.folder(self.core.recording.snapshots, self.store_settings)
         self.log.info(
             "recording %s to %s (spool %s)", self.vehicle_id, store_uri(self.store_settings), self.writer.spool.path
         )
@@ -201,6 +212,22 @@ class Recorder(BlackboxNode):
                 "the fleet's acknowledgement (%s refused so far): %s", self.acknowledgements_refused, reply.refused
             )
         return reply
+
+    @service("blackbox/snapshots")
+    def _snapshots(self, request: SnapshotListRequest) -> SnapshotList:
+        store = self._answer_store()
+        if store is None:
+            return SnapshotList(t=self.clock.now())
+        try:
+            return kept_snapshots(store, self.snapshots_dir, self.vehicle_id, request)
+        except StoreUnavailable as exc:
+            self.reader_retry_at = time.monotonic() + self.params.answer_store_retry_s
+            self.log.warning("the snapshots' list not read from the store: %s", exc)
+            return SnapshotList(t=self.clock.now())
+
+    @service("blackbox/snapshot_part")
+    def _snapshot_part(self, request: SnapshotPartRequest) -> SnapshotPart:
+        return snapshot_part(self.snapshots_dir, request)
 
     def _answer_store(self) -> RecordStore | None:
         """The answers' handle on the store, with reads bounded to answer_read_timeout_s; None

@@ -9,15 +9,17 @@ not of that form, so a request never reaches outside the folder.
 
 from __future__ import annotations
 
+import hashlib
 import re
 import time
 from datetime import datetime
 from pathlib import Path
 
 from ares.core.config import SnapshotSettings
+from ares.core.messages import SNAPSHOT_NAME
 from blackbox.register.store.record_store import StoreSettings, is_mongo
 
-NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,150}\.mcap")
+NAME = re.compile(SNAPSHOT_NAME)
 FOLDER_NAME = "snapshots"
 
 
@@ -45,13 +47,13 @@ def path_of(where: Path, name: str) -> Path:
     return where / name
 
 
-def prune(where: Path, retention_days: float, now: float | None = None) -> list[str]:
-    """Delete the snapshots older than the retention (by their files' times); their names."""
+def prune(where: Path, retention_days: float, now: float | None = None, pattern: str = "*.mcap") -> list[str]:
+    """Delete the snapshots (files of `pattern`) older than the retention (by their files' times); their names."""
     if not where.is_dir():
         return []
     limit = (time.time() if now is None else now) - retention_days * 86400
     gone = []
-    for path in sorted(where.glob("*.mcap")):
+    for path in sorted(where.glob(pattern)):
         try:
             if path.stat().st_mtime < limit:
                 path.unlink()
@@ -59,3 +61,12 @@ def prune(where: Path, retention_days: float, now: float | None = None) -> list[
         except OSError:  # removed meanwhile, or not ours to remove: left
             continue
     return gone
+
+
+def sha256_of(path: Path) -> str:
+    """The file's SHA-256 (hex): a snapshot's event carries it, the fleet's copy is checked against it."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            digest.update(chunk)
+    return digest.hexdigest()

@@ -265,6 +265,7 @@ class SnapshotKeeper:
                     recorder.write(item.log_time, item.topic, item.encoding, item.payload)
             finally:
                 recorder.close()
+            sha256 = snapshot_files.sha256_of(partial)
             partial.rename(path)
         except OSError as exc:
             partial.unlink(missing_ok=True)
@@ -303,6 +304,7 @@ class SnapshotKeeper:
                 "to_t": round(last, 6),
                 "messages": len(items),
                 "bytes": size,
+                "sha256": sha256,  # the fleet's copy is checked against it
                 "ring_short": pending.ring_short,
                 "request_id": pending.request_id,
             },

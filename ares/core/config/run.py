@@ -219,6 +219,7 @@ DEFAULT_SNAPSHOT_TRIGGERS = (
     SnapshotTrigger(kind="mode_change", where={"from": "AUTOMATIC", "to": "MANUAL"}),  # a manual takeover
     SnapshotTrigger(kind="awareness", where={"level_to": 1}, unless={"level_from": 1}),  # entering level 1
     SnapshotTrigger(kind="controller_switch", where={"to": "stop"}),
+    SnapshotTrigger(kind="collision"),  # the simulator's: the body touched an obstacle
 )
 
 

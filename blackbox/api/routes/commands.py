@@ -8,21 +8,25 @@ vehicle's bus, which checks the signature, decides and records the event with th
 | POST /vehicles/{id}/mission                | mission/goal (POIs, a drive)   |
 | POST /vehicles/{id}/mission/{action}       | mission/pause, resume, cancel  |
 | POST /vehicles/{id}/body                   | mission/body (doors, ramp)     |
+| POST /vehicles/{id}/snapshots              | recording/snapshot_request (published) |
+
+(a snapshot's request has no answer but the recorder's `snapshot` event that lists the file)
 
 The only way a person outside the vehicle reaches its services, and only with an operator's
 token (ARES §3.8: nothing outside may drive the vehicle: a goal, a pause, a re-arm are requests
 the managers may refuse). A refusal is answered 409 with the manager's reason.
 """
 
+import uuid
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi.responses import Response
-from pydantic import BaseModel, ConfigDict, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from starlette.concurrency import run_in_threadpool
 
 from ares.core.bus import ServiceError
-from ares.core.messages import BodyRequest, MissionGoal, MissionRequest, Msg, RearmRequest
+from ares.core.messages import BodyRequest, MissionGoal, MissionRequest, Msg, RearmRequest, SnapshotRequest
 from ares.core.signed_command import sign
 from blackbox.api.credentials import Claims
 from blackbox.api.dependencies import ROLES_COMMAND, Services, allow, vehicle_id_path
@@ -81,6 +85,18 @@ class BodyBody(BaseModel):
         if self.doors is None and self.ramp is None:
             raise ValueError("ask something of the doors or the ramp")
         return self
+
+
+class SnapshotBody(BaseModel):
+    """Why the operator asks for an incident snapshot (kept in the snapshot's event)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    reason: str = Field(default="", max_length=200)
+
+
+class SnapshotAsked(CommandReply):
+    request_id: str = Field(description="the `snapshot` event that lists the file carries it in its data")
 
 
 def command_responses(*codes: int) -> dict:
@@ -159,5 +175,30 @@ def build_router(services: Services) -> APIRouter:
     async def body(vehicle_id: VehicleId, asked: BodyBody, claims: Operator) -> Response:
         request = BodyRequest(operator=claims.name, doors=asked.doors, ramp=asked.ramp)
         return await forward(vehicle_id, "mission/body", request, claims.name, "mission manager")
+
+    @router.post(
+        "/vehicles/{vehicle_id}/snapshots",
+        response_model=SnapshotAsked,
+        status_code=202,
+        responses=command_responses(400, 401, 404, 409, 422),
+    )
+    async def snapshot(vehicle_id: VehicleId, asked: SnapshotBody, claims: Operator) -> Response:
+        if vehicle_id != services.vehicle_id:
+            raise HTTPException(
+                404, f"vehicle {vehicle_id!r} is not this API's: requests go to {services.vehicle_id!r} only"
+            )
+        body = {"operator": claims.name, "request_id": uuid.uuid4().hex[:12]}
+        if services.request_snapshot is None:
+            reason = "this vehicle keeps no incident snapshots (recording.snapshots.enabled is false)"
+            return json_response({**body, "accepted": False, "reason": reason}, 409)
+        request = SnapshotRequest(
+            t=services.repository.stack_time(),
+            requested_by=claims.name,
+            reason=asked.reason,
+            request_id=body["request_id"],
+        )
+        await run_in_threadpool(services.request_snapshot, request)
+        reason = "asked for: the black box lists the snapshot once its seconds after are saved"
+        return json_response({**body, "accepted": True, "reason": reason}, 202)
 
     return router

@@ -3,7 +3,9 @@ its file is still kept) and GET /vehicles/{id}/snapshots/{name} (the MCAP file, 
 
 An auditor reads any vehicle's; an operator only the vehicle whose API this is (the one it
 commands): another vehicle's snapshot is 403. A file is served only when the vehicle's black box
-holds the `snapshot` event that names it (the name alone, or a vehicle's id in it, proves nothing)."""
+holds the `snapshot` event that names it (the name alone, or a vehicle's id in it, proves nothing).
+A vehicle's files are in the snapshots folder; the fleet's copies of them in a folder per vehicle
+within it (blackbox/fleet/snapshot_copy.py), looked in first."""
 
 from collections.abc import Iterator
 from pathlib import Path as FilePath
@@ -72,7 +74,8 @@ def build_router(services: Services) -> APIRouter:
         entries = []
         for event in listed.pop("events"):
             name = str((event.get("data") or {}).get("file", ""))
-            entries.append({**event, "available": _kept(folder, name), "download": _download(vehicle_id, name)})
+            kept = _kept(folder, vehicle_id, name) is not None
+            entries.append({**event, "available": kept, "download": _download(vehicle_id, name)})
         return json_response({**listed, "snapshots": entries})
 
     @router.get(
@@ -85,10 +88,11 @@ def build_router(services: Services) -> APIRouter:
         repo.require_vehicle(vehicle_id)
         if repo.snapshot_event(vehicle_id, name) is None:
             raise HTTPException(404, f"vehicle {vehicle_id} has no snapshot {name!r} in its black box")
-        if not _kept(folder, name):
-            raise HTTPException(404, f"snapshot {name!r} is listed, but its file is no longer kept here")
-        assert folder is not None
-        path = snapshot_files.path_of(folder, name)
+        path = _kept(folder, vehicle_id, name)
+        if path is None:
+            raise HTTPException(
+                404, f"snapshot {name!r} is listed, but its file is not kept here (not yet copied, or gone)"
+            )
         return StreamingResponse(
             _chunks(path),
             media_type="application/octet-stream",
@@ -101,11 +105,17 @@ def build_router(services: Services) -> APIRouter:
     return router
 
 
-def _kept(folder: FilePath | None, name: str) -> bool:
+def _kept(folder: FilePath | None, vehicle_id: str, name: str) -> FilePath | None:
+    """The snapshot's file: the fleet's copy (in the vehicle's folder), else the vehicle's own; None if neither."""
+    if folder is None:
+        return None
     try:
-        return folder is not None and snapshot_files.path_of(folder, name).is_file()
+        for path in (snapshot_files.path_of(folder / vehicle_id, name), snapshot_files.path_of(folder, name)):
+            if path.is_file():
+                return path
     except snapshot_files.SnapshotNameError:
-        return False
+        pass
+    return None
 
 
 def _download(vehicle_id: str, name: str) -> str:

@@ -63,6 +63,10 @@ ARES.page(["operator"], "operator", async () => {
       const li = ARES.text("li", ARES.clock(e.wall_ms) + "  " + e.source + ": " + e.message, e.level);
       li.dataset.kind = e.kind;
       eventsEl.prepend(li);
+      if (e.kind === "snapshot" && e.request_id) {
+        savedSnapshots.add(e.request_id);
+        if (last) confirm(last);
+      }
     }
     while (eventsEl.children.length > 100) eventsEl.lastChild.remove();
   }
@@ -104,7 +108,10 @@ ARES.page(["operator"], "operator", async () => {
     "ramp-deploy": {path: "/body", body: {ramp: "deploy"}, done: (f) => f.body && f.body.ramp === "deployed"},
     "ramp-stow": {path: "/body", body: {ramp: "stow"}, done: (f) => f.body && f.body.ramp === "stowed"},
     rearm: {path: "/rearm", done: (f) => f.movement && !f.movement.latched},
+    snapshot: {path: "/snapshots", body: {reason: "asked for on the operator page"},
+               done: (f, before, reply) => savedSnapshots.has(reply.request_id)},
   };
+  const savedSnapshots = new Set();   // request ids the recorder's `snapshot` events answered
 
   function say(state, message) {
     status.dataset.state = state;
@@ -113,7 +120,7 @@ ARES.page(["operator"], "operator", async () => {
 
   function confirm(f) {
     if (!pending) return;
-    if (pending.command.done(f, pending.before)) {
+    if (pending.command.done(f, pending.before, pending.reply)) {
       say("confirmed", pending.name + ": confirmed by the vehicle after " +
           ((Date.now() - pending.since) / 1000).toFixed(1) + " s");
       pending = null;
@@ -141,7 +148,7 @@ ARES.page(["operator"], "operator", async () => {
         pending = null;
         return;
       }
-      pending = {name, command, before, since: Date.now()};
+      pending = {name, command, before, reply: j, since: Date.now()};
       say("pending", name + ": " + j.reason + " (waiting for the vehicle)");
       if (last) confirm(last);
     });
