@@ -119,7 +119,7 @@ class LidarPerception(Node):
         )
         road_params = self.params.road
         self.road.put(road_message(t, result, (road_params.x_min_m, road_params.x_max_m)))
-        self.status.put(self._status(t, now, result))
+        self.status.put(self._status(t, now, result, travel))
 
     def _travel(self, since: float | None, t: float, now: float) -> tuple[float, float] | None:
         """Distance and curvature driven from the frame at `since` to this one at t (at the speed and
@@ -152,7 +152,7 @@ class LidarPerception(Node):
             if not blind:
                 self.counts[name].append(n)
 
-    def _status(self, t: float, now: float, result: FrameResult) -> LidarStatus:
+    def _status(self, t: float, now: float, result: FrameResult, travel: tuple[float, float] | None) -> LidarStatus:
         sensors = {}
         sweeps = self.sweeps
         for name in self.pipeline.names:
@@ -167,4 +167,7 @@ class LidarPerception(Node):
                 blind=name in self.blind,
                 counting_s=None if self.first_seen[name] is None else round(now - self.first_seen[name], 3),
             )
-        return LidarStatus(t=t, sensors=sensors, stage_ms=result.stage_ms)
+        moved_m, moved_curvature = travel if travel is not None else (None, None)
+        return LidarStatus(
+            t=t, sensors=sensors, stage_ms=result.stage_ms, moved_m=moved_m, moved_curvature=moved_curvature
+        )

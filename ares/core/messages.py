@@ -816,6 +816,10 @@ class LidarStatus(Msg):
 
     sensors: dict[str, LidarHealth]
     stage_ms: dict[str, float] = Field(default_factory=dict)
+    # what the road's guide was told the vehicle drove since the last frame (None: no fresh speed, or
+    # a gap): after a loss it moves the last road found, so a replay sees what the step latched
+    moved_m: float | None = None
+    moved_curvature: float | None = None
 
 
 class OccupancyGrid(BulkMsg):
