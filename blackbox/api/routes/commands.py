@@ -18,7 +18,7 @@ the managers may refuse). A refusal is answered 409 with the manager's reason.
 """
 
 import uuid
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi.responses import Response
@@ -176,6 +176,14 @@ def build_router(services: Services) -> APIRouter:
         request = BodyRequest(operator=claims.name, doors=asked.doors, ramp=asked.ramp)
         return await forward(vehicle_id, "mission/body", request, claims.name, "mission manager")
 
+    add_snapshot_request(router, services, VehicleId, Operator)
+    return router
+
+
+def add_snapshot_request(router: APIRouter, services: Services, VehicleId: Any, Operator: Any) -> None:
+    """POST /vehicles/{id}/snapshots: an operator's request for an incident snapshot, published to
+    the vehicle's recorder (no manager decides it: the recorder's `snapshot` event lists the file)."""
+
     @router.post(
         "/vehicles/{vehicle_id}/snapshots",
         response_model=SnapshotAsked,
@@ -200,5 +208,3 @@ def build_router(services: Services) -> APIRouter:
         await run_in_threadpool(services.request_snapshot, request)
         reason = "asked for: the black box lists the snapshot once its seconds after are saved"
         return json_response({**body, "accepted": True, "reason": reason}, 202)
-
-    return router
