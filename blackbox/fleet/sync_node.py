@@ -222,21 +222,26 @@ class FleetSync(BlackboxNode):
                 self.snapshots_listed.add((vehicle_id, kept.name))
                 self.submit(kept.event)
         for copy in copies:
-            ledger = self.ledger.vehicle(copy.vehicle_id)
-            wall = self.wall()
-            stack_t = wall - ledger.utc_offset_s if ledger.utc_offset_s is not None else 0.0
-            self.submit(
-                StoredEvent(
-                    vehicle_id=copy.vehicle_id,
-                    time=datetime.fromtimestamp(wall, UTC),
-                    t=stack_t,
-                    source=self.name,
-                    kind=copy.kind,
-                    level=copy.level,
-                    message=copy.message,
-                    data=copy.data,
-                )
+            self._vehicle_event(copy.vehicle_id, copy.kind, copy.level, copy.message, copy.data)
+
+    def _vehicle_event(self, vehicle_id: str, kind: str, level: EventLevel, message: str, data: dict) -> None:
+        """An event about a vehicle, raised by the fleet now: at the fleet's wall time, and at the
+        vehicle's stack time as far as its clock's offset is known (0 before)."""
+        ledger = self.ledger.vehicle(vehicle_id)
+        wall = self.wall()
+        stack_t = wall - ledger.utc_offset_s if ledger.utc_offset_s is not None else 0.0
+        self.submit(
+            StoredEvent(
+                vehicle_id=vehicle_id,
+                time=datetime.fromtimestamp(wall, UTC),
+                t=stack_t,
+                source=self.name,
+                kind=kind,
+                level=level,
+                message=message,
+                data=data,
             )
+        )
 
     def _answer(
         self, vehicle_id: str, records: list[VehicleRecord], oldest: int | None, complete_to: int | None, wall: float
@@ -358,7 +363,6 @@ class FleetSync(BlackboxNode):
     def _reachability(self, change: Reachability | None) -> None:
         if change is None:
             return
-        ledger = self.ledger.vehicle(change.vehicle_id)
         if change.reachable:
             kind, level = "vehicle_reachable", EventLevel.INFO
             message = f"{change.vehicle_id} heard on the fleet router"
@@ -368,20 +372,7 @@ class FleetSync(BlackboxNode):
             kind, level = "vehicle_unreachable", EventLevel.WARNING
             message = f"{change.vehicle_id} unreachable: nothing heard for {change.silent_s:.1f} s"
         self.log.log(20 if change.reachable else 30, "%s", message)
-        now_wall = self.wall()
-        stack_t = now_wall - ledger.utc_offset_s if ledger.utc_offset_s is not None else 0.0
-        self.submit(
-            StoredEvent(
-                vehicle_id=change.vehicle_id,
-                time=datetime.fromtimestamp(now_wall, UTC),
-                t=stack_t,
-                source=self.name,
-                kind=kind,
-                level=level,
-                message=message,
-                data={"silent_s": round(change.silent_s, 2)},
-            )
-        )
+        self._vehicle_event(change.vehicle_id, kind, level, message, {"silent_s": round(change.silent_s, 2)})
 
     def teardown(self) -> None:
         asks = getattr(self, "asks", None)
