@@ -16,6 +16,11 @@ the sensor's `source` address (when set) are refused. A sensor whose azimuth sto
 its rotations cut by packet count (memory stays bounded) and the stall reported. With `pcap: FILE`
 a capture plays in place of the socket, by its capture times on the stack clock; its rotations
 are stamped on that clock too (a capture's own hour is long past).
+
+Unless `recording.driver_lidar` is `clouds`, each step's packets (the ones given to the decoder,
+with their receive times) also go out on `lidar/<name>/packets`, before the clouds they finish,
+so a recording keeps the packets as received and rebuilds the clouds through the same decoder
+(ares/core/wire/velodyne_packets.py).
 """
 
 from __future__ import annotations
@@ -26,11 +31,11 @@ import time
 
 from ares.core.config import Params, param
 from ares.core.config.vehicle_io import VelodyneDevice
-from ares.core.driver import DriverNode, device_stamp
-from ares.core.messages import PointCloud
+from ares.core.driver import DriverNode
 from ares.core.node import Output
 from ares.core.wire.pcap import CapturePlayer
-from ares.core.wire.velodyne import HOUR_US, Rotation, RotationAssembler, load_calibration
+from ares.core.wire.velodyne import HOUR_US, Rotation
+from ares.core.wire.velodyne_packets import assembler_for, packets_message, rotation_cloud
 
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux; Python names it only on some builds
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
@@ -65,12 +70,7 @@ class _Sensor:
     def __init__(self, name: str, device: VelodyneDevice, params: VelodyneDriverParams):
         self.name = name
         self.device = device
-        self.assembler = RotationAssembler(
-            load_calibration(device.model, device.calibration),
-            device.rate_hz,
-            params.truncated_below_deg,
-            fov_deg=device.fov_deg,
-        )
+        self.assembler = assembler_for(device, params.truncated_below_deg)
         self.sock: socket.socket | None = None
         self.player: CapturePlayer | None = None  # a capture in place of the socket (device.pcap)
         self.last_player: CapturePlayer | None = None  # ... kept for its counts once closed
@@ -82,6 +82,8 @@ class _Sensor:
         self.silent = False
         self.capture_done = False  # a capture played to its end (without pcap_loop): not opened again
         self.loops_seen = 0
+        self.step_packets: list[tuple[bytes, float]] = []  # this step's packets given to the assembler
+        self.step_flushed = False  # ... after which the rotation under way was finished (the stream stopped)
 
     @property
     def is_open(self) -> bool:
@@ -98,10 +100,19 @@ class VelodyneDriver(DriverNode):
     roof = Output("lidar/roof/points", doc="the roof LiDAR's rotations")
     front_left = Output("lidar/front_left/points", doc="the front-left LiDAR's rotations")
     front_right = Output("lidar/front_right/points", doc="the front-right LiDAR's rotations")
+    roof_packets = Output("lidar/roof/packets", doc="the roof LiDAR's packets of each step, as received")
+    front_left_packets = Output("lidar/front_left/packets", doc="the front-left LiDAR's packets, as received")
+    front_right_packets = Output("lidar/front_right/packets", doc="the front-right LiDAR's packets, as received")
 
     def setup(self) -> None:
         self.sensors: dict[str, _Sensor] = {}
         self.outputs_by_sensor = {"roof": self.roof, "front_left": self.front_left, "front_right": self.front_right}
+        self.packet_outputs = {
+            "roof": self.roof_packets,
+            "front_left": self.front_left_packets,
+            "front_right": self.front_right_packets,
+        }
+        self.publish_packets = self.core.recording.driver_lidar != "clouds"
         for name, device in self.core.vehicle_io.lidars.items():
             if name not in NAMES:
                 self.log.warning("vehicle_io lidar %r: not one of %s, not read", name, ", ".join(NAMES))
@@ -199,7 +210,7 @@ class VelodyneDriver(DriverNode):
                 sensor.assembler.packets += 1
                 self.wire(f"lidar/{sensor.name}").refuse("wrong source", f"from {addr[0]}:{addr[1]}")
                 continue
-            done += sensor.assembler.add(data, wall)
+            done += self._decode(sensor, data, wall)
         return done
 
     def _play(self, sensor: _Sensor, now: float) -> list[Rotation]:
@@ -223,13 +234,22 @@ class VelodyneDriver(DriverNode):
                 device_s = int.from_bytes(datagram.payload[1200:1204], "little") / 1e6
                 sensor.capture_epoch = (device_s - sensor.played_from - player.play_time(datagram)) % HOUR_S
             sensor.last_packet_wall = wall
-            done += sensor.assembler.add(datagram.payload, wall)
+            done += self._decode(sensor, datagram.payload, wall)
         if player.finished:
-            done += sensor.assembler.flush()
+            done += self._flush(sensor)
             sensor.capture_done = True
             self.log.info("%s: the capture %s played to its end", sensor.name, sensor.device.pcap)
             self._close(sensor)
         return done
+
+    def _decode(self, sensor: _Sensor, data: bytes, wall: float) -> list[Rotation]:
+        if self.publish_packets:
+            sensor.step_packets.append((data, wall))
+        return sensor.assembler.add(data, wall)
+
+    def _flush(self, sensor: _Sensor) -> list[Rotation]:
+        sensor.step_flushed = True
+        return sensor.assembler.flush()
 
     def _capture_over(self, sensor: _Sensor) -> bool:
         return sensor.device.pcap is not None and sensor.capture_done
@@ -255,29 +275,28 @@ class VelodyneDriver(DriverNode):
             for cause, text in asm.notices:
                 counters.problem(cause, text)
             asm.notices.clear()
+            rotations += self._silence(sensor, counters, wall)
+            self._publish_packets(sensor, now)
             for rotation in rotations:
                 self._publish(sensor, rotation, now)
             self._watch(sensor, counters, wall)
         self.report(now)
+
+    def _publish_packets(self, sensor: _Sensor, now: float) -> None:
+        """The step's packets, before the clouds they finish (a replay rebuilds those from these)."""
+        if self.publish_packets and (sensor.step_packets or sensor.step_flushed):
+            self.packet_outputs[sensor.name].put(
+                packets_message(now, sensor.name, self._epoch(sensor), sensor.step_packets, sensor.step_flushed)
+            )
+        sensor.step_packets = []
+        sensor.step_flushed = False
 
     def _publish(self, sensor: _Sensor, rotation: Rotation, now: float) -> None:
         counters = self.wire(f"lidar/{sensor.name}")
         if rotation.truncated:
             counters.skip("truncated rotation")
             return
-        points = rotation.points
-        self.outputs_by_sensor[sensor.name].put(
-            PointCloud(
-                t=device_stamp(now, self._epoch(sensor), rotation.timestamp_us / 1e6, HOUR_S),
-                sensor=sensor.name,
-                frame=f"lidar/{sensor.name}",
-                x=points.x,
-                y=points.y,
-                z=points.z,
-                intensity=points.intensity,
-                ring=points.ring,
-            )
-        )
+        self.outputs_by_sensor[sensor.name].put(rotation_cloud(sensor.name, rotation, now, self._epoch(sensor)))
         counters.put(rotation.last_wall)
         configured = sensor.device.rate_hz
         if (
@@ -290,19 +309,26 @@ class VelodyneDriver(DriverNode):
         """The calendar time of stack time 0 by which the sensor's packet times are read."""
         return sensor.capture_epoch if sensor.device.pcap is not None else self.clock.utc_epoch
 
+    def _silence(self, sensor: _Sensor, counters, wall: float) -> list[Rotation]:
+        """A sensor that fell silent this step: the rotation under way, which will not be completed."""
+        if self._capture_over(sensor):
+            return []
+        heard = max(sensor.last_packet_wall, sensor.opened_wall)
+        silent = wall - heard > self.params.silent_after_s
+        fell_silent = silent and not sensor.silent
+        sensor.silent = silent
+        if not fell_silent:
+            return []
+        counters.problem("silent", f"no packet for {self.params.silent_after_s:g} s")
+        return self._flush(sensor)
+
     def _watch(self, sensor: _Sensor, counters, wall: float) -> None:
-        asm = sensor.assembler
         if self._capture_over(sensor):
             counters.connected = False
             counters.detail = f"{self._summary(sensor)}; the capture {sensor.device.pcap} played to its end"
             return
         heard = max(sensor.last_packet_wall, sensor.opened_wall)
-        silent = wall - heard > self.params.silent_after_s
-        if silent and not sensor.silent:
-            counters.problem("silent", f"no packet for {self.params.silent_after_s:g} s")
-            for rotation in asm.flush():  # what was under way will not be completed
-                self._publish(sensor, rotation, self.clock.now())
-        sensor.silent = silent
+        silent = sensor.silent
         counters.connected = sensor.is_open and sensor.last_packet_wall >= sensor.opened_wall and not silent
         if silent and sensor.player is None and wall - heard > self.params.reopen_s + self.params.silent_after_s:
             self._close(sensor)  # a fresh socket: an interface that came back, a rebound address

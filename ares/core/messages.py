@@ -772,6 +772,25 @@ class PointCloud(BulkMsg):
         return len(self.x)
 
 
+class LidarPackets(BulkMsg):
+    """A Velodyne's UDP data packets as the driver received them in one step, back to back, so a
+    recording can keep them and rebuild the clouds through the same decoder
+    (ares/core/wire/velodyne_packets.py)."""
+
+    sensor: str
+    epoch: float  # the calendar time of stack time 0 by which the packets' own times were read
+    flushed: bool = False  # after these packets the rotation under way was finished as it was (the stream stopped)
+    sizes: Annotated[np.ndarray, Array("<u2", doc="each packet's length, bytes")]
+    received: Annotated[np.ndarray, Array("<f8", doc="each packet's wall receive time, s")]
+    data: Annotated[np.ndarray, Array("u1", doc="the packets' bytes, back to back")]
+
+    @model_validator(mode="after")
+    def _whole(self) -> LidarPackets:
+        if len(self.received) != len(self.sizes) or int(self.sizes.sum(dtype=np.int64)) != len(self.data):
+            raise ValueError("one size and one receive time per packet, and as many bytes as the sizes say")
+        return self
+
+
 class RoadBoundary(BaseModel):
     """A road boundary or the centre line in the vehicle frame: y = c0 + c1 x + c2 x² + ..., valid
     between x_min and x_max."""

@@ -211,14 +211,14 @@ class NodeReplay:
         for latched in tries:
             self.deliver(candidates[:latched])
             outputs = self._step(t)
-            if not _mismatches(0, t, expected, outputs, self.ignores):
+            if not mismatches(0, t, expected, outputs, self.ignores):
                 self.result.steps += 1
                 return SearchedStep(outputs, latched, undecided=False, left=list(candidates[latched:]))
             self.node.restore_state(state)
         for chosen in _per_topic_latchings(candidates, likely):
             self.deliver([c for i, c in enumerate(candidates) if i in chosen])
             outputs = self._step(t)
-            if not _mismatches(0, t, expected, outputs, self.ignores):
+            if not mismatches(0, t, expected, outputs, self.ignores):
                 self.result.steps += 1
                 left = [c for i, c in enumerate(candidates) if i not in chosen]
                 return SearchedStep(outputs, len(chosen), undecided=False, left=left, per_topic=True)
@@ -231,7 +231,7 @@ class NodeReplay:
         result; the steps are numbered in the order they are compared."""
         self.result.outputs += len(got)
         if len(self.result.mismatches) < self.max_mismatches:
-            self.result.mismatches += _mismatches(self._compared, t, expected, got, self.ignores)
+            self.result.mismatches += mismatches(self._compared, t, expected, got, self.ignores)
         self.result.replayed.append(got)
         self._compared += 1
 
@@ -303,9 +303,10 @@ def update(path: str | Path) -> ReplayResult:
     return result
 
 
-def _mismatches(
+def mismatches(
     step: int, t: float | None, expected: Published, got: Published, ignores: tuple[str, ...] = ()
 ) -> list[Mismatch]:
+    """How one step's outputs differ from the recorded ones (floats within REL_TOL, ABS_TOL)."""
     if len(expected) != len(got):
         return [Mismatch(step, t, "number of messages", [e[0] for e in expected], [g[0] for g in got])]
     found = []

@@ -14,6 +14,7 @@ import logging
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,10 +27,15 @@ from mcap.stream_reader import StreamReader
 
 from ares.app import processes
 from ares.app.bus_record import cloud_payload
-from ares.app.bus_record.recorder import ENCODING_META, GRID_META, RUN_METADATA, TOPIC_META
-from ares.core import cloud_grid, schema, topics
-from ares.core.bus import BaseBus
+from ares.app.bus_record.recorder import ENCODING_META, GRID_META, PACKET_LIDARS_META, RUN_METADATA, TOPIC_META
+from ares.core import cloud_grid, config, schema, topics
+from ares.core.bus import BaseBus, encoding_name
 from ares.core.bus_replay import BusReplayResult, replay_from_bus
+from ares.core.messages import LidarPackets, PointCloud
+from ares.core.recording import as_record
+from ares.core.replay import Mismatch, mismatches
+from ares.core.wire.velodyne_packets import PacketDecoder
+from drivers.velodyne_node import VelodyneDriver
 
 log = logging.getLogger("ares.app.bus_record.replay")
 
@@ -96,10 +102,13 @@ class Recording:
                 self.cut_short = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
                 log.warning("%s: cut short (%s): read up to its last complete record", self.path, self.cut_short)
 
-    def messages(self) -> Iterator[Recorded]:
+    def messages(self, rebuild: bool = True) -> Iterator[Recorded]:
         """The raw bus messages (not the Foxglove views), in the order the recorder received them,
-        each payload as it travelled (a compact cloud restored on its sensor's grid)."""
+        each payload as it travelled (a compact cloud restored on its sensor's grid), and the clouds
+        of the LiDARs whose packets were kept in their place, rebuilt through the driver's decoder
+        right after the packets that finished them."""
         grids: dict[int, cloud_grid.Grid | None] = {}
+        packet_clouds: PacketClouds | None = None
         for _schema, channel, message in self.records():
             topic = channel.metadata.get(TOPIC_META)
             if topic is None:
@@ -109,8 +118,52 @@ class Recording:
                 if channel.id not in grids:
                     grids[channel.id] = _grid_of(channel)
                 payload = cloud_payload.restore(payload, grids[channel.id])
-            yield Recorded(
+            recorded = Recorded(
                 topic, channel.metadata.get(ENCODING_META, ""), payload, message.log_time, message.publish_time / 1e9
+            )
+            yield recorded
+            if rebuild and topic.endswith("/packets"):
+                packet_clouds = packet_clouds or PacketClouds(self)
+                yield from packet_clouds.clouds(recorded)
+
+    @property
+    def packet_lidars(self) -> list[str]:
+        """The LiDARs whose clouds the recorder left to their packets."""
+        return list(json.loads(self.metadata.get(RUN_METADATA, {}).get(PACKET_LIDARS_META, "[]")))
+
+
+class PacketClouds:
+    """The clouds of a recording's packet LiDARs, rebuilt from their packets by the decoder the
+    driver used (ares/core/wire/velodyne_packets.py), as the driver's configuration in the run set it."""
+
+    def __init__(self, recording: Recording):
+        self.decoders: dict[str, PacketDecoder] = {}
+        self.undecodable = 0
+        lidars = recording.packet_lidars
+        if not lidars:
+            return
+        cfg = recording.cfg
+        core = config.core(cfg)
+        params = config.section(cfg, VelodyneDriver.section(), VelodyneDriver.Params)
+        devices = core.vehicle_io.lidars if core.vehicle_io is not None else {}
+        for name in lidars:
+            if name in devices:
+                self.decoders[f"lidar/{name}/packets"] = PacketDecoder(name, devices[name], params.truncated_below_deg)
+        self.encoding = encoding_name(PointCloud)
+
+    def clouds(self, recorded: Recorded) -> Iterator[Recorded]:
+        decoder = self.decoders.get(recorded.topic)
+        if decoder is None:
+            return
+        try:
+            packets = schema.decode(recorded.payload, LidarPackets)
+        except ValueError:
+            self.undecodable += 1
+            log.warning("%s: a packets message that does not decode: its clouds are lost", recorded.topic)
+            return
+        for cloud in decoder.feed(packets):
+            yield Recorded(
+                f"lidar/{decoder.sensor}/points", self.encoding, bytes(schema.encode(cloud)), recorded.log_time, cloud.t
             )
 
 
@@ -244,8 +297,11 @@ def play(
 
 def replay_node(path: str | Path, node_name: str, max_mismatches: int = 20) -> BusReplayResult:
     """Feed one node the recorded bus and compare what it publishes with what it published
-    (ares.core.bus_replay: its steps rebuilt from the recording)."""
+    (ares.core.bus_replay: its steps rebuilt from the recording); the LiDAR driver's decoding
+    from its recorded packets (`replay_driver`)."""
     recording = open_recording(path)
+    if node_name == VelodyneDriver.name:
+        return replay_driver(recording, max_mismatches)
     cfg = recording.cfg
     try:
         spec = processes.by_name(node_name, wire=bool(cfg.get("wire")))
@@ -254,4 +310,54 @@ def replay_node(path: str | Path, node_name: str, max_mismatches: int = 20) -> B
     result = replay_from_bus(recording.messages(), spec.node_class(), cfg, node_name, max_mismatches)
     if recording.cut_short:
         log.warning("%s: replayed up to where the recording was cut short", path)
+    return result
+
+
+def replay_driver(recording: Recording, max_mismatches: int = 20) -> BusReplayResult:
+    """The LiDAR driver's decoding replayed: its recorded packets through the decoder it used, each
+    cloud made compared with the one it published, sensor by sensor in order (a recording with
+    `recording.driver_lidar: both`). Its sockets are not replayed: what they gave it is the packets.
+    A cloud made from the last packets of a recording cut short before it was published is not a
+    mismatch (`unrecorded_steps`)."""
+    cfg = recording.cfg
+    core = config.core(cfg)
+    params = config.section(cfg, VelodyneDriver.section(), VelodyneDriver.Params)
+    devices = core.vehicle_io.lidars if core.vehicle_io is not None else {}
+    decoders = {f"lidar/{n}/packets": PacketDecoder(n, d, params.truncated_below_deg) for n, d in devices.items()}
+    result = BusReplayResult(node=VelodyneDriver.name, steps=0, outputs=0)
+    made: dict[str, deque[tuple[float, Any]]] = {}  # cloud topic -> clouds made, not yet compared
+    published: dict[str, deque[Any]] = {}  # cloud topic -> clouds published, not yet compared
+    compared = 0
+    for rec in recording.messages(rebuild=False):
+        decoder = decoders.get(rec.topic)
+        if decoder is not None:
+            result.steps += 1
+            for cloud in decoder.feed(schema.decode(rec.payload, LidarPackets)):
+                made.setdefault(f"lidar/{decoder.sensor}/points", deque()).append(
+                    (cloud.t, as_record(schema.encode(cloud)))
+                )
+        elif rec.topic.endswith("/points") and f"{rec.topic[: -len('/points')]}/packets" in decoders:
+            published.setdefault(rec.topic, deque()).append(as_record(rec.payload))
+        else:
+            continue
+        for topic, queue in published.items():
+            while queue and made.get(topic):
+                t, got = made[topic].popleft()
+                if len(result.mismatches) < max_mismatches:
+                    result.mismatches += mismatches(compared, t, [[topic, queue.popleft()]], [[topic, got]])
+                else:
+                    queue.popleft()
+                result.outputs += 1
+                compared += 1
+    if result.steps == 0:
+        raise ValueError(f"{recording.path}: no LiDAR packets recorded (recording.driver_lidar: clouds, or no driver)")
+    if compared == 0:
+        raise ValueError(
+            f"{recording.path}: the driver's packets are recorded, its clouds are not "
+            "(recording.driver_lidar: packets): record with `both` to compare its decoding with what it published"
+        )
+    for topic, queue in published.items():
+        if queue:  # published, never made again
+            result.mismatches.append(Mismatch(compared, None, f"{topic}: clouds", len(queue), 0))
+    result.unrecorded_steps = sum(len(queue) for queue in made.values())
     return result

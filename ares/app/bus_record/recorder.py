@@ -9,11 +9,14 @@ the `foxglove/...` channels carry the views of ares.app.bus_record.foxglove_view
 Foxglove's own schemas). A message's log time is when the recorder received it (wall clock, ns),
 its publish time its own stamp `t` (stack seconds, in ns); the file keeps the order of receipt.
 
-A LiDAR's sweeps are stored once, compactly: as integers on the sensor's grid (message encoding
-`ares.cloud-grid`, the grid in the channel's metadata `ares.grid`; ares.app.bus_record.cloud_payload
-gives back the payload byte for byte), with a Foxglove preview of each LiDAR every
-`recording.cloud_view_every_s`. The light profile keeps only the topics of
-`recording.light_rates_hz`, each at most at its rate (by the messages' own stamps), no clouds.
+A LiDAR's sweeps are stored once, compactly. The Velodyne driver's as the packets it received
+(`lidar/<name>/packets`; `recording.driver_lidar`), its clouds left out (the file's metadata names
+those LiDARs: a replay rebuilds their clouds through the driver's decoder). The simulator's (or the
+driver's, by choice) as integers on the sensor's grid (message encoding `ares.cloud-grid`, the
+grid in the channel's metadata `ares.grid`; ares.app.bus_record.cloud_payload gives back the
+payload byte for byte). A Foxglove preview of each LiDAR every `recording.cloud_view_every_s`.
+The light profile keeps only the topics of `recording.light_rates_hz`, each at most at its rate
+(by the messages' own stamps), no clouds.
 
 Zenoh's callbacks only queue the payload (bounded in bytes: beyond `max_queued_bytes` a message
 is dropped and counted, never waited for); one writer thread decodes what Foxglove needs, writes
@@ -53,6 +56,7 @@ RUN_METADATA = "ares.run"  # the metadata record holding the run's configuration
 TOPIC_META = "ares.topic"  # a raw channel's metadata: its topic and its encoding on the bus
 ENCODING_META = "ares.encoding"
 STAMP_TOLERANCE_S = 1e-6  # stamps of a 20 Hz topic are 0.05 s apart, give or take a float's rounding
+PACKET_LIDARS_META = "clouds_from_packets"  # the LiDARs whose clouds were left to their packets (JSON list)
 GRID_META = "ares.grid"  # a compact cloud channel's sensor grid (cloud_grid.Grid.describe)
 
 BATCH_S = 0.05  # the writer wakes this often at most, and writes what came meanwhile
@@ -67,6 +71,7 @@ class RecorderStats:
     bytes_stored: int = 0  # raw payload bytes written, before the chunks' compression
     skipped: int = 0  # messages the light profile leaves out (by topic or rate)
     off_grid_points: int = 0  # cloud points kept as float32 (not on their sensor's grid)
+    left_to_packets: int = 0  # driver clouds not stored: a replay rebuilds them from the packets
     dropped: int = 0  # messages dropped because the writer was too far behind
     undecodable: int = 0  # payloads with no view (malformed for their topic)
     writer_cpu_s: float = 0.0  # CPU time of the writer thread
@@ -83,6 +88,7 @@ class RecorderStats:
             "bytes_stored": self.bytes_stored,
             "skipped": self.skipped,
             "off_grid_points": self.off_grid_points,
+            "left_to_packets": self.left_to_packets,
             "dropped": self.dropped,
             "writer_cpu_s": round(self.writer_cpu_s, 3),
             "wall_s": round(self.closed_wall - self.started_wall, 3),
@@ -162,6 +168,22 @@ def lidar_grids(cfg: dict[str, Any]) -> dict[str, cloud_grid.Grid]:
     }
 
 
+def clouds_from_packets(cfg: dict[str, Any], settings: RecordingSettings) -> list[str]:
+    """The LiDARs whose clouds a recording leaves to their packets (`recording.driver_lidar:
+    packets`): the Velodyne driver's, which publishes each sensor's packets; a replay rebuilds the
+    clouds from them (ares/core/wire/velodyne_packets.py)."""
+    if settings.driver_lidar != "packets" or settings.profile == "light":
+        return []
+    if not (cfg.get("wire") or not cfg.get("simulate", True)):
+        return []  # the simulator's clouds: no packets behind them
+    try:
+        core = config.core(cfg)
+    except config.ConfigError:
+        return []
+    lidars = core.vehicle_io.lidars if core.vehicle_io is not None else {}
+    return [name for name in lidars if topics.find(f"lidar/{name}/packets") is not None]  # those the driver reads
+
+
 def light_rate(settings: RecordingSettings, topic: str) -> float | None:
     """The most the light profile keeps of a topic per second (0: every message); None: not kept."""
     rate = settings.light_rates_hz.get(topic)
@@ -208,6 +230,8 @@ class McapRecorder:
         self.settings = settings
         self.light = settings.profile == "light"
         self._grids = lidar_grids(cfg) if settings.cloud_encoding == "grid" and not self.light else {}
+        self.packet_lidars = clouds_from_packets(cfg, settings)
+        self._unstored = {f"lidar/{name}/points" for name in self.packet_lidars}  # their previews only
         self._rates: dict[str, float | None] = {}  # topic -> its light rate (cached)
         self._last_kept: dict[str, float] = {}  # topic -> stamp of the last message the light profile kept
         self._viewed: dict[str, topics.Topic | None] = {}  # topic -> its table entry if Foxglove views it
@@ -260,6 +284,7 @@ class McapRecorder:
                 "utc_epoch": repr(self.utc_epoch),
                 "keys": json.dumps(list(self.keys)),
                 "profile": self.settings.profile,
+                PACKET_LIDARS_META: json.dumps(self.packet_lidars),
                 "config": json.dumps(self.cfg),
             },
         )
@@ -313,15 +338,24 @@ class McapRecorder:
     def write(self, log_time: int, topic: str, encoding: str, payload: bytes) -> None:
         """One bus message into the file (the writer thread's, or the caller's without one)."""
         assert self._writer is not None
-        key = f"ares/{self.cfg.get('vehicle_id', '')}/{topic}"
-        channel = self._channels.get(key)
-        if channel is None:
-            channel = self._raw_channel(key, topic, encoding)
         stamp = stamp_of(payload)
         self.stats.bytes_in += len(payload)
         if self.light and not self._light_keeps(topic, stamp, log_time):
             self.stats.skipped += 1
             return
+        if topic in self._unstored:
+            self.stats.left_to_packets += 1
+        else:
+            self._store(log_time, topic, encoding, payload, stamp)
+        if self.views is not None:
+            self._view(log_time, topic, payload, stamp)
+
+    def _store(self, log_time: int, topic: str, encoding: str, payload: bytes, stamp: float | None) -> None:
+        assert self._writer is not None
+        key = f"ares/{self.cfg.get('vehicle_id', '')}/{topic}"
+        channel = self._channels.get(key)
+        if channel is None:
+            channel = self._raw_channel(key, topic, encoding)
         publish_ns = int(round(stamp * 1e9)) if stamp is not None and stamp >= 0 else log_time
         grid = self._grids.get(topic)
         stored = payload
@@ -333,29 +367,33 @@ class McapRecorder:
         self.stats.bytes_stored += len(stored)
         self.stats.by_topic[topic] = self.stats.by_topic.get(topic, 0) + 1
         self.stats.stored_by_topic[topic] = self.stats.stored_by_topic.get(topic, 0) + len(stored)
-        if self.views is not None:
-            entry = self._viewed.get(topic, False)
-            if entry is False:
-                found = topics.find(topic)
-                entry = self._viewed[topic] = found if found is not None and self.views.handles(found.schema) else None
-            if entry is not None:
-                if entry.schema is messages.PointCloud:
-                    every = self.settings.cloud_view_every_s or None  # 0: no previews
-                    if not self._due(self._last_preview, every, topic, stamp, log_time):
-                        return
-                elif not self._due(self._last_view, self._view_every_s, topic, stamp, log_time):
-                    return
-                try:
-                    msg = schema.decode(payload, entry.schema)
-                except ValueError:  # pydantic's ValidationError and BulkDecodeError are ValueErrors
-                    self.stats.undecodable += 1
-                    return
-                if isinstance(msg, messages.PointCloud):
-                    views = self.views.cloud_preview(topic, msg, self.settings.cloud_view_stride)
-                else:
-                    views = self.views.views(topic, msg)
-                for view in views:
-                    self._write_view(view, log_time)
+
+    def _view(self, log_time: int, topic: str, payload: bytes, stamp: float | None) -> None:
+        """The message's Foxglove view, when its topic has one and one is due."""
+        assert self.views is not None
+        entry = self._viewed.get(topic, False)
+        if entry is False:
+            found = topics.find(topic)
+            entry = self._viewed[topic] = found if found is not None and self.views.handles(found.schema) else None
+        if entry is None:
+            return
+        if entry.schema is messages.PointCloud:
+            every = self.settings.cloud_view_every_s or None  # 0: no previews
+            if not self._due(self._last_preview, every, topic, stamp, log_time):
+                return
+        elif not self._due(self._last_view, self._view_every_s, topic, stamp, log_time):
+            return
+        try:
+            msg = schema.decode(payload, entry.schema)
+        except ValueError:  # pydantic's ValidationError and BulkDecodeError are ValueErrors
+            self.stats.undecodable += 1
+            return
+        if isinstance(msg, messages.PointCloud):
+            views = self.views.cloud_preview(topic, msg, self.settings.cloud_view_stride)
+        else:
+            views = self.views.views(topic, msg)
+        for view in views:
+            self._write_view(view, log_time)
 
     def _light_rate(self, topic: str) -> float | None:
         if topic not in self._rates:

@@ -253,6 +253,12 @@ class RecordingSettings(Params):
     cloud_encoding: Literal["grid", "float32"] = param(
         "grid", "clouds as integers on the sensor's grid (exact, 1.8 B a point) or as they travelled (17 B)"
     )
+    driver_lidar: Literal["packets", "clouds", "both"] = param(
+        "packets",
+        "with the Velodyne driver: each LiDAR's packets as received (the driver publishes them; a replay "
+        "rebuilds the clouds through its decoder), its clouds (on the calibration's grid), or both (to check "
+        "the decoder's replay: `ares replay FILE --node lidar_driver`)",
+    )
     cloud_view_every_s: float = param(
         1.0,
         "a full recording's Foxglove preview of each LiDAR (foxglove.PointCloud) this often; 0: none "
