@@ -193,11 +193,22 @@ def test_a_store_on_a_disk_that_fills_up_keeps_every_second_and_the_shuttle_driv
 
     def driving_since() -> int | None:  # the newest second, once the records show the shuttle under way
         latest = path.exists() and records_of(path)[-1:]
+        if run.poll() is not None:  # the run ended before the shuttle was seen under way: say how
+            out, err = run.communicate()
+            last = latest[0] if latest else None
+            raise AssertionError(
+                f"the run ended (exit {run.returncode}), last record {last}\n{out[-1500:]}\n{err[-3000:]}"
+            )
         return int(latest[0]["t"]) if latest and (latest[0]["speed_mps"] or 0.0) > 1.0 else None
 
     run = start_headless("--seconds", "60", "--store", str(path))
     try:
-        before = wait_until(driving_since, 120, "records of the shuttle driving", 0.2)
+        try:
+            before = wait_until(driving_since, 120, "records of the shuttle driving", 0.2)
+        except AssertionError as timed_out:  # still running: what the store holds, what the machine does
+            busiest = subprocess.run(["ps", "-eo", "pcpu,etimes,args", "--sort=-pcpu"], capture_output=True, text=True)
+            last = path.exists() and records_of(path)[-1:]
+            raise AssertionError(f"{timed_out}; last record {last}\n{busiest.stdout[:2500]}") from None
         filler = fill(small_disk)
         full_since = time.monotonic()
         # the full disk for 25 s of vehicle time (5 s of wall time at SPEED): nothing reaches the store
