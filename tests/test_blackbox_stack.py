@@ -235,7 +235,8 @@ def test_a_store_on_a_disk_that_fills_up_keeps_every_second_and_the_shuttle_driv
     # the shuttle drove on through the full disk: its records of those seconds show it moving
     with_speed = {int(r["t"]): r["speed_mps"] for r in records_of(path)}
     full = [k for k in ts if before + 2 < k <= (stuck or before) + 20]
-    assert full and max(with_speed[k] for k in full) > 0.5
+    # (a second whose speed input was stale on a loaded machine holds none: not a second of standing)
+    assert full and max(with_speed[k] or 0.0 for k in full) > 0.5
     assert result["ok"] and not [e for e in events if e["kind"] == "emergency_stop"]
     print(
         f"\nfull disk: filled after t={before} for {full_s:.1f} s of wall time; "

@@ -273,8 +273,12 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     # the operator's snapshot: confirmed on the page by the recorder's event that lists the file
     pg.click("[data-command=snapshot]")
     wait_for(lambda: pg.get_attribute("#command-status", "data-state") == "confirmed", 30, "the snapshot saved")
-    listed = auditor.get(f"/vehicles/{VEHICLE}/snapshots").json()["snapshots"]
-    assert any("operator page" in s["message"] and s["available"] for s in listed), listed
+
+    def listed() -> list[dict]:  # the page hears the recorder's event at once, the store at its next write
+        snapshots = auditor.get(f"/vehicles/{VEHICLE}/snapshots").json()["snapshots"]
+        return [s for s in snapshots if "operator page" in s["message"] and s["available"]]
+
+    wait_for(listed, 20, "the operator's snapshot listed for the auditor", step_s=0.5)
     shot(pg, "operator")
     assert not [p for p in pg.problems if "favicon" not in p], pg.problems
 

@@ -37,6 +37,7 @@ HEADLINES: dict[str, tuple[str, ...]] = {
         "lidar.VLP-32C.p50_ms",
         "lidar.HDL-64E.p50_ms",
         "lidar.VLS-128.p50_ms",
+        "lidar.VLS-128.packets_message_p50_ms",
         "can.codec.decode_frames_per_s_p50",
         "can.udp_multicast.wire_to_bus_latency_p50_ms",
     ),
