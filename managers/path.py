@@ -9,13 +9,23 @@ Events:  path_rematch when the tracked match is lost and a wider search finds th
          again; path_lost when nothing reachable is found at all
 
 Each pose estimate asks for "the nearest *reachable* path pose within radius r": among the
-poses within r, only those whose heading agrees with the vehicle's and — once tracking — whose
-s lies in a short window around the last matched progress qualify. The heading test keeps a
-vehicle off the opposite leg of a hairpin; the window keeps it on its own pass of a crossing
-and on its own lap. The route is recorded once, so its poses go into a KD-tree over (x, y),
-which answers the searches without a window; while tracking, the window's few dozen poses are
-read straight from the route instead. The nearest qualifying pose is then refined to the foot
-of the perpendicular on its segments, for a continuous s and a signed cross-track error.
+poses within r, only those whose heading agrees with the vehicle's, whose height is the
+vehicle's within max_height_error_m and — once tracking — whose s lies in a short window around
+the last matched progress qualify. The heading test keeps a vehicle off the opposite leg of a
+hairpin and off the other direction of a road driven both ways; the height test off the other
+level of a ramp or a bridge over the route; the window keeps it on its own pass of a crossing
+and on its own lap. The route is recorded once, so its poses go into a KD-tree over
+{X, Y, Z, Ψ} as the paper builds it (§3.2): x, y, height_scale·z and the heading as the point
+heading_scale_m·(cos ψ, sin ψ), so that "nearest" weighs a metre of height and a radian of
+heading against metres on the ground and never sees a jump at ±π. The tree answers the searches
+without a window; while tracking, the window's few dozen poses are read straight from the route
+instead, in the same metric. The nearest qualifying pose is then refined to the foot of the
+perpendicular on its segments, for a continuous s and a signed cross-track error.
+
+A heading or a height the localization is not sure of (max_heading_sigma_rad,
+max_height_sigma_m: a standing vehicle's first fix, a fix without altitude) is left out: the
+heading as the origin of its plane (every pose then adds the same heading_scale_m², so the
+order is the ground's and the height's), the height by a second tree over {X, Y, Ψ}.
 
 When nothing qualifies (no hint yet and the vehicle beyond r, or a pose jump out of the
 window) the search widens to path_manager.fallback_radius_m without the window, and the
@@ -47,6 +57,7 @@ from ares.core.route import Route
 # The tracked search takes the poses whose s lies within this much more than the hint's window,
 # then applies the window test itself: rounding at the window's edges cannot drop a pose
 WINDOW_SLACK_M = 1e-6
+FLAT = [0, 1, 3, 4]  # the KD-tree's columns without the height: a pose whose height is not known
 
 
 class PathManagerParams(Params):
@@ -66,6 +77,19 @@ class PathManagerParams(Params):
     )
     max_heading_sigma_rad: float = param(
         0.5, "a pose whose heading is less certain than this is matched by position only", unit="rad", gt=0
+    )
+    heading_scale_m: float = param(
+        1.0,
+        "the KD-tree's heading: a radian between the vehicle's and a pose's weighs about this many metres",
+        unit="m/rad",
+        ge=0,
+    )
+    height_scale: float = param(1.0, "the KD-tree's Z: a metre of height weighs this many metres on the ground", ge=0)
+    max_height_error_m: float = param(
+        2.0, "path poses further above or below the vehicle are unreachable (a ramp's other level)", unit="m", gt=0
+    )
+    max_height_sigma_m: float = param(
+        1.5, "a pose whose height is less certain than this is matched without it", unit="m", gt=0
     )
     window_behind_m: float = param(5.0, "once tracking, only poses this far behind the last match ...", unit="m", ge=0)
     window_ahead_m: float = param(
@@ -108,8 +132,8 @@ class Ahead:
 
 
 class PathIndex:
-    """A route with a KD-tree over its (x, y) poses, answering reachable-nearest queries, with the
-    search settings of the path_manager section (`PathManagerParams`; its defaults when none given)."""
+    """A route with a KD-tree over its {X, Y, Z, Ψ} poses, answering reachable-nearest queries, with
+    the search settings of the path_manager section (`PathManagerParams`; its defaults when none given)."""
 
     def __init__(self, route: Route, params: PathManagerParams | None = None, speed_limit: np.ndarray | None = None):
         params = PathManagerParams() if params is None else params
@@ -122,7 +146,30 @@ class PathIndex:
         self.cos_heading_limit = math.cos(float(params.max_heading_error_rad))
         self.window_behind_m = float(params.window_behind_m)
         self.window_ahead_m = float(params.window_ahead_m)
-        self.tree = cKDTree(np.column_stack([route.x, route.y]))
+        self.heading_scale_m = float(params.heading_scale_m)
+        self.max_height_error_m = float(params.max_height_error_m)
+        # the tree's points, one per pose: x, y, scaled z, scaled heading (the flat tree: without z)
+        self.points = np.column_stack(
+            [
+                route.x,
+                route.y,
+                float(params.height_scale) * route.z,
+                self.heading_scale_m * np.cos(route.yaw),
+                self.heading_scale_m * np.sin(route.yaw),
+            ]
+        )
+        self._height_scale = float(params.height_scale)
+        self.tree = cKDTree(self.points)
+        self._flat_tree = cKDTree(self.points[:, FLAT])
+        self._heading_ball2 = self.heading_scale_m**2 * (2.0 - 2.0 * self.cos_heading_limit)
+        # the squared columns weighed into (the tree's distance, the ground's, the height's), the
+        # height known or not; a height_scale of 0 turns the height off, the check with it
+        self._measures = {
+            known: np.array([[1, 1, 0], [1, 1, 0], [known, 0, known], [1, 0, 0], [1, 0, 0]], dtype=float)
+            for known in (False, True)
+        }
+        limit = self._height_scale * self.max_height_error_m
+        self._height_limit2 = limit * limit if limit > 0 else math.inf
         if speed_limit is None:
             speed_limit = np.zeros(self.n)  # no profile given: nothing ahead may be driven
         if len(speed_limit) != self.n:
@@ -142,6 +189,7 @@ class PathIndex:
         self._ex, self._ey = ex.tolist(), ey.tolist()
         # pose numbers over two laps of a loop, so that a window across its start is one slice
         self._pose_numbers = np.arange(2 * self.n) % self.n if self.closed else np.arange(self.n)
+        self._window_points = np.vstack([self.points, self.points]) if self.closed else self.points
         # each pose's place in the KD-tree's leaf order, the order in which a ball query lists
         # poses: equally near poses are taken in that order, whichever search found them
         self._kd_order = np.empty(self.n, dtype=np.intp)
@@ -149,35 +197,59 @@ class PathIndex:
 
     # ---- matching ---------------------------------------------------------------------------
     def match(
-        self, x: float, y: float, yaw: float | None, s_hint: float | None = None, radius: float | None = None
+        self,
+        x: float,
+        y: float,
+        yaw: float | None,
+        s_hint: float | None = None,
+        radius: float | None = None,
+        z: float | None = None,
     ) -> Match | None:
-        """The nearest reachable path pose within `radius` (default radius_m) of (x, y).
+        """The nearest reachable path pose within `radius` (default radius_m) of (x, y) on the
+        ground, at height `z` (None: not known, matched without it).
 
         `s_hint` is the last match's progress (unwrapped s). Without a match within the hint's
         window (start-up, a relocalisation jump, a long outage) the search widens to
-        fallback_radius_m around the vehicle, heading still checked but the window dropped,
-        and says so (search == "wide"). None when nothing reachable is found at all, e.g.
-        the vehicle faces against the route or is far off it.
+        fallback_radius_m around the vehicle, heading and height still checked but the window
+        dropped, and says so (search == "wide"). None when nothing reachable is found at all,
+        e.g. the vehicle faces against the route, is far off it or on another level.
         """
         r = self.radius_m if radius is None else float(radius)
+        query = self.query_point(x, y, z, yaw)
         if s_hint is None:
-            search, i = "nearest", self._nearest_in_ball(x, y, yaw, r)
+            search, i = "nearest", self._nearest_in_ball(query, yaw, z, r)
         else:
-            search, i = "tracked", self._nearest_in_window(x, y, yaw, self._wrap(s_hint), r)
+            search, i = "tracked", self._nearest_in_window(query, yaw, z, self._wrap(s_hint), r)
         if i is None:
-            search, i = "wide", self._nearest_in_ball(x, y, yaw, max(r, self.fallback_radius_m))
+            search, i = "wide", self._nearest_in_ball(query, yaw, z, max(r, self.fallback_radius_m))
             if i is None:
                 return None
         return self._refine(i, x, y, yaw, s_hint, search)
 
-    def _nearest_in_ball(self, x: float, y: float, yaw: float | None, r: float) -> int | None:
-        # the KD-tree lists only poses within r: no distance limit is left to apply
-        poses = np.array(self.tree.query_ball_point((x, y), r), dtype=np.intp)
-        return self._nearest_reachable(poses, x, y, yaw, None, math.inf)
+    def query_point(self, x: float, y: float, z: float | None, yaw: float | None) -> np.ndarray:
+        """The vehicle in the tree's space: an unknown heading at the origin of the heading's plane,
+        an unknown height at 0 (weighed by nothing: `_measures`)."""
+        hx, hy = (
+            (0.0, 0.0) if yaw is None else (self.heading_scale_m * math.cos(yaw), self.heading_scale_m * math.sin(yaw))
+        )
+        return np.array([x, y, 0.0 if z is None else self._height_scale * z, hx, hy])
 
-    def _nearest_in_window(self, x: float, y: float, yaw: float | None, hint: float, r: float) -> int | None:
+    def _nearest_in_ball(self, query: np.ndarray, yaw: float | None, z: float | None, r: float) -> int | None:
+        # the ball holds every pose within r on the ground that may qualify: it reaches as far
+        # as the heading limit and the height limit let a qualifying pose lie in the tree's space
+        reach2 = r * r + (self.heading_scale_m**2 if yaw is None else self._heading_ball2)
+        if z is None:
+            found = self._flat_tree.query_ball_point(query[FLAT], math.sqrt(reach2))
+        else:
+            found = self.tree.query_ball_point(query, math.sqrt(reach2 + self._height_limit2))
+        poses = np.array(found, dtype=np.intp)
+        return self._nearest_reachable(poses, self.points[poses], query, yaw, z, None, r * r)
+
+    def _nearest_in_window(
+        self, query: np.ndarray, yaw: float | None, z: float | None, hint: float, r: float
+    ) -> int | None:
         """While tracking, only the hint's window qualifies: a few dozen poses, taken straight
-        from the route, where a ball query would gather the whole neighbourhood."""
+        from the route (one slice), where a ball query would gather the whole neighbourhood."""
         first = hint - self.window_behind_m - WINDOW_SLACK_M
         last = hint + self.window_ahead_m + WINDOW_SLACK_M
         if self.closed:
@@ -189,19 +261,30 @@ class PathIndex:
             end = min(int(laps_on) * self.n + bisect_right(self._s, last), begin + self.n)
         else:
             begin, end = bisect_left(self._s, first), bisect_right(self._s, last)
-        return self._nearest_reachable(self._pose_numbers[begin:end], x, y, yaw, hint, r * r)
+        rows = self._window_points[begin:end]
+        return self._nearest_reachable(self._pose_numbers[begin:end], rows, query, yaw, z, hint, r * r)
 
     def _nearest_reachable(
-        self, poses: np.ndarray, x: float, y: float, yaw: float | None, hint: float | None, r2: float
+        self,
+        poses: np.ndarray,
+        rows: np.ndarray,
+        query: np.ndarray,
+        yaw: float | None,
+        z: float | None,
+        hint: float | None,
+        r2: float,
     ) -> int | None:
-        """The nearest of `poses` (pose numbers) within sqrt(r2) of (x, y) that is reachable."""
-        dx = self.route.x[poses] - x
-        dy = self.route.y[poses] - y
-        d2 = dx * dx + dy * dy
+        """The nearest of `poses` (pose numbers; `rows`: their points) in the tree's metric that lies
+        within sqrt(r2) of the vehicle on the ground, at its height, and is reachable."""
+        diff = rows - query
+        # one product gives each pose's distance in the tree's metric, on the ground, in height
+        distance2, ground2, height2 = ((diff * diff) @ self._measures[z is not None]).T
+        near = ground2 <= r2
+        if z is not None:
+            near &= height2 <= self._height_limit2
+        poses, distance2 = poses[near], distance2[near]
         # nearest first, equally near poses in the KD-tree's order; the first reachable one wins
-        for k in np.lexsort((self._kd_order[poses], d2)):
-            if d2[k] > r2:
-                return None
+        for k in np.lexsort((self._kd_order[poses], distance2)):
             i = int(poses[k])
             if self._reachable(i, yaw, hint):
                 return i
@@ -323,15 +406,25 @@ class PathTracker:
         self.ahead_step_m = params.ahead_step_m
         self.force_odometry_zones = frozenset(params.force_odometry_zones)
         self.max_heading_var = params.max_heading_sigma_rad**2
+        self.max_height_var = params.max_height_sigma_m**2
         self.progress: float | None = None  # last matched progress: the next query's hint
 
     def update(
-        self, now: float, x: float, y: float, yaw: float, var_yaw: float = 0.0
+        self,
+        now: float,
+        x: float,
+        y: float,
+        yaw: float,
+        var_yaw: float = 0.0,
+        z: float | None = None,
+        var_z: float | None = None,
     ) -> tuple[Match | None, PathMatch | None]:
         # until the vehicle has moved, the UKF's heading may be a guess (no magnetometer reading
-        # before the first fix): then match by position, or the vehicle would never set off
+        # before the first fix): then match by position, or the vehicle would never set off; a
+        # height not known (no altitude in the fixes, an old recording) is left out alike
         yaw_known = var_yaw <= self.max_heading_var
-        m = self.index.match(x, y, yaw if yaw_known else None, self.progress)
+        z_known = z is not None and var_z is not None and var_z <= self.max_height_var
+        m = self.index.match(x, y, yaw if yaw_known else None, self.progress, z=z if z_known else None)
         if m is None:
             return None, None  # keep the hint: the vehicle may come back to where it was
         self.progress = m.progress

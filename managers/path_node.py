@@ -19,7 +19,7 @@ class PathManager(Node):
     name = "path_manager"
     Params = PathManagerParams
     sections = {"speed_profile": SpeedProfileParams}
-    pose = Input("localization/pose", max_age="pose_timeout_s", doc="the fused pose: x, y, yaw and its variance")
+    pose = Input("localization/pose", max_age="pose_timeout_s", doc="the fused pose: x, y, z, yaw and their variances")
     match = Output("path/match", rate="rate_hz", doc="silent while the pose is stale")
 
     def setup(self) -> None:
@@ -38,7 +38,7 @@ class PathManager(Node):
         if pose is None:
             return  # nothing fresh to match: stay silent, the controller must not act on old news
         previous = self.tracker.progress
-        m, msg = self.tracker.update(now, pose.x, pose.y, pose.yaw, pose.var_yaw)
+        m, msg = self.tracker.update(now, pose.x, pose.y, pose.yaw, pose.var_yaw, pose.z, pose.var_z)
         if m is None:
             if not self._lost:  # say it once, not at every step
                 self._lost = True

@@ -362,6 +362,7 @@ class Localizer:
             cov_yy=float(P[1, 1]),
             var_yaw=float(P[YAW, YAW]),
             var_v=float(P[V, V]),
+            var_z=float(self.altitude.var + self.altitude.q * max(now - self.altitude.t, 0.0)),
             position_std_m=std,
             rtk=self.last_fix_rtk,
             gnss_age_s=None if self.last_fix_t is None else max(now - self.last_fix_t, 0.0),

@@ -630,5 +630,7 @@ def test_fixes_without_altitude_track_the_position_and_leave_the_height_alone():
     early, early_errors = run_localizer([m for m in no_z if m[1].t < 10.0])
     assert max(math.hypot(e[1], e[2]) for e in early_errors if e[0] > 5.0) < 0.05
     assert early.altitude.var >= 1e5  # still unknown: no fix has given a height
+    assert early_errors[-1][4].var_z >= 1e5  # and the pose says so (the path manager leaves it out)
     loc, errors = run_localizer(no_z)
     assert loc.altitude.var < 1.0 and abs(errors[-1][4].z) < 0.05  # the fixes from 10 s on said z = 0
+    assert errors[-1][4].var_z < 1.0

@@ -219,7 +219,7 @@ def test_a_recording_cut_short_is_read_up_to_its_last_complete_chunk(tmp_path, c
     found = mcap_replay.info(cut)
     assert not found["complete"] and found["cut_short"]
     poses = [r for r in mcap_replay.open_recording(cut).messages() if r.topic == "localization/pose"]
-    assert 100 < len(poses) < 400
+    assert 80 <= len(poses) < 400  # the chunks wholly in the first half (the summary fills much of the end)
     assert [round(r.stamp, 9) for r in poses] == [round(k * 0.05, 9) for k in range(len(poses))]
 
 

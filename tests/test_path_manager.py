@@ -145,6 +145,83 @@ def test_on_a_hairpin_the_match_never_jumps_to_the_other_leg():
             assert m.xte == pytest.approx(1.2, abs=1e-6)
 
 
+# ---- the tree over {X, Y, Z, Ψ}: a ramp's levels, a road driven both ways ------------------------------
+
+RAMP_RADIUS_M, RAMP_CLIMB_M = 15.0, 3.2  # a car park's spiral ramp: a storey per turn
+
+
+def spiral_ramp(turns=3):
+    """An open route climbing a helix: each turn exactly above the one before, in the same direction."""
+    a = np.arange(0.0, 2 * math.pi * turns, 0.25 / RAMP_RADIUS_M)
+    x, y = RAMP_RADIUS_M * np.cos(a), RAMP_RADIUS_M * np.sin(a)
+    return Route("ramp", x, y, RAMP_CLIMB_M * a / (2 * math.pi), False, np.full(len(a), 4.0))
+
+
+def there_and_back(leg=60.0):
+    """Out along y = 0 and back along the very same line: every point passed in both directions."""
+    out = np.arange(0.0, leg, 0.25)
+    x = np.concatenate([out, leg - out])
+    return Route("there-and-back", x, np.zeros_like(x), np.zeros_like(x), False, np.full(len(x), 4.0))
+
+
+def test_on_a_spiral_ramp_the_match_is_on_the_vehicle_s_own_level():
+    route = spiral_ramp()
+    index = PathIndex(route, PARAMS)
+    turn = route.length / 3
+    wrong_level_without_height = 0
+    for level in range(3):
+        s = level * turn + 30.0
+        x, y, z, yaw = route.point_at(s)
+        for hint in (None, s - 0.2):
+            m = index.match(x, y, yaw, hint, z=z)
+            assert m.s == pytest.approx(s, abs=0.05) and abs(m.xte) < 1e-6, (level, hint)
+        # without its height (the (x, y) tree of before) the ground alone cannot tell the levels apart
+        wrong_level_without_height += abs(index.match(x, y, yaw, z=None).s - s) > turn / 2
+    assert wrong_level_without_height >= 1
+    # a pose jump from the ground floor to the top: the wide search lands on the top level
+    x, y, z, yaw = route.point_at(2 * turn + 50.0)
+    m = index.match(x, y, yaw, s_hint=30.0, z=z)
+    assert m.search == "wide" and m.s == pytest.approx(2 * turn + 50.0, abs=0.05)
+    # above the top level by more than max_height_error_m (a roof the route never reaches): no level at all
+    assert index.match(x, y, yaw, z=z + PARAMS.max_height_error_m + 0.5) is None
+
+
+def test_a_drive_up_the_ramp_stays_on_its_level_and_its_progress_moves_on():
+    route = spiral_ramp()
+    tracker = PathTracker(route, PARAMS)
+    last = None
+    for k, s in enumerate(np.arange(1.0, route.length - 1.0, 0.4)):
+        x, y, z, yaw = route.point_at(float(s))
+        m, _ = tracker.update(0.05 * k, x, y, yaw, 1e-4, z=z + 0.4, var_z=0.25)  # GNSS height 0.4 m high
+        assert m is not None and m.s == pytest.approx(s, abs=0.05)
+        assert last is None or 0.0 < m.progress - last < 0.5
+        last = m.progress
+
+
+def test_a_height_the_localization_is_not_sure_of_is_left_out():
+    route = spiral_ramp()
+    tracker = PathTracker(route, PARAMS)
+    x, y, z, yaw = route.point_at(2 * route.length / 3 + 30.0)
+    unsure, _ = tracker.update(0.0, x, y, yaw, 1e-4, z=z, var_z=PARAMS.max_height_sigma_m**2 * 4)
+    assert unsure.s == pytest.approx(PathIndex(route, PARAMS).match(x, y, yaw, z=None).s)
+    tracker.progress = None
+    sure, _ = tracker.update(0.0, x, y, yaw, 1e-4, z=z, var_z=0.01)
+    assert sure.s == pytest.approx(2 * route.length / 3 + 30.0, abs=0.05)
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.6, -0.6])
+def test_on_a_road_driven_both_ways_the_heading_picks_the_pass(offset):
+    route = there_and_back()
+    index = PathIndex(route, PARAMS)
+    for heading, expected in ((0.0, 20.0), (math.pi, 100.0)):  # out at s = 20, back past the same point at 100
+        for hint in (None, expected - 0.2):
+            m = index.match(20.0, offset, heading + 0.2, hint, z=0.0)
+            assert m.s == pytest.approx(expected, abs=0.05), (heading, hint)
+    # a drive back along the line, hinted all the way: never the outbound pass under it
+    matches = drive(index, route, 62.0, route.length - 2.0, offset=offset)
+    assert all(m.s == pytest.approx(s, abs=0.05) for s, m in matches)
+
+
 # ---- laps, reverse heading, fallback --------------------------------------------------------------
 
 
@@ -325,8 +402,11 @@ def as_tuple(m):
 )
 def test_match_returns_what_the_reference_returns(route, params, start, laps, on_grid, queries):
     """on_grid puts the vehicle on a 0.5 m grid: on a lattice route, at exactly equal distances
-    from several poses, or exactly at the radius."""
-    index, reference = PathIndex(route, PARAMS.model_copy(update=params)), ReferencePathIndex(route, **params)
+    from several poses, or exactly at the radius. The reference's tree was over (x, y) alone: with
+    the heading weighing nothing and no height given, today's {X, Y, Z, Ψ} tree must agree with it
+    exactly (what the heading and the height change is tested on routes made for it, below)."""
+    flat = PARAMS.model_copy(update={**params, "heading_scale_m": 0.0})
+    index, reference = PathIndex(route, flat), ReferencePathIndex(route, **params)
     s = start * route.length + (laps * route.length if route.closed else 0.0)
     progress = None  # the reference's last match, the hint as the path manager keeps it
     for step, offset, dyaw, heading, hint_kind, elsewhere, radius in queries:

@@ -288,6 +288,7 @@ class Pose(Msg):
     position_std_m: float  # sqrt of the largest eigenvalue of the x-y covariance
     rtk: bool  # the last GNSS fix used had RTK corrections
     gnss_age_s: float | None  # stack seconds since the last GNSS fix was fused
+    var_z: float | None = None  # of z, m²; None: not given (a recording made before it was)
 
 
 class OdometryScore(Msg):

@@ -5,8 +5,8 @@ with two harmonics, curves down to ~100 m radius) of exactly `poses` poses. Quer
 drives along it at 4 m/s sampled at 20 Hz, with a slowly wandering cross-track offset and yaw
 noise; each match's hint is the previous match's progress, as in the path manager. The figure
 that matters is PathIndex.match (tracked: the nearest reachable pose in the hint's window +
-perpendicular refinement); the raw KD queries, which answer the searches without a hint, are
-given beside it.
+perpendicular refinement); the match without a hint (start-up, a rematch: a ball query of the
+{X, Y, Z, Ψ} KD-tree) and the raw KD queries are given beside it.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def bench_route(poses: int = 100_000, spacing_m: float = 0.5):
 
 
 def _drive_poses(route, queries: int, drives: int, seed: int):
-    """(x, y, yaw, true progress) of `drives` drives at 0.2 m per query, random starts."""
+    """(x, y, z, yaw, true progress, true offset) of `drives` drives at 0.2 m per query, random starts."""
     import numpy as np
 
     rng = np.random.default_rng(seed)
@@ -59,11 +59,12 @@ def _drive_poses(route, queries: int, drives: int, seed: int):
         phase = rng.uniform(0, 2 * math.pi)
         offset = 0.8 * np.sin(0.013 * np.arange(per) + phase) + rng.normal(0.0, 0.05, per)
         for k in range(per):
-            px, py, _, yaw = route.point_at(float(s[k]))
+            px, py, pz, yaw = route.point_at(float(s[k]))
             out.append(
                 (
                     px - math.sin(yaw) * offset[k],
                     py + math.cos(yaw) * offset[k],
+                    pz,
                     yaw + float(rng.normal(0.0, 0.05)),
                     float(s[k]),
                     float(offset[k]),
@@ -81,22 +82,20 @@ def _ukf_step_p50_ms(n: int) -> float:
 
 def _build_times(route, builds: int) -> tuple[list[float], list[float], object]:
     """(ms of each KD-tree build, ms of each PathIndex build, the last PathIndex)."""
-    import numpy as np
     from scipy.spatial import cKDTree
 
     from managers.path import PathIndex
 
-    xy = np.column_stack([route.x, route.y])
-    build_ms = []
-    for _ in range(builds):
-        started = time.perf_counter()
-        cKDTree(xy)
-        build_ms.append((time.perf_counter() - started) * 1e3)
     index_ms = []
     for _ in range(3):
         started = time.perf_counter()
         index = PathIndex(route)
         index_ms.append((time.perf_counter() - started) * 1e3)
+    build_ms = []
+    for _ in range(builds):  # the tree over {X, Y, Z, Ψ} alone
+        started = time.perf_counter()
+        cKDTree(index.points)
+        build_ms.append((time.perf_counter() - started) * 1e3)
     return build_ms, index_ms, index
 
 
@@ -106,11 +105,11 @@ def _match_times(index, drives: list, per: int) -> tuple[list[float], int, float
     match_us, not_tracked, worst_xte_error = [], 0, 0.0
     perf = time.perf_counter_ns
     hint = None
-    for k, (x, y, yaw, s_true, offset) in enumerate(drives):
+    for k, (x, y, z, yaw, s_true, offset) in enumerate(drives):
         if k % per == 0:
             hint = s_true - 0.2  # a drive starts tracked, as the path manager would be
         started = perf()
-        m = index.match(x, y, yaw, hint)
+        m = index.match(x, y, yaw, hint, z=z)
         match_us.append((perf() - started) / 1e3)
         if m is None or m.search != "tracked":
             not_tracked += 1
@@ -121,19 +120,25 @@ def _match_times(index, drives: list, per: int) -> tuple[list[float], int, float
     return match_us, not_tracked, worst_xte_error
 
 
-def _kd_query_times(index, drives: list) -> tuple[list[float], list[float]]:
-    """(µs of each raw ball query, of each nearest query) at the drives' poses."""
+def _kd_query_times(index, drives: list) -> tuple[list[float], list[float], list[float]]:
+    """(µs of each raw ball query, of each nearest query, of each match without a hint) at the
+    drives' poses (every tenth for the last)."""
     perf = time.perf_counter_ns
     tree = index.tree
-    ball_us, nearest_us = [], []
-    for x, y, *_ in drives:
+    ball_us, nearest_us, unhinted_us = [], [], []
+    for k, (x, y, z, yaw, *_) in enumerate(drives):
+        query = index.query_point(x, y, z, yaw)
         started = perf()
-        tree.query_ball_point((x, y), index.radius_m)
+        tree.query_ball_point(query, index.radius_m)
         ball_us.append((perf() - started) / 1e3)
         started = perf()
-        tree.query((x, y))
+        tree.query(query)
         nearest_us.append((perf() - started) / 1e3)
-    return ball_us, nearest_us
+        if k % 10 == 0:
+            started = perf()
+            index.match(x, y, yaw, None, z=z)
+            unhinted_us.append((perf() - started) / 1e3)
+    return ball_us, nearest_us, unhinted_us
 
 
 def run_path_bench(
@@ -154,7 +159,7 @@ def run_path_bench(
     say(f"{queries} matches along {n_drives} drives")
     drives = _drive_poses(route, queries, n_drives, seed)
     match_us, not_tracked, worst_xte_error = _match_times(index, drives, max(queries // n_drives, 1))
-    ball_us, nearest_us = _kd_query_times(index, drives)
+    ball_us, nearest_us, unhinted_us = _kd_query_times(index, drives)
     say("UKF step")
     ukf_p50 = _ukf_step_p50_ms(ukf_steps)
     result = {
@@ -174,6 +179,7 @@ def run_path_bench(
             "(read from the route), refined to the perpendicular foot; hint = previous match"
         ),
         "radius_m": index.radius_m,
+        "unhinted_match_p50_us": percentile(unhinted_us, 50, 2),
         "kd_ball_query_p50_us": percentile(ball_us, 50, 2),
         "kd_nearest_query_p50_us": percentile(nearest_us, 50, 2),
         "matches_not_tracked": not_tracked,
@@ -208,7 +214,8 @@ def format_path_result(result: dict, out: TextIO) -> None:
     )
     out.write(
         f"  raw KD: ball query (r = {result['radius_m']:g} m) p50 {result['kd_ball_query_p50_us']:.1f} us, "
-        f"nearest p50 {result['kd_nearest_query_p50_us']:.1f} us\n"
+        f"nearest p50 {result['kd_nearest_query_p50_us']:.1f} us; a match without a hint p50 "
+        f"{result['unhinted_match_p50_us']:.1f} us\n"
     )
     ukf = result["ukf_step_p50_ms"]
     out.write(f"  UKF step p50 {ukf:.3f} ms  ({result['ukf_step_method']})\n")
