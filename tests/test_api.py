@@ -367,6 +367,8 @@ def test_export_csv(world):
     assert json.loads(row["scores"]) == {"odometry": 0.9}
     assert json.loads(row["sensors"]) == {"gnss": {"rate_hz": 5.0, "ok": True}}
     assert row["awareness_level"] == ""  # None -> empty cell
+    assert float(row["command.commanded_speed_mps"]) == 3.0 and row["command.target_speed_mps"] == ""
+    assert row["command.commanded_curvature"] == "0.002"
 
 
 def test_export_bad_format_and_roles(world):

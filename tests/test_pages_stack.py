@@ -325,6 +325,8 @@ def test_the_auditor_exports_the_window_the_rest_api_returns(page, stack):
     shown = int(pg.get_attribute("#query-status", "data-count"))
     assert shown > 10 and pg.locator("#records tr").count() == shown + 1  # a header and a row per record
     assert pg.locator("#plots .uplot").count() >= 4  # speed, steering, scores, ...
+    # speed tracking as an auditor would draw it: the speed driven beside the speeds asked
+    assert pg.locator("#plots .uplot", has_text="speed asked and driven").count() == 1
     shot(pg, "blackbox")
     with pg.expect_download() as download, pg.expect_request(lambda r: "/export?" in r.url) as request:
         pg.click("#export-jsonl")

@@ -37,6 +37,7 @@ from ares.core.messages import (
     Pose,
     ProcessState,
     ProcessStatus,
+    Setpoint,
     StoredEvent,
     SupervisorState,
     VehicleRecord,
@@ -72,6 +73,7 @@ RATES_HZ = {
     "car": 10,
     "score": 10,
     "control": 10,
+    "setpoint": 10,
     "supervisor": 2,
     "gnss": 5,
     "imu": 20,
@@ -137,8 +139,10 @@ def message(kind: str, t: float):
             s=10.0,
             xte=0.02,
             heading_error=0.0,
-            target_speed=2.0,
+            target_speed=2.5,
         )
+    if kind == "setpoint":  # the controller asks for more than the movement gate lets through (car: 2.0)
+        return "control/setpoint", Setpoint(t=t, v=2.2, kappa=0.012, source="pure_pursuit")
     if kind == "supervisor":
         return "supervisor/state", SupervisorState(
             t=t,
@@ -518,6 +522,16 @@ def test_one_record_per_second_with_the_latest_values_and_events_as_they_happen(
         assert sensors["can"] == {"rate_hz": pytest.approx(20.0), "ok": True}
         assert sensors["imu"] == {"rate_hz": pytest.approx(20.0), "ok": False}  # 20 Hz < 30 Hz
         assert r["awareness_level"] is None and r["mission_state"] is None
+        # what was asked beside what was done: the speed aimed at, the controller's output, the command
+        assert r["command"] == {
+            "target_speed_mps": 2.5,
+            "controller": "pure_pursuit",
+            "controller_speed_mps": 2.2,
+            "controller_curvature": 0.012,
+            "commanded_speed_mps": 2.0,
+            "commanded_curvature": 0.01,
+            "emergency": False,
+        }
         # the event is counted once, in the record of the second it happened in: [k - 1, k)
         assert {int(r["t"]): r["events"] for r in recs if r["events"]} == {6: 1}
         assert len(events(store, vehicle)) == 1
@@ -530,7 +544,7 @@ def test_missing_and_stale_inputs_are_recorded_as_null(tmp_path, rigs, fake_stor
     rig.silent = {"control", "can"}  # never heard of
     rig.start_recorder()
     rig.drive(4.0)
-    rig.silent |= {"pose", "car", "score", "supervisor", "gnss"}  # last heard at t = 4.0
+    rig.silent |= {"pose", "car", "score", "supervisor", "gnss", "setpoint"}  # last heard at t = 4.0
     rig.drive(9.0)
     wait_until(lambda: fake_store.seconds() == list(range(1, 10)), 10, "the nine records in the store")
     rig.stop_recorder()
@@ -545,9 +559,12 @@ def test_missing_and_stale_inputs_are_recorded_as_null(tmp_path, rigs, fake_stor
         r = recs[k]
         assert r.position is not None and r.speed_mps == 2.0 and r.mode == DriveMode.AUTOMATIC
         assert r.scores == {"odometry": 0.93} and set(r.processes) == {"gnss", "controller"}
+        assert r.command is not None and r.command.target_speed_mps is None  # the control manager never heard
+        assert (r.command.controller_speed_mps, r.command.commanded_speed_mps) == (2.2, 2.0)
     for k in (7, 8, 9):
         r = recs[k]
         assert r.position is None and r.speed_mps is None and r.steering_wheel_deg is None and r.mode is None
+        assert r.command is None
         assert r.scores == {} and r.processes == {}
         assert r.sensors["gnss"].rate_hz == 0.0 and r.sensors["gnss"].ok is False
 

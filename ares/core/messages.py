@@ -628,6 +628,21 @@ class CorrectionsRecord(BaseModel):
     fix_quality: int | None = None  # the receiver's GGA quality: 4 RTK fixed, 5 float, 2 DGPS, 1 single
 
 
+class CommandRecord(BaseModel):
+    """What was asked of the vehicle in a second of the black box, beside what it did (speed_mps,
+    steering_wheel_deg): the speed aimed at, the controller's output, the command executed."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    target_speed_mps: float | None = None  # the speed profile's, as the control manager aims at it
+    controller: str | None = None  # whose output the control manager forwarded (mpc, rrc, ..., stop)
+    controller_speed_mps: float | None = None  # that output (control/setpoint): before the movement gate
+    controller_curvature: float | None = None  # 1/m, + left
+    commanded_speed_mps: float | None = None  # the movement manager's command as the bridge executes it
+    commanded_curvature: float | None = None  # 1/m, + left
+    emergency: bool | None = None  # the bridge brakes fully for a latched emergency stop
+
+
 class VehicleRecord(BaseModel):
     """One second of the vehicle's state, as the black box keeps it (ARES §3.8)."""
 
@@ -647,6 +662,7 @@ class VehicleRecord(BaseModel):
     awareness_level: int | None = None  # 0 nominal, 1 critical, 2 low (self-awareness)
     mission_state: str | None = None  # the mission's state, or the POI action running
     corrections: CorrectionsRecord | None = None  # the RTK corrections' link and age, and the fix type
+    command: CommandRecord | None = None  # the speed aimed at, the controller's output, the command executed
     events: int = 0  # events recorded during this second (kept in full apart)
     # the recording run (one per recorder start): with the time, the record's key in the store, so
     # that a clock set back between two runs adds the second run's record beside the first's;

@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 
 from fastapi import HTTPException
 
-from ares.core.messages import EventLevel, StoredEvent, VehicleRecord
+from ares.core.messages import CommandRecord, EventLevel, StoredEvent, VehicleRecord
 from blackbox.api.credentials import Claims, NoSuchUser, Passwords, UserError, add_user, delete_user
 from blackbox.api.models import json_bytes
 from blackbox.api.security import blacklist_event
@@ -372,8 +372,9 @@ CSV_POSITION = tuple(
     f"position.{k}" for k in ("x", "y", "z", "easting", "northing", "zone", "hemisphere", "lat", "lon")
 )
 CSV_CORRECTIONS = tuple(f"corrections.{k}" for k in ("link", "age_s", "fix_quality"))
+CSV_COMMAND = tuple(f"command.{k}" for k in CommandRecord.model_fields)
 CSV_MAPPINGS = ("scores", "sensors", "processes")  # keys vary per record: one JSON cell each
-CSV_COLUMNS = (*CSV_SCALARS, *CSV_POSITION, *CSV_CORRECTIONS, *CSV_MAPPINGS)
+CSV_COLUMNS = (*CSV_SCALARS, *CSV_POSITION, *CSV_CORRECTIONS, *CSV_COMMAND, *CSV_MAPPINGS)
 
 
 def _cell(value: Any) -> Any:
@@ -389,10 +390,12 @@ def _cell(value: Any) -> Any:
 def csv_row(record: dict) -> list:
     position = record.get("position") or {}
     corrections = record.get("corrections") or {}
+    command = record.get("command") or {}
     return (
         [_cell(record.get(k)) for k in CSV_SCALARS]
         + [_cell(position.get(k.split(".", 1)[1])) for k in CSV_POSITION]
         + [_cell(corrections.get(k.split(".", 1)[1])) for k in CSV_CORRECTIONS]
+        + [_cell(command.get(k.split(".", 1)[1])) for k in CSV_COMMAND]
         + [_cell(record.get(k) or {}) for k in CSV_MAPPINGS]
     )
 

@@ -66,6 +66,7 @@ from ares.core.messages import (
     AwarenessState,
     BlackboxStatus,
     CarState,
+    CommandRecord,
     ControllerStatus,
     CorrectionsRecord,
     CorrectionsStatus,
@@ -77,6 +78,7 @@ from ares.core.messages import (
     Position,
     ProcessHealth,
     SensorHealth,
+    Setpoint,
     StoredEvent,
     SupervisorState,
     VehicleRecord,
@@ -224,6 +226,7 @@ class Snapshot:
     pose: Pose | None = None
     car: CarState | None = None
     controller: ControllerStatus | None = None
+    setpoint: Setpoint | None = None
     supervisor: SupervisorState | None = None
     awareness: AwarenessState | None = None
     mission: MissionStatus | None = None
@@ -264,6 +267,7 @@ def build_record(
         awareness_level=snap.awareness.level if snap.awareness is not None else None,
         mission_state=mission_state(snap.mission),
         corrections=corrections_of(snap.corrections, snap.fix),
+        command=command_of(snap.controller, snap.setpoint, snap.car),
         events=events,
         run=run,
     )
@@ -276,6 +280,23 @@ def corrections_of(status: CorrectionsStatus | None, fix: GnssFix | None) -> Cor
         link=status.link if status is not None else None,
         age_s=status.age_s if status is not None else None,
         fix_quality=fix.quality if fix is not None else None,
+    )
+
+
+def command_of(
+    status: ControllerStatus | None, setpoint: Setpoint | None, car: CarState | None
+) -> CommandRecord | None:
+    """The second's demands: the target speed, the controller's output, the command executed."""
+    if status is None and setpoint is None and car is None:
+        return None
+    return CommandRecord(
+        target_speed_mps=status.target_speed if status is not None else None,
+        controller=setpoint.source if setpoint is not None else None,
+        controller_speed_mps=setpoint.v if setpoint is not None else None,
+        controller_curvature=setpoint.kappa if setpoint is not None else None,
+        commanded_speed_mps=car.v_command if car is not None else None,
+        commanded_curvature=car.kappa_command if car is not None else None,
+        emergency=car.emergency if car is not None else None,
     )
 
 

@@ -72,7 +72,10 @@ class Recorder(BlackboxNode):
     sections = {"blackbox_store": StoreSettings}
     pose = Input("localization/pose", max_age="max_age_s", doc="position")
     car = Input("dbw/car_state", max_age="max_age_s", doc="speed, steering, drive mode")
-    controller = Input("control/status", max_age="max_age_s", doc="the active controller")
+    controller = Input("control/status", max_age="max_age_s", doc="the active controller and its target speed")
+    setpoint = Input(
+        "control/setpoint", max_age="max_age_s", doc="the controller's output the control manager forwards"
+    )
     supervisor = Input("supervisor/state", max_age="max_age_s", doc="process health")
     awareness = Input("awareness/state", max_age="max_age_s", doc="the self-awareness level")
     mission = Input("mission/status", max_age="max_age_s", doc="the mission's state or the POI action running")
@@ -261,6 +264,7 @@ class Recorder(BlackboxNode):
             pose=self.pose.fresh(now),
             car=self.car.fresh(now),
             controller=self.controller.fresh(now),
+            setpoint=self.setpoint.fresh(now),
             supervisor=self.supervisor.fresh(now),
             awareness=self.awareness.fresh(now),
             mission=self.mission.fresh(now),

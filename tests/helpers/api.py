@@ -16,6 +16,7 @@ from ares.app import run_config
 from ares.core import config
 from ares.core.localhost import wait_for_port
 from ares.core.messages import (
+    CommandRecord,
     EventLevel,
     Position,
     ProcessHealth,
@@ -92,6 +93,7 @@ def seed(store, now: datetime | None = None) -> datetime:
                 controller="pure_pursuit",
                 sensors={"gnss": SensorHealth(rate_hz=5.0, ok=True)},
                 processes=procs,
+                command=None if manual else CommandRecord(commanded_speed_mps=3.0, commanded_curvature=0.002),
                 events=0,
             )
         )

@@ -6,9 +6,9 @@
 "use strict";
 
 ARES.page(["auditor"], "black box", async () => {
-  const FIELDS = ["speed_mps", "steering_wheel_deg", "scores", "controller", "awareness_level", "mode",
+  const FIELDS = ["speed_mps", "steering_wheel_deg", "command", "scores", "controller", "awareness_level", "mode",
                   "mission_state", "position", "sensors", "processes", "events"];
-  const DEFAULT = ["speed_mps", "steering_wheel_deg", "scores", "controller", "awareness_level", "mode"];
+  const DEFAULT = ["speed_mps", "steering_wheel_deg", "command", "scores", "controller", "awareness_level", "mode"];
   const RETENTION_MS = 7 * 24 * 3600 * 1000;
   const MAX_PAGES = 20;                 // 20,000 records: five and a half hours of seconds
   const select = document.getElementById("vehicle-select");
@@ -161,6 +161,12 @@ ARES.page(["auditor"], "black box", async () => {
     const groups = [];
     if (fields.includes("speed_mps")) groups.push({title: "speed (m/s)", s: {speed: (r) => r.speed_mps}});
     if (fields.includes("steering_wheel_deg")) groups.push({title: "steering wheel (°)", s: {steering: (r) => r.steering_wheel_deg}});
+    if (fields.includes("command")) {  // what was asked beside what was done: speed and steering tracking
+      const c = (r) => r.command || {};
+      groups.push({title: "speed asked and driven (m/s)", s: {driven: (r) => r.speed_mps, commanded: (r) => c(r).commanded_speed_mps,
+                                                             controller: (r) => c(r).controller_speed_mps, target: (r) => c(r).target_speed_mps}});
+      groups.push({title: "curvature asked (1/m)", s: {commanded: (r) => c(r).commanded_curvature, controller: (r) => c(r).controller_curvature}});
+    }
     if (fields.includes("scores")) {
       const names = [...new Set(rows.flatMap((r) => Object.keys(r.scores || {})))];
       groups.push({title: "scores", s: Object.fromEntries(names.map((n) => [n, (r) => (r.scores || {})[n]]))});
