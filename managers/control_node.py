@@ -34,8 +34,9 @@ from ares.core.messages import ControlCandidate, ControllerStatus, Setpoint
 from ares.core.node import Input, Node, Output
 from managers.control import Candidate, ControlSelector, Inputs, Mode, SelectionParams
 
-ODOMETRY_CONTROLLERS = ("mpc", "pure_pursuit")
-CONTROLLERS = ("mpc", "rrc", "pure_pursuit")
+# in the order they stand in for one another (stanley runs only when chosen: ares/app/processes.py)
+ODOMETRY_CONTROLLERS = ("mpc", "pure_pursuit", "stanley")
+CONTROLLERS = ("mpc", "rrc", "pure_pursuit", "stanley")
 
 
 class ControlManagerParams(Params):
@@ -46,10 +47,10 @@ class ControlManagerParams(Params):
         unit="Hz",
         gt=0,
     )
-    odometry_controller: Literal["mpc", "pure_pursuit"] = param(
+    odometry_controller: Literal["mpc", "pure_pursuit", "stanley"] = param(
         "mpc", "the controller trusted while the odometry deserves it; the other stands in for it"
     )
-    pinned: Literal["mpc", "rrc", "pure_pursuit"] | None = param(
+    pinned: Literal["mpc", "rrc", "pure_pursuit", "stanley"] | None = param(
         None, "only this controller drives (comparisons: ares run --controller); null: the order of trust"
     )
     candidate_max_age_s: float = param(
@@ -117,6 +118,9 @@ class ControlManager(Node):
     rrc = Input("control/candidate/rrc", max_age="candidate_max_age_s", doc="road reactive control's (v, kappa)")
     pure_pursuit = Input(
         "control/candidate/pure_pursuit", max_age="candidate_max_age_s", doc="pure pursuit's (v, kappa)"
+    )
+    stanley = Input(
+        "control/candidate/stanley", max_age="candidate_max_age_s", doc="the Stanley law's (v, kappa), when chosen"
     )
     score = Input("odometry/score", max_age="input_timeout_s", doc="trust in the pose (eq. 6)")
     pose = Input("localization/pose", max_age="input_timeout_s", doc="when a GNSS fix last anchored the pose")

@@ -15,7 +15,8 @@ from ares.tools.figures.compare import write_comparison_png
 def test_controllers_are_a_list_of_known_names():
     assert controllers("auto, mpc,pure_pursuit") == ["auto", "mpc", "pure_pursuit"]
     for bad in ("mpc,pp", "", ","):
-        with pytest.raises(argparse.ArgumentTypeError, match="comma-separated list of auto, mpc, rrc, pure_pursuit"):
+        known = "comma-separated list of auto, mpc, rrc, pure_pursuit, stanley"
+        with pytest.raises(argparse.ArgumentTypeError, match=known):
             controllers(bad)
 
 

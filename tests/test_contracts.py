@@ -52,7 +52,8 @@ def test_the_topic_graph_is_whole(cfg):
     # the command the bridge obeys has exactly one source, and the bridge reads no other
     assert graph["movement/command"]["publishers"] == ["movement_manager"]
     assert graph["movement/command"]["subscribers"] == ["dbw_bridge"]
-    assert graph["control/setpoint"]["subscribers"] == ["movement_manager"]
+    # the controller's output reaches the bridge only through the movement gate (the black box records it)
+    assert graph["control/setpoint"]["subscribers"] == ["movement_manager", "blackbox"]
     assert graph["dbw/actuators"]["subscribers"] == ["sim"]
     assert "supervisor" in graph["supervisor/state"]["publishers"]
 
@@ -84,6 +85,7 @@ def test_the_simulator_waits_for_every_process_it_feeds(cfg):
         "mpc",
         "rrc",
         "pure_pursuit",
+        "stanley",
         "control_manager",
         "obstacle_manager",
         "mission_manager",

@@ -34,6 +34,7 @@ class Process:
     wire: bool | None = None  # the simulator's variants: True only with --wire, False only without
     driver: bool = False  # reads a device: on a vehicle and with --wire, never in plain simulation
     device: str | None = None  # runs only when this vehicle_io device is set (an optional one: ntrip)
+    when_chosen: bool = False  # a controller that runs only when the control manager's configuration names it
 
     def node_class(self) -> type[Node]:
         return load(self.node)
@@ -78,6 +79,7 @@ PROCESSES: list[Process] = [
     Process("mpc", "control.mpc_node:MpcNode", safety_relevant=True),
     Process("rrc", "control.rrc_node:RrcNode", safety_relevant=True, lidars=True),
     Process("pure_pursuit", "control.pure_pursuit_node:PurePursuitNode", safety_relevant=True),
+    Process("stanley", "control.stanley_node:StanleyNode", safety_relevant=True, when_chosen=True),
     Process("control_manager", "managers.control_node:ControlManager", safety_relevant=True),
     # nothing moves unless every manager allows it: the gate is the bridge's only source of commands
     Process("obstacle_manager", "managers.obstacle_node:ObstacleManager", safety_relevant=True, lidars=True),
@@ -107,11 +109,16 @@ def by_name(name: str, wire: bool = False) -> Process:
 
 
 def for_run(
-    simulate: bool, lidars: bool = True, wire: bool = False, devices: frozenset[str] | None = None
+    simulate: bool,
+    lidars: bool = True,
+    wire: bool = False,
+    devices: frozenset[str] | None = None,
+    chosen: frozenset[str] | None = None,
 ) -> list[Process]:
     """The processes of a run: the simulator's plain or wire variant, and the drivers wherever
     devices are read (on a vehicle, or behind the simulator's wires); `devices`: the vehicle_io
-    devices set, for the drivers of optional ones (None: as if all were)."""
+    devices set, for the drivers of optional ones; `chosen`: the controllers the control manager's
+    configuration names, for those that run only when chosen (None: as if all were)."""
     wire = wire and simulate
     return [
         p
@@ -121,10 +128,13 @@ def for_run(
         and p.wire in (None, wire)
         and (not p.driver or wire or not simulate)
         and (p.device is None or devices is None or p.device in devices)
+        and (not p.when_chosen or chosen is None or p.name in chosen)
     ]
 
 
 def for_config(cfg) -> list[Process]:  # type: ignore[no-untyped-def]
     io = cfg.get("vehicle_io") or {}
     devices = frozenset(key for key, value in io.items() if value)
-    return for_run(cfg["simulate"], cfg["lidars"], cfg["wire"], devices)
+    control = cfg.get("control_manager") or {}
+    chosen = frozenset(str(c) for c in (control.get("odometry_controller"), control.get("pinned")) if c)
+    return for_run(cfg["simulate"], cfg["lidars"], cfg["wire"], devices, chosen)

@@ -45,7 +45,7 @@ class RunOptions(BaseModel):
     route: str | None = None  # a built-in tour's name, a tour's YAML or a route CSV
     scenario: str | None = None  # a built-in scenario's name or a scenario file
     mission: Literal["tour", "drive", "none"] | None = None
-    controller: Literal["auto", "mpc", "rrc", "pure_pursuit"] | None = None
+    controller: Literal["auto", "mpc", "rrc", "pure_pursuit", "stanley"] | None = None
     wire: bool = False  # the simulator behind the devices' wire formats
     vehicle_io: str | None = None  # the vehicle's devices: a YAML file of the vehicle_io section
     vehicle: str | None = None

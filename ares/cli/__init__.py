@@ -1,8 +1,8 @@
 """The `ares` command line.
 
     ares run [--headless] [--manual] [--laps N] [--speed X|max|paced] [--config FILE] [--route NAME|FILE]
-             [--scenario NAME|FILE] [--mission tour|drive|none] [--controller auto|mpc|rrc|pure_pursuit] [--wire]
-             [--vehicle-io FILE] [--vehicle NAME] [--passengers N] [--vehicle-id ID] [--router ENDPOINT]
+             [--scenario NAME|FILE] [--mission tour|drive|none] [--controller auto|mpc|rrc|pure_pursuit|stanley]
+             [--wire] [--vehicle-io FILE] [--vehicle NAME] [--passengers N] [--vehicle-id ID] [--router ENDPOINT]
              [--listen ENDPOINT] [--vehicle-cpus LIST] [--run-dir DIR] [--api-port PORT] [--store URI]
              [--fleet N] [--seconds S] [--record [[full|light][:FILE.mcap]]] [--foxglove [[HOST:]PORT]]
                                    the whole stack (simulated shuttle, embedded router), or a headless run

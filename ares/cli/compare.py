@@ -1,6 +1,6 @@
 """`ares compare`: the same headless run with each controller in turn, figures side by side.
 
-    ares compare [--controllers mpc,pure_pursuit] [--route R] [--vehicle V] [--scenario S]
+    ares compare [--controllers mpc,stanley] [--route R] [--vehicle V] [--scenario S]
                  [--laps N | --seconds S] [--config FILE] [--out PNG] [--json]
 
 Each run is `ares run --headless --speed max --controller C ...` (ares.app.stack.run), one after
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .args import CliError, Command, positive_float, positive_int
 
-CONTROLLER_CHOICES = ("auto", "mpc", "rrc", "pure_pursuit")
+CONTROLLER_CHOICES = ("auto", "mpc", "rrc", "pure_pursuit", "stanley")
 FIGURES = (
     "distance_m",
     "lap_time_s",
@@ -59,9 +59,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     p.add_argument(
         "--controllers",
         type=controllers,
-        default=["mpc", "pure_pursuit"],
+        default=["mpc", "stanley"],
         metavar="LIST",
-        help="comma-separated, of auto, mpc, rrc, pure_pursuit (default mpc,pure_pursuit)",
+        help="comma-separated, of auto, mpc, rrc, pure_pursuit, stanley (default mpc,stanley: ARES Fig. 15's pair)",
     )
     p.add_argument("--route", metavar="NAME|FILE", help="as ares run --route")
     p.add_argument("--vehicle", metavar="NAME", help="as ares run --vehicle")

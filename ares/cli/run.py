@@ -78,7 +78,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> dict[str, Command]:
     )
     run.add_argument(
         "--controller",
-        choices=["auto", "mpc", "rrc", "pure_pursuit"],
+        choices=["auto", "mpc", "rrc", "pure_pursuit", "stanley"],
         help="pin one controller for comparisons (default auto: the control manager chooses)",
     )
     run.add_argument(

@@ -84,6 +84,12 @@ TOPIC_TABLE: list[Topic] = [
     Topic("control/candidate/mpc", m.ControlCandidate, "the MPC's (v, kappa) (ARES §3.6.1)"),
     Topic("control/candidate/rrc", m.ControlCandidate, "road reactive control's (v, kappa) (ARES §3.6.2)"),
     Topic("control/candidate/pure_pursuit", m.ControlCandidate, "pure pursuit's (v, kappa) (DBW paper)"),
+    Topic(
+        "control/candidate/stanley",
+        m.ControlCandidate,
+        "the Stanley law's (v, kappa) (ARES Fig. 15's comparison): only when chosen",
+        optional=True,
+    ),
     Topic("control/mpc/trajectory", m.PredictedTrajectory, "the MPC's predicted trajectory over its horizon"),
     Topic("control/setpoint", m.Setpoint, "(v, kappa): the control manager's choice, to the movement manager"),
     Topic(

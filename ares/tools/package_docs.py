@@ -91,7 +91,15 @@ def runs_where(spec: Process) -> str:
         where = "in simulation" + (" with `--wire`" if spec.wire else " without `--wire`")
     else:
         where = "in every run"
-    conditions = [c for c, on in ((f"`vehicle_io.{spec.device}` set", spec.device), ("the LiDARs", spec.lidars)) if on]
+    conditions = [
+        c
+        for c, on in (
+            (f"`vehicle_io.{spec.device}` set", spec.device),
+            ("the LiDARs", spec.lidars),
+            ("the control manager's configuration naming it (`odometry_controller`, `pinned`)", spec.when_chosen),
+        )
+        if on
+    ]
     return where + ("; with " + " and ".join(conditions) if conditions else "")
 
 
