@@ -1,5 +1,6 @@
 """Scenarios (scenarios/*.yaml): what happens around the simulated shuttle: obstacles and their
-motion, sensor and process faults, passengers at the POIs, the operator's actions."""
+motion, sensor and process faults, passengers at the POIs, the operator's actions, and what the
+human at the wheel does (steer, throttle, brake, the Auto/Manual button) at a time or a place."""
 
 from __future__ import annotations
 
@@ -163,10 +164,34 @@ class ScenarioFault(Params):
 
 
 class ScenarioOperatorAction(Params):
-    """An operator's action through the vehicle's services, at a stack time."""
+    """An operator's action through the vehicle's services, at a stack time (engage: the software
+    half of the Auto/Manual switch, `set_automatic_mode`, after the driver's button)."""
 
     at_t_s: float = param(doc="stack time", unit="s", ge=0)
-    action: Literal["rearm", "pause", "resume", "cancel"]
+    action: Literal["rearm", "pause", "resume", "cancel", "engage"]
+
+
+class ScenarioDriverAction(Params):
+    """What the person at the wheel does, at a stack time or where the shuttle first reaches a
+    point of the route: the simulator plays it as the `sim/driver` service does (the drive-by-wire
+    bridge sees the pedal, the wheel's torque or the button, and any of them takes it to Manual)."""
+
+    action: Literal["steer", "throttle", "brake", "button", "release"] = param(
+        doc="steer: hold the steering wheel at `value` degrees; throttle, brake: the pedal at `value` (0..1); "
+        "button: press Auto/Manual; release: let go of everything"
+    )
+    at_t_s: float | None = param(None, "stack time it happens ...", unit="s", ge=0)
+    at_s_m: float | None = param(None, "... or the route's arc length where the shuttle first reaches", unit="m", ge=0)
+    value: float = param(0.0, "steering-wheel angle (deg, + left) or pedal position (0..1)")
+    duration_s: float = param(1.0, "how long the hand or foot stays", unit="s", ge=0, le=600)
+
+    @model_validator(mode="after")
+    def _one_moment_and_a_pedal_within_its_travel(self) -> Self:
+        if (self.at_t_s is None) == (self.at_s_m is None):
+            raise ValueError(f"a driver's {self.action} happens at a time (at_t_s) or a place (at_s_m): one of them")
+        if self.action in ("throttle", "brake") and not 0.0 <= self.value <= 1.0:
+            raise ValueError(f"a pedal's position is within 0..1, got {self.value}")
+        return self
 
 
 class Scenario(Params):
@@ -179,6 +204,7 @@ class Scenario(Params):
     faults: list[ScenarioFault] = param(factory=list)
     passengers: list[ScenarioPassengers] = param(factory=list, doc="people waiting at the POIs")
     operator: list[ScenarioOperatorAction] = param(factory=list, doc="what the operator does, and when")
+    driver: list[ScenarioDriverAction] = param(factory=list, doc="what the person at the wheel does, when or where")
     start_s_m: float | None = param(
         None, "where along the route the shuttle stands at start (default: sim.start_s_m)", unit="m", ge=0
     )

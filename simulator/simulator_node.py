@@ -36,7 +36,7 @@ from ares.core.node import Input, Node, Output, service
 from ares.core.route import load_route
 from simulator.body import BodySim
 from simulator.params import SimParams
-from simulator.scenario import ScenarioFault, load_scenario
+from simulator.scenario import ScenarioDriverAction, ScenarioFault, load_scenario
 from simulator.sensors import SensorSuite
 from simulator.vehicle import VehiclePlant
 
@@ -130,6 +130,9 @@ class Simulator(Node):
         self.plant.state.t = now
         self.next_due = {name: now for name in self.periods}
         self.driver = DriverInputs()
+        # the scenario's driver actions still to come, and where the shuttle stood at the last step
+        self._scripted: list[ScenarioDriverAction] = list(scenario.driver) if scenario else []
+        self._scripted_s = self.plant.state.s
         self._injected: list[ScenarioFault] = []  # faults injected at run time (sim/sensor_fault)
         self._failsafe = False
         self.progress_m = 0.0  # along the route, unwrapped: laps = progress // length
@@ -138,7 +141,9 @@ class Simulator(Node):
     # ---- driver ---------------------------------------------------------------------------
     @service("sim/driver")
     def _driver_command(self, cmd: DriverCommand) -> Ack:
-        now = self.clock.now()
+        return self._drive(cmd, self.clock.now())
+
+    def _drive(self, cmd: DriverCommand, now: float) -> Ack:
         until = now + cmd.duration_s
         if cmd.action == "BUTTON":
             self._panel(PanelInput.BUTTON)
@@ -156,6 +161,33 @@ class Simulator(Node):
             self.driver.steer_deg, self.driver.steer_until = cmd.value, until
         self._panel(ACTION_PANEL[cmd.action], cmd.value)
         return Ack(t=now, ok=True, detail=f"{cmd.action.lower()} {cmd.value:g} for {cmd.duration_s:g} s")
+
+    def _play_scripted(self, t: float) -> None:
+        """The scenario's driver actions whose time has come or whose place the shuttle has reached."""
+        s_before, s_now = self._scripted_s, self.plant.state.s
+        self._scripted_s = s_now
+        due = [a for a in self._scripted if self._reached(a, t, s_before, s_now)]
+        for action in due:
+            self._scripted.remove(action)
+            cmd = DriverCommand(action=action.action.upper(), value=action.value, duration_s=action.duration_s)
+            ack = self._drive(cmd, t)
+            where = f"at t={t:.2f} s" if action.at_t_s is not None else f"at s={s_now:.1f} m"
+            self.event(
+                "driver_action",
+                f"the scenario's driver {where}: {ack.detail}",
+                action=action.action,
+                value=action.value,
+                duration_s=action.duration_s,
+                ok=ack.ok,
+            )
+
+    def _reached(self, action: ScenarioDriverAction, t: float, s_before: float, s_now: float) -> bool:
+        if action.at_t_s is not None:
+            return t >= action.at_t_s - 1e-9
+        at = float(action.at_s_m or 0.0)
+        if self.route.closed and s_now < s_before - 0.5 * self.route.length:  # across the start line
+            return at > s_before or at <= s_now
+        return s_before < at <= s_now
 
     # ---- fault injection at run time (a soak: ares.tools.soak) ------------------------------------
     @service("sim/sensor_fault")
@@ -198,6 +230,8 @@ class Simulator(Node):
     def _physics_step(self) -> None:
         st = self.plant.state
         t = self._physics_time(self._k + 1)
+        if self._scripted:
+            self._play_scripted(t)
         command = self._actuator_command(t)
         fresh = command is not None
         if self.driver.active(t):

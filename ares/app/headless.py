@@ -231,7 +231,8 @@ class Measurements:
 
 class Goal:
     """When a drive is done (N laps, an open route's end, or so many seconds) and when it has failed
-    (out of Automatic, standing for STANDSTILL_S where no manager says so, over its time limit)."""
+    (out of Automatic unless the scenario's driver takes over, standing for STANDSTILL_S where no
+    manager says so, over its time limit)."""
 
     def __init__(self, m: Measurements, t_start: float, laps: int = 1, seconds: float | None = None):
         self.m, self.t_start, self.laps, self.seconds = m, t_start, laps, seconds
@@ -247,7 +248,7 @@ class Goal:
         """Whether the drive is done at `now`; RunFailed if it can no longer be."""
         m, travelled = self.m, self.m.lap.travelled_m
         car, status, truth = m.cars.latest, m.statuses.latest, m.truth.latest
-        if car is not None and car.mode != DriveMode.AUTOMATIC:
+        if car is not None and car.mode != DriveMode.AUTOMATIC and not m.scenario.driver_takes_over:
             self._left_automatic += 1
             if self._left_automatic > LEFT_AUTOMATIC_CHECKS:
                 raise RunFailed(f"the vehicle left Automatic mode ({car.mode.value}: {car.reason})")

@@ -1,8 +1,9 @@
 """What a scenario does to a headless run from outside the simulator, at its stack times: process
 faults through the supervisor (kill, stop, hang) and the operator's actions through the vehicle's
-services (re-arm, pause, resume, cancel), signed with the vehicle's command key as the operator
-"scenario" (ares/core/signed_command.py). The simulator injects the sensor faults itself; they are
-noted here when their time comes, so that the safety figures can time the response to each."""
+services (engage: `set_automatic_mode`; re-arm, pause, resume, cancel, these four signed with the
+vehicle's command key as the operator "scenario": ares/core/signed_command.py). The simulator
+injects the sensor faults and plays the driver's actions itself; the faults are noted here when
+their time comes, so that the safety figures can time the response to each."""
 
 from __future__ import annotations
 
@@ -43,6 +44,8 @@ class ScenarioDriver:
                 key=lambda item: item[0],
             )
         self.done: list[list] = []  # [t, what, ok, detail]
+        # the person at the wheel takes over (the simulator plays it): Manual is then no failure
+        self.driver_takes_over = scenario is not None and bool(scenario.driver)
 
     def step(self, now: float) -> None:
         while self.timed and self.timed[0][0] <= now:
@@ -67,6 +70,10 @@ class ScenarioDriver:
 
     def _operator(self, now: float, action: str) -> None:
         try:
+            if action == "engage":  # the navigation's half of the switch: no person's signature to it
+                mode = self.bus.call("set_automatic_mode")
+                self.done.append([round(now, 2), action, mode.accepted, mode.reason])
+                return
             if action == "rearm":
                 service, request = "movement/rearm", RearmRequest(operator=OPERATOR)
             else:

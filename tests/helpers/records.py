@@ -42,3 +42,12 @@ def stored(path) -> tuple[list[int], list[dict]]:
         return ts, store.events(VEHICLE, PAST, FUTURE, limit=1_000_000)
     finally:
         store.close()
+
+
+def records(path) -> list[dict]:
+    """Every record of VEHICLE in the store file, oldest first."""
+    store = SqliteStore(str(path))
+    try:
+        return store.records(VEHICLE, PAST, FUTURE, limit=1_000_000)
+    finally:
+        store.close()
