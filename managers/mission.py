@@ -6,7 +6,8 @@ A goal is an ordered list of POIs, each with the actions the tour gives it, amon
 | action        | what the mission does                                  | done when                          |
 |---------------|--------------------------------------------------------|------------------------------------|
 | STOP          | limit 0 at the POI (the approach limit brought it)     | standing (speed <= stopped_mps)    |
-| FULL_STOP     | holds                                                  | standing for full_stop_s           |
+| FULL_STOP     | holds (at a tour's marked intersections, while         | standing for full_stop_s           |
+|               | driving: managers/intersection_stop.py)                |                                    |
 | OPENING_DOORS | opens the doors                                        | the doors' sensor says open        |
 | TAKEOFF_RAMP  | deploys the ramp (doors open)                          | the ramp's sensor says deployed    |
 | PICKUP_RAMP   | stows the ramp once nobody is on it                    | the ramp's sensor says stowed      |

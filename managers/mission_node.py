@@ -45,6 +45,7 @@ from ares.core.messages import (
 from ares.core.node import Input, Node, Output, service
 from ares.core.route import load_route
 from ares.core.signed_command import CommandVerifier, load_command_key
+from managers.intersection_stop import IntersectionStops, LineState
 from managers.mission import Body, Mission, MissionParams, MissionState, PoiGoal, body_request_refusal, ready_to_move
 
 
@@ -96,6 +97,8 @@ class MissionManager(Node):
     def setup(self) -> None:
         self.route = load_route(self.core)
         self.mission = Mission(params=self.params)
+        p = self.params
+        self.stop_lines = IntersectionStops(self.route, p.full_stop_s, p.reach_m, p.approach_decel_mps2)
         self.goal_id = 0
         self.kind = "none"
         self.targets: list[float] = []  # each POI's stop point as progress along the route (laps unwrapped)
@@ -323,12 +326,31 @@ class MissionManager(Node):
             self._report_end(m.result)
         # the limit: nothing moves without the body's state or where the POI is; it falls gently
         wanted = 0.0 if body is None else m.limit_mps(distance, body)
+        if m.state is MissionState.DRIVING:  # FULL_STOP at the marked intersections, through the same gate
+            wanted = min(wanted, self._stop_lines(now, match, speed))
         if wanted >= self._limit:
             self._limit = wanted
         else:
             from_speed = min(self._limit, speed if speed is not None else 0.0)
             self._limit = max(wanted, from_speed - self.params.pause_decel_mps2 * dt)
         self._publish(now, distance, body, speed)
+
+    def _stop_lines(self, now: float, match: PathMatch | None, speed: float | None) -> float:
+        standing = speed is not None and abs(speed) <= self.params.stopped_mps
+        limit, changes = self.stop_lines.step(now, None if match is None else match.s, standing)
+        for change in changes:
+            if change.state is LineState.STANDING:
+                self.event(
+                    "full_stop",
+                    f"FULL_STOP at the intersection's line (s={change.line:.0f} m): standing "
+                    f"{self.params.full_stop_s:g} s before crossing",
+                    line_s=change.line,
+                )
+            elif change.state is LineState.CLEARED:
+                self.event(
+                    "full_stop_cleared", f"the intersection at s={change.line:.0f} m: crossing", line_s=change.line
+                )
+        return limit
 
     def _next_round(self, match: PathMatch, body: Body) -> None:
         """A repeating tour: the route's POIs again, from the one after the last served."""

@@ -48,6 +48,7 @@ class Zone:
     kind: str  # "rtk_loss" (sky blocked) | "no_4g" (no corrections) | "intersection" | "road_opening" | "narrow"
     s_start: float
     s_end: float
+    full_stop: bool = False  # an intersection with a stop line at s_start (the mission's FULL_STOP)
 
     def contains(self, s: float) -> bool:
         return self.s_start <= s <= self.s_end
@@ -394,7 +395,7 @@ def tour_from_description(desc: TourDescription) -> Route:
     for stretch in desc.narrow:
         width[(s >= stretch.s_start) & (s <= stretch.s_end)] = stretch.width_m
     pois = [Poi(p.name, p.s, tuple(p.actions)) for p in desc.pois]
-    zones = [Zone(zd.kind, zd.s_start, zd.s_end) for zd in desc.zones]
+    zones = [Zone(zd.kind, zd.s_start, zd.s_end, zd.full_stop) for zd in desc.zones]
     zones += [Zone("narrow", n.s_start, n.s_end) for n in desc.narrow]
     verges = [Verge(v.s_start, v.s_end, v.left, v.right) for v in desc.verges]
     return Route(

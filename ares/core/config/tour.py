@@ -3,7 +3,9 @@ verges, POIs and their actions, RTK-loss zones, intersections, elevation)."""
 
 from __future__ import annotations
 
-from typing import Literal, get_args
+from typing import Literal, Self, get_args
+
+from pydantic import model_validator
 
 from ares.core.config.base import Params, load_yaml, named_file, param, validated
 
@@ -52,6 +54,17 @@ class TourZone(Params):
     )
     s_start: float = param(unit="m", ge=0)
     s_end: float = param(unit="m", ge=0)
+    full_stop: bool = param(
+        False,
+        "intersection: a stop line at s_start (a stop sign): the mission stands there mission_manager.full_stop_s "
+        "before it crosses (ARES §3.3's FULL_STOP, handed to the movement gate)",
+    )
+
+    @model_validator(mode="after")
+    def _full_stop_at_an_intersection(self) -> Self:
+        if self.full_stop and self.kind != "intersection":
+            raise ValueError(f"full_stop marks an intersection's stop line, not a {self.kind} zone")
+        return self
 
 
 VergeKind = Literal["grass", "rock_wall", "ravine", "kerb", "open"]
