@@ -75,7 +75,7 @@ def stack(tmp_path_factory, browser):
     store_path = tmp / "bb.sqlite"
     store = SqliteStore(str(store_path))
     passwords = Passwords(Argon2Settings(**FAST_ARGON2))
-    for role in ("operator", "auditor", "fleet"):
+    for role in ("operator", "auditor", "fleet", "passenger"):
         add_user(store, passwords, f"{role}1", role, PASSWORD, 10)
     store.close()
     # the tests log in often; the pages need the LiDARs' faults, not their detail: half the light rays
@@ -359,4 +359,38 @@ def test_the_fleet_page_shows_the_vehicle_and_refuses_an_operator(page, stack):
     assert pg.locator("#map canvas").count() >= 1  # the route and POIs drawn
     wait_for(lambda: pg.locator(f".leaflet-tooltip:has-text('{VEHICLE}')").count() == 1, 10, "the vehicle on the map")
     shot(pg, "fleet")
+    assert not [p for p in pg.problems if "favicon" not in p], pg.problems
+
+
+def test_a_passenger_sees_the_next_stop_and_why_the_shuttle_stands_in_their_language(page, stack):
+    """The kiosk's page (/passenger) as a passenger's token shows it: the tour's stops and the one
+    the mission drives to, and when the operator pauses the shuttle, the words that say so; the
+    language a passenger picks. The reasons for every other stand and the media: tests/test_passenger_view.py."""
+    pg, bus = page, stack["bus"]
+    mission = bus.subscribe("mission/status")
+    login(pg, stack["url"] + "/passenger", "passenger1")
+    pg.wait_for_selector("#app:not([hidden])")
+    wait_for(lambda: pg.locator("#stops li").count() == 5, 20, "the tour's five stops")
+    wait_for(
+        lambda: mission.latest is not None and pg.get_attribute("#next-stop", "data-value") == mission.latest.poi,
+        20,
+        "the mission's next stop on the page",
+    )
+    operator = rest(stack, "operator1")
+    try:
+        assert operator.post(f"/vehicles/{VEHICLE}/mission/pause").status_code == 200
+        wait_for(lambda: pg.get_attribute("#message", "data-reason") == "paused", 20, "the pause said to the passenger")
+        assert "paused by the operator" in pg.inner_text("#message")
+        pg.select_option("#language", "es")
+        assert pg.inner_text("#message") == "El operador ha detenido el vehículo."
+        assert pg.inner_text("#next-label") in ("Próxima parada", "Esta parada")
+        shot(pg, "passenger_paused")
+    finally:
+        resumed = operator.post(f"/vehicles/{VEHICLE}/mission/resume")
+    assert resumed.status_code == 200, resumed.text
+    wait_for(lambda: pg.get_attribute("#message", "data-reason") != "paused", 20, "the resume")
+    # the passenger's token reads nothing of the rest of the vehicle
+    passenger = rest(stack, "passenger1")
+    assert passenger.get(f"/vehicles/{VEHICLE}/records").status_code == 403
+    assert passenger.get("/route").status_code == 403
     assert not [p for p in pg.problems if "favicon" not in p], pg.problems

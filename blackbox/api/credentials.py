@@ -44,7 +44,7 @@ import jwt
 from ares.core.config import Params, param, read_secret
 from blackbox.register.store.record_store import RecordStore, User, utc_now
 
-ROLES = ("auditor", "operator", "fleet", "admin")
+ROLES = ("auditor", "operator", "fleet", "admin", "passenger")  # passenger: a kiosk's, the passenger page only
 USERNAME_RE = re.compile(r"^[a-z][a-z0-9_.-]{1,31}$")
 MAX_PASSWORD_CHARS = 256
 MAX_TOKEN_CHARS = 4096  # a real token is ~300 characters: anything huge is refused unread

@@ -27,6 +27,7 @@ ROLES_EXPORT = ("auditor",)  # export records (the black box interface)
 ROLES_EVENTS = ("auditor", "operator", "fleet")  # events and reliability summaries
 ROLES_SNAPSHOTS = ("auditor", "operator")  # incident snapshots (an operator: its own vehicle's only)
 ROLES_ADMIN = ("admin",)
+ROLES_PASSENGER = ("passenger", "operator")  # the passenger's view: the next stop, the doors, why it stands
 ROLES_COMMAND = ("operator",)  # the vehicle's services: re-arm, the mission's goal and actions, doors and ramp
 
 

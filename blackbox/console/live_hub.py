@@ -48,6 +48,7 @@ from ares.core.messages import (
     SpeedLimits,
     SupervisorState,
 )
+from blackbox.console.passenger_view import passenger_frame
 
 FORGET_AFTER_S = 3600.0  # a vehicle silent this long is dropped from memory
 
@@ -154,6 +155,7 @@ class _Vehicle:
     legs: LegTimer = field(default_factory=LegTimer)
     heard: float = 0.0
     grid_cache: tuple[object, dict] | None = None  # (the grid message, its thinned cells)
+    full_stop_at: float | None = None  # the line of the mission's intersection stop under way (its events)
 
 
 class LiveHub:
@@ -188,6 +190,9 @@ class LiveHub:
                 vehicle = self._vehicles[vehicle_id] = _Vehicle()
             vehicle.heard = wall
             if topic == "events":
+                if msg.kind in ("full_stop", "full_stop_cleared"):
+                    line = (msg.data or {}).get("line_s")
+                    vehicle.full_stop_at = float(line) if msg.kind == "full_stop" and line is not None else None
                 self._event_seq += 1
                 self._events.append(
                     {
@@ -293,6 +298,31 @@ class LiveHub:
         mission: MissionStatus | None = get["mission/status"]
         frame["pois"] = [] if mission is None else [p.model_dump(mode="json") for p in mission.pois]
         return frame
+
+    def passenger(self, vehicle_id: str, tour: str, stops: list[str]) -> dict | None:
+        """What the passenger page shows of one vehicle (blackbox/console/passenger_view.py)."""
+        now = self.now()
+        with self._lock:
+            vehicle = self._vehicles.get(vehicle_id)
+            if vehicle is None:
+                return None
+            get = {
+                t: self._fresh(vehicle, t, now)
+                for t in ("dbw/car_state", "mission/status", "movement/status", "body/state")
+            }
+            full_stop_at = vehicle.full_stop_at
+        car: CarState | None = get["dbw/car_state"]
+        return passenger_frame(
+            vehicle_id,
+            tour,
+            stops,
+            None if car is None else car.speed_mps,
+            get["mission/status"],
+            get["movement/status"],
+            get["body/state"],
+            full_stop_at,
+            now * 1e3,
+        )
 
     def fleet_frame(self) -> list[dict]:
         """The light view of every vehicle heard lately: where, how fast, its mission, whether late,

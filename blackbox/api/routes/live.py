@@ -4,6 +4,7 @@ tokens and roles as the rest of the API.
 | route                              | roles                      | what                                  |
 |------------------------------------|----------------------------|---------------------------------------|
 | GET /live/vehicles/{id}            | operator, auditor          | one vehicle, all the operator sees    |
+| GET /live/passenger                | passenger, operator        | this vehicle, as a passenger sees it  |
 | GET /live/fleet                    | fleet, operator, auditor   | every vehicle on the router, light    |
 | GET /fleet                         | fleet, operator, auditor   | the same, once (JSON)                 |
 | GET /route                         | fleet, operator, auditor   | this API's vehicle, its route, POIs   |
@@ -24,7 +25,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.responses import StreamingResponse
 
 from blackbox.api.credentials import Claims
-from blackbox.api.dependencies import ROLES_LIVE, ROLES_RECORDS, Services, allow, vehicle_id_path
+from blackbox.api.dependencies import ROLES_LIVE, ROLES_PASSENGER, ROLES_RECORDS, Services, allow, vehicle_id_path
 from blackbox.api.models import error_responses, json_response
 from blackbox.console.live_hub import LiveHub
 
@@ -52,6 +53,7 @@ def build_router(services: Services) -> APIRouter:
     VehicleId = vehicle_id_path(services.vehicle_id)
     Viewer = Annotated[Claims, Depends(allow(services.tokens, *ROLES_RECORDS))]
     Watcher = Annotated[Claims, Depends(allow(services.tokens, *ROLES_LIVE))]
+    Passenger = Annotated[Claims, Depends(allow(services.tokens, *ROLES_PASSENGER))]
     if services.live is None:
         raise ValueError("the live routes need the bus's live hub")
     gateway: LiveHub = services.live
@@ -93,6 +95,26 @@ def build_router(services: Services) -> APIRouter:
         def build(seq):
             frame = gateway.frame(vehicle_id) or {"vehicle_id": vehicle_id, "wall_ms": time.time() * 1e3}
             return frame, gateway.events_since(seq, vehicle_id)
+
+        return stream(request, claims, hz, build)
+
+    route_view = services.route or {}
+    tour = str(route_view.get("name", ""))
+    stops = [str(p["name"]) for p in route_view.get("pois", [])]
+
+    @router.get("/live/passenger", responses=error_responses(401, 403, 422, 429), response_class=StreamingResponse)
+    async def passenger_stream(request: Request, claims: Passenger, hz: Hz = min(rate, 2.0)):
+        """This API's vehicle as a passenger sees it: the tour, the next stop and the time to it, the
+        doors and the ramp, the media, and why the shuttle stands (a key and its English words)."""
+        vehicle_id = services.vehicle_id
+
+        def build(_seq):
+            frame = gateway.passenger(vehicle_id, tour, stops) or {
+                "vehicle_id": vehicle_id,
+                "tour": tour,
+                "stops": stops,
+            }
+            return frame, []
 
         return stream(request, claims, hz, build)
 

@@ -6,6 +6,7 @@ content-security policy (their own scripts and styles only, calls to this API on
 | /operator                | the vehicle live, its map, the operator's commands     | operator |
 | /blackbox                | records of a window: table, plots, CSV/JSON export     | auditor  |
 | /fleet                   | every vehicle on one map, events, late vehicles        | fleet    |
+| /passenger               | the next stop, the doors, why the shuttle stands       | passenger (a kiosk), operator |
 | /static/...              | the pages' scripts and styles (blackbox/web/static)    |          |
 | /vendor/leaflet, /uplot  | the map and plot libraries, installed from npm by the project's set-up |  |
 
@@ -26,7 +27,13 @@ MAP = ("/vendor/leaflet/leaflet.css", "/vendor/leaflet/leaflet.js")
 PLOTS = ("/vendor/uplot/uPlot.min.css", "/vendor/uplot/uPlot.iife.min.js")
 # page -> its title and library; its content is web/pages/<page>.main.html, its script web/static/<page>.js,
 # the frame around it (header, login, refusal) web/pages/frame.html
-PAGES = {"operator": ("operator", MAP), "blackbox": ("black box", PLOTS), "fleet": ("fleet", MAP)}
+NO_LIBRARY = ("", "")
+PAGES = {
+    "operator": ("operator", MAP),
+    "blackbox": ("black box", PLOTS),
+    "fleet": ("fleet", MAP),
+    "passenger": ("passenger", NO_LIBRARY),
+}
 PAGE_PATHS = ("/", *(f"/{name}" for name in PAGES))
 PAGE_PREFIXES = ("/static/", "/vendor/")
 
@@ -35,6 +42,10 @@ def render(name: str) -> str:
     """A page: the frame filled with its title, library and content."""
     title, (css, js) = PAGES[name]
     page = (WEB / "pages" / "frame.html").read_text()
+    if not css:  # a page without a library loads none
+        page = page.replace('<link rel="stylesheet" href="{{library_css}}">\n', "")
+    if not js:
+        page = page.replace('<script src="{{library_js}}"></script>\n', "")
     for key, value in (
         ("main", (WEB / "pages" / f"{name}.main.html").read_text().strip()),
         ("title", title),
