@@ -91,25 +91,25 @@ def test_the_drivers_takeovers_by_wheel_and_throttle_give_manual_at_once_and_the
     As an auditor reads it: the black box's events and its mode of each second."""
     result = drive(tmp_path, seconds=100, scenario="takeover")
     assert result["ok"] and result["collisions"] == 0 and result["invariant_violations"] == 0
-    assert [(a[0], a[1], a[2]) for a in result["scenario_actions"]] == [(31.0, "engage", True), (86.0, "engage", True)]
+    assert [(a[0], a[1], a[2]) for a in result["scenario_actions"]] == [(27.0, "engage", True), (88.0, "engage", True)]
     _, events = stored(tmp_path / "blackbox.sqlite")
     actions = [(e["t"], e["data"]["action"]) for e in events if e["kind"] == "driver_action"]
-    assert actions == [(12.0, "steer"), (30.0, "button"), (73.0, "throttle"), (85.0, "button")]
+    assert actions == [(12.0, "steer"), (26.5, "button"), (73.0, "throttle"), (87.5, "button")]
     changes = [(e["t"], e["message"].split(":")[0]) for e in events if e["kind"] == "mode_change"][
         2:
     ]  # after the start
     assert changes == [
         (12.0, "AUTOMATIC -> MANUAL"),  # the very step of the driver's hand: no latency beyond the bridge's tick
-        (30.0, "MANUAL -> READY"),
-        (31.0, "READY -> AUTOMATIC"),
+        (26.5, "MANUAL -> READY"),
+        (27.0, "READY -> AUTOMATIC"),  # the paper's 15 s in Manual
         (73.0, "AUTOMATIC -> MANUAL"),
-        (85.0, "MANUAL -> READY"),
-        (86.0, "READY -> AUTOMATIC"),
+        (87.5, "MANUAL -> READY"),
+        (88.0, "READY -> AUTOMATIC"),
     ]
     mode = {int(r["t"]): (r["mode"], r["speed_mps"]) for r in records(tmp_path / "blackbox.sqlite")}
-    assert all(mode[k][0] == "AUTOMATIC" for k in (*range(3, 12), *range(32, 73), *range(87, 100)))
-    assert all(mode[k][0] == "MANUAL" for k in (*range(13, 30), *range(74, 85)))
-    assert mode[25][1] == 0.0 and mode[82][1] == 0.0  # parked, nobody driving
+    assert all(mode[k][0] == "AUTOMATIC" for k in (*range(3, 12), *range(28, 73), *range(89, 100)))
+    assert all(mode[k][0] == "MANUAL" for k in (*range(13, 26), *range(74, 87)))
+    assert mode[24][1] == 0.0 and mode[85][1] == 0.0  # parked, nobody driving
     assert max(mode[k][1] for k in range(73, 77)) > max(mode[k][1] for k in range(68, 73))  # the driver's throttle
     assert mode[99][1] > 2.0  # and on again
 
