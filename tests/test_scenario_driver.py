@@ -1,7 +1,7 @@
 """The person at the wheel in a scenario (simulator/scenario.py `driver`): actions at a time or at
 a place along the route, played by the simulator as the `sim/driver` service plays them (panel
 events the drive-by-wire bridge reads, the plant driven by hand), each said in a `driver_action`
-event. The takeover they make in the whole stack (DBW Fig. 28): tests/test_in_process_stack.py."""
+event. The takeover they make in the whole stack (DBW Fig. 28): tests/test_reproduce.py (dbw-takeover)."""
 
 import pytest
 from pydantic import ValidationError

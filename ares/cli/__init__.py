@@ -10,6 +10,8 @@
     ares compare [--controllers LIST] [--route NAME|FILE] [--vehicle NAME] [--scenario NAME|FILE] [--laps N]
                  [--mission tour|drive] [--seconds S] [--config FILE] [--out PNG] [--json]
                                    the same headless run with each controller, figures side by side, and a picture
+    ares reproduce [--only ID ...] [--out DIR] [--quick] [--list] [--json]
+                                   the papers' experiments on ARES beside the papers' numbers: a report with pictures
     ares describe [NODE | --package NAME [--write]] [--json|--markdown|--architecture] [--config FILE]
                                    each process's inputs, outputs, services, parameters; the topic graph;
                                    docs/nodes.md (--markdown), docs/architecture.md (--architecture); a node
@@ -86,11 +88,11 @@
                                    simulated receiver, or a run's black box), and the share covered
     ares api [--host H] [--port P] [--store URI] [--insecure-http]
                                    serve the black box's REST API (HTTPS; self-signed certificate if none configured)
-    ares users add NAME --role auditor|operator|fleet|admin [--store URI]
+    ares users add NAME --role auditor|operator|fleet|admin|passenger [--store URI]
                                    add an API user; the password is read from stdin (asked twice on a terminal)
     ares users list [--store URI] [--json]
                                    list the API's users and their roles
-    ares users role NAME auditor|operator|fleet|admin [--store URI]
+    ares users role NAME auditor|operator|fleet|admin|passenger [--store URI]
                                    change a user's role (the tokens they hold are refused from then on)
     ares users passwd NAME [--store URI]
                                    change a user's password, read from stdin
@@ -160,6 +162,7 @@ from . import (
     mission,
     perception,
     record,
+    reproduce,
     route,
     run,
     sim,
@@ -170,6 +173,7 @@ from .args import CliError, Command
 COMMAND_GROUPS = (
     run,
     compare,
+    reproduce,
     inspect,
     bus_tools,
     record,

@@ -53,7 +53,6 @@ def build_router(services: Services) -> APIRouter:
     VehicleId = vehicle_id_path(services.vehicle_id)
     Viewer = Annotated[Claims, Depends(allow(services.tokens, *ROLES_RECORDS))]
     Watcher = Annotated[Claims, Depends(allow(services.tokens, *ROLES_LIVE))]
-    Passenger = Annotated[Claims, Depends(allow(services.tokens, *ROLES_PASSENGER))]
     if services.live is None:
         raise ValueError("the live routes need the bus's live hub")
     gateway: LiveHub = services.live
@@ -98,25 +97,7 @@ def build_router(services: Services) -> APIRouter:
 
         return stream(request, claims, hz, build)
 
-    route_view = services.route or {}
-    tour = str(route_view.get("name", ""))
-    stops = [str(p["name"]) for p in route_view.get("pois", [])]
-
-    @router.get("/live/passenger", responses=error_responses(401, 403, 422, 429), response_class=StreamingResponse)
-    async def passenger_stream(request: Request, claims: Passenger, hz: Hz = min(rate, 2.0)):
-        """This API's vehicle as a passenger sees it: the tour, the next stop and the time to it, the
-        doors and the ramp, the media, and why the shuttle stands (a key and its English words)."""
-        vehicle_id = services.vehicle_id
-
-        def build(_seq):
-            frame = gateway.passenger(vehicle_id, tour, stops) or {
-                "vehicle_id": vehicle_id,
-                "tour": tour,
-                "stops": stops,
-            }
-            return frame, []
-
-        return stream(request, claims, hz, build)
+    _add_passenger_route(router, services, gateway, stream, Hz)
 
     @router.get("/live/fleet", responses=error_responses(401, 403, 422, 429), response_class=StreamingResponse)
     async def fleet_stream(request: Request, claims: Watcher, hz: Hz = min(rate, 2.0)):
@@ -138,3 +119,28 @@ def build_router(services: Services) -> APIRouter:
             return json_response({"vehicle_id": services.vehicle_id, **known_route})
 
     return router
+
+
+def _add_passenger_route(router: APIRouter, services: Services, gateway: LiveHub, stream, hz_type) -> None:
+    """GET /live/passenger: this API's vehicle as a passenger sees it (the passenger page, a kiosk)."""
+    Passenger = Annotated[Claims, Depends(allow(services.tokens, *ROLES_PASSENGER))]
+    Hz = hz_type
+    route_view = services.route or {}
+    tour = str(route_view.get("name", ""))
+    stops = [str(p["name"]) for p in route_view.get("pois", [])]
+
+    @router.get("/live/passenger", responses=error_responses(401, 403, 422, 429), response_class=StreamingResponse)
+    async def passenger_stream(request: Request, claims: Passenger, hz: Hz = min(gateway.s.rate_hz, 2.0)):
+        """This API's vehicle as a passenger sees it: the tour, the next stop and the time to it, the
+        doors and the ramp, the media, and why the shuttle stands (a key and its English words)."""
+        vehicle_id = services.vehicle_id
+
+        def build(_seq):
+            frame = gateway.passenger(vehicle_id, tour, stops) or {
+                "vehicle_id": vehicle_id,
+                "tour": tour,
+                "stops": stops,
+            }
+            return frame, []
+
+        return stream(request, claims, hz, build)
