@@ -12,7 +12,7 @@ def cell(value) -> str:
     if value is None:
         return "–"
     if isinstance(value, float):
-        return f"{value:.4g}"
+        return f"{value + 0.0:.4g}"  # (+ 0.0: no "-0")
     return str(value)
 
 
