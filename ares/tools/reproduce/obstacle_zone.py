@@ -14,12 +14,9 @@ def run(ctx: Context) -> ExperimentResult:
     found = run_obstacle_zone_bench(step_m=10.0 if ctx.quick else 2.0, progress=ctx.progress)
     rows = [Row("frames in the narrow lane", None, found["frames"], "")]
     for shape in ("trapezoid", "rectangle", "trapezoid_arc", "rectangle_arc"):
-        rows.append(
-            Row(f"false stops, {shape.replace('_', ' along the arc, ')}", None, found[f"{shape}_false_stops"], "")
-        )
-        rows.append(
-            Row(f"false slows, {shape.replace('_', ' along the arc, ')}", None, found[f"{shape}_false_slows"], "")
-        )
+        label = shape.replace("_arc", " along the wheels' arc")
+        rows.append(Row(f"false stops, {label}", None, found[f"{shape}_false_stops"], ""))
+        rows.append(Row(f"false slows, {label}", None, found[f"{shape}_false_slows"], ""))
     fewer = found["trapezoid_false_stops"] + found["trapezoid_false_slows"]
     more = found["rectangle_false_stops"] + found["rectangle_false_slows"]
     rows.append(Row("the trapezoid avoids the rectangle's false detections", "yes (Fig. 14a-b)",
