@@ -211,6 +211,16 @@ def test_the_operator_sees_the_vehicle_live_pauses_it_and_re_arms_after_a_covere
     # live values change from frame to frame
     wait_for_the_shuttle(stack, lambda: field(pg, "speed_mps") not in ("", "0"), 30, "a speed on the page")
     first = (field(pg, "speed_mps"), field(pg, "steering_wheel_deg"))
+    # every panel fits its column, at a laptop's width too: the processes' table whole, not cut off
+    pg.set_viewport_size({"width": 1400, "height": 900})
+    wait_for(lambda: pg.locator("#processes tr").count() > 10, 10, "the processes listed")
+    overflow = pg.evaluate(
+        "[...document.querySelectorAll('#app .card')].map(c => c.scrollWidth - c.clientWidth)"
+        ".concat([...document.querySelectorAll('#app .scroll')].map(s => s.scrollWidth - s.clientWidth))"
+    )
+    assert max(overflow) <= 0, overflow
+    shot(pg, "operator_1400px")
+    pg.set_viewport_size({"width": 1024, "height": 900})
     wait_for(lambda: (field(pg, "speed_mps"), field(pg, "steering_wheel_deg")) != first, 10, "live values to change")
     assert field(pg, "mode") == "AUTOMATIC" and field(pg, "controller")
     wait_for(lambda: pg.locator("#events li").count() > 0, 10, "events on the page")
