@@ -25,11 +25,11 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ares.core.config import Params, VehicleProfile, param
+from ares.core.config import VehicleProfile, param
+from control.path_tracking import TrackerParams
 
 
-class ControllerParams(Params):
-    rate_hz: float = param(20.0, "loop and setpoint rate", unit="Hz", gt=0)
+class ControllerParams(TrackerParams):
     lookahead_min_m: float = param(1.0, "shortest lookahead", unit="m", gt=0)
     lookahead_gain_s: float = param(
         1.1,
@@ -40,21 +40,6 @@ class ControllerParams(Params):
         ge=0,
     )
     lookahead_max_m: float = param(5.0, "longest lookahead", unit="m", gt=0)
-    max_heading_sigma_rad: float = param(
-        0.05, "above this (start-up: the magnetometer's guess) follow the path's curvature ...", unit="rad", gt=0
-    )
-    creep_speed_mps: float = param(
-        1.0, "... no faster than this, until yaw from poses has fixed the heading", unit="m/s", gt=0
-    )
-    input_timeout_s: float = param(
-        1.0,
-        "an older pose or path match: no setpoint (the bridge's watchdog stops). At "
-        "--speed 5, 1 s of vehicle time is 0.2 s of wall time: less would read a "
-        "busy machine as a dead localization",
-        unit="s",
-        gt=0,
-    )
-    finish_distance_m: float = param(0.5, "an open route is finished this close to its end", unit="m", gt=0)
 
 
 @dataclass

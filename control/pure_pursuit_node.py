@@ -6,10 +6,9 @@ node stays silent, so the control manager never forwards a command made from sta
 
 from __future__ import annotations
 
-import math
-
 from ares.core.messages import ControlCandidate
 from ares.core.node import Input, Node, Output
+from control.path_tracking import track
 from control.pure_pursuit import ControllerParams, PurePursuit
 
 
@@ -30,24 +29,7 @@ class PurePursuitNode(Node):
         pose, match = self.pose.fresh(now), self.path.fresh(now)
         if pose is None or match is None:
             return  # stay silent: the control manager must not forward a command from stale data
-        heading_sigma = math.sqrt(max(pose.var_yaw, 0.0))
-        cmd = self.pursuit.command(
-            pose.x,
-            pose.y,
-            pose.yaw,
-            pose.v,
-            match.ahead_x,
-            match.ahead_y,
-            match.ahead_speed,
-            match.distance_to_end_m,
-            heading_sigma=heading_sigma,
-            ahead_curvature=match.ahead_curvature,
-        )
-        note = (
-            "creeping: heading uncertain"
-            if heading_sigma > self.pursuit.max_heading_sigma
-            else f"lookahead {cmd.lookahead_m:.2f} m"
-        )
+        cmd, creeping = track(self.pursuit, pose, match)
         self.candidate.put(
             ControlCandidate(
                 t=now,
@@ -56,6 +38,6 @@ class PurePursuitNode(Node):
                 kappa=cmd.kappa,
                 cross_track_m=match.xte,
                 heading_error_rad=match.heading_error,
-                note=note,
+                note="creeping: heading uncertain" if creeping else f"lookahead {cmd.lookahead_m:.2f} m",
             )
         )

@@ -23,24 +23,16 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ares.core.config import Params, VehicleProfile, param
+from ares.core.config import VehicleProfile, param
 from ares.core.geometry import wrap_angle
+from control.path_tracking import TrackerParams
 
 
-class StanleyParams(Params):
-    rate_hz: float = param(20.0, "loop and candidate rate", unit="Hz", gt=0)
+class StanleyParams(TrackerParams):
     gain_per_s: float = param(
         1.5, "k: how hard the front axle's offset is closed (rad of steering per m at 1 m/s)", unit="1/s", gt=0
     )
     softening_mps: float = param(1.0, "k_soft: keeps the offset's term bounded at a standstill", unit="m/s", gt=0)
-    max_heading_sigma_rad: float = param(
-        0.05, "above this (start-up: the magnetometer's guess) follow the path's curvature ...", unit="rad", gt=0
-    )
-    creep_speed_mps: float = param(
-        1.0, "... no faster than this, until yaw from poses has fixed the heading", unit="m/s", gt=0
-    )
-    input_timeout_s: float = param(1.0, "an older pose or path match: no candidate", unit="s", gt=0)
-    finish_distance_m: float = param(0.5, "an open route is finished this close to its end", unit="m", gt=0)
 
 
 @dataclass

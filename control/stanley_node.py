@@ -8,10 +8,9 @@ so the control manager never forwards a command made from stale data.
 
 from __future__ import annotations
 
-import math
-
 from ares.core.messages import ControlCandidate
 from ares.core.node import Input, Node, Output
+from control.path_tracking import track
 from control.stanley import Stanley, StanleyParams
 
 
@@ -32,20 +31,7 @@ class StanleyNode(Node):
         pose, match = self.pose.fresh(now), self.path.fresh(now)
         if pose is None or match is None:
             return  # stay silent: the control manager must not forward a command from stale data
-        heading_sigma = math.sqrt(max(pose.var_yaw, 0.0))
-        cmd = self.law.command(
-            pose.x,
-            pose.y,
-            pose.yaw,
-            pose.v,
-            match.ahead_x,
-            match.ahead_y,
-            match.ahead_speed,
-            match.distance_to_end_m,
-            heading_sigma=heading_sigma,
-            ahead_curvature=match.ahead_curvature,
-        )
-        creeping = heading_sigma > self.law.max_heading_sigma
+        cmd, creeping = track(self.law, pose, match)
         self.candidate.put(
             ControlCandidate(
                 t=now,
